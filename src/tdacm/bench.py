@@ -1,0 +1,99 @@
+"""Model benchmark (``tdacm bench``): median cost of the dynamics and passive real-time factor.
+
+Measured in one run, for the paper system (``n = 8``) and a richer rod (torsion and both
+bendings of order 3, ``n = 18``):
+
+* ``terms``: one full :meth:`TDACM.terms` call (M, C, D, K, tau_ext, B) from Python;
+* ``forward_dynamics`` through the Python API and through the numba kernel (what integrators use);
+* the real-time factor of 5 s of passive motion with the default integrator (RK4 at
+  :meth:`TDACM.suggested_dt`), from a bent, moving initial state.
+
+Medians over ``repeats`` repetitions; the spread is the interquartile range.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .rod import StrainBasis
+from .system import kernels as K
+from .system import paper_system, simulate
+
+
+def _median_time(fn, number, repeats):
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        samples.append((time.perf_counter() - t0) / number)
+    a = np.array(samples)
+    return float(np.median(a)), float(np.percentile(a, 75) - np.percentile(a, 25))
+
+
+def bench_system(name, system, repeats=7, duration=5.0):
+    rng = np.random.default_rng(0)
+    q = np.zeros(system.n)
+    q[5] = 3.0
+    q[6:] = rng.normal(size=system.n_s) * 0.3
+    qd = rng.normal(size=system.n) * 0.1
+    u = np.r_[np.full(4, system.total_mass * 9.81 / 4), np.zeros(system.n_a)]
+    m, loads = system.model_arrays, system.loads.packed()
+    # warm-up (compilation is cached on disk after the first run)
+    system.terms(q, qd)
+    system.forward_dynamics(q, qd, u)
+    simulate(system, q, qd, duration=0.02, u=u)
+    t_terms = _median_time(lambda: system.terms(q, qd), 2000, repeats)
+    t_fd_api = _median_time(lambda: system.forward_dynamics(q, qd, u), 5000, repeats)
+    t_fd_kernel = _median_time(lambda: K.forward_dynamics(q, qd, u, m, loads), 5000, repeats)
+    dt = system.suggested_dt()
+    walls = []
+    for _ in range(max(3, repeats // 2)):
+        t0 = time.perf_counter()
+        res = simulate(system, q, qd, duration=duration, dt=dt, u=u, record_dt=0.01)
+        walls.append(time.perf_counter() - t0)
+    wall = float(np.median(walls))
+    return {
+        "system": name,
+        "n": system.n,
+        "n_gauss": system.rod.n_gauss,
+        "terms_us": t_terms[0] * 1e6,
+        "terms_iqr_us": t_terms[1] * 1e6,
+        "forward_dynamics_api_us": t_fd_api[0] * 1e6,
+        "forward_dynamics_kernel_us": t_fd_kernel[0] * 1e6,
+        "forward_dynamics_kernel_iqr_us": t_fd_kernel[1] * 1e6,
+        "rk4_dt_s": dt,
+        "passive_sim_s": duration,
+        "passive_wall_s": wall,
+        "real_time_factor": duration / wall,
+        "completed": bool(res.completed),
+    }
+
+
+def run_model_bench(out="out/bench", repeats=7) -> dict:
+    systems = [
+        ("paper (2 bending, order 0)", paper_system()),
+        (
+            "rich (torsion + 2 bending, order 3)",
+            paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4),
+        ),
+    ]
+    rows = [bench_system(name, s, repeats) for name, s in systems]
+    print(
+        f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} {'RK4 dt':>9s} {'RTF':>8s}"
+    )
+    for r in rows:
+        print(
+            f"{r['system']:38s} {r['n']:3d} {r['terms_us']:8.1f}us {r['forward_dynamics_api_us']:8.1f}us "
+            f"{r['forward_dynamics_kernel_us']:9.1f}us {r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
+        )
+    result = {"model": rows, "machine_note": "medians; IQR in *_iqr_us"}
+    path = Path(out)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "bench.json").write_text(json.dumps(result, indent=2))
+    print(f"\nwritten {path.resolve() / 'bench.json'}")
+    return result

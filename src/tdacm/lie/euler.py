@@ -1,0 +1,79 @@
+"""ZYX Euler angles of the drone (paper, eqs. (1) and (4)).
+
+``R_b = Rz(psi) Ry(theta) Rx(phi)``; the body angular velocity is ``w_b = T(Phi) Phi_dot`` with
+
+    T = [[1, 0, -sin th], [0, cos phi, sin phi cos th], [0, -sin phi, cos phi cos th]].
+
+``T`` is singular at ``theta = +-pi/2`` (gimbal lock); callers that invert it check
+:func:`is_singular` first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: |cos(theta)| below this is treated as the Euler singularity.
+SINGULAR_COS = 1e-6
+
+
+@njit(cache=True)
+def rot_zyx(phi, theta, psi):
+    """``Rz(psi) Ry(theta) Rx(phi)``."""
+    cf, sf = np.cos(phi), np.sin(phi)
+    ct, st = np.cos(theta), np.sin(theta)
+    cp, sp = np.cos(psi), np.sin(psi)
+    r = np.empty((3, 3))
+    r[0, 0] = cp * ct
+    r[0, 1] = cp * st * sf - sp * cf
+    r[0, 2] = cp * st * cf + sp * sf
+    r[1, 0] = sp * ct
+    r[1, 1] = sp * st * sf + cp * cf
+    r[1, 2] = sp * st * cf - cp * sf
+    r[2, 0] = -st
+    r[2, 1] = ct * sf
+    r[2, 2] = ct * cf
+    return r
+
+
+@njit(cache=True)
+def euler_rate_matrix(phi, theta):
+    """``T(phi, theta)`` of paper eq. (4): Euler rates -> body angular velocity."""
+    cf, sf = np.cos(phi), np.sin(phi)
+    ct, st = np.cos(theta), np.sin(theta)
+    t = np.zeros((3, 3))
+    t[0, 0] = 1.0
+    t[0, 2] = -st
+    t[1, 1] = cf
+    t[1, 2] = sf * ct
+    t[2, 1] = -sf
+    t[2, 2] = cf * ct
+    return t
+
+
+@njit(cache=True)
+def euler_rate_matrix_dot(phi, theta, phi_dot, theta_dot):
+    """Time derivative of :func:`euler_rate_matrix`."""
+    cf, sf = np.cos(phi), np.sin(phi)
+    ct, st = np.cos(theta), np.sin(theta)
+    t = np.zeros((3, 3))
+    t[0, 2] = -ct * theta_dot
+    t[1, 1] = -sf * phi_dot
+    t[1, 2] = cf * ct * phi_dot - sf * st * theta_dot
+    t[2, 1] = -cf * phi_dot
+    t[2, 2] = -sf * ct * phi_dot - cf * st * theta_dot
+    return t
+
+
+def is_singular(theta: float) -> bool:
+    """True at the ZYX gimbal lock ``theta = +-pi/2`` (within :data:`SINGULAR_COS`)."""
+    return abs(np.cos(theta)) < SINGULAR_COS
+
+
+def euler_from_rotation(r: np.ndarray) -> np.ndarray:
+    """``[phi, theta, psi]`` of a rotation matrix (ZYX), ``theta`` in ``[-pi/2, pi/2]``."""
+    r = np.asarray(r, dtype=float)
+    theta = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
+    phi = np.arctan2(r[2, 1], r[2, 2])
+    psi = np.arctan2(r[1, 0], r[0, 0])
+    return np.array([phi, theta, psi])

@@ -1,0 +1,499 @@
+"""Numba kernels of the coupled TD-ACM model (paper eqs. (5)-(22)).
+
+One forward recursion along the rod carries, from the drone to the tip, the pose ``g``, the
+Jacobian ``J`` (6 x n, local frame) and its time derivative ``J_dot``:
+
+    J_0 = Ad(g_a^b)^-1 J_b^b,                                   (paper eq. (9), first term)
+    J_{k+1} = Ad(exp Omega_k)^-1 (J_k + [0 | T(Omega_k) Z_k]),   (eq. (9), second term, discretized)
+    J_dot_{k+1} = Ad(exp Omega_k)^-1 (J_dot_k + [0 | T_dot Z_k + T Z_dot_k]) - ad(w_k) J_{k+1},
+
+with ``w_k = Ad(exp Omega_k)^-1 T Z_k qdot_s`` the relative twist of the step.  At every Gauss
+point the section adds its share to ``M`` (eq. (10)), ``C`` (eq. (11)) and ``tau_ext`` (eq. (16));
+the tip body adds its own.  The gyroscopic term is written ``-S(Mbar eta) J`` (see
+:func:`tdacm.lie.se3.wrench_skew`), equal to ``coad(eta) Mbar J`` when multiplied by ``qdot``,
+which makes ``Mdot - 2C`` skew-symmetric.
+
+Generalized coordinates ``q = [phi, theta, psi, x, y, z, q_s]`` for a floating base, ``q = q_s``
+for a fixed base.  The packed load vector ``loads`` (27,) is
+``[gravity(3), base wrench in O_b (6), rod wrench density in O_s (6), rod force density in the
+inertial frame (3), tip wrench in O_L (6), tip force in the inertial frame (3)]``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..lie.blocks import ad_apply, adinv_apply, expmap_rp, skew_apply_sub, tangent_apply
+from ..lie.euler import euler_rate_matrix, euler_rate_matrix_dot, rot_zyx
+from ..lie.magnus import magnus_step
+
+
+class ModelArrays(NamedTuple):
+    """Constant arrays of a built model, passed to every kernel (see ``TDACM``)."""
+
+    floating: bool
+    g_fixed: np.ndarray  # (4, 4) clamp pose (fixed base only)
+    g_att: np.ndarray  # (4, 4) attachment g_a^b
+    h: np.ndarray  # (n_steps,) Magnus step lengths (m)
+    xi0s: np.ndarray  # (n_steps, p, 6) reference strain at the Magnus sample points
+    bs: np.ndarray  # (n_steps, p, 6, n_s) basis at the Magnus sample points
+    wq: np.ndarray  # (n_gauss,) quadrature weights (m)
+    mbar: np.ndarray  # (6,) diagonal of the section inertia density
+    tip6: np.ndarray  # (6,) diagonal of the tip body inertia
+    mb6: np.ndarray  # (6,) diagonal of the drone inertia (zeros for a fixed base)
+    stiffness: np.ndarray  # (n, n) generalized stiffness, K(q) = stiffness @ q (eq. (18))
+    damping: np.ndarray  # (n, n) generalized damping D (eq. (17), (19))
+    gamma: np.ndarray  # (6, 4) motor thrusts -> body wrench (eq. (15))
+    xi0g: np.ndarray  # (n_gauss, 6) reference strain at the Gauss points
+    bg: np.ndarray  # (n_gauss, 6, n_s) basis at the Gauss points
+    tendon_d: np.ndarray  # (n_gauss, n_a, 3) tendon offsets
+    tendon_dd: np.ndarray  # (n_gauss, n_a, 3) d(offset)/ds
+
+
+LOAD_SLICES = {
+    "gravity": slice(0, 3),
+    "base_wrench": slice(3, 9),
+    "rod_wrench": slice(9, 15),
+    "rod_force": slice(15, 18),
+    "tip_wrench": slice(18, 24),
+    "tip_force": slice(24, 27),
+}
+N_LOADS = 27
+
+
+@njit(cache=True)
+def base_state(q, qd, floating, g_fixed, n):
+    """Drone pose ``g_b``, its Jacobian ``J_b^b`` (6 x n, eq. (3)) and ``J_dot_b^b``."""
+    jb = np.zeros((6, n))
+    jbd = np.zeros((6, n))
+    if not floating:
+        return g_fixed.copy(), jb, jbd
+    r = rot_zyx(q[0], q[1], q[2])
+    t = euler_rate_matrix(q[0], q[1])
+    td = euler_rate_matrix_dot(q[0], q[1], qd[0], qd[1])
+    g = np.eye(4)
+    g[:3, :3] = r
+    g[:3, 3] = q[3:6]
+    w = np.zeros(3)
+    for i in range(3):
+        for k in range(3):
+            w[i] += t[i, k] * qd[k]
+            jb[i, k] = t[i, k]
+            jbd[i, k] = td[i, k]
+            jb[3 + i, 3 + k] = r[k, i]
+    # d/dt R^T = -w~ R^T
+    for i in range(3):
+        for k in range(3):
+            acc = 0.0
+            for p in range(3):
+                acc -= skew_entry(w, i, p) * r[k, p]
+            jbd[3 + i, 3 + k] = acc
+    return g, jb, jbd
+
+
+@njit(cache=True, inline="always")
+def skew_entry(w, i, p):
+    if i == p:
+        return 0.0
+    if i == 0:
+        return -w[2] if p == 1 else w[1]
+    if i == 1:
+        return w[2] if p == 0 else -w[0]
+    return -w[1] if p == 0 else w[0]
+
+
+@njit(cache=True)
+def _matvec(a, x):
+    out = np.zeros(a.shape[0])
+    for i in range(a.shape[0]):
+        acc = 0.0
+        for k in range(a.shape[1]):
+            acc += a[i, k] * x[k]
+        out[i] = acc
+    return out
+
+
+@njit(cache=True)
+def _matmul(a, b):
+    out = np.zeros((a.shape[0], b.shape[1]))
+    for i in range(a.shape[0]):
+        for k in range(a.shape[1]):
+            aik = a[i, k]
+            for c in range(b.shape[1]):
+                out[i, c] += aik * b[k, c]
+    return out
+
+
+@njit(cache=True)
+def _tmatvec_add(a, x, weight, out):
+    """``out += weight * a^T x``."""
+    for k in range(a.shape[1]):
+        acc = 0.0
+        for i in range(a.shape[0]):
+            acc += a[i, k] * x[i]
+        out[k] += weight * acc
+
+
+@njit(cache=True)
+def _add_body(mass6, j, jd, eta, jdq, weight, want_c, m_out, c_out, cqd_out):
+    """Add a body (or a Gauss section with weight ``w``) with diagonal inertia ``mass6``.
+
+    ``M += w J^T Mb J``; ``C qdot += w J^T (Mb J_dot qdot + coad(eta) Mb eta)``; and when
+    ``want_c``, ``C += w J^T (Mb J_dot - S(Mb eta) J)``  (``eta = J qdot``, ``jdq = J_dot qdot``).
+    """
+    n = j.shape[1]
+    for a in range(n):
+        for b in range(a, n):
+            acc = 0.0
+            for r in range(6):
+                acc += j[r, a] * mass6[r] * j[r, b]
+            m_out[a, b] += weight * acc
+            if b != a:
+                m_out[b, a] += weight * acc
+    mu = mass6 * eta
+    # Mb J_dot qdot + coad(eta) mu, with coad(eta) mu = -S(mu) eta
+    force = np.empty((6, 1))
+    e = np.empty((6, 1))
+    for r in range(6):
+        force[r, 0] = mass6[r] * jdq[r]
+        e[r, 0] = eta[r]
+    skew_apply_sub(mu, e, force)
+    for a in range(n):
+        acc = 0.0
+        for r in range(6):
+            acc += j[r, a] * force[r, 0]
+        cqd_out[a] += weight * acc
+    if want_c:
+        tmp = np.empty((6, n))
+        for r in range(6):
+            for c in range(n):
+                tmp[r, c] = mass6[r] * jd[r, c]
+        skew_apply_sub(mu, j, tmp)
+        for a in range(n):
+            for b in range(n):
+                acc = 0.0
+                for r in range(6):
+                    acc += j[r, a] * tmp[r, b]
+                c_out[a, b] += weight * acc
+
+
+@njit(cache=True)
+def chain_start(q, qd, floating, g_fixed, g_att):
+    """Drone pose, then pose, Jacobian, Jacobian rate and ``J_dot qdot`` of the rod base ``O_a``.
+
+    Returns ``g_b, J_b^b, J_dot_b^b, g_a, J_a, J_dot_a, J_dot_a qdot`` with
+    ``J_a = Ad(g_a^b)^-1 J_b^b``.
+    """
+    n = q.shape[0]
+    gb, jb, jbd = base_state(q, qd, floating, g_fixed, n)
+    ra = g_att[:3, :3].copy()
+    pa = g_att[:3, 3].copy()
+    j = jb.copy()
+    jd = jbd.copy()
+    adinv_apply(ra, pa, j)
+    adinv_apply(ra, pa, jd)
+    return gb, jb, jbd, _matmul(gb, g_att), j, jd, _matvec(jd, qd)
+
+
+@njit(cache=True)
+def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate):
+    """One Magnus step of the pose / Jacobian / Jacobian-rate recursion (module docstring).
+
+    Updates in place ``g`` (4x4), ``j`` (6 x n), the twist ``eta = J qdot`` and
+    ``jdq = J_dot qdot``; ``jd`` (6 x n) too when ``full_rate`` (needed for the matrix ``C``,
+    not for the forward dynamics).
+    """
+    omega, z, zdq, zd = magnus_step(h, xi0s, bs, qs, qsd)
+    ns = qs.shape[0]
+    r, p = expmap_rp(omega)
+    # one pass of the tangent operator over the columns [Z | Omega_dot | Z_dot qdot (| Z_dot)]
+    ncol = ns + 2 + (ns if full_rate else 0)
+    x = np.empty((6, ncol))
+    omega_dot = np.zeros(6)
+    for i in range(6):
+        acc = 0.0
+        for c in range(ns):
+            x[i, c] = z[i, c]
+            acc += z[i, c] * qsd[c]
+            if full_rate:
+                x[i, ns + 2 + c] = zd[i, c]
+        omega_dot[i] = acc
+        x[i, ns] = acc
+        x[i, ns + 1] = zdq[i]
+    tx, tdx = tangent_apply(omega, omega_dot, x, True)
+    # increments before the change of frame; T Omega_dot is the relative twist of the step
+    w = np.empty((6, 1))
+    v = np.empty((6, 1))
+    for i in range(6):
+        for c in range(ns):
+            j[i, off + c] += tx[i, c]
+            if full_rate:
+                jd[i, off + c] += tdx[i, c] + tx[i, ns + 2 + c]
+        w[i, 0] = tx[i, ns]
+        v[i, 0] = jdq[i] + tdx[i, ns] + tx[i, ns + 1]
+        eta[i] += tx[i, ns]
+    adinv_apply(r, p, j)
+    adinv_apply(r, p, w)
+    adinv_apply(r, p, v)
+    e = np.empty((6, 1))
+    for i in range(6):
+        e[i, 0] = eta[i]
+    adinv_apply(r, p, e)
+    wv = w[:, 0].copy()
+    tmp = np.empty((6, 1))
+    ad_apply(wv, e, tmp)
+    for i in range(6):
+        eta[i] = e[i, 0]
+        jdq[i] = v[i, 0] - tmp[i, 0]
+    if full_rate:
+        adinv_apply(r, p, jd)
+        tmpj = np.empty((6, j.shape[1]))
+        ad_apply(wv, j, tmpj)
+        jd -= tmpj
+    # g <- g exp(Omega)
+    gr = g[:3, :3].copy()
+    for i in range(3):
+        acc = 0.0
+        for k in range(3):
+            acc += gr[i, k] * p[k]
+        g[i, 3] += acc
+        for c in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += gr[i, k] * r[k, c]
+            g[i, c] = acc
+
+
+@njit(cache=True)
+def coupled_terms(q, qd, m, loads, want_c):
+    """``M``, ``C`` (zeros unless ``want_c``), ``C qdot``, ``tau_ext``, tip pose, tip ``J``, tip
+    ``J_dot`` (paper eqs. (10), (11), (16)); the last is zeros unless ``want_c``.
+
+    ``m`` is a :class:`ModelArrays`: ``m.h`` (n_steps,) step lengths in metres, the first
+    ``n_steps - 1`` steps ending at the Gauss points (weights ``m.wq`` in metres), the last at the
+    tip; ``m.mbar``, ``m.tip6`` and ``m.mb6`` are the diagonals of the section inertia density,
+    the tip body and the drone inertia.
+    """
+    floating = m.floating
+    mbar = m.mbar
+    tip6 = m.tip6
+    n = q.shape[0]
+    off = 6 if floating else 0
+    qs = q[off:]
+    qsd = qd[off:]
+    m_out = np.zeros((n, n))
+    c_out = np.zeros((n, n))
+    cqd = np.zeros(n)
+    tau = np.zeros(n)
+    grav = loads[0:3]
+    gb, jb, jbd, g, j, jd, jdq = chain_start(q, qd, floating, m.g_fixed, m.g_att)
+    f = np.empty(6)
+    if floating:
+        _add_body(m.mb6, jb, jbd, _matvec(jb, qd), _matvec(jbd, qd), 1.0, want_c, m_out, c_out, cqd)
+        for i in range(6):
+            f[i] = loads[3 + i]
+        for i in range(3):
+            for k in range(3):
+                f[3 + i] += m.mb6[3] * gb[k, i] * grav[k]
+        _tmatvec_add(jb, f, 1.0, tau)
+    eta = _matvec(j, qd)
+    nsteps = m.h.shape[0]
+    for k in range(nsteps):
+        rod_step(m.h[k], m.xi0s[k], m.bs[k], qs, qsd, off, g, j, jd, eta, jdq, want_c)
+        if k < nsteps - 1:
+            w = m.wq[k]
+            mass6 = mbar
+            lo = 9
+        else:
+            w = 1.0
+            mass6 = tip6
+            lo = 18
+        if mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0:
+            pass
+        else:
+            _add_body(mass6, j, jd, eta, jdq, w, want_c, m_out, c_out, cqd)
+        for i in range(6):
+            f[i] = loads[lo + i]
+        for i in range(3):
+            for kk in range(3):
+                f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
+        _tmatvec_add(j, f, w, tau)
+    return m_out, c_out, cqd, tau, g, j, jd
+
+
+@njit(cache=True)
+def chain_poses(q, floating, g_fixed, g_att, h, xi0s, bs):
+    """Poses after every Magnus step (n_steps, 4, 4), the rod base pose and the drone pose."""
+    off = 6 if floating else 0
+    qs = q[off:]
+    zero = np.zeros(qs.shape[0])
+    gb, _, _ = base_state(q, np.zeros(q.shape[0]), floating, g_fixed, q.shape[0])
+    g = _matmul(gb, g_att)
+    g0 = g.copy()
+    out = np.empty((h.shape[0], 4, 4))
+    for k in range(h.shape[0]):
+        omega, _, _, _ = magnus_step(h[k], xi0s[k], bs[k], qs, zero)
+        r, p = expmap_rp(omega)
+        e = np.eye(4)
+        e[:3, :3] = r
+        e[:3, 3] = p
+        g = _matmul(g, e)
+        out[k] = g
+    return out, g0, gb
+
+
+@njit(cache=True)
+def chain_jacobian(q, qd, floating, g_fixed, g_att, h, xi0s, bs):
+    """Pose, Jacobian and Jacobian rate at the end of an arbitrary chain of Magnus steps."""
+    off = 6 if floating else 0
+    qs = q[off:]
+    qsd = qd[off:]
+    _, _, _, g, j, jd, jdq = chain_start(q, qd, floating, g_fixed, g_att)
+    eta = _matvec(j, qd)
+    for k in range(h.shape[0]):
+        rod_step(h[k], xi0s[k], bs[k], qs, qsd, off, g, j, jd, eta, jdq, True)
+    return g, j, jd
+
+
+@njit(cache=True)
+def cholesky_solve(a, b):
+    """Solve ``a x = b`` for symmetric positive definite ``a`` (small, dense); returns
+    ``(x, ok)`` with ``ok = False`` when ``a`` is not positive definite."""
+    n = a.shape[0]
+    lo = np.zeros((n, n))
+    for i in range(n):
+        for k in range(i + 1):
+            s = a[i, k]
+            for p in range(k):
+                s -= lo[i, p] * lo[k, p]
+            if i == k:
+                if s <= 0.0:
+                    return np.zeros(n), False
+                lo[i, i] = np.sqrt(s)
+            else:
+                lo[i, k] = s / lo[k, k]
+    y = np.empty(n)
+    for i in range(n):
+        s = b[i]
+        for p in range(i):
+            s -= lo[i, p] * y[p]
+        y[i] = s / lo[i, i]
+    x = np.empty(n)
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for p in range(i + 1, n):
+            s -= lo[p, i] * x[p]
+        x[i] = s / lo[i, i]
+    return x, True
+
+
+@njit(cache=True)
+def tendon_matrix(qs, m):
+    """``B_s(q) = int B_q^T B_a ds`` (n_s x n_a), ``B_a = -[d~ t; t]`` (paper eq. (13))."""
+    ng = m.bg.shape[0]
+    ns = qs.shape[0]
+    na = m.tendon_d.shape[1]
+    out = np.zeros((ns, na))
+    col = np.empty(6)
+    for gi in range(ng):
+        b = m.bg[gi]
+        xi = _matvec(b, qs)
+        for r in range(6):
+            xi[r] += m.xi0g[gi, r]
+        k0, k1, k2 = xi[0], xi[1], xi[2]
+        for i in range(na):
+            d0, d1, d2 = m.tendon_d[gi, i, 0], m.tendon_d[gi, i, 1], m.tendon_d[gi, i, 2]
+            v0 = k1 * d2 - k2 * d1 + xi[3] + m.tendon_dd[gi, i, 0]
+            v1 = k2 * d0 - k0 * d2 + xi[4] + m.tendon_dd[gi, i, 1]
+            v2 = k0 * d1 - k1 * d0 + xi[5] + m.tendon_dd[gi, i, 2]
+            nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            t0, t1, t2 = v0 / nv, v1 / nv, v2 / nv
+            col[0] = -(d1 * t2 - d2 * t1)
+            col[1] = -(d2 * t0 - d0 * t2)
+            col[2] = -(d0 * t1 - d1 * t0)
+            col[3] = -t0
+            col[4] = -t1
+            col[5] = -t2
+            wq = m.wq[gi]
+            for c in range(ns):
+                acc = 0.0
+                for r in range(6):
+                    acc += b[r, c] * col[r]
+                out[c, i] += wq * acc
+    return out
+
+
+@njit(cache=True)
+def input_matrix(q, m):
+    """Generalized actuation matrix ``B(q)`` (paper eq. (14)-(16)): n x (4 + n_a) for a
+    floating base (motor thrusts, then tensions), n_s x n_a for a fixed base."""
+    n = q.shape[0]
+    if not m.floating:
+        return tendon_matrix(q, m)
+    na = m.tendon_d.shape[1]
+    out = np.zeros((n, 4 + na))
+    r = rot_zyx(q[0], q[1], q[2])
+    t = euler_rate_matrix(q[0], q[1])
+    for i in range(3):
+        for c in range(4):
+            a0 = 0.0
+            a1 = 0.0
+            for k in range(3):
+                a0 += t[k, i] * m.gamma[k, c]
+                a1 += r[i, k] * m.gamma[3 + k, c]
+            out[i, c] = a0
+            out[3 + i, c] = a1
+    out[6:, 4:] = tendon_matrix(q[6:], m)
+    return out
+
+
+@njit(cache=True)
+def forward_dynamics(q, qd, u, m, loads):
+    """``qdd = M^-1 (B u + tau_ext - C qdot - D qdot - K)`` (paper eq. (9)); ``ok`` False when
+    ``M`` is not positive definite (Euler singularity)."""
+    mm, _, cqd, tau, _, _, _ = coupled_terms(q, qd, m, loads, False)
+    rhs = (
+        _matvec(input_matrix(q, m), u)
+        + tau
+        - cqd
+        - _matvec(m.damping, qd)
+        - _matvec(m.stiffness, q)
+    )
+    return cholesky_solve(mm, rhs)
+
+
+@njit(cache=True)
+def rk4_run(q0, qd0, u, dt, nsteps, every, m, loads):
+    """Integrate with classical RK4 at constant input ``u``; keep every ``every``-th state.
+
+    Returns ``(qs, qds, ok)``; ``ok`` is False if the mass matrix became singular, in which case
+    the arrays hold the states up to that point.
+    """
+    n = q0.shape[0]
+    nrec = nsteps // every + 1
+    qs = np.empty((nrec, n))
+    qds = np.empty((nrec, n))
+    q = q0.copy()
+    qd = qd0.copy()
+    qs[0] = q
+    qds[0] = qd
+    rec = 1
+    for k in range(nsteps):
+        a1, ok1 = forward_dynamics(q, qd, u, m, loads)
+        a2, ok2 = forward_dynamics(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads)
+        a3, ok3 = forward_dynamics(
+            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads
+        )
+        a4, ok4 = forward_dynamics(q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads)
+        if not (ok1 and ok2 and ok3 and ok4):
+            return qs[:rec], qds[:rec], False
+        q = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)
+        qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        if (k + 1) % every == 0:
+            qs[rec] = q
+            qds[rec] = qd
+            rec += 1
+    return qs[:rec], qds[:rec], True
