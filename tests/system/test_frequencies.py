@@ -29,8 +29,9 @@ def test_first_two_bending_frequencies_converge_to_euler_bernoulli():
         errors.append(np.abs(w - exact) / exact)
     errors = np.array(errors)
     # The Cosserat section also carries rotary inertia rho I (a Rayleigh beam), which lowers the
-    # frequencies by ~(beta_n r_g)^2 relative to Euler-Bernoulli: ~1e-6 for the 2nd mode of this
-    # slender rod.  So the errors fall monotonically until they reach that floor.
+    # frequencies by about (beta_n r_g)^2 relative to Euler-Bernoulli (r_g = d/4): ~1.2e-6 for
+    # the 1st and ~1.4e-5 for the 2nd mode of this slender rod.  So the errors fall
+    # monotonically until they reach that floor.
     assert np.all(np.diff(errors[:3, 0]) < 0) and np.all(np.diff(errors[:3, 1]) < 0)
     assert errors[0, 0] > 1e-3 and errors[0, 1] > 1e-1
-    assert errors[-1, 0] < 2e-6 and errors[-1, 1] < 2e-6
+    assert errors[-1, 0] < 2e-6 and errors[-1, 1] < 2e-5

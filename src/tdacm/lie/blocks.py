@@ -78,79 +78,92 @@ def skew_apply_sub(mu, x, out):
 
 
 @njit(cache=True)
-def expmap_rp(xi):
-    """``exp(xi^)`` as rotation ``R`` (3x3) and translation ``p`` (3,) (Rodrigues form)."""
+def expmap_rp_into(xi, r, p):
+    """``exp(xi^)`` written into rotation ``r`` (3x3) and translation ``p`` (3,) (Rodrigues)."""
     k0, k1, k2 = xi[0], xi[1], xi[2]
     th = np.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
     c1, c2 = _exp_coefficients(th)
-    # sin(th)/th = 1 - th^2 c2
-    s1 = 1.0 - th * th * c2
-    kk = np.empty((3, 3))
-    kk[0, 0] = -(k1 * k1 + k2 * k2)
-    kk[1, 1] = -(k0 * k0 + k2 * k2)
-    kk[2, 2] = -(k0 * k0 + k1 * k1)
-    kk[0, 1] = kk[1, 0] = k0 * k1
-    kk[0, 2] = kk[2, 0] = k0 * k2
-    kk[1, 2] = kk[2, 1] = k1 * k2
+    s1 = 1.0 - th * th * c2  # sin(th)/th
+    # K^2 = k k^T - th^2 I
+    q00 = -(k1 * k1 + k2 * k2)
+    q11 = -(k0 * k0 + k2 * k2)
+    q22 = -(k0 * k0 + k1 * k1)
+    q01 = k0 * k1
+    q02 = k0 * k2
+    q12 = k1 * k2
+    r[0, 0] = 1.0 + c1 * q00
+    r[1, 1] = 1.0 + c1 * q11
+    r[2, 2] = 1.0 + c1 * q22
+    r[0, 1] = c1 * q01 - s1 * k2
+    r[1, 0] = c1 * q01 + s1 * k2
+    r[0, 2] = c1 * q02 + s1 * k1
+    r[2, 0] = c1 * q02 - s1 * k1
+    r[1, 2] = c1 * q12 - s1 * k0
+    r[2, 1] = c1 * q12 + s1 * k0
+    # p = (I + c1 K + c2 K^2) u
+    u0, u1, u2 = xi[3], xi[4], xi[5]
+    p[0] = (1.0 + c2 * q00) * u0 + (c2 * q01 - c1 * k2) * u1 + (c2 * q02 + c1 * k1) * u2
+    p[1] = (c2 * q01 + c1 * k2) * u0 + (1.0 + c2 * q11) * u1 + (c2 * q12 - c1 * k0) * u2
+    p[2] = (c2 * q02 - c1 * k1) * u0 + (c2 * q12 + c1 * k0) * u1 + (1.0 + c2 * q22) * u2
+
+
+@njit(cache=True)
+def expmap_rp(xi):
+    """``exp(xi^)`` as rotation ``R`` (3x3) and translation ``p`` (3,) (Rodrigues form)."""
     r = np.empty((3, 3))
-    v = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            r[i, j] = c1 * kk[i, j]
-            v[i, j] = c2 * kk[i, j]
-        r[i, i] += 1.0
-        v[i, i] += 1.0
-    r[0, 1] -= s1 * k2
-    r[1, 0] += s1 * k2
-    r[0, 2] += s1 * k1
-    r[2, 0] -= s1 * k1
-    r[1, 2] -= s1 * k0
-    r[2, 1] += s1 * k0
-    v[0, 1] -= c1 * k2
-    v[1, 0] += c1 * k2
-    v[0, 2] += c1 * k1
-    v[2, 0] -= c1 * k1
-    v[1, 2] -= c1 * k0
-    v[2, 1] += c1 * k0
     p = np.empty(3)
-    for i in range(3):
-        p[i] = v[i, 0] * xi[3] + v[i, 1] * xi[4] + v[i, 2] * xi[5]
+    expmap_rp_into(xi, r, p)
     return r, p
 
 
 @njit(cache=True)
-def tangent_apply(omega, omega_dot, z, want_rate):
-    """``T(Omega) Z`` and (if ``want_rate``) ``T_dot Z`` without forming 6x6 matrices.
+def tangent_apply_into(omega, omega_dot, x, n_rate, tx, tdx, work):
+    """``tx = T(Omega) X`` for all columns and ``tdx = T_dot X`` for the first ``n_rate`` columns.
 
-    With ``P_i = ad(Omega)^i Z`` and ``D_i = d(ad(Omega)^i)/dt Z`` built by the recursion
+    With ``P_i = ad(Omega)^i X`` and ``D_i = d(ad(Omega)^i)/dt X`` built by the recursion
     ``D_i = ad(Omega_dot) P_{i-1} + ad(Omega) D_{i-1}``:
-    ``T Z = Z + sum a_i P_i`` and ``T_dot Z = sum (b_i (w . w_dot)) P_i + a_i D_i``.
+    ``T X = X + sum a_i P_i`` and ``T_dot X = sum (b_i (w . w_dot)) P_i + a_i D_i``.
+    ``work`` is a (5, 6, c) scratch array.
     """
-    c = z.shape[1]
+    c = x.shape[1]
     th = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
     a, b = tangent_coefficients(th)
-    tz = z.copy()
-    tdz = np.zeros((6, c))
-    prev = z.copy()
-    cur = np.empty((6, c))
-    dprev = np.zeros((6, c))
-    dcur = np.empty((6, c))
-    tmp = np.empty((6, c))
+    prev = work[0]
+    cur = work[1]
+    dprev = work[2]
+    dcur = work[3]
+    tmp = work[4]
+    for r in range(6):
+        for k in range(c):
+            tx[r, k] = x[r, k]
+            prev[r, k] = x[r, k]
+        for k in range(n_rate):
+            tdx[r, k] = 0.0
+            dprev[r, k] = 0.0
     wwd = omega[0] * omega_dot[0] + omega[1] * omega_dot[1] + omega[2] * omega_dot[2]
     for i in range(4):
         ad_apply(omega, prev, cur)
-        if want_rate:
-            ad_apply(omega_dot, prev, dcur)
-            ad_apply(omega, dprev, tmp)
-            dcur += tmp
+        if n_rate > 0:
+            ad_apply(omega_dot, prev[:, :n_rate], dcur[:, :n_rate])
+            ad_apply(omega, dprev[:, :n_rate], tmp[:, :n_rate])
         ai = a[i]
         bi = b[i] * wwd
         for r in range(6):
             for k in range(c):
-                tz[r, k] += ai * cur[r, k]
-                if want_rate:
-                    tdz[r, k] += bi * cur[r, k] + ai * dcur[r, k]
+                tx[r, k] += ai * cur[r, k]
+            for k in range(n_rate):
+                dcur[r, k] += tmp[r, k]
+                tdx[r, k] += bi * cur[r, k] + ai * dcur[r, k]
         prev, cur = cur, prev
-        if want_rate:
-            dprev, dcur = dcur, dprev
+        dprev, dcur = dcur, dprev
+
+
+@njit(cache=True)
+def tangent_apply(omega, omega_dot, z, want_rate):
+    """Allocating form of :func:`tangent_apply_into`: ``T Z`` and (if ``want_rate``) ``T_dot Z``."""
+    c = z.shape[1]
+    tz = np.empty((6, c))
+    tdz = np.zeros((6, c))
+    work = np.empty((5, 6, c))
+    tangent_apply_into(omega, omega_dot, z, c if want_rate else 0, tz, tdz, work)
     return tz, tdz

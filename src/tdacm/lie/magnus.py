@@ -25,46 +25,68 @@ _C4 = np.sqrt(3.0) / 12.0
 
 
 @njit(cache=True)
-def _strain(xi0, b, q):
-    out = xi0.copy()
+def _strain_into(xi0, b, q, out):
     for r in range(6):
-        acc = 0.0
+        acc = xi0[r]
         for c in range(q.shape[0]):
             acc += b[r, c] * q[c]
-        out[r] += acc
-    return out
+        out[r] = acc
+
+
+@njit(cache=True)
+def magnus_step_into(h, xi0s, bs, q, qd, omega, z, zdq, zd, work):
+    """One Magnus step written into ``omega (6,)``, ``z (6, n_s)``, ``zdq = Z_dot qdot (6,)``
+    and ``zd = Z_dot (6, n_s)`` (zero for order 2); ``work`` is a (6, 6, n_s) scratch array.
+
+    Parameters: ``h`` step length (m); ``xi0s`` (p, 6) reference strain and ``bs`` (p, 6, n_s)
+    basis at the ``p`` sample points (``p = 1`` order 2, ``2`` order 4); ``q, qd`` (n_s,).
+    """
+    ns = q.shape[0]
+    if xi0s.shape[0] == 1:
+        _strain_into(xi0s[0], bs[0], q, omega)
+        for r in range(6):
+            omega[r] *= h
+            zdq[r] = 0.0
+            for c in range(ns):
+                z[r, c] = h * bs[0, r, c]
+                zd[r, c] = 0.0
+        return
+    xi1 = np.empty(6)
+    xi2 = np.empty(6)
+    v1 = np.empty(6)
+    v2 = np.empty(6)
+    zero = np.zeros(6)
+    _strain_into(xi0s[0], bs[0], q, xi1)
+    _strain_into(xi0s[1], bs[1], q, xi2)
+    _strain_into(zero, bs[0], qd, v1)
+    _strain_into(zero, bs[1], qd, v2)
+    c4 = _C4 * h * h
+    a12 = ad_vec(xi1, xi2)
+    v12 = ad_vec(v1, v2)
+    t1 = work[2]
+    t2 = work[3]
+    ad_apply(xi1, bs[1], t1)
+    ad_apply(xi2, bs[0], t2)
+    for r in range(6):
+        omega[r] = 0.5 * h * (xi1[r] + xi2[r]) + c4 * a12[r]
+        zdq[r] = 2.0 * c4 * v12[r]
+        for c in range(ns):
+            z[r, c] = 0.5 * h * (bs[0, r, c] + bs[1, r, c]) + c4 * (t1[r, c] - t2[r, c])
+    ad_apply(v1, bs[1], t1)
+    ad_apply(v2, bs[0], t2)
+    for r in range(6):
+        for c in range(ns):
+            zd[r, c] = c4 * (t1[r, c] - t2[r, c])
 
 
 @njit(cache=True)
 def magnus_step(h, xi0s, bs, q, qd):
-    """One Magnus step.
-
-    Parameters
-    ----------
-    h : step length (m)
-    xi0s : (p, 6) reference strain at the ``p`` sample points (``p = 1`` order 2, ``2`` order 4)
-    bs : (p, 6, n_s) basis at the sample points
-    q, qd : (n_s,) strain coordinates and their rates
-
-    Returns ``Omega (6,)``, ``Z (6, n_s)``, ``Z_dot qdot (6,)`` and ``Z_dot (6, n_s)``
-    (``Z_dot`` is zero for order 2).
-    """
+    """Allocating form of :func:`magnus_step_into`: returns ``Omega (6,)``, ``Z (6, n_s)``,
+    ``Z_dot qdot (6,)`` and ``Z_dot (6, n_s)``."""
     ns = q.shape[0]
-    if xi0s.shape[0] == 1:
-        omega = h * _strain(xi0s[0], bs[0], q)
-        return omega, h * bs[0], np.zeros(6), np.zeros((6, ns))
-    xi1 = _strain(xi0s[0], bs[0], q)
-    xi2 = _strain(xi0s[1], bs[1], q)
-    c = _C4 * h * h
-    omega = 0.5 * h * (xi1 + xi2) + c * ad_vec(xi1, xi2)
-    t1 = np.empty((6, ns))
-    t2 = np.empty((6, ns))
-    ad_apply(xi1, bs[1], t1)
-    ad_apply(xi2, bs[0], t2)
-    z = 0.5 * h * (bs[0] + bs[1]) + c * (t1 - t2)
-    v1 = _strain(np.zeros(6), bs[0], qd)
-    v2 = _strain(np.zeros(6), bs[1], qd)
-    ad_apply(v1, bs[1], t1)
-    ad_apply(v2, bs[0], t2)
-    zd = c * (t1 - t2)
-    return omega, z, 2.0 * c * ad_vec(v1, v2), zd
+    omega = np.empty(6)
+    z = np.empty((6, ns))
+    zdq = np.empty(6)
+    zd = np.empty((6, ns))
+    magnus_step_into(h, xi0s, bs, q, qd, omega, z, zdq, zd, np.empty((6, 6, ns)))
+    return omega, z, zdq, zd

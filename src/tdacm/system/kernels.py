@@ -26,9 +26,16 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lie.blocks import ad_apply, adinv_apply, expmap_rp, skew_apply_sub, tangent_apply
+from ..lie.blocks import (
+    ad_apply,
+    adinv_apply,
+    expmap_rp,
+    expmap_rp_into,
+    skew_apply_sub,
+    tangent_apply_into,
+)
 from ..lie.euler import euler_rate_matrix, euler_rate_matrix_dot, rot_zyx
-from ..lie.magnus import magnus_step
+from ..lie.magnus import magnus_step, magnus_step_into
 
 
 class ModelArrays(NamedTuple):
@@ -199,62 +206,86 @@ def chain_start(q, qd, floating, g_fixed, g_att):
 
 
 @njit(cache=True)
-def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate):
+def make_workspace(n, ns):
+    """Scratch arrays for :func:`rod_step`, allocated once per kernel call (allocation inside
+    the per-step loop dominated the cost of the small products)."""
+    ncol = 2 * ns + 2
+    return (
+        np.empty(6),  # 0 omega
+        np.empty((6, ns)),  # 1 Z
+        np.empty(6),  # 2 Z_dot qdot
+        np.empty((6, ns)),  # 3 Z_dot
+        np.empty((6, 6, ns)),  # 4 Magnus scratch
+        np.empty((3, 3)),  # 5 R of exp(Omega)
+        np.empty(3),  # 6 p of exp(Omega)
+        np.empty((6, ncol)),  # 7 columns fed to the tangent operator
+        np.empty((6, ncol)),  # 8 T X
+        np.empty((6, ncol)),  # 9 T_dot X
+        np.empty((5, 6, ncol)),  # 10 tangent scratch
+        np.empty((6, 4)),  # 11 vector columns: relative twist, J_dot qdot, eta, ad product
+        np.empty((6, n)),  # 12 ad(w) J
+        np.empty((3, 3)),  # 13 copy of the rotation of g
+    )
+
+
+@njit(cache=True)
+def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
     """One Magnus step of the pose / Jacobian / Jacobian-rate recursion (module docstring).
 
     Updates in place ``g`` (4x4), ``j`` (6 x n), the twist ``eta = J qdot`` and
     ``jdq = J_dot qdot``; ``jd`` (6 x n) too when ``full_rate`` (needed for the matrix ``C``,
-    not for the forward dynamics).
+    not for the forward dynamics).  ``ws`` is a :func:`make_workspace` tuple.
     """
-    omega, z, zdq, zd = magnus_step(h, xi0s, bs, qs, qsd)
+    omega, z, zdq, zd, mwork, r, p, x, tx, tdx, twork, cols, tmpj, gr = ws
     ns = qs.shape[0]
-    r, p = expmap_rp(omega)
-    # one pass of the tangent operator over the columns [Z | Omega_dot | Z_dot qdot (| Z_dot)]
-    ncol = ns + 2 + (ns if full_rate else 0)
-    x = np.empty((6, ncol))
-    omega_dot = np.zeros(6)
+    magnus_step_into(h, xi0s, bs, qs, qsd, omega, z, zdq, zd, mwork)
+    expmap_rp_into(omega, r, p)
+    # columns [Omega_dot | Z | Z_dot qdot | Z_dot]; the rate T_dot is needed for Omega_dot (the
+    # J_dot qdot recursion) and, for the full J_dot, for Z too
     for i in range(6):
         acc = 0.0
         for c in range(ns):
-            x[i, c] = z[i, c]
+            x[i, 1 + c] = z[i, c]
+            x[i, ns + 2 + c] = zd[i, c]
             acc += z[i, c] * qsd[c]
-            if full_rate:
-                x[i, ns + 2 + c] = zd[i, c]
-        omega_dot[i] = acc
-        x[i, ns] = acc
+        x[i, 0] = acc
         x[i, ns + 1] = zdq[i]
-    tx, tdx = tangent_apply(omega, omega_dot, x, True)
+    ncol = 2 * ns + 2 if full_rate else ns + 2
+    n_rate = ns + 1 if full_rate else 1
+    omega_dot = x[:, 0].copy()
+    tangent_apply_into(
+        omega, omega_dot, x[:, :ncol], n_rate, tx[:, :ncol], tdx[:, :n_rate], twork[:, :, :ncol]
+    )
     # increments before the change of frame; T Omega_dot is the relative twist of the step
-    w = np.empty((6, 1))
-    v = np.empty((6, 1))
+    w = cols[:, 0:1]
+    v = cols[:, 1:2]
+    e = cols[:, 2:3]
+    t = cols[:, 3:4]
     for i in range(6):
         for c in range(ns):
-            j[i, off + c] += tx[i, c]
+            j[i, off + c] += tx[i, 1 + c]
             if full_rate:
-                jd[i, off + c] += tdx[i, c] + tx[i, ns + 2 + c]
-        w[i, 0] = tx[i, ns]
-        v[i, 0] = jdq[i] + tdx[i, ns] + tx[i, ns + 1]
-        eta[i] += tx[i, ns]
+                jd[i, off + c] += tdx[i, 1 + c] + tx[i, ns + 2 + c]
+        w[i, 0] = tx[i, 0]
+        v[i, 0] = jdq[i] + tdx[i, 0] + tx[i, ns + 1]
+        e[i, 0] = eta[i] + tx[i, 0]
     adinv_apply(r, p, j)
-    adinv_apply(r, p, w)
-    adinv_apply(r, p, v)
-    e = np.empty((6, 1))
-    for i in range(6):
-        e[i, 0] = eta[i]
-    adinv_apply(r, p, e)
-    wv = w[:, 0].copy()
-    tmp = np.empty((6, 1))
-    ad_apply(wv, e, tmp)
+    adinv_apply(r, p, cols[:, 0:3])
+    wv = cols[:, 0]
+    ad_apply(wv, e, t)
     for i in range(6):
         eta[i] = e[i, 0]
-        jdq[i] = v[i, 0] - tmp[i, 0]
+        jdq[i] = v[i, 0] - t[i, 0]
     if full_rate:
         adinv_apply(r, p, jd)
-        tmpj = np.empty((6, j.shape[1]))
         ad_apply(wv, j, tmpj)
-        jd -= tmpj
+        for i in range(6):
+            for c in range(j.shape[1]):
+                jd[i, c] -= tmpj[i, c]
     # g <- g exp(Omega)
-    gr = g[:3, :3].copy()
+    for i in range(3):
+        for k in range(3):
+            gr[i, k] = g[i, k]
     for i in range(3):
         acc = 0.0
         for k in range(3):
@@ -300,9 +331,10 @@ def coupled_terms(q, qd, m, loads, want_c):
                 f[3 + i] += m.mb6[3] * gb[k, i] * grav[k]
         _tmatvec_add(jb, f, 1.0, tau)
     eta = _matvec(j, qd)
+    ws = make_workspace(n, qs.shape[0])
     nsteps = m.h.shape[0]
     for k in range(nsteps):
-        rod_step(m.h[k], m.xi0s[k], m.bs[k], qs, qsd, off, g, j, jd, eta, jdq, want_c)
+        rod_step(m.h[k], m.xi0s[k], m.bs[k], qs, qsd, off, g, j, jd, eta, jdq, want_c, ws)
         if k < nsteps - 1:
             w = m.wq[k]
             mass6 = mbar
@@ -353,8 +385,9 @@ def chain_jacobian(q, qd, floating, g_fixed, g_att, h, xi0s, bs):
     qsd = qd[off:]
     _, _, _, g, j, jd, jdq = chain_start(q, qd, floating, g_fixed, g_att)
     eta = _matvec(j, qd)
+    ws = make_workspace(q.shape[0], qs.shape[0])
     for k in range(h.shape[0]):
-        rod_step(h[k], xi0s[k], bs[k], qs, qsd, off, g, j, jd, eta, jdq, True)
+        rod_step(h[k], xi0s[k], bs[k], qs, qsd, off, g, j, jd, eta, jdq, True, ws)
     return g, j, jd
 
 
