@@ -318,6 +318,16 @@ class TDACM:
         q = self._q(q)
         return K.tendon_matrix(q[self.n - self.n_s :], self._m)
 
+    def tendon_lengths(self, q) -> np.ndarray:
+        """Tendon path lengths ``l_i = int |k x d_i + u + d_i'| ds`` on the Gauss quadrature
+        (the same discretization as :meth:`tendon_matrix`, so ``B_s = -dl/dq_s``)."""
+        q = self._q(q)
+        m = self._m
+        qs = q[self.n - self.n_s :]
+        xi = m.xi0g + np.einsum("gij,j->gi", m.bg, qs)
+        v = np.cross(xi[:, None, :3], m.tendon_d) + xi[:, None, 3:] + m.tendon_dd
+        return m.wq @ np.linalg.norm(v, axis=2)
+
     def forward_dynamics(self, q, qd, u=None) -> np.ndarray:
         """Generalized accelerations for inputs ``u = [4 thrusts, tensions]`` (tensions only for
         a fixed base); ``u = None`` means no input."""
