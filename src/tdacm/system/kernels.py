@@ -160,20 +160,22 @@ def _add_body(mass6, j, jd, eta, jdq, weight, want_c, m_out, c_out, cqd_out):
             m_out[a, b] += weight * acc
             if b != a:
                 m_out[b, a] += weight * acc
-    mu = mass6 * eta
-    # Mb J_dot qdot + coad(eta) mu, with coad(eta) mu = -S(mu) eta
-    force = np.empty((6, 1))
-    e = np.empty((6, 1))
-    for r in range(6):
-        force[r, 0] = mass6[r] * jdq[r]
-        e[r, 0] = eta[r]
-    skew_apply_sub(mu, e, force)
+    # f = Mb J_dot qdot + coad(eta) Mb eta, with coad(eta) mu = -S(mu) eta = [m x w + f x v; f x w]
+    m0, m1, m2 = mass6[0] * eta[0], mass6[1] * eta[1], mass6[2] * eta[2]
+    p0, p1, p2 = mass6[3] * eta[3], mass6[4] * eta[4], mass6[5] * eta[5]
+    w0, w1, w2, v0, v1, v2 = eta[0], eta[1], eta[2], eta[3], eta[4], eta[5]
+    f0 = mass6[0] * jdq[0] - (m1 * w2 - m2 * w1 + p1 * v2 - p2 * v1)
+    f1 = mass6[1] * jdq[1] - (m2 * w0 - m0 * w2 + p2 * v0 - p0 * v2)
+    f2 = mass6[2] * jdq[2] - (m0 * w1 - m1 * w0 + p0 * v1 - p1 * v0)
+    f3 = mass6[3] * jdq[3] - (p1 * w2 - p2 * w1)
+    f4 = mass6[4] * jdq[4] - (p2 * w0 - p0 * w2)
+    f5 = mass6[5] * jdq[5] - (p0 * w1 - p1 * w0)
     for a in range(n):
-        acc = 0.0
-        for r in range(6):
-            acc += j[r, a] * force[r, 0]
-        cqd_out[a] += weight * acc
+        cqd_out[a] += weight * (
+            j[0, a] * f0 + j[1, a] * f1 + j[2, a] * f2 + j[3, a] * f3 + j[4, a] * f4 + j[5, a] * f5
+        )
     if want_c:
+        mu = mass6 * eta
         tmp = np.empty((6, n))
         for r in range(6):
             for c in range(n):
@@ -250,7 +252,9 @@ def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
             acc += z[i, c] * qsd[c]
         x[i, 0] = acc
         x[i, ns + 1] = zdq[i]
-    ncol = 2 * ns + 2 if full_rate else ns + 2
+    order4 = xi0s.shape[0] == 2
+    # order 2: Z_dot = 0, so the (zero) Z_dot columns are skipped
+    ncol = (2 * ns + 2 if full_rate else ns + 2) if order4 else ns + 1
     n_rate = ns + 1 if full_rate else 1
     omega_dot = x[:, 0].copy()
     tangent_apply_into(
@@ -265,9 +269,9 @@ def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
         for c in range(ns):
             j[i, off + c] += tx[i, 1 + c]
             if full_rate:
-                jd[i, off + c] += tdx[i, 1 + c] + tx[i, ns + 2 + c]
+                jd[i, off + c] += tdx[i, 1 + c] + (tx[i, ns + 2 + c] if order4 else 0.0)
         w[i, 0] = tx[i, 0]
-        v[i, 0] = jdq[i] + tdx[i, 0] + tx[i, ns + 1]
+        v[i, 0] = jdq[i] + tdx[i, 0] + (tx[i, ns + 1] if order4 else 0.0)
         e[i, 0] = eta[i] + tx[i, 0]
     adinv_apply(r, p, j)
     adinv_apply(r, p, cols[:, 0:3])
