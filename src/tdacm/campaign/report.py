@@ -1,0 +1,164 @@
+"""Campaign report: success rate with a Wilson interval, distributions, worst runs, plots."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a binomial proportion (good at small n and near 0 or 1)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = successes / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _stats(x):
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return None
+    return {
+        "n": int(x.size),
+        "median": float(np.median(x)),
+        "p5": float(np.percentile(x, 5)),
+        "p95": float(np.percentile(x, 95)),
+        "max": float(x.max()),
+    }
+
+
+def _first_line(text) -> str:
+    return text.splitlines()[0] if isinstance(text, str) and text else ""
+
+
+def write_report(spec, out, n_worst: int = 5) -> dict:
+    """Write ``report.json``, ``report.md`` and ``report.png`` and return the report dict."""
+    from .runner import read_results
+
+    out = Path(out)
+    df = read_results(out)
+    n = len(df)
+    ok = int(df["success"].sum()) if n else 0
+    errors = df[df["status"] == "error"] if n else df
+    lo, hi = wilson_interval(ok, n)
+    report = {
+        "scenario": spec.scenario,
+        "runs_requested": spec.runs,
+        "runs_stored": n,
+        "complete": n == spec.runs,
+        "success_rmse": spec.success_rmse,
+        "successes": ok,
+        "success_rate": ok / n if n else None,
+        "success_rate_ci95": [lo, hi],
+        "errors": int(len(errors)),
+        "terminated": int(df["terminated"].fillna(False).astype(bool).sum())
+        if n and "terminated" in df
+        else 0,
+        "time_to_0.01": _stats(df["time_to_0.01"]) if n and "time_to_0.01" in df else None,
+        "final_rmse": _stats(df["final_rmse"]) if n and "final_rmse" in df else None,
+        "worst_runs": [],
+    }
+    if n:
+        key = (
+            df["final_rmse"].astype(float).fillna(np.inf)
+            if "final_rmse" in df
+            else np.full(n, np.inf)
+        )
+        order = np.argsort(-np.asarray(key), kind="stable")[:n_worst]
+        for i in order:
+            r = df.iloc[int(i)]
+            report["worst_runs"].append(
+                {
+                    "run": int(r["run"]),
+                    "seed": int(r["seed"]),
+                    "status": r["status"],
+                    "final_rmse": None
+                    if "final_rmse" not in r
+                    or r["final_rmse"] is None
+                    or not np.isfinite(r["final_rmse"])
+                    else float(r["final_rmse"]),
+                    "replay": f"tdacm run {spec.scenario} --config {out / 'configs' / 'run-{:06d}.toml'.format(int(r['run']))} --seed {int(r['seed'])}",
+                    "error": _first_line(r.get("error")),
+                }
+            )
+    (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    _write_markdown(report, out)
+    if n:
+        _plot(df, spec, out)
+    return report
+
+
+def _write_markdown(report, out: Path):
+    lines = [f"# Campaign report: {report['scenario']}", ""]
+    lines.append(f"- runs stored: {report['runs_stored']} / {report['runs_requested']}")
+    if report["success_rate"] is not None:
+        lo, hi = report["success_rate_ci95"]
+        lines.append(
+            f"- success (final normalized RMSE <= {report['success_rmse']}, not terminated): "
+            f"{report['successes']}/{report['runs_stored']} = {100 * report['success_rate']:.1f} % "
+            f"(95 % Wilson CI {100 * lo:.1f}-{100 * hi:.1f} %)"
+        )
+    lines.append(
+        f"- errors: {report['errors']}, safety-monitor terminations: {report['terminated']}"
+    )
+    for key in ("time_to_0.01", "final_rmse"):
+        s = report[key]
+        if s:
+            lines.append(
+                f"- {key}: median {s['median']:.4g}, 5-95 % [{s['p5']:.4g}, {s['p95']:.4g}], max {s['max']:.4g} (n = {s['n']})"
+            )
+    lines += [
+        "",
+        "## Worst runs",
+        "",
+        "| run | seed | status | final RMSE | replay |",
+        "|---|---|---|---|---|",
+    ]
+    for w in report["worst_runs"]:
+        lines.append(
+            f"| {w['run']} | {w['seed']} | {w['status']} | {w['final_rmse']} | `{w['replay']}` |"
+        )
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def _plot(df, spec, out: Path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    final = df["final_rmse"].astype(float).to_numpy() if "final_rmse" in df else np.array([])
+    final = final[np.isfinite(final) & (final > 0)]
+    if final.size:
+        bins = np.logspace(np.log10(final.min()), np.log10(final.max()) + 1e-9, 25)
+        axes[0].hist(final, bins=bins, color="C0")
+        axes[0].set_xscale("log")
+    axes[0].axvline(spec.success_rmse, color="k", ls="--", lw=0.8)
+    axes[0].set_xlabel("final normalized RMSE")
+    axes[0].set_ylabel("runs")
+    t = df["time_to_0.01"].astype(float).to_numpy() if "time_to_0.01" in df else np.array([])
+    t = t[np.isfinite(t)]
+    if t.size:
+        axes[1].hist(t, bins=20, color="C1")
+    axes[1].set_xlabel("time to RMSE 0.01 (s)")
+    init = df["initial_rmse"].astype(float).to_numpy() if "initial_rmse" in df else np.array([])
+    fin = df["final_rmse"].astype(float).to_numpy() if "final_rmse" in df else np.array([])
+    colors = np.where(df["success"].to_numpy(bool), "C2", "C3")
+    axes[2].scatter(init, fin, c=colors, s=12)
+    axes[2].set_yscale("log")
+    axes[2].set_xlabel("initial normalized RMSE")
+    axes[2].set_ylabel("final normalized RMSE")
+    axes[2].axhline(spec.success_rmse, color="k", ls="--", lw=0.8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"{spec.scenario}: {int(df['success'].sum())}/{len(df)} runs succeeded")
+    fig.tight_layout()
+    fig.savefig(out / "report.png", dpi=120)
+    plt.close(fig)

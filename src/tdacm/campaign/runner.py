@@ -1,0 +1,211 @@
+"""Running a campaign on Dask, streaming one Parquet row per run, resumable.
+
+The store is a directory ``OUT/results/`` of one-row Parquet files ``run-000042.parquet`` (a
+Parquet dataset: ``pandas.read_parquet(OUT / "results")`` reads it as one table).  Only the
+driver writes, each row to a temporary name renamed atomically, so an interrupted campaign
+holds complete rows only; on restart the runs already stored are skipped and the missing ones
+run, so no run is lost or run twice.  A run that raises is stored with ``status = "error"`` and
+its traceback; the campaign goes on.
+
+Runs execute on a Dask cluster: a ``LocalCluster`` of ``workers`` processes by default, or the
+scheduler at ``scheduler`` (``tcp://host:port``) with no code change.  Each run is a pure
+function of ``(spec, index, seed)``, so the same spec gives the same rows on any cluster.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from .spec import CampaignSpec, CampaignSpecError, load_spec, sample_overrides, to_toml
+
+#: Summary fields copied into the store (None -> NaN for numbers).
+ROW_FIELDS = (
+    "initial_rmse",
+    "final_rmse",
+    "min_rmse",
+    "time_to_0.01",
+    "time_to_0.001",
+    "mode_switch_time",
+    "terminated",
+    "termination_reason",
+    "wall_time_s",
+    "max_tension",
+    "max_thrust",
+    "local_detection_rate",
+)
+
+
+def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
+    """One campaign run (executed on a worker); never raises: errors become a row."""
+    from ..sim.runner import Simulation
+    from ..sim.scenario import load_scenario
+
+    spec = CampaignSpec(**spec_dict)
+    row = {"run": int(index), "seed": int(seed), "status": "ok", "error": ""}
+    t0 = time.perf_counter()
+    try:
+        base = load_scenario(spec.scenario)
+        overrides = sample_overrides(spec, base.data, seed)
+        row["overrides"] = json.dumps(overrides, sort_keys=True)
+        scenario = base.with_overrides(overrides, f"campaign run {index}")
+        _, summary = Simulation(scenario, duration=spec.duration, seed=int(seed)).run(None)
+        for k in ROW_FIELDS:
+            row[k] = summary.get(k)
+        final = summary.get("final_rmse")
+        row["success"] = bool(
+            final is not None
+            and np.isfinite(final)
+            and final <= spec.success_rmse
+            and not summary.get("terminated")
+        )
+    except Exception as exc:  # a failing run is data, not the end of the campaign
+        row["status"] = "error"
+        row["error"] = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}"
+        row["success"] = False
+        row.setdefault("overrides", "")
+    row["run_wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def _row_path(store: Path, index: int) -> Path:
+    return store / f"run-{index:06d}.parquet"
+
+
+def write_row(store: Path, row: dict) -> None:
+    import pandas as pd
+
+    frame = pd.DataFrame([{k: row.get(k) for k in _columns(row)}])
+    path = _row_path(store, row["run"])
+    tmp = path.with_suffix(".parquet.tmp")
+    frame.to_parquet(tmp, index=False)
+    os.replace(tmp, path)  # atomic: a row is either complete or absent
+
+
+def _columns(row: dict):
+    fixed = ["run", "seed", "status", "success", *ROW_FIELDS, "run_wall_s", "overrides", "error"]
+    return fixed + sorted(k for k in row if k not in fixed)
+
+
+def completed_runs(store: Path) -> set[int]:
+    """Indices already in the store (complete rows only)."""
+    return {int(p.stem.split("-")[1]) for p in store.glob("run-*.parquet")}
+
+
+def read_results(out):
+    """All stored rows as one pandas DataFrame, sorted by run index."""
+    import pandas as pd
+
+    store = Path(out) / "results"
+    files = sorted(store.glob("run-*.parquet"))
+    if not files:
+        return pd.DataFrame()
+    return pd.concat([pd.read_parquet(f) for f in files], ignore_index=True).sort_values(
+        "run", ignore_index=True
+    )
+
+
+def _prepare_out(spec: CampaignSpec, out: Path) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    store = out / "results"
+    store.mkdir(exist_ok=True)
+    (out / "configs").mkdir(exist_ok=True)
+    meta = out / "campaign.json"
+    info = {"fingerprint": spec.fingerprint(), "spec": spec.as_dict()}
+    if meta.exists():
+        old = json.loads(meta.read_text())
+        if old.get("fingerprint") != info["fingerprint"]:
+            raise CampaignSpecError(
+                f"{out} holds a campaign of a different spec (fingerprint {old.get('fingerprint')} "
+                f"vs {info['fingerprint']}); use another --out or delete it"
+            )
+    else:
+        meta.write_text(json.dumps(info, indent=2))
+    for tmp in store.glob("*.tmp"):
+        tmp.unlink()  # a row interrupted mid-write: its run is redone
+    return store
+
+
+def run_campaign(
+    spec_or_path,
+    out,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    max_runs: int | None = None,
+) -> dict:
+    """Run (or resume) a campaign; returns the report (see :mod:`tdacm.campaign.report`).
+
+    ``max_runs`` stops after that many new runs (used to test interruption)."""
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    from ..sim.scenario import load_scenario
+    from .report import write_report
+
+    spec = load_spec(spec_or_path) if not isinstance(spec_or_path, CampaignSpec) else spec_or_path
+    out = Path(out)
+    store = _prepare_out(spec, out)
+    seeds = spec.run_seeds()
+    base = load_scenario(spec.scenario)
+    todo = [i for i in range(spec.runs) if i not in completed_runs(store)]
+    if max_runs is not None:
+        todo = todo[:max_runs]
+    for (
+        i
+    ) in todo:  # per-run replay files: `tdacm run SCENARIO --config configs/run-i.toml --seed s`
+        cfg = sample_overrides(spec, base.data, int(seeds[i]))
+        (out / "configs" / f"run-{i:06d}.toml").write_text(to_toml(cfg))
+    done_before = spec.runs - len([i for i in range(spec.runs) if i not in completed_runs(store)])
+    if todo:
+        cluster = None
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            n = workers or max(1, (os.cpu_count() or 1))
+            cluster = LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
+            )
+            client = Client(cluster)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(
+                total=spec.runs, initial=done_before, desc=f"campaign {spec.scenario}", unit="run"
+            )
+        try:
+            spec_dict = {k: v for k, v in spec.__dict__.items()}
+            futures = [
+                client.submit(
+                    execute_run, spec_dict, i, int(seeds[i]), pure=False, key=f"run-{i}-{seeds[i]}"
+                )
+                for i in todo
+            ]
+            for fut in as_completed(futures):
+                try:
+                    row = fut.result()
+                except Exception as exc:  # the worker died: record it
+                    i = int(fut.key.split("-")[1])
+                    row = {
+                        "run": i,
+                        "seed": int(seeds[i]),
+                        "status": "error",
+                        "success": False,
+                        "error": f"worker failure: {type(exc).__name__}: {exc}",
+                        "overrides": "",
+                    }
+                write_row(store, row)
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return write_report(spec, out)

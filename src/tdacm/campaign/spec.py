@@ -1,0 +1,259 @@
+"""Campaign specifications: a scenario, distributions over its parameters, a number of runs.
+
+A spec is a TOML file::
+
+    scenario = "paper-in-fov"     # a shipped scenario name or a scenario TOML path
+    runs = 200
+    seed = 2026                   # master seed: run i gets its own seed from SeedSequence(seed)
+    duration = 5.0                # optional, overrides the scenario's
+    success_rmse = 0.01           # a run succeeds if it ends at or below this normalized RMSE
+
+    [distributions]
+    # keys are "section.key" paths into the scenario (see ``tdacm.sim.scenario.SCHEMA``)
+    "initial.q"          = { kind = "normal", std = [0, 0, 0.05, 0.1, 0.1, 0.1, 0.05, 0.05] }
+    "model.perturbation" = { kind = "fixed", value = 0.1 }
+    "sensors.pixel_noise" = { kind = "fixed", value = 1.0 }
+    "sensors.dropout"    = { kind = "uniform", low = 0.0, high = 0.05 }
+    "sensors.latency_steps" = { kind = "choice", values = [0, 1] }
+
+Kinds: ``fixed`` (``value``), ``normal`` (``std``, optional ``mean``; added to the scenario's
+value when ``relative = false`` (default) — a perturbation around the nominal — or multiplying
+``1 + N(mean, std)`` when ``relative = true``), ``uniform`` (``low``, ``high``; same ``relative``
+rule: absolute values unless ``offset = true``), ``choice`` (``values``).  Vectors take vector
+parameters of the key's length or scalars (broadcast).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+class CampaignSpecError(ValueError):
+    """An invalid campaign specification."""
+
+
+KINDS = {
+    "fixed": {"value"},
+    "normal": {"std", "mean", "relative"},
+    "uniform": {"low", "high", "offset"},
+    "choice": {"values"},
+}
+
+
+@dataclass
+class CampaignSpec:
+    scenario: str
+    runs: int
+    seed: int
+    distributions: dict = field(default_factory=dict)
+    duration: float | None = None
+    success_rmse: float = 0.01
+    source: str = "<spec>"
+
+    def as_dict(self) -> dict:
+        return {
+            "scenario": self.scenario,
+            "runs": self.runs,
+            "seed": self.seed,
+            "duration": self.duration,
+            "success_rmse": self.success_rmse,
+            "distributions": self.distributions,
+        }
+
+    def fingerprint(self) -> str:
+        """Hash of everything that determines the runs (to refuse resuming another spec)."""
+        return hashlib.sha256(json.dumps(self.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+    def run_seeds(self) -> np.ndarray:
+        """Per-run seeds: run ``i`` always gets the same seed for a given master seed."""
+        children = np.random.SeedSequence(self.seed).spawn(self.runs)
+        return np.array(
+            [int(c.generate_state(1, dtype=np.uint32)[0]) for c in children], dtype=np.int64
+        )
+
+
+def _err(source, msg):
+    raise CampaignSpecError(f"{source}: {msg}")
+
+
+def _num(source, where, v):
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        _err(source, f"{where} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _vec_or_scalar(source, where, v, length):
+    if isinstance(v, list):
+        if length is None:
+            _err(source, f"{where}: this key is a scalar, got a list")
+        if length >= 0 and len(v) != length:
+            _err(source, f"{where} must have {length} entries, got {len(v)}")
+        return [_num(source, where, x) for x in v]
+    return _num(source, where, v)
+
+
+def parse_spec(
+    text: str, source: str = "<spec>", scenario_defaults: dict | None = None
+) -> CampaignSpec:
+    """Parse and validate a campaign spec (TOML text).  ``scenario_defaults`` (the scenario's
+    resolved data) lets the validation check every distribution key and vector length."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CampaignSpecError(f"{source}: invalid TOML: {exc}") from None
+    known = {"scenario", "runs", "seed", "duration", "success_rmse", "distributions"}
+    unknown = set(data) - known
+    if unknown:
+        _err(source, f"unknown keys {sorted(unknown)} (known: {sorted(known)})")
+    if not isinstance(data.get("scenario"), str):
+        _err(source, "'scenario' (a scenario name or path) is required")
+    runs = data.get("runs")
+    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
+        _err(source, f"'runs' must be a positive integer, got {runs!r}")
+    seed = data.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        _err(source, f"'seed' must be a non-negative integer, got {seed!r}")
+    duration = data.get("duration")
+    if duration is not None:
+        duration = _num(source, "duration", duration)
+        if duration <= 0:
+            _err(source, f"duration must be positive, got {duration}")
+    success = _num(source, "success_rmse", data.get("success_rmse", 0.01))
+    if success <= 0:
+        _err(source, f"success_rmse must be positive, got {success}")
+    dists = data.get("distributions", {})
+    if not isinstance(dists, dict):
+        _err(source, "[distributions] must be a table")
+    clean = {}
+    for key, d in dists.items():
+        where = f"distributions.{key!r}"
+        if key.count(".") != 1:
+            _err(source, f"{where}: keys are 'section.key' paths, e.g. 'initial.q'")
+        section, name = key.split(".")
+        length = -1  # unknown until checked against the scenario
+        if scenario_defaults is not None:
+            if section not in scenario_defaults or not isinstance(scenario_defaults[section], dict):
+                _err(source, f"{where}: the scenario has no section [{section}]")
+            if name not in scenario_defaults[section]:
+                _err(
+                    source,
+                    f"{where}: section [{section}] has no key {name!r} "
+                    f"(known: {sorted(scenario_defaults[section])})",
+                )
+            base = scenario_defaults[section][name]
+            length = None
+            if isinstance(base, list):
+                length = len(base)
+            elif isinstance(base, bool) or (base is not None and not isinstance(base, int | float)):
+                _err(source, f"{where}: only numeric parameters can be sampled, {key} is {base!r}")
+        if not isinstance(d, dict) or d.get("kind") not in KINDS:
+            _err(source, f"{where} must be a table with kind = one of {sorted(KINDS)}, got {d!r}")
+        kind = d["kind"]
+        extra = set(d) - KINDS[kind] - {"kind"}
+        if extra:
+            _err(source, f"{where}: unknown parameters {sorted(extra)} for kind {kind!r}")
+        out = {"kind": kind}
+        if kind == "fixed":
+            if "value" not in d:
+                _err(source, f"{where}: kind 'fixed' needs 'value'")
+            out["value"] = _vec_or_scalar(source, f"{where}.value", d["value"], length)
+        elif kind == "normal":
+            if "std" not in d:
+                _err(source, f"{where}: kind 'normal' needs 'std'")
+            out["std"] = _vec_or_scalar(source, f"{where}.std", d["std"], length)
+            if np.any(np.asarray(out["std"]) < 0):
+                _err(source, f"{where}.std must be non-negative, got {d['std']!r}")
+            out["mean"] = _vec_or_scalar(source, f"{where}.mean", d.get("mean", 0.0), length)
+            out["relative"] = bool(d.get("relative", False))
+        elif kind == "uniform":
+            if "low" not in d or "high" not in d:
+                _err(source, f"{where}: kind 'uniform' needs 'low' and 'high'")
+            out["low"] = _vec_or_scalar(source, f"{where}.low", d["low"], length)
+            out["high"] = _vec_or_scalar(source, f"{where}.high", d["high"], length)
+            if np.any(np.asarray(out["high"]) < np.asarray(out["low"])):
+                _err(source, f"{where}: high must be >= low")
+            out["offset"] = bool(d.get("offset", False))
+        else:
+            vals = d.get("values")
+            if not isinstance(vals, list) or not vals:
+                _err(source, f"{where}: kind 'choice' needs a non-empty list 'values'")
+            out["values"] = [_vec_or_scalar(source, f"{where}.values", v, length) for v in vals]
+        clean[key] = out
+    return CampaignSpec(data["scenario"], runs, seed, clean, duration, success, source)
+
+
+def load_spec(path) -> CampaignSpec:
+    """Read a spec file and validate it against its scenario."""
+    from ..sim.scenario import load_scenario
+
+    p = Path(path)
+    if not p.is_file():
+        raise CampaignSpecError(f"campaign spec {path} does not exist")
+    text = p.read_text()
+    first = parse_spec(text, str(p))
+    scenario = load_scenario(first.scenario)
+    return parse_spec(text, str(p), scenario.data)
+
+
+def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> dict:
+    """The scenario overrides of one run, drawn with ``default_rng(run_seed)`` (deterministic)."""
+    rng = np.random.default_rng(run_seed)
+    out: dict = {}
+    for key in sorted(spec.distributions):
+        d = spec.distributions[key]
+        section, name = key.split(".")
+        base = scenario_data[section][name]
+        base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
+        shape = base_arr.shape
+        kind = d["kind"]
+        if kind == "fixed":
+            value = np.broadcast_to(np.asarray(d["value"], float), shape)
+        elif kind == "normal":
+            draw = rng.normal(np.broadcast_to(d["mean"], shape), np.broadcast_to(d["std"], shape))
+            value = base_arr * (1.0 + draw) if d["relative"] else base_arr + draw
+        elif kind == "uniform":
+            draw = rng.uniform(np.broadcast_to(d["low"], shape), np.broadcast_to(d["high"], shape))
+            value = base_arr + draw if d["offset"] else draw
+        else:
+            value = np.broadcast_to(
+                np.asarray(d["values"][rng.integers(len(d["values"]))], float), shape
+            )
+        value = np.array(value, dtype=float)
+        if isinstance(base, int) and not isinstance(base, bool):
+            pyval = int(round(float(value)))
+        elif shape == ():
+            pyval = float(value)
+        else:
+            pyval = value.tolist()
+        out.setdefault(section, {})[name] = pyval
+    return out
+
+
+def to_toml(data: dict) -> str:
+    """Serialize a two-level dict of scalars and lists (a scenario override) to TOML."""
+
+    def fmt(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, int | float):
+            return repr(float(v)) if isinstance(v, float) else str(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(fmt(x) for x in v) + "]"
+        raise TypeError(f"cannot write {v!r} to TOML")
+
+    lines = [f"{k} = {fmt(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for sec, table in data.items():
+        if isinstance(table, dict):
+            lines.append(f"\n[{sec}]")
+            lines.extend(f"{k} = {fmt(v)}" for k, v in copy.deepcopy(table).items())
+    return "\n".join(lines) + "\n"
