@@ -35,14 +35,29 @@ def test_spec_validation_errors(scenario_data):
         with pytest.raises(CampaignSpecError, match=match):
             parse_spec(text, "spec.toml", scenario_data)
 
-    bad('runs = 3', "'scenario'")
+    bad("runs = 3", "'scenario'")
     bad('scenario = "paper-in-fov"\nruns = 0', "'runs' must be a positive integer")
     bad('scenario = "paper-in-fov"\nruns = 2\nworkers = 3', "unknown keys")
-    bad('scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"initial.q" = { kind = "gauss", std = 1 }', "kind")
-    bad('scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"initial.q" = { kind = "normal", std = [1, 2] }', "8 entries")
-    bad('scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"model.nope" = { kind = "fixed", value = 1 }', "no key 'nope'")
-    bad('scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"cams.x" = { kind = "fixed", value = 1 }', "no section")
-    bad('scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"model.perturbation" = { kind = "uniform", low = 1, high = 0 }', "high must be >= low")
+    bad(
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"initial.q" = { kind = "gauss", std = 1 }',
+        "kind",
+    )
+    bad(
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"initial.q" = { kind = "normal", std = [1, 2] }',
+        "8 entries",
+    )
+    bad(
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"model.nope" = { kind = "fixed", value = 1 }',
+        "no key 'nope'",
+    )
+    bad(
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"cams.x" = { kind = "fixed", value = 1 }',
+        "no section",
+    )
+    bad(
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"model.perturbation" = { kind = "uniform", low = 1, high = 0 }',
+        "high must be >= low",
+    )
     bad("scenario = [", "invalid TOML")
 
 
@@ -95,8 +110,12 @@ def test_interrupted_campaign_resumes_and_scheduler_gives_same_rows(tmp_path, sc
     assert np.array_equal(kept["run_wall_s"].to_numpy(), first["run_wall_s"].to_numpy())
     assert (out / "report.md").exists() and (out / "report.png").exists()
     # the same spec on a scheduler started separately (loopback) gives the same per-run results
-    with LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None) as cluster:
-        run_campaign(spec_path, tmp_path / "remote", scheduler=cluster.scheduler_address, progress=False)
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        run_campaign(
+            spec_path, tmp_path / "remote", scheduler=cluster.scheduler_address, progress=False
+        )
     remote = read_results(tmp_path / "remote")
     for col in ("seed", "overrides", "final_rmse", "initial_rmse", "status"):
         assert remote[col].tolist() == rows[col].tolist(), col

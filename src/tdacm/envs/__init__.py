@@ -1,0 +1,12 @@
+"""Gymnasium environments: ``gymnasium.make("tdacm/TipServo-v0")`` (see :mod:`.servo`)."""
+
+import gymnasium as gym
+
+from .servo import TipServoEnv
+
+ENV_ID = "tdacm/TipServo-v0"
+
+if ENV_ID not in gym.registry:
+    gym.register(id=ENV_ID, entry_point="tdacm.envs.servo:TipServoEnv", max_episode_steps=250)
+
+__all__ = ["ENV_ID", "TipServoEnv"]
