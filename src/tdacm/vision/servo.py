@@ -1,0 +1,113 @@
+"""One local-camera servo step: image -> detection -> C_V points -> features -> twist.
+
+:class:`LocalCameraServo` chains the pieces of this package in the order of the paper's
+dual-camera algorithm (local-camera branch):
+
+1. detect the target in the C_L image (:mod:`.detect`), pixels -> normalized coordinates;
+2. depths of the four points from the known target geometry (planar PnP,
+   :func:`~.features.estimate_depths`);
+3. roll/pitch compensation into the virtual camera C_V (:mod:`.virtual`), if the caller
+   gives ``g_{C_L}^{C_V}`` (floating base); skipped for a fixed base;
+4. advanced features and the IBVS twist of C_V (:mod:`.features`, :mod:`.ibvs`).
+
+The caller maps the twist to joint rates with :func:`~.tip.camera_joint_rates`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import PinholeCamera
+from .detect import Detection, TargetDetector
+from .features import advanced_features, estimate_depths
+from .ibvs import IBVSController
+from .targets import FiducialTarget
+from .virtual import virtual_camera_points
+
+
+@dataclass(frozen=True)
+class ServoStep:
+    """Everything one servo step computed (``twist`` is ``None`` if not detected)."""
+
+    detection: Detection
+    points: np.ndarray | None = None  # normalized, in C_V (or C_L without compensation)
+    depths: np.ndarray | None = None
+    features: np.ndarray | None = None
+    error: np.ndarray | None = None
+    twist: np.ndarray | None = None  # [w; v] of C_V in its own frame
+
+    @property
+    def found(self) -> bool:
+        return self.detection.found
+
+
+class LocalCameraServo:
+    """Advanced-feature IBVS on the tip camera's images.
+
+    Parameters
+    ----------
+    camera:
+        The local camera (e.g. :data:`~.camera.LOCAL_CAMERA`).
+    target:
+        The fiducial target.
+    desired_points, desired_depths:
+        Reference snapshot (normalized points in paper order and their depths), e.g. from
+        :meth:`reference_from_pose`.
+    gain, mode:
+        IBVS gain and interaction-matrix choice (see :class:`~.ibvs.IBVSController`).
+    compensation:
+        Virtual-camera mapping used when a transform is given to :meth:`step`
+        (``"exact"``, ``"rotation"`` or ``"approx"``).
+    track:
+        Let the detector search near the previous detection first.
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        target: FiducialTarget,
+        desired_points,
+        desired_depths,
+        gain: float = 0.5,
+        mode: str = "current",
+        compensation: str = "exact",
+        track: bool = True,
+    ):
+        self.camera = camera
+        self.target = target
+        self.detector = TargetDetector(target, track=track)
+        self.controller = IBVSController(desired_points, desired_depths, gain=gain, mode=mode)
+        self.compensation = compensation
+
+    @staticmethod
+    def reference_from_pose(
+        camera: PinholeCamera, target: FiducialTarget, target_pose, camera_pose
+    ):
+        """Desired normalized points and depths of ``target`` (at ``target_pose``) seen from
+        ``camera_pose`` - the paper's reference snapshot, computed analytically."""
+        g = np.linalg.solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
+        pc = target.feature_points @ g[:3, :3].T + g[:3, 3]
+        if np.any(pc[:, 2] <= 0):
+            raise ValueError("the target is behind the camera in the reference pose")
+        return pc[:, :2] / pc[:, 2:3], pc[:, 2]
+
+    def step(self, image, virtual_transform=None) -> ServoStep:
+        """Process one C_L image; ``virtual_transform`` is ``g_{C_L}^{C_V}``
+        (:func:`~.virtual.virtual_camera_transform`) or ``None`` (no compensation)."""
+        det = self.detector.detect(image)
+        if not det.found:
+            return ServoStep(det)
+        xy = self.camera.normalize(det.points)
+        z = estimate_depths(xy, self.target.feature_points)
+        if virtual_transform is not None:
+            xy, zv = virtual_camera_points(
+                xy, virtual_transform, z, self.compensation, return_depths=True
+            )
+            # "exact" returns z^{C_V}; the other methods the ratio z^{C_V} / z^{C_L}
+            z = zv if self.compensation == "exact" else zv * z
+        f = advanced_features(xy)
+        e = self.controller.error(xy)
+        v = self.controller.twist(xy, z)
+        return ServoStep(det, xy, z, f, e, v)

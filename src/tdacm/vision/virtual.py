@@ -1,0 +1,123 @@
+"""Virtual camera C_V: removes the drone's roll and pitch from the tip camera's image.
+
+Paper, section "UAV Roll and Pitch Compensation in Image Space":
+
+    g_{C_L} = g_b g_a^b g_L^a g_{C_L}^L,      g_{C_V} = g_psi g_a^b g_L^a g_{C_L}^L,
+    g_{C_L}^{C_V} = g_{C_V}^-1 g_{C_L},
+
+where ``g_psi`` is the drone pose with ``(phi, theta)`` set to 0 (same position and yaw).
+Writing ``g_{C_L}^b = g_a^b g_L^a g_{C_L}^L = [R_c, t_c]`` and
+``R' = R_psi^T R_b = Ry(theta) Rx(phi)``:
+
+    g_{C_L}^{C_V} = [[R_c^T R' R_c,  R_c^T (R' - I) t_c], [0, 1]].
+
+The paper states that the translation cancels. That holds only when the camera sits at the
+drone's centre of mass (``t_c = 0``); with the camera at the tip of a 1 m rod the virtual
+camera is displaced by ``|(R' - I) t_c| ~ 2 sin(tilt/2) * 1 m`` (1.7 cm per degree of tilt).
+Three mappings of normalized points ``p^{C_L} -> p^{C_V}`` are therefore provided
+(:func:`virtual_camera_points`):
+
+* ``"exact"``: the full rigid transform with the points' depths,
+  ``r^{C_V} = R z p^{C_L} + t``, ``p^{C_V} = r^{C_V} / z^{C_V}``. Invariant to any
+  roll/pitch of the drone (tested); needs the depths (e.g. from
+  :func:`~.features.estimate_depths`).
+* ``"rotation"``: the paper's projective formula ``p^{C_V} = (z^{C_L}/z^{C_V}) R p^{C_L}``
+  with ``z^{C_V}/z^{C_L} = e3^T R p^{C_L}`` (the rotation-only homography; depth-free, exact
+  when ``t`` is negligible against the depth).
+* ``"approx"``: the paper's small-displacement approximation ``p^{C_V} ~ R p^{C_L}`` (first
+  two components), from Kim et al. 2016.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _checks as C
+
+METHODS = ("exact", "rotation", "approx")
+
+
+def _rz(psi: float) -> np.ndarray:
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def yaw_only_pose(base_pose) -> np.ndarray:
+    """``g_psi``: the drone pose with roll and pitch removed (ZYX Euler, same yaw and
+    position)."""
+    g = C.transform("base_pose", base_pose)
+    r = g[:3, :3]
+    psi = np.arctan2(r[1, 0], r[0, 0])
+    out = np.eye(4)
+    out[:3, :3] = _rz(psi)
+    out[:3, 3] = g[:3, 3]
+    return out
+
+
+def virtual_camera_pose(base_pose, camera_pose) -> np.ndarray:
+    """``g_{C_V} = g_psi g_{C_L}^b`` (inertial), from the inertial drone pose ``g_b`` and
+    the inertial pose of the real camera ``g_{C_L}``."""
+    g_b = C.transform("base_pose", base_pose)
+    g_c = C.transform("camera_pose", camera_pose)
+    return yaw_only_pose(g_b) @ np.linalg.solve(g_b, g_c)
+
+
+def virtual_camera_transform(base_pose, camera_pose) -> np.ndarray:
+    """``g_{C_L}^{C_V} = g_{C_V}^-1 g_{C_L}`` (4x4; pose of the real camera in the virtual
+    camera's frame). Its rotation is ``R_{C_L}^{C_V}``; its translation is zero only for a
+    camera at the drone's centre of mass (see module docstring)."""
+    g_c = C.transform("camera_pose", camera_pose)
+    return np.linalg.solve(virtual_camera_pose(base_pose, g_c), g_c)
+
+
+def virtual_camera_points(
+    points, transform, depths=None, method: str = "exact", return_depths: bool = False
+):
+    """Map normalized points ``(N, 2)`` of C_L to C_V.
+
+    Parameters
+    ----------
+    points:
+        Normalized coordinates in the real camera C_L.
+    transform:
+        ``g_{C_L}^{C_V}`` (4x4, from :func:`virtual_camera_transform`) or
+        ``R_{C_L}^{C_V}`` (3x3; then the translation is taken as zero).
+    depths:
+        ``z^{C_L}`` of each point (``(N,)`` or scalar); required by ``"exact"``.
+    method:
+        ``"exact"``, ``"rotation"`` or ``"approx"`` (module docstring).
+    return_depths:
+        Also return ``z^{C_V}`` (``"exact"``) or the ratio ``z^{C_V}/z^{C_L}``
+        (``"rotation"``, ``"approx"``: ones).
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    p = C.points("points", points, 2)
+    t = np.asarray(transform, dtype=float)
+    if t.shape == (4, 4):
+        g = C.transform("transform", t)
+        r, tr = g[:3, :3], g[:3, 3]
+    else:
+        r, tr = C.rotation("transform", t), np.zeros(3)
+    h = np.column_stack((p, np.ones(p.shape[0])))
+    if method == "exact":
+        if depths is None:
+            raise ValueError("depths are required by method='exact'")
+        z = np.asarray(depths, dtype=float)
+        z = np.full(p.shape[0], float(z)) if z.ndim == 0 else z
+        z = C.array("depths", z, (p.shape[0],))
+        if np.any(z <= 0.0):
+            raise ValueError(f"depths must be positive, got {z!r}")
+        rv = (h * z[:, None]) @ r.T + tr
+        if np.any(rv[:, 2] <= 0.0):
+            raise ValueError("a point lies behind the virtual camera")
+        out = rv[:, :2] / rv[:, 2:3]
+        return (out, rv[:, 2]) if return_depths else out
+    rp = h @ r.T
+    if method == "rotation":
+        if np.any(rp[:, 2] <= 0.0):
+            raise ValueError("a point lies behind the virtual camera")
+        out = rp[:, :2] / rp[:, 2:3]
+        return (out, rp[:, 2]) if return_depths else out
+    out = rp[:, :2].copy()
+    return (out, np.ones(p.shape[0])) if return_depths else out
