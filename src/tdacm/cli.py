@@ -1,10 +1,12 @@
-"""Command-line interface: ``tdacm info``, ``tdacm demo``, ``tdacm bench``."""
+"""Command-line interface: ``tdacm info``, ``tdacm demo``, ``tdacm bench``, ``tdacm run``,
+``tdacm scenarios``, ``tdacm campaign``, ``tdacm replay``."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 
 def _cmd_info(args) -> int:
@@ -38,6 +40,61 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_run(args) -> int:
+    from pathlib import Path
+
+    from .sim import ScenarioError, run_scenario
+
+    out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
+    try:
+        _, summary = run_scenario(
+            args.scenario,
+            out=out,
+            config=args.config,
+            duration=args.duration,
+            seed=args.seed,
+            video=args.video,
+            progress=True,
+        )
+    except ScenarioError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(summary, indent=2))
+    print(f"\nRun written to {out.resolve()}/")
+    return 1 if summary["terminated"] else 0
+
+
+def _cmd_scenarios(args) -> int:
+    from .sim import list_scenarios, load_scenario
+
+    for name in list_scenarios():
+        sc = load_scenario(name)
+        print(f"{name:18s} {sc['duration']:5.1f} s  {sc['description']}")
+    return 0
+
+
+def _cmd_campaign(args) -> int:
+    from .campaign import CampaignSpecError, run_campaign
+
+    try:
+        report = run_campaign(args.spec, args.out, workers=args.workers, scheduler=args.scheduler)
+    except CampaignSpecError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    print((out / "report.md").read_text())
+    print(f"Campaign written to {out.resolve()}/ (results/, report.md, report.png)")
+    return 0 if report["complete"] else 1
+
+
+def _cmd_replay(args) -> int:
+    from .viz import replay_run
+
+    path = replay_run(args.run_dir, args.out, fps=args.fps, max_frames=args.max_frames)
+    print(f"3-D replay written to {path.resolve()}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="tdacm",
@@ -55,6 +112,28 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out/bench", help="output folder for bench.json")
     s.add_argument("--repeats", type=int, default=7, help="timing repeats (median reported)")
     s.set_defaults(func=_cmd_bench)
+    s = sub.add_parser("run", help="run a closed-loop scenario (see `tdacm scenarios`)")
+    s.add_argument("scenario", help="scenario name or path to a scenario TOML file")
+    s.add_argument("--config", help="TOML file overriding scenario values (same layout)")
+    s.add_argument("--out", help="output folder (default: out/SCENARIO)")
+    s.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's)")
+    s.add_argument("--seed", type=int, help="seed of the model perturbation and noise")
+    s.add_argument("--video", action="store_true", help="write video.mp4 (C_L | C_G)")
+    s.set_defaults(func=_cmd_run)
+    s = sub.add_parser("scenarios", help="list the shipped scenarios")
+    s.set_defaults(func=_cmd_scenarios)
+    s = sub.add_parser("campaign", help="run a robustness campaign on Dask (resumable)")
+    s.add_argument("spec", help="campaign spec TOML (see docs/campaigns.md)")
+    s.add_argument("--workers", type=int, help="local Dask worker processes (default: CPU count)")
+    s.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:port)")
+    s.add_argument("--out", default="out/campaign", help="output folder; rerun to resume")
+    s.set_defaults(func=_cmd_campaign)
+    s = sub.add_parser("replay", help="3-D animation (GIF or MP4) of a `tdacm run` folder")
+    s.add_argument("run_dir", help="a folder written by `tdacm run`")
+    s.add_argument("--out", help="output .gif or .mp4 (default: RUN_DIR/replay.gif)")
+    s.add_argument("--fps", type=int, default=20)
+    s.add_argument("--max-frames", type=int, default=60)
+    s.set_defaults(func=_cmd_replay)
     return p
 
 

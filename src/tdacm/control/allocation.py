@@ -1,0 +1,72 @@
+"""Allocation of the generalized forces ``tau_a`` to the real inputs.
+
+* Motors: the body wrench ``[tau_x, tau_y, tau_z, f_z]`` -> four thrusts through the rows
+  ``[0, 1, 2, 5]`` of the paper's ``Gamma`` (invertible for a ``+`` quadrotor), clipped to
+  ``[0, max_thrust]`` (:func:`allocate_thrusts`).
+* Tendons: ``B_s(q) T = tau_s`` with ``0 <= T <= T_max`` (tendons only pull). With two
+  antagonistic pairs the common mode of each pair is free; it is set to the pretension
+  ``T_pre`` when possible. Solved as a bounded least-squares problem
+  (``scipy.optimize.lsq_linear``) on ``[B_s; w I] T = [tau_s; w T_pre]`` with a small ``w``;
+  the result never has a negative tension, and :class:`TendonAllocation` reports whether a
+  bound was active and the generalized force could not be produced exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+
+@dataclass(frozen=True)
+class TendonAllocation:
+    tensions: np.ndarray
+    residual: float  # |B_s T - tau_s|
+    saturated: bool  # a bound (0 or T_max) was active and the demand was not met
+    at_max: bool
+    at_zero: bool
+
+
+def allocate_tensions(
+    b_s, tau_s, max_tension: float, pretension: float = 0.5, weight: float = 1e-3, tol: float = 1e-6
+) -> TendonAllocation:
+    """Tendon tensions ``0 <= T <= max_tension`` with ``B_s T ~= tau_s`` (see module doc).
+
+    ``weight`` (relative to the column norm of ``B_s``) trades the pretension target against
+    exactness; with the paper's antagonistic pairs it only acts on the free common mode.
+    """
+    b = np.asarray(b_s, dtype=float)
+    tau = np.asarray(tau_s, dtype=float)
+    if b.ndim != 2 or tau.shape != (b.shape[0],):
+        raise ValueError(f"B_s must be (n_s, n_a) and tau_s (n_s,), got {b.shape}, {tau.shape}")
+    if max_tension <= 0 or pretension < 0 or pretension > max_tension:
+        raise ValueError("need 0 <= pretension <= max_tension and max_tension > 0")
+    na = b.shape[1]
+    w = weight * max(float(np.linalg.norm(b, axis=0).max()), 1e-12)
+    a = np.vstack((b, w * np.eye(na)))
+    rhs = np.concatenate((tau, np.full(na, w * pretension)))
+    res = lsq_linear(a, rhs, bounds=(0.0, max_tension), method="bvls")
+    t = np.clip(res.x, 0.0, max_tension)
+    resid = float(np.linalg.norm(b @ t - tau))
+    at_max = bool(np.any(t >= max_tension - 1e-9))
+    at_zero = bool(np.any(t <= 1e-9))
+    scale = max(1.0, float(np.linalg.norm(tau)))
+    saturated = bool((at_max or at_zero) and resid > tol * scale + 1e-9)
+    return TendonAllocation(t, resid, saturated, at_max, at_zero)
+
+
+@dataclass(frozen=True)
+class ThrustAllocation:
+    thrusts: np.ndarray
+    requested: np.ndarray  # before clipping
+    saturated: bool
+
+
+def allocate_thrusts(gamma, torque_body, thrust: float, max_thrust: float) -> ThrustAllocation:
+    """Motor thrusts for a body torque and a total thrust through ``Gamma`` (rows 0, 1, 2, 5),
+    clipped to ``[0, max_thrust]``; ``saturated`` tells whether clipping was needed."""
+    g4 = np.asarray(gamma, float)[[0, 1, 2, 5]]
+    req = np.linalg.solve(g4, np.concatenate((np.asarray(torque_body, float), [thrust])))
+    f = np.clip(req, 0.0, max_thrust)
+    return ThrustAllocation(f, req, bool(np.any(np.abs(f - req) > 1e-9)))

@@ -1,0 +1,207 @@
+"""The TD-ACM low-level controller: adaptive law + hierarchical drone loop + allocation.
+
+Paper, "Adaptive Controller" (end): the drone's lateral motion is produced by tilting. Each
+control step:
+
+1. the adaptive law (:mod:`.adaptive`) gives the translational rows of ``tau_a`` for the
+   reference ``q_d`` with the attitude taken as tracked (roll/pitch reference = current
+   roll/pitch, so the outer loop does not react to inner-loop errors through the inertial
+   coupling);
+2. translational loop: ``F = |(tau_a4, tau_a5, tau_a6)|`` and (paper)
+   ``theta_d = atan((tau_a4 cos psi_d + tau_a5 sin psi_d) / F)``,
+   ``phi_d = atan((tau_a4 sin psi_d - tau_a5 cos psi_d) / F)``, clipped to ``max_tilt`` and
+   smoothed by a first-order filter (time constant ``attitude_filter``) whose derivative is
+   the roll/pitch reference rate;
+3. attitude loop: the adaptive law is re-evaluated with the new roll/pitch reference; its
+   rotational rows ``tau_a[0:3]`` (Euler-coordinate torques ``T^T tau_b``) give the body
+   torque ``tau_b = T^-T tau_a[0:3]``;
+4. allocation: thrust ``= F`` projected on the actual thrust axis ``R_b e_3``, motors through
+   ``Gamma`` with saturation; tendon tensions ``>= 0`` from ``tau_a[6:]``
+   (:mod:`.allocation`);
+5. adaptation ``Delta_hat <- Delta_hat - A_a s_q dt``.
+
+For a fixed base (ground tests) only steps 1, 4 (tendons) and 5 apply.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..lie.euler import euler_rate_matrix
+from ..system.tdacm import TDACM
+from .adaptive import AdaptiveController, AdaptiveGains
+from .allocation import allocate_tensions, allocate_thrusts
+from .model import EstimatedModel
+
+
+def attitude_from_force(force, psi_d: float, exact: bool = False):
+    """``(F, phi_d, theta_d)`` from the desired inertial force (paper's formulas; with
+    ``exact`` the ZYX inversion ``phi = asin(.)``, ``theta = atan2(., f_z)``)."""
+    f = np.asarray(force, float)
+    big_f = float(np.linalg.norm(f))
+    if big_f < 1e-9:
+        return 0.0, 0.0, 0.0
+    c, s = np.cos(psi_d), np.sin(psi_d)
+    a = f[0] * c + f[1] * s
+    b = f[0] * s - f[1] * c
+    if exact:
+        phi = float(np.arcsin(np.clip(b / big_f, -1.0, 1.0)))
+        theta = float(np.arctan2(a, f[2]))
+        return big_f, phi, theta
+    return big_f, float(np.arctan(b / big_f)), float(np.arctan(a / big_f))
+
+
+def default_gains(system: TDACM, q=None) -> AdaptiveGains:
+    """Diagonal gains used by the scenarios, scaled by the effective inertia of each
+    coordinate at ``q`` (``1 / (M0^-1)_ii``, the inertia seen with the other coordinates
+    free): the drone's roll/pitch and the rod strains are strongly coupled
+    (``M_07 ~ 2 M_77``), and gains scaled by ``diag(M0)`` would be too high for the coupled
+    modes at 50 Hz. ``A_p = A_d beta`` satisfies the gain condition for every ``eps > 1/2``."""
+    q = np.zeros(system.n) if q is None else np.asarray(q, float)
+    m = 1.0 / np.diag(np.linalg.inv(system.terms(q, np.zeros(system.n)).M))
+    if system.floating:
+        ns = system.n_s
+        #         roll  pitch  yaw   x     y     z     q_s...
+        beta = [6.0, 6.0, 3.0, 1.2, 1.2, 1.5] + [6.0] * ns
+        rate = [16.0, 16.0, 8.0, 3.0, 3.0, 4.0] + [25.0] * ns
+        adapt = [20.0, 20.0, 8.0, 1.5, 1.5, 3.0] + [20.0] * ns
+    else:
+        beta = [6.0] * system.n
+        rate = [25.0] * system.n
+        adapt = [20.0] * system.n
+    return AdaptiveGains.from_rates(m, beta, rate, adapt)
+
+
+@dataclass(frozen=True)
+class ControlStep:
+    """Everything one low-level control step produced."""
+
+    u: np.ndarray  # [thrusts (4), tensions (n_a)] or tensions
+    tau: np.ndarray  # tau_a
+    q_ref: np.ndarray  # reference used (roll/pitch from the translational loop)
+    e: np.ndarray
+    s: np.ndarray
+    V: float
+    thrust_total: float
+    thrust_saturated: bool
+    tension_saturated: bool
+    tension_residual: float
+    delta_hat: np.ndarray
+
+
+class TDACMController:
+    """Low-level controller of a TD-ACM (floating or fixed base); see module docstring.
+
+    Parameters
+    ----------
+    system:
+        The true system (structure, limits, ``Gamma``); the law uses ``model``.
+    model:
+        :class:`EstimatedModel` (default: 10 % perturbation, seed 0).
+    gains:
+        :class:`AdaptiveGains` (default :func:`default_gains`).
+    pretension:
+        Tendon pretension target (N).
+    max_tilt:
+        Bound on the commanded roll/pitch (rad).
+    attitude_filter, max_tilt_rate:
+        Time constant (s) and rate limit (rad/s) of the roll/pitch command filter.
+    min_lift:
+        The vertical component of the desired force is kept above ``min_lift`` times the
+        weight before the tilt is computed (a descending drone still needs thrust).
+    """
+
+    def __init__(
+        self,
+        system: TDACM,
+        model: EstimatedModel | None = None,
+        gains: AdaptiveGains | None = None,
+        pretension: float = 0.5,
+        max_tilt: float = 0.35,
+        attitude_filter: float = 0.1,
+        max_tilt_rate: float = 1.5,
+        min_lift: float = 0.8,
+        exact_attitude: bool = False,
+    ):
+        self.system = system
+        self.model = EstimatedModel(system) if model is None else model
+        self.gains = default_gains(system) if gains is None else gains
+        self.law = AdaptiveController(self.model, self.gains)
+        self.pretension = float(pretension)
+        self.max_tilt = float(max_tilt)
+        self.attitude_filter = float(attitude_filter)
+        self.exact_attitude = bool(exact_attitude)
+        self.max_tilt_rate = float(max_tilt_rate)
+        self.min_lift = float(min_lift)
+
+        self._weight = float(system.total_mass * np.linalg.norm(system.loads.gravity))
+        self.n = system.n
+        self._att = None  # filtered roll/pitch command
+        self._att_rate = np.zeros(2)
+
+    def reset(self, q=None):
+        self.law.reset()
+        self._att = None if q is None else np.asarray(q, float)[:2].copy()
+        self._att_rate = np.zeros(2)
+
+    def step(self, q, qd, q_d, qd_d, qdd_d, dt: float) -> ControlStep:
+        sysm = self.system
+        q = np.asarray(q, float)
+        qd = np.asarray(qd, float)
+        q_ref = np.asarray(q_d, float).copy()
+        qd_ref = np.asarray(qd_d, float).copy()
+        qdd_ref = np.asarray(qdd_d, float).copy()
+        terms = self.model.terms(q, qd)
+        thrust_total, thrust_sat = 0.0, False
+        if sysm.floating:
+            if self._att is None:
+                self._att = q[:2].copy()
+            # outer (translational) pass: the attitude is taken as tracked (zero roll/pitch
+            # error), so the force does not react to the inner loop's errors through the
+            # inertial coupling M_hat[3:6, 0:2] (that feedback chattered at 25 Hz)
+            q_ref[:2] = q[:2]
+            qd_ref[:2] = qd[:2]
+            qdd_ref[:2] = 0.0
+            out = self.law.law(q, qd, q_ref, qd_ref, qdd_ref, terms)
+            force = out.tau[3:6].copy()
+            force[2] = max(force[2], self.min_lift * self._weight)
+            big_f, phi_d, theta_d = attitude_from_force(force, q_ref[2], self.exact_attitude)
+            raw = np.clip([phi_d, theta_d], -self.max_tilt, self.max_tilt)
+            a = min(1.0, dt / max(self.attitude_filter, 1e-9))
+            step = np.clip(a * (raw - self._att), -self.max_tilt_rate * dt, self.max_tilt_rate * dt)
+            new = self._att + step
+            self._att_rate = step / dt
+            self._att = new
+            q_ref[:2] = self._att
+            qd_ref[:2] = self._att_rate
+            out = self.law.law(q, qd, q_ref, qd_ref, qdd_ref, terms)
+            t_mat = euler_rate_matrix(q[0], q[1])
+            torque_b = np.linalg.solve(t_mat.T, out.tau[:3])
+            r_b = sysm.base_pose(q)[:3, :3]
+            thrust_total = max(0.0, float(out.tau[3:6] @ r_b[:, 2]))
+            ta = allocate_thrusts(sysm.base.gamma, torque_b, thrust_total, sysm.base.max_thrust)
+            thrusts, thrust_sat = ta.thrusts, ta.saturated
+            tau_s = out.tau[6:]
+        else:
+            out = self.law.law(q, qd, q_ref, qd_ref, qdd_ref, terms)
+            thrusts = np.zeros(0)
+            tau_s = out.tau
+        b_s = sysm.tendon_matrix(q)
+        tal = allocate_tensions(b_s, tau_s, sysm.tendons.max_tension, self.pretension)
+        self.law.adapt(out.s, dt)
+        u = np.concatenate((thrusts, tal.tensions))
+        return ControlStep(
+            u,
+            out.tau,
+            q_ref,
+            out.e,
+            out.s,
+            out.V,
+            thrust_total,
+            thrust_sat,
+            tal.saturated,
+            tal.residual,
+            self.law.delta_hat.copy(),
+        )

@@ -1,0 +1,275 @@
+"""Scenarios as data: TOML files shipped in ``tdacm/scenarios/``, validated on load.
+
+A scenario file has top-level ``name``, ``description``, ``duration``, ``dt``, ``substeps``,
+``seed`` and the sections of :data:`SCHEMA` (every key optional except ``initial.q`` and
+``desired.q``; defaults below). Unknown sections or keys, wrong types and wrong vector
+lengths raise :class:`ScenarioError` naming the file and the key. ``--config FILE`` overrides
+use the same layout (merged section by section).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+
+class ScenarioError(ValueError):
+    """Invalid scenario data."""
+
+
+_NUM = (int, float)
+
+#: section -> key -> (type, default); type "vec:N" is a list of N numbers ("vec" any length)
+SCHEMA = {
+    "": {
+        "name": (str, None),
+        "description": (str, ""),
+        "duration": (float, 5.0),
+        "dt": (float, 0.02),
+        "substeps": (int, 4),
+        "seed": (int, 0),
+    },
+    "system": {
+        "base": (str, "floating"),  # "floating" | "fixed"
+        "held_base_q": ("vec:6", [0.0, 0.0, 0.0, 0.0, 0.0, 3.0]),  # drone pose for "fixed"
+    },
+    "initial": {"q": ("vec", None), "qd": ("vec", None)},
+    "desired": {"q": ("vec", None)},
+    "model": {"perturbation": (float, 0.1), "gravity_feedforward": (bool, True)},
+    "controller": {
+        "pretension": (float, 0.5),
+        "max_tilt": (float, 0.35),
+        "attitude_filter": (float, 0.1),
+        "max_tilt_rate": (float, 1.5),
+    },
+    "ibvs": {
+        "gain": (float, 1.0),
+        "mode": (str, "current"),
+        "compensation": (str, "exact"),
+        "max_joint_rate": (float, 0.4),  # rad/s, rod strains and yaw
+        "max_drone_speed": (float, 0.3),  # m/s, horizontal
+        "max_vertical_speed": (float, 1.0),  # m/s
+        "soft_start": (float, 1.0),
+        "rate_filter": (float, 0.15),  # s, time constant of the joint-rate command filter
+    },
+    "recovery": {
+        "max_speed": (float, 0.3),
+        "margin_px": (float, 20.0),
+        "confirm": (int, 2),
+        "lose": (int, 5),
+    },
+    "scene": {
+        "target": (str, "aruco"),  # "aruco" | "apriltag"
+        "box_size": (float, 0.4),
+        "box_xy": ("vec:2", [0.0, 0.0]),
+        "target_yaw_deg": (float, 0.0),
+    },
+    "cameras": {
+        "tip_offset": (float, 0.0),
+        "drone_camera_position": ("vec:3", [0.10, 0.0, -0.06]),
+        "drone_camera_tilt_deg": (float, 10.0),
+        "global_every": (int, 1),
+        "global_renderer": (str, "pybullet"),  # "pybullet" | "planar"
+        "global_backend": (str, "auto"),  # PyBullet: "auto" (EGL if available), "egl", "tiny"
+    },
+    "safety": {
+        "enabled": (bool, True),
+        "growth_limit": (float, 0.05),
+        "min_increase": (float, 0.005),
+        "grace": (float, 0.5),
+    },
+    "disturbances": {
+        "base_wrench_amplitude": ("vec:6", [0.0] * 6),
+        "base_wrench_frequency": (float, 0.0),
+        "downwash": ("vec:3", [0.0, 0.0, 0.0]),
+        "downwash_noise": (float, 0.0),
+    },
+    "expect": {
+        "initial_in_local_fov": (bool, None),
+        "initial_in_global_fov": (bool, None),
+    },
+}
+
+
+def _check(where: str, typ, value):
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, _NUM) or not math.isfinite(value):
+            raise ScenarioError(f"{where} must be a finite number, got {value!r}")
+        return float(value)
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ScenarioError(f"{where} must be an integer, got {value!r}")
+        return value
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ScenarioError(f"{where} must be true or false, got {value!r}")
+        return value
+    if typ is str:
+        if not isinstance(value, str):
+            raise ScenarioError(f"{where} must be a string, got {value!r}")
+        return value
+    # vectors
+    if not isinstance(value, list) or not all(
+        isinstance(v, _NUM) and not isinstance(v, bool) and math.isfinite(v) for v in value
+    ):
+        raise ScenarioError(f"{where} must be a list of finite numbers, got {value!r}")
+    if ":" in typ and len(value) != int(typ.split(":")[1]):
+        raise ScenarioError(f"{where} must have {typ.split(':')[1]} entries, got {len(value)}")
+    return [float(v) for v in value]
+
+
+def _defaults() -> dict:
+    out = {}
+    for sec, keys in SCHEMA.items():
+        d = {k: copy.deepcopy(v[1]) for k, v in keys.items()}
+        if sec == "":
+            out.update(d)
+        else:
+            out[sec] = d
+    return out
+
+
+def _merge(base: dict, data: dict, source: str) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in data.items():
+        if isinstance(value, dict):
+            if key not in SCHEMA or key == "":
+                raise ScenarioError(
+                    f"{source}: unknown section [{key}] "
+                    f"(known: {', '.join(k for k in SCHEMA if k)})"
+                )
+            for k, v in value.items():
+                if k not in SCHEMA[key]:
+                    raise ScenarioError(
+                        f"{source}: unknown key {key}.{k} (known: {', '.join(SCHEMA[key])})"
+                    )
+                out[key][k] = _check(f"{source}: {key}.{k}", SCHEMA[key][k][0], v)
+        else:
+            if key not in SCHEMA[""]:
+                raise ScenarioError(
+                    f"{source}: unknown key {key!r} (known: {', '.join(SCHEMA[''])}, or a section)"
+                )
+            out[key] = _check(f"{source}: {key}", SCHEMA[""][key][0], value)
+    return out
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario (``data`` is the full nested dict with defaults filled in)."""
+
+    data: dict
+    source: str
+
+    @property
+    def name(self) -> str:
+        return self.data["name"]
+
+    @property
+    def floating(self) -> bool:
+        return self.data["system"]["base"] == "floating"
+
+    def __getitem__(self, key):
+        return self.data[key]
+
+    def with_overrides(self, data: dict, source: str = "overrides") -> Scenario:
+        return validate(_merge(self.data, data, source), f"{self.source} + {source}")
+
+
+def validate(d: dict, source: str) -> Scenario:
+    """Cross-field checks (on a dict already merged with the defaults)."""
+    if not d.get("name"):
+        raise ScenarioError(f"{source}: 'name' is required")
+    for key in ("duration", "dt"):
+        if d[key] <= 0:
+            raise ScenarioError(f"{source}: {key} must be positive, got {d[key]!r}")
+    if d["substeps"] < 1:
+        raise ScenarioError(f"{source}: substeps must be >= 1")
+    base = d["system"]["base"]
+    if base not in ("floating", "fixed"):
+        raise ScenarioError(f"{source}: system.base must be 'floating' or 'fixed', got {base!r}")
+    n = 8 if base == "floating" else 2
+    for sec in ("initial", "desired"):
+        q = d[sec]["q"]
+        if q is None:
+            raise ScenarioError(f"{source}: {sec}.q is required")
+        if len(q) != n:
+            raise ScenarioError(
+                f"{source}: {sec}.q must have {n} entries for a {base} base "
+                f"(q = {'[phi, theta, psi, x, y, z, q_s1, q_s2]' if n == 8 else '[q_s1, q_s2]'}), got {len(q)}"
+            )
+    qd = d["initial"]["qd"]
+    if qd is not None and len(qd) != n:
+        raise ScenarioError(f"{source}: initial.qd must have {n} entries, got {len(qd)}")
+    if d["scene"]["target"] not in ("aruco", "apriltag"):
+        raise ScenarioError(f"{source}: scene.target must be 'aruco' or 'apriltag'")
+    if d["ibvs"]["mode"] not in ("current", "desired", "mean"):
+        raise ScenarioError(f"{source}: ibvs.mode must be current, desired or mean")
+    if d["ibvs"]["compensation"] not in ("exact", "rotation", "approx"):
+        raise ScenarioError(f"{source}: ibvs.compensation must be exact, rotation or approx")
+    if d["cameras"]["global_backend"] not in ("auto", "egl", "tiny"):
+        raise ScenarioError(f"{source}: cameras.global_backend must be auto, egl or tiny")
+    if d["cameras"]["global_renderer"] not in ("pybullet", "planar"):
+        raise ScenarioError(f"{source}: cameras.global_renderer must be pybullet or planar")
+    for sec, key in (("model", "perturbation"),):
+        if not 0 <= d[sec][key] < 1:
+            raise ScenarioError(f"{source}: {sec}.{key} must lie in [0, 1)")
+    for sec, key in (
+        ("ibvs", "gain"),
+        ("recovery", "max_speed"),
+        ("safety", "growth_limit"),
+        ("scene", "box_size"),
+    ):
+        if d[sec][key] <= 0:
+            raise ScenarioError(f"{source}: {sec}.{key} must be positive")
+    return Scenario(d, source)
+
+
+def parse_scenario(text: str, source: str = "<string>") -> Scenario:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{source}: invalid TOML: {exc}") from None
+    return validate(_merge(_defaults(), data, source), source)
+
+
+def _package_files():
+    return resources.files("tdacm") / "scenarios"
+
+
+def list_scenarios() -> list[str]:
+    """Names of the shipped scenarios."""
+    return sorted(p.name[:-5] for p in _package_files().iterdir() if p.name.endswith(".toml"))
+
+
+def load_scenario(name_or_path, config=None) -> Scenario:
+    """Load a shipped scenario by name, or a TOML file by path; ``config`` (a path) overrides."""
+    p = Path(str(name_or_path))
+    if p.suffix == ".toml" and p.exists():
+        sc = parse_scenario(p.read_text(), str(p))
+    else:
+        f = _package_files() / f"{name_or_path}.toml"
+        if not f.is_file():
+            raise ScenarioError(
+                f"unknown scenario {name_or_path!r}; available: {', '.join(list_scenarios())}"
+            )
+        sc = parse_scenario(f.read_text(), f"scenario {name_or_path}")
+    if config is not None:
+        cp = Path(config)
+        if not cp.is_file():
+            raise ScenarioError(f"config file {config} does not exist")
+        try:
+            data = tomllib.loads(cp.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError(f"{cp}: invalid TOML: {exc}") from None
+        sc = sc.with_overrides(data, str(cp))
+    return sc
+
+
+def vec(x) -> np.ndarray:
+    return np.asarray(x, dtype=float)

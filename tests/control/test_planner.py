@@ -1,0 +1,92 @@
+import numpy as np
+import pytest
+
+from tdacm import paper_system
+from tdacm.control import (
+    CubicTrajectory,
+    ModeSwitch,
+    estimate_target_pose,
+    plan_rod_configuration,
+    target_in_local_camera,
+)
+from tdacm.vision import (
+    GLOBAL_CAMERA,
+    LOCAL_CAMERA,
+    PAPER_MARKER,
+    PlanarRenderer,
+    SceneConfig,
+    TargetDetector,
+    camera_pose,
+    drone_camera_mount,
+    tip_camera_mount,
+    world_to_camera,
+)
+
+
+def test_cubic_boundary_conditions():
+    tr = CubicTrajectory([0.0, 1.0], [1.0, -1.0], 1.0, 3.0)
+    q, qd, _ = tr(1.0)
+    assert np.allclose(q, [0, 1]) and np.allclose(qd, 0)
+    q, qd, _ = tr(3.0)
+    assert np.allclose(q, [1, -1]) and np.allclose(qd, 0)
+    q, qd, _ = tr(2.0)
+    assert np.allclose(q, [0.5, 0.0]) and np.allclose(qd, [0.75, -1.5])
+    h = 1e-6
+    assert np.allclose((tr(1.7 + h)[0] - tr(1.7 - h)[0]) / (2 * h), tr(1.7)[1], atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    s = paper_system()
+    q = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 3.0, 0.35, 0.45])
+    scene = SceneConfig(box_xy=(0.1, -0.05))
+    return s, q, scene
+
+
+def test_snapshot_pose_and_optimum_on_optical_axis(setup):
+    s, q, scene = setup
+    tip_mount = tip_camera_mount(s.attachment)
+    drone_mount = drone_camera_mount()
+    g_cg = camera_pose(s.base_pose(q), drone_mount)
+    img = PlanarRenderer(scene).render(GLOBAL_CAMERA, g_cg)
+    det = TargetDetector(PAPER_MARKER).detect(img)
+    assert det.found
+    g_t = estimate_target_pose(det, GLOBAL_CAMERA, PAPER_MARKER)
+    true = np.linalg.solve(g_cg, scene.target_pose)
+    assert np.linalg.norm(g_t[:3, 3] - true[:3, 3]) < 0.03 * np.linalg.norm(true[:3, 3])
+    assert np.allclose(g_t[:3, :3], true[:3, :3], atol=0.05)
+    # target outside C_L initially
+    g_cl = camera_pose(s.tip_pose(q), tip_mount)
+    assert not LOCAL_CAMERA.all_in_fov(world_to_camera(scene.target_points_world(), g_cl))
+    p_body = (drone_mount @ g_t[:, 3])[:3]
+    plan = plan_rod_configuration(s, p_body, tip_mount, q[6:], z_min=LOCAL_CAMERA.near)
+    assert plan.success
+    assert np.hypot(*plan.point_local[:2]) < 1e-4 and plan.point_local[2] > LOCAL_CAMERA.near
+    # ... and the true target centre lies on C_L's optical axis at the planned strains
+    q_new = q.copy()
+    q_new[6:] = plan.q_s
+    g_cl = camera_pose(s.tip_pose(q_new), tip_mount)
+    c = world_to_camera(scene.target_pose[:3, 3], g_cl)[0]
+    assert np.hypot(c[0], c[1]) / c[2] < 0.02
+    assert LOCAL_CAMERA.all_in_fov(world_to_camera(scene.target_points_world(), g_cl), 20)
+    # chain consistency: the planner's prediction equals the real projection for exact input
+    p_true = np.linalg.solve(s.base_pose(q), scene.target_pose[:, 3])[:3]
+    pred = target_in_local_camera(s, plan.q_s, p_true, tip_mount)
+    assert np.allclose(pred, c, atol=1e-9)
+
+
+def test_mode_switch_margin_and_hysteresis():
+    sw = ModeSwitch(LOCAL_CAMERA, margin_px=20, confirm=2, lose=3)
+    inside = np.array([[500, 500], [500, 600], [600, 600], [600, 500.0]])
+    edge = inside.copy()
+    edge[0] = [10, 500]  # within the margin
+    assert sw.update(edge) == "recovery"
+    assert sw.update(inside) == "recovery"  # needs two consecutive frames
+    assert sw.update(edge) == "recovery"
+    assert sw.update(inside) == "recovery"
+    assert sw.update(inside) == "ibvs"
+    assert sw.update(None) == "ibvs"  # a dropped frame does not switch back
+    assert sw.update(edge) == "ibvs"
+    assert sw.update(None) == "ibvs"
+    assert sw.update(None) == "ibvs"
+    assert sw.update(None) == "recovery"
