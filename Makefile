@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/tdacm demo --out out/demo
+	$(VENV)/bin/tdacm run paper-in-fov --out out/demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -63,6 +63,7 @@ from ..vision import (
 from ..vision.features import estimate_depths
 from ..vision.virtual import virtual_camera_points
 from .scenario import Scenario, load_scenario, vec
+from .sensors import Delay, NoisyDetector, SensorModel, perturbed_camera
 
 MODE_CODES = {"ibvs": 0, "recovery": 1}
 
@@ -255,6 +256,14 @@ class Simulation:
                 mode=ib["mode"],
                 compensation=ib["compensation"],
             )
+            # sensor imperfections (campaigns): their own random stream, seeded by the run seed
+            sensors = SensorModel(**d["sensors"])
+            sensor_rng = np.random.default_rng([self.seed, 1])
+            if sensors.pixel_noise > 0 or sensors.dropout > 0:
+                servo.detector = NoisyDetector(servo.detector, sensors, sensor_rng)
+            if sensors.intrinsics_error > 0:
+                servo.camera = perturbed_camera(LOCAL_CAMERA, sensors.intrinsics_error, sensor_rng)
+            delay = Delay(sensors.latency_steps) if sensors.latency_steps > 0 else None
             model = EstimatedModel(
                 s, d["model"]["perturbation"], self.seed, d["model"]["gravity_feedforward"]
             )
@@ -331,6 +340,8 @@ class Simulation:
                 g_cl = setup.local_pose(q)
                 gv = virtual_camera_transform(s.base_pose(q), g_cl) if s.floating else None
                 st = servo.step(img_l, gv)
+                if delay is not None:  # the controller acts on an older image
+                    st = delay(st)
                 pix = st.detection.points if st.found else None
                 want_global = (
                     self.video

@@ -90,6 +90,12 @@ SCHEMA = {
         "downwash": ("vec:3", [0.0, 0.0, 0.0]),
         "downwash_noise": (float, 0.0),
     },
+    "sensors": {  # imperfections of the local camera (see tdacm.sim.sensors)
+        "pixel_noise": (float, 0.0),  # px, std of the noise on detected points
+        "dropout": (float, 0.0),  # probability that a frame has no detection
+        "latency_steps": (int, 0),  # control steps between image and use
+        "intrinsics_error": (float, 0.0),  # relative std of the controller's fx, fy, cx, cy
+    },
     "expect": {
         "initial_in_local_fov": (bool, None),
         "initial_in_global_fov": (bool, None),
@@ -216,9 +222,15 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: cameras.global_backend must be auto, egl or tiny")
     if d["cameras"]["global_renderer"] not in ("pybullet", "planar"):
         raise ScenarioError(f"{source}: cameras.global_renderer must be pybullet or planar")
-    for sec, key in (("model", "perturbation"),):
+    for sec, key in (("model", "perturbation"), ("sensors", "dropout")):
         if not 0 <= d[sec][key] < 1:
             raise ScenarioError(f"{source}: {sec}.{key} must lie in [0, 1)")
+    from .sensors import SensorModel
+
+    try:
+        SensorModel(**d["sensors"])
+    except ValueError as exc:
+        raise ScenarioError(f"{source}: {exc}") from None
     for sec, key in (
         ("ibvs", "gain"),
         ("recovery", "max_speed"),

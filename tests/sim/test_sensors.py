@@ -1,0 +1,63 @@
+"""Sensor imperfections used by campaigns: noise, dropouts, latency, intrinsics errors."""
+
+import numpy as np
+import pytest
+
+from tdacm.sim import ScenarioError, load_scenario
+from tdacm.sim.runner import Simulation
+from tdacm.sim.sensors import Delay, NoisyDetector, SensorModel, perturbed_camera
+from tdacm.vision import LOCAL_CAMERA, Detection
+
+
+class FixedDetector:
+    def __init__(self):
+        self.points = np.array([[100.0, 100.0], [100.0, 200.0], [200.0, 200.0], [200.0, 100.0]])
+
+    def detect(self, image):
+        return Detection(True, self.points.copy(), (65,), {65: self.points.copy()})
+
+    def reset(self):
+        pass
+
+
+def test_noise_and_dropout_statistics():
+    rng = np.random.default_rng(0)
+    det = NoisyDetector(FixedDetector(), SensorModel(pixel_noise=1.0, dropout=0.2), rng)
+    results = [det.detect(None) for _ in range(4000)]
+    found = [r for r in results if r.found]
+    assert abs(1 - len(found) / 4000 - 0.2) < 0.03
+    err = np.array([r.points - FixedDetector().points for r in found])
+    assert abs(err.std() - 1.0) < 0.03 and abs(err.mean()) < 0.03
+
+
+def test_delay_and_intrinsics():
+    d = Delay(2)
+    assert [d(i) for i in range(5)] == [0, 0, 0, 1, 2]
+    cam = perturbed_camera(LOCAL_CAMERA, 0.01, np.random.default_rng(1))
+    assert cam.fx != LOCAL_CAMERA.fx and abs(cam.fx / LOCAL_CAMERA.fx - 1) < 0.05
+    assert perturbed_camera(LOCAL_CAMERA, 0.0, np.random.default_rng(1)) is LOCAL_CAMERA
+
+
+def test_sensor_values_are_validated():
+    sc = load_scenario("paper-in-fov")
+    with pytest.raises(ScenarioError, match="sensors.dropout"):
+        sc.with_overrides({"sensors": {"dropout": 1.5}}, "test")
+    with pytest.raises(ScenarioError, match="latency_steps"):
+        sc.with_overrides({"sensors": {"latency_steps": -1}}, "test")
+
+
+def test_short_run_with_imperfect_sensors_is_reproducible():
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {
+            "sensors": {"pixel_noise": 1.0, "dropout": 0.3, "latency_steps": 1},
+            "cameras": {"global_every": 0},
+        },
+        "test",
+    )
+    _, a = Simulation(sc, duration=0.3, seed=5).run(None)
+    _, b = Simulation(sc, duration=0.3, seed=5).run(None)
+    assert a["local_detection_rate"] < 0.95
+    assert (
+        a["final_rmse"] == b["final_rmse"]
+        and a["local_detection_rate"] == b["local_detection_rate"]
+    )
