@@ -97,3 +97,56 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
     (path / "bench.json").write_text(json.dumps(result, indent=2))
     print(f"\nwritten {path.resolve() / 'bench.json'}")
     return result
+
+
+def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> dict:
+    """The model benchmark plus the GVS-vs-CC comparison of issue 5, in one run.
+
+    Sections (see :mod:`tdacm.baselines.study` and ``docs/benchmarks.md``): the model timings of
+    :func:`run_model_bench`; the CC Lagrangian baseline's derivation/cache figures; per-call and
+    per-closed-loop-iteration times of GVS and CC with the same Python RK4 and step (median,
+    IQR, ratio); GVS cost against strain DoFs and Gauss points; tip accuracy of CC and GVS
+    orders 0..3 against a converged GVS reference; PyElastica when installed.  Writes
+    ``bench.json``, ``time_vs_dofs.png`` and ``error_vs_time.png`` to ``out``.
+    """
+    from .baselines import study
+
+    path = Path(out)
+    path.mkdir(parents=True, exist_ok=True)
+    walls = {}
+    t0 = time.perf_counter()
+    result = run_model_bench(out=out, repeats=repeats)
+    walls["model"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    timing = study.timing_study()
+    walls["baseline_timing"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    rows = study.scaling_study() if scaling else []
+    walls["scaling"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    acc = study.accuracy_study() if accuracy else {"duration_s": 0, "rk4_dt_s": 0, "cases": {}}
+    walls["accuracy"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    swing = acc["cases"].get("swing")
+    ref = dict(swing, record_dt_s=acc["record_dt_s"]) if swing else None
+    elastica = study.pyelastica_study(reference=ref)
+    walls["pyelastica"] = time.perf_counter() - t0
+    study.print_report(timing, rows, acc, elastica)
+    print("\nsection wall times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in walls.items()))
+    result.update(
+        {
+            "baseline": timing,
+            "scaling": rows,
+            "accuracy": acc,
+            "pyelastica": elastica,
+            "section_wall_s": walls,
+        }
+    )
+    (path / "bench.json").write_text(json.dumps(result, indent=2))
+    if rows:
+        cc_fd = timing["model"]["cc"]["forward_dynamics"]["median_s"]
+        study.plot_scaling(rows, path / "time_vs_dofs.png", cc_fd_s=cc_fd)
+    if acc["cases"]:
+        study.plot_accuracy(acc, path / "error_vs_time.png", elastica=elastica)
+    print(f"\nwritten {path.resolve() / 'bench.json'} and plots")
+    return result

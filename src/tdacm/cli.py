@@ -34,9 +34,12 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from .bench import run_model_bench
+    from .bench import run_full_bench, run_model_bench
 
-    run_model_bench(out=args.out, repeats=args.repeats)
+    if args.full:
+        run_full_bench(out=args.out, repeats=args.repeats)
+    else:
+        run_model_bench(out=args.out, repeats=args.repeats)
     return 0
 
 
@@ -111,6 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("bench", help="time the model (terms, forward dynamics, passive simulation)")
     s.add_argument("--out", default="out/bench", help="output folder for bench.json")
     s.add_argument("--repeats", type=int, default=7, help="timing repeats (median reported)")
+    s.add_argument(
+        "--full",
+        action="store_true",
+        help="add the CC Lagrangian baseline comparison, DoF scaling and accuracy study (minutes)",
+    )
     s.set_defaults(func=_cmd_bench)
     s = sub.add_parser("run", help="run a closed-loop scenario (see `tdacm scenarios`)")
     s.add_argument("scenario", help="scenario name or path to a scenario TOML file")
