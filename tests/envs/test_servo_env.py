@@ -33,17 +33,18 @@ def test_reset_is_seeded_and_observation_is_consistent(env):
 
 
 def test_servoing_action_reduces_error(env):
-    """The IBVS twist used as the action (an expert policy) lowers the image error."""
+    """The IBVS twist used as the action (an expert policy) lowers the image error over 0.4 s
+    (the first steps are a transient of the low-level loop)."""
     obs, info = env.reset(seed=0)
     start = info["rmse"]
-    for _ in range(5):
+    for _ in range(20):
         twist = env.servo.controller.twist(
             obs[6:14].reshape(4, 2).astype(float), env.desired_depths
         )
         action = np.clip(np.asarray(twist) / env.scale, -1, 1).astype(np.float32)
         obs, reward, terminated, truncated, info = env.step(action)
         assert reward == pytest.approx(-info["rmse"]) or info["success"]
-    assert info["rmse"] < start
+    assert info["rmse"] < 0.8 * start
 
 
 def test_bad_action_is_refused(env):

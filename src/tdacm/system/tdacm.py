@@ -12,7 +12,8 @@ frame in that frame (local, angular first).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -38,41 +39,64 @@ def default_attachment(offset: float = 0.1) -> np.ndarray:
     return g
 
 
-@dataclass
 class Loads:
-    """External loads (all constant in time; change them between integration calls).
+    """External loads (constant during one integration call; change them between calls).
 
-    gravity : gravitational acceleration in the inertial frame (m/s^2)
+    gravity : gravitational acceleration in the inertial frame (m/s^2), default ``[0, 0, -9.81]``
     base_wrench : point wrench ``W_b^b`` on the drone in its body frame ``[m; f]`` (eq. (16))
     rod_wrench : distributed wrench density on the rod in the section frame ``[m; f]`` per metre
     rod_force : distributed force density on the rod in the inertial frame (N/m), e.g. downwash
     tip_wrench : wrench on the tip in the tip frame (a follower load)
     tip_force : force on the tip in the inertial frame (a dead load)
+
+    The values live in one packed (27,) array (the kernels' layout, ``kernels.LOAD_SLICES``);
+    each attribute is a view into it, so ``loads.gravity[2] = -1.62`` works too.
     """
 
-    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
-    base_wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    rod_wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    rod_force: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    tip_wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    tip_force: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    __slots__ = ("_packed",)
 
-    def __post_init__(self):
-        for name, sl in K.LOAD_SLICES.items():
-            setattr(self, name, V.array(name, getattr(self, name), (sl.stop - sl.start,)))
+    def __init__(
+        self,
+        gravity=(0.0, 0.0, -9.81),
+        base_wrench=None,
+        rod_wrench=None,
+        rod_force=None,
+        tip_wrench=None,
+        tip_force=None,
+    ):
+        self._packed = np.zeros(K.N_LOADS)
+        self.gravity = gravity
+        for name, value in (
+            ("base_wrench", base_wrench),
+            ("rod_wrench", rod_wrench),
+            ("rod_force", rod_force),
+            ("tip_wrench", tip_wrench),
+            ("tip_force", tip_force),
+        ):
+            if value is not None:
+                setattr(self, name, value)
 
     def packed(self) -> np.ndarray:
-        """The loads as one (27,) array in the order of ``kernels.LOAD_SLICES``."""
-        return np.concatenate(
-            (
-                self.gravity,
-                self.base_wrench,
-                self.rod_wrench,
-                self.rod_force,
-                self.tip_wrench,
-                self.tip_force,
-            )
-        )
+        """The packed (27,) array itself (no copy; treat it as read-only)."""
+        return self._packed
+
+    def __repr__(self) -> str:
+        body = ", ".join(f"{k}={getattr(self, k).tolist()}" for k in K.LOAD_SLICES)
+        return f"Loads({body})"
+
+
+def _load_property(name: str, sl: slice):
+    def get(self):
+        return self._packed[sl]
+
+    def set_(self, value):
+        self._packed[sl] = V.array(name, value, (sl.stop - sl.start,))
+
+    return property(get, set_, doc=f"``{name}`` (a view into the packed loads)")
+
+
+for _name, _sl in K.LOAD_SLICES.items():
+    setattr(Loads, _name, _load_property(_name, _sl))
 
 
 @dataclass(frozen=True)
@@ -201,9 +225,10 @@ class TDACM:
         return a
 
     def _u(self, u) -> np.ndarray:
-        u = V.array("u", u, (self.n_u,))
+        a = np.asarray(u, dtype=float)
+        u = a if a.shape == (self.n_u,) and np.isfinite(a).all() else V.array("u", u, (self.n_u,))
         tensions = u[self.n_u - self.n_a :]
-        if np.any(tensions < 0):
+        if tensions.min() < 0:
             raise ValueError(
                 f"tendon tensions must be non-negative (tendons only pull), got {tensions!r}"
             )
@@ -211,7 +236,7 @@ class TDACM:
 
     def check_regular(self, q) -> None:
         """Raise :class:`SingularConfigurationError` at the Euler singularity."""
-        if self.floating and abs(np.cos(q[1])) < SINGULAR_COS:
+        if self.floating and abs(math.cos(q[1])) < SINGULAR_COS:
             raise SingularConfigurationError(
                 f"theta = {q[1]!r} rad is the ZYX Euler singularity (theta = +-pi/2): the drone "
                 "attitude cannot be represented by these coordinates"
