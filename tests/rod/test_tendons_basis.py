@@ -29,7 +29,12 @@ def helical_tendons(radius=0.01, turns=0.5):
 
     def offset(x):
         a = 2 * np.pi * turns * x
-        return np.array([[0, radius * np.cos(a), radius * np.sin(a)], [0, -radius * np.cos(a), -radius * np.sin(a)]])
+        return np.array(
+            [
+                [0, radius * np.cos(a), radius * np.sin(a)],
+                [0, -radius * np.cos(a), -radius * np.sin(a)],
+            ]
+        )
 
     return tdacm.Tendons(offset_function=offset)
 
@@ -42,7 +47,10 @@ def test_tendon_matrix_is_minus_length_gradient(tendons):
     q = rng.normal(size=system.n) * 0.2
     h = 1e-6
     grad = np.array(
-        [(system.tendon_lengths(q + h * e) - system.tendon_lengths(q - h * e)) / (2 * h) for e in np.eye(system.n)]
+        [
+            (system.tendon_lengths(q + h * e) - system.tendon_lengths(q - h * e)) / (2 * h)
+            for e in np.eye(system.n)
+        ]
     )
     assert np.allclose(system.tendon_matrix(q), -grad, atol=1e-9)
     # a straight, unstretched rod: every tendon as long as the rod (parallel) or longer (helix)

@@ -121,8 +121,7 @@ class TipServoEnv(gym.Env):
         return obs, st, rmse
 
     def reset(self, *, seed=None, options=None):
-        from ..control import EstimatedModel, TDACMController
-        from ..control.hierarchical import default_gains
+        from ..sim.runner import make_controller
         from ..vision import LOCAL_CAMERA, LocalCameraServo
 
         super().reset(seed=seed)
@@ -135,19 +134,7 @@ class TipServoEnv(gym.Env):
         self.q_d = self.q.copy()
         if s.floating:
             self.q_d[:2] = 0.0
-        model_seed = int(self.np_random.integers(2**31))
-        model = EstimatedModel(
-            s, d["model"]["perturbation"], model_seed, d["model"]["gravity_feedforward"]
-        )
-        self.ctl = TDACMController(
-            s,
-            model,
-            default_gains(s, setup.q_star),
-            pretension=d["controller"]["pretension"],
-            max_tilt=d["controller"]["max_tilt"],
-            attitude_filter=d["controller"]["attitude_filter"],
-            max_tilt_rate=d["controller"]["max_tilt_rate"],
-        )
+        self.ctl = make_controller(setup, int(self.np_random.integers(2**31)))
         ib = d["ibvs"]
         self.servo = LocalCameraServo(
             LOCAL_CAMERA,

@@ -40,10 +40,10 @@ from ..control import (
     EstimatedModel,
     ModeSwitch,
     TDACMController,
+    default_gains,
     estimate_target_pose,
     plan_rod_configuration,
 )
-from ..control.hierarchical import default_gains
 from ..system.kernels import rk4_run
 from ..vision import (
     GLOBAL_CAMERA,
@@ -187,6 +187,24 @@ def build(scenario: Scenario, need_global: bool = True) -> Setup:
     )
 
 
+def make_controller(setup: Setup, seed: int) -> TDACMController:
+    """The scenario's low-level controller: adaptive law on the estimated model (perturbation
+    seeded by ``seed``), gains for the desired configuration, drone loop and allocation."""
+    d = setup.scenario.data
+    s = setup.system
+    model = EstimatedModel(s, d["model"]["perturbation"], seed, d["model"]["gravity_feedforward"])
+    c = d["controller"]
+    return TDACMController(
+        s,
+        model,
+        default_gains(s, setup.q_star),
+        pretension=c["pretension"],
+        max_tilt=c["max_tilt"],
+        attitude_filter=c["attitude_filter"],
+        max_tilt_rate=c["max_tilt_rate"],
+    )
+
+
 class Simulation:
     """One closed-loop run; :meth:`run` returns the log dict and the summary."""
 
@@ -264,18 +282,7 @@ class Simulation:
             if sensors.intrinsics_error > 0:
                 servo.camera = perturbed_camera(LOCAL_CAMERA, sensors.intrinsics_error, sensor_rng)
             delay = Delay(sensors.latency_steps) if sensors.latency_steps > 0 else None
-            model = EstimatedModel(
-                s, d["model"]["perturbation"], self.seed, d["model"]["gravity_feedforward"]
-            )
-            ctl = TDACMController(
-                s,
-                model,
-                default_gains(s, setup.q_star),
-                pretension=d["controller"]["pretension"],
-                max_tilt=d["controller"]["max_tilt"],
-                attitude_filter=d["controller"]["attitude_filter"],
-                max_tilt_rate=d["controller"]["max_tilt_rate"],
-            )
+            ctl = make_controller(setup, self.seed)
             rc = d["recovery"]
             # initial mode from the first local image
             det0 = servo.detector.detect(setup.render_local(setup.q0))

@@ -1,87 +1,13 @@
-"""Input validation for the vision layer.
+"""Input validation for the vision layer: the project's one set of checks,
+:mod:`tdacm._validate`, under the name the vision modules import."""
 
-Every public function validates what it is given and raises ``ValueError`` naming the
-parameter, so a wrong shape or a NaN is reported where it enters instead of as a wrong image
-three steps later.
-"""
-
-from __future__ import annotations
-
-import numpy as np
-
-
-def finite_scalar(name: str, value) -> float:
-    """A finite real scalar."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if not np.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return v
-
-
-def positive(name: str, value) -> float:
-    """A finite scalar > 0."""
-    v = finite_scalar(name, value)
-    if v <= 0.0:
-        raise ValueError(f"{name} must be positive, got {value!r}")
-    return v
-
-
-def nonnegative(name: str, value) -> float:
-    """A finite scalar >= 0."""
-    v = finite_scalar(name, value)
-    if v < 0.0:
-        raise ValueError(f"{name} must be non-negative, got {value!r}")
-    return v
-
-
-def positive_int(name: str, value) -> int:
-    """An integer >= 1."""
-    if isinstance(value, bool) or not float(value).is_integer() or int(value) < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def array(name: str, value, shape: tuple, *, allow_nan: bool = False) -> np.ndarray:
-    """A float64 array of the given shape (``-1`` matches any length), finite by default."""
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"{name} must be a numeric array of shape {shape}, got {value!r}"
-        ) from None
-    if a.ndim != len(shape) or any(s not in (-1, d) for s, d in zip(shape, a.shape, strict=True)):
-        raise ValueError(f"{name} must have shape {shape}, got shape {a.shape}")
-    bad = ~np.isfinite(a) if not allow_nan else np.isinf(a)
-    if np.any(bad):
-        raise ValueError(f"{name} must be finite, got {a!r}")
-    return a
-
-
-def points(name: str, value, dim: int) -> np.ndarray:
-    """``(N, dim)`` array; a single point of shape ``(dim,)`` is promoted to ``(1, dim)``."""
-    a = np.asarray(value, dtype=float) if not isinstance(value, np.ndarray) else value
-    if a.ndim == 1:
-        a = a.reshape(1, -1)
-    return array(name, a, (-1, dim))
-
-
-def transform(name: str, value) -> np.ndarray:
-    """A 4x4 homogeneous transform with a proper rotation block."""
-    g = array(name, value, (4, 4))
-    r = g[:3, :3]
-    if not np.allclose(g[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
-        raise ValueError(f"{name} must have last row [0, 0, 0, 1], got {g[3]!r}")
-    if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0.0:
-        raise ValueError(f"{name} must have a rotation matrix as its 3x3 block")
-    return g
-
-
-def rotation(name: str, value) -> np.ndarray:
-    """A 3x3 rotation matrix."""
-    r = array(name, value, (3, 3))
-    if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0.0:
-        raise ValueError(f"{name} must be a rotation matrix")
-    return r
+from .._validate import (  # noqa: F401  (re-exported)
+    array,
+    finite_scalar,
+    nonnegative,
+    points,
+    positive,
+    positive_int,
+    rotation,
+    transform,
+)
