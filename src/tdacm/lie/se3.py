@@ -91,7 +91,7 @@ def coad(xi):
 def Ad(g):
     """6x6 adjoint of the group element ``g`` (4x4): ``[[R, 0], [p~ R, R]]``."""
     m = np.zeros((6, 6))
-    r = g[:3, :3]
+    r = g[:3, :3].copy()
     m[:3, :3] = r
     m[3:, 3:] = r
     m[3:, :3] = skew(g[:3, 3]) @ r
@@ -115,7 +115,7 @@ def inv_se3(g):
     out = np.eye(4)
     rt = g[:3, :3].T.copy()
     out[:3, :3] = rt
-    out[:3, 3] = -rt @ g[:3, 3]
+    out[:3, 3] = -rt @ g[:3, 3].copy()
     return out
 
 
