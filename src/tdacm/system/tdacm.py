@@ -218,17 +218,18 @@ class TDACM:
 
     # ------------------------------------------------------------------ validation
     def _q(self, q, name="q") -> np.ndarray:
-        # fast path: this runs on every API call of the integrators and controllers
+        # fast path: this runs on every API call of the integrators and controllers; a @ a is
+        # finite iff every entry is (an overflow falls back to the full check, which passes)
         a = np.asarray(q, dtype=float)
-        if a.shape != (self.n,) or not np.isfinite(a).all():
+        if a.shape != (self.n,) or not math.isfinite(a @ a):
             return V.array(name, q, (self.n,))  # raises the explanatory error
         return a
 
     def _u(self, u) -> np.ndarray:
         a = np.asarray(u, dtype=float)
-        u = a if a.shape == (self.n_u,) and np.isfinite(a).all() else V.array("u", u, (self.n_u,))
-        tensions = u[self.n_u - self.n_a :]
-        if tensions.min() < 0:
+        u = a if a.shape == (self.n_u,) and math.isfinite(a @ a) else V.array("u", u, (self.n_u,))
+        if min(u[self.n_u - self.n_a :].tolist()) < 0:
+            tensions = u[self.n_u - self.n_a :]
             raise ValueError(
                 f"tendon tensions must be non-negative (tendons only pull), got {tensions!r}"
             )
