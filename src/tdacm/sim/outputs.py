@@ -11,6 +11,36 @@ import numpy as np
 
 Q_NAMES = ["phi", "theta", "psi", "x", "y", "z", "q_s1", "q_s2"]
 
+#: One value per control step (written as single CSV columns).
+SCALAR_SERIES = (
+    "rmse",
+    "rmse_raw",
+    "mode",
+    "V",
+    "detected_local",
+    "detected_global",
+    "thrust_saturated",
+    "tension_saturated",
+)
+#: Vector series (one CSV column per component), then the scalar ones: what the runner logs.
+VECTOR_SERIES = (
+    "t",
+    "q",
+    "qd",
+    "q_d",
+    "qd_d",
+    "u",
+    "tau",
+    "q_ref",
+    "features",
+    "feature_error",
+    "points_local",
+    "points_virtual",
+    "twist",
+    "delta_hat",
+)
+LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
+
 
 def _columns(a: dict, system):
     n = system.n
@@ -34,16 +64,7 @@ def _columns(a: dict, system):
     pts = a["points_virtual"].reshape(len(a["t"]), 8)
     cols.append(pts)
     names += [f"{c}{k + 1}" for k in range(4) for c in ("x", "y")]
-    for key in (
-        "rmse",
-        "rmse_raw",
-        "mode",
-        "V",
-        "detected_local",
-        "detected_global",
-        "thrust_saturated",
-        "tension_saturated",
-    ):
+    for key in SCALAR_SERIES:
         cols.append(a[key].astype(float)[:, None])
         names.append(key)
     assert len(names) == sum(c.shape[1] for c in cols), (n, names)

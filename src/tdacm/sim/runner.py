@@ -62,6 +62,7 @@ from ..vision import (
 )
 from ..vision.features import estimate_depths
 from ..vision.virtual import virtual_camera_points
+from .outputs import LOG_KEYS
 from .scenario import Scenario, load_scenario, vec
 from .sensors import Delay, NoisyDetector, SensorModel, perturbed_camera
 
@@ -305,33 +306,7 @@ class Simulation:
             plan_info = None
             switch_time = None
             terminated, reason = False, None
-            log = {
-                k: []
-                for k in (
-                    "t",
-                    "q",
-                    "qd",
-                    "q_d",
-                    "qd_d",
-                    "u",
-                    "tau",
-                    "q_ref",
-                    "features",
-                    "feature_error",
-                    "points_local",
-                    "points_virtual",
-                    "rmse",
-                    "rmse_raw",
-                    "mode",
-                    "V",
-                    "detected_local",
-                    "detected_global",
-                    "thrust_saturated",
-                    "tension_saturated",
-                    "twist",
-                    "delta_hat",
-                )
-            }
+            log = {k: [] for k in LOG_KEYS}
             frames = []
             wall0 = time.perf_counter()
             steps = range(nsteps + 1)

@@ -133,16 +133,25 @@ class PlanarRenderer(Renderer):
     def _to_cam(points, g_cw):
         return points @ g_cw[:3, :3].T + g_cw[:3, 3]
 
-    def _fill(self, img, camera, poly_cam, color):
+    @staticmethod
+    def _clip_project(camera, poly_cam):
+        """A camera-frame polygon clipped at the near plane and its pixels; ``(poly, None)`` if
+        fewer than three vertices are left."""
         poly = clip_near(poly_cam, camera.near)
         if len(poly) < 3:
-            return
+            return poly, None
         uv = np.column_stack(
             (
                 camera.fx * poly[:, 0] / poly[:, 2] + camera.cx,
                 camera.fy * poly[:, 1] / poly[:, 2] + camera.cy,
             )
         )
+        return poly, uv
+
+    def _fill(self, img, camera, poly_cam, color):
+        _, uv = self._clip_project(camera, poly_cam)
+        if uv is None:
+            return
         lim = 1e6  # keep fixed-point coordinates inside int32
         pts = np.round(np.clip(uv, -lim, lim) * (1 << _SHIFT)).astype(np.int32)
         cv2.fillPoly(img, [pts], color, lineType=cv2.LINE_AA, shift=_SHIFT)
@@ -178,15 +187,9 @@ class PlanarRenderer(Renderer):
             [[-w / 2, -h / 2, 0.0], [w / 2, -h / 2, 0.0], [w / 2, h / 2, 0.0], [-w / 2, h / 2, 0.0]]
         )
         cam_pts = corners @ g_ct[:3, :3].T + g_ct[:3, 3]
-        poly = clip_near(cam_pts, camera.near)
-        if len(poly) < 3:
+        poly, uv = self._clip_project(camera, cam_pts)
+        if uv is None:
             return
-        uv = np.column_stack(
-            (
-                camera.fx * poly[:, 0] / poly[:, 2] + camera.cx,
-                camera.fy * poly[:, 1] / poly[:, 2] + camera.cy,
-            )
-        )
         x0 = int(max(0, np.floor(uv[:, 0].min()) - 1))
         y0 = int(max(0, np.floor(uv[:, 1].min()) - 1))
         x1 = int(min(camera.width, np.ceil(uv[:, 0].max()) + 2))
