@@ -276,7 +276,7 @@ class Simulation:
                 compensation=ib["compensation"],
             )
             # sensor imperfections (campaigns): their own random stream, seeded by the run seed
-            sensors = SensorModel(**d["sensors"])
+            sensors = SensorModel(**{k: d["sensors"][k] for k in SensorModel.__dataclass_fields__})
             sensor_rng = np.random.default_rng([self.seed, 1])
             if sensors.pixel_noise > 0 or sensors.dropout > 0:
                 servo.detector = NoisyDetector(servo.detector, sensors, sensor_rng)
