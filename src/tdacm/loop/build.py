@@ -72,7 +72,9 @@ def _front_end(kind: str, camera, scene: SceneConfig, target, backend: str = "au
     if kind == "pybullet":
         from ..vision import PyBulletRenderer
 
-        return RenderedFrontEnd(camera, PyBulletRenderer(scene, backend=backend), target, False)
+        return RenderedFrontEnd(
+            camera, lambda: PyBulletRenderer(scene, backend=backend), target, False
+        )
     return RenderedFrontEnd(camera, PlanarRenderer(scene), target, kind == "planar-local")
 
 

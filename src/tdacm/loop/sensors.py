@@ -18,8 +18,8 @@ from collections import deque
 import numpy as np
 
 from ..sim.sensors import SensorModel
-from ..vision import TargetDetector, camera_pose
-from ..vision.camera import PinholeCamera, world_to_camera
+from ..vision import TargetDetector
+from ..vision.camera import PinholeCamera, points_in_camera
 from ..vision.detect import NOT_DETECTED, Detection
 from .data import CameraMeasurement, PlantState, SensorReadings
 
@@ -47,12 +47,12 @@ class AnalyticFrontEnd:
         cam = self.camera
         corners = {}
         for i, pw in zip(self._ids, self._corners_w, strict=True):
-            pc = world_to_camera(pw, pose)
+            pc = points_in_camera(pw, pose)
             if np.all(cam.in_fov(pc)):
                 corners[i] = cam.project(pc)
         if len(corners) < len(self._ids):
             return Detection(False, None, tuple(corners), corners)
-        points = cam.project(world_to_camera(self._features_w, pose))
+        points = cam.project(points_in_camera(self._features_w, pose))
         return Detection(True, points, tuple(corners), corners)
 
 
@@ -63,8 +63,14 @@ class RenderedFrontEnd:
 
     def __init__(self, camera: PinholeCamera, renderer, target, track: bool = True):
         self.camera = camera
-        self.renderer = renderer
+        self._renderer = renderer  # a renderer, or a callable that makes one on first use
         self.detector = TargetDetector(target, track=track)
+
+    @property
+    def renderer(self):
+        if callable(self._renderer) and not hasattr(self._renderer, "render"):
+            self._renderer = self._renderer()  # e.g. PyBullet: started only when C_G is read
+        return self._renderer
 
     def reset(self) -> None:
         self.detector.reset()
@@ -76,7 +82,8 @@ class RenderedFrontEnd:
         return r.render(self.camera, pose)
 
     def close(self) -> None:
-        self.renderer.close()
+        if hasattr(self._renderer, "close"):
+            self._renderer.close()
 
 
 class CameraSensor:
@@ -118,7 +125,7 @@ class CameraSensor:
     def pose(self, q) -> np.ndarray:
         """Inertial pose of the camera at configuration ``q``."""
         frame = self.system.tip_pose(q) if self.carrier == "tip" else self.system.base_pose(q)
-        return camera_pose(frame, self.mount)
+        return frame @ self.mount  # tdacm.vision.camera_pose, on the model's rigid poses
 
     def ideal(self, q) -> tuple[Detection, np.ndarray | None]:
         """Detection (no imperfections) and image (``None`` for the analytic front end)."""

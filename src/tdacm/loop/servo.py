@@ -26,10 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
-from ..vision import camera_joint_rates, camera_pose, virtual_camera_transform
+from ..lie.se3 import Ad
 from ..vision.features import advanced_features
 from ..vision.ibvs import IBVSController
-from ..vision.virtual import virtual_camera_points
+from ..vision.tip import rates_from_jacobian
+from ..vision.virtual import virtual_points, virtual_transform
 from .data import GlobalView, LocalView, ServoCommand, StateEstimate
 
 MODE_CODES = {ModeSwitch.IBVS: 0, ModeSwitch.RECOVERY: 1}
@@ -120,6 +121,7 @@ class VisualServo:
             lim[3:5] = self.shaping.max_drone_speed
             lim[5] = self.shaping.max_vertical_speed
         self._lim = lim
+        self._ad_mount = Ad(np.ascontiguousarray(self.tip_mount))
         self.switch = ModeSwitch(
             local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
         )
@@ -147,16 +149,15 @@ class VisualServo:
 
     # ------------------------------------------------------------------ pieces
     def local_camera_pose(self, q) -> np.ndarray:
-        return camera_pose(self.system.tip_pose(q), self.tip_mount)
+        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`)."""
+        return self.system.tip_pose(q) @ self.tip_mount
 
     def to_virtual(self, view: LocalView, q):
         """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""
         if not self.system.floating:
             return view.points, view.depths
-        gv = virtual_camera_transform(self.system.base_pose(q), self.local_camera_pose(q))
-        xy, zv = virtual_camera_points(
-            view.points, gv, view.depths, self.compensation, return_depths=True
-        )
+        gv = virtual_transform(self.system.base_pose(q), self.local_camera_pose(q))
+        xy, zv = virtual_points(view.points, gv, view.depths, self.compensation, True)
         # "exact" returns z^{C_V}; the other forms the ratio z^{C_V} / z^{C_L}
         return xy, (zv if self.compensation == "exact" else zv * view.depths)
 
@@ -165,6 +166,16 @@ class VisualServo:
         points, depths = self.to_virtual(view, q)
         rmse = normalized_rmse(points, self.desired_points)
         return points, depths, advanced_features(points), self.ibvs.error(points), rmse
+
+    def joint_rates(self, q, twist) -> np.ndarray:
+        """``qdot_d = (J_L^L[:, cmd])^+ Ad(g_{C_L}^L) v`` over the commanded coordinates, with
+        the Jacobian of the virtual-camera chain (roll and pitch set to zero) for a floating
+        base (:func:`~tdacm.vision.camera_joint_rates` with ``jacobian_at="virtual"``)."""
+        qv = q
+        if self.system.floating:
+            qv = q.copy()
+            qv[:2] = 0.0
+        return rates_from_jacobian(self.system.tip_jacobian(qv), self._ad_mount @ twist, self._cmd)
 
     def shape(self, rates: np.ndarray, t: float, dt: float) -> None:
         """Limit, ramp and filter the IBVS joint rates into ``qd_d``; integrate ``q_d``."""
@@ -228,9 +239,7 @@ class VisualServo:
             if twist is None:
                 twist = self.ibvs.twist(points, depths)
             out_twist = np.asarray(twist, float)
-            rates = camera_joint_rates(
-                s, q, out_twist, self.tip_mount, jacobian_at="virtual" if s.floating else "actual"
-            )
+            rates = self.joint_rates(q, out_twist)
             # qdd_d = 0: IBVS gives rates only (qdd_r = -beta edot)
             self.shape(rates, t, dt)
         elif mode == ModeSwitch.RECOVERY:
