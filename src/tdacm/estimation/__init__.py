@@ -3,9 +3,12 @@
 * :mod:`.sensors`: drone pose, IMU and tendon-encoder models (seeded, with latency/dropout);
 * :mod:`.ekf`: :class:`Estimator` (``reset``, ``step(t, u_applied, measurements) ->
   StateEstimate``);
-* :mod:`.inversion`: strains from measured tendon lengths (least squares).
+* :mod:`.inversion`: strains from measured tendon lengths (least squares);
+* :mod:`.block`: :class:`FilterBlock`, the filter as the closed loop's estimation block
+  (``estimation.source = "estimated"``, assembled by :func:`tdacm.loop.build.build_loop`).
 """
 
+from .block import FilterBlock
 from .ekf import Estimator, EstimatorConfig, StateEstimate, euler_from_rotation
 from .inversion import InversionResult, strains_from_tendon_lengths
 from .sensors import (
@@ -27,6 +30,7 @@ __all__ = [
     "EncoderConfig",
     "EncoderMeasurement",
     "Estimator",
+    "FilterBlock",
     "EstimatorConfig",
     "Imu",
     "ImuConfig",

@@ -57,7 +57,9 @@ from .sensors import (
 @dataclass(frozen=True)
 class StateEstimate:
     """What every block downstream of the sensors reads: ``q``, ``qd`` and the covariance
-    ``P`` of ``[q, qd]`` (2n x 2n) at time ``t``."""
+    ``P`` of ``[q, qd]`` (2n x 2n) at time ``t``. The same fields as
+    :class:`tdacm.loop.data.StateEstimate` (the loop's record; kept separate here so that
+    importing the estimator does not import the loop)."""
 
     t: float
     q: np.ndarray

@@ -241,12 +241,18 @@ class _Sensor:
             while self._next <= t + _EPS_T:
                 self._next += self.period
             meas = self._capture(float(t), q, qd, qdd)
-            if not (c.dropout > 0 and self.rng.random() < c.dropout):
+            lost = c.dropout > 0 and self.rng.random() < c.dropout
+            if meas is not None and not lost:
                 self._queue.append((t + c.latency, meas))
         out = None
         while self._queue and self._queue[0][0] <= t + _EPS_T:
             out = self._queue.popleft()[1]  # the newest delivered one
         return out
+
+    def measure(self, state):
+        """The closed loop's sensor protocol (:class:`tdacm.loop.sensors.Sensors` ``other``):
+        poll with a :class:`~tdacm.loop.data.PlantState`."""
+        return self.sample(state.t, state.q, state.qd, getattr(state, "qdd", None))
 
 
 class DronePoseSensor(_Sensor):
@@ -275,8 +281,8 @@ class Imu(_Sensor):
         super().__init__(config, rng, t0)
 
     def _capture(self, t, q, qd, qdd):
-        if qdd is None:
-            raise ValueError("the IMU needs the plant's accelerations qdd")
+        if qdd is None:  # no input applied yet (first period): no sample
+            return None
         c = self.config
         if self._t_last is not None and (c.gyro_bias_walk > 0 or c.accel_bias_walk > 0):
             h = math.sqrt(max(t - self._t_last, 0.0))
@@ -321,17 +327,19 @@ class TendonEncoders(_Sensor):
 class SensorSuite:
     """The proprioceptive sensors of one run (pose and IMU only for a floating base).
 
-    ``sample(t, q, qd, qdd)`` polls each and returns the list of delivered measurements."""
+    ``sample(t, q, qd, qdd)`` polls each and returns the list of delivered measurements;
+    ``named`` maps ``"pose"``, ``"imu"``, ``"encoders"`` to the sensors (closed-loop ``other``
+    sensors). ``stream_offset`` shifts the random streams (an independent copy of the suite)."""
 
     #: random streams (independent of the camera's stream 1 in the runner)
     STREAMS = {"pose": 11, "imu": 12, "encoders": 13}
 
     def __init__(self, system: TDACM, config: SensorSuiteConfig | None = None, seed: int = 0,
-                 t0: float = 0.0):  # fmt: skip
+                 t0: float = 0.0, stream_offset: int = 0):  # fmt: skip
         self.config = SensorSuiteConfig() if config is None else config
         self.system = system
         self.sensors = []
-        mk = lambda s: np.random.default_rng([int(seed), self.STREAMS[s]])  # noqa: E731
+        mk = lambda s: np.random.default_rng([int(seed), self.STREAMS[s] + int(stream_offset)])  # noqa: E731
         if system.floating:
             self.pose = DronePoseSensor(self.config.pose, mk("pose"), t0)
             self.imu = Imu(self.config.imu, system.loads.gravity, mk("imu"), t0)
@@ -340,6 +348,15 @@ class SensorSuite:
             self.pose = self.imu = None
         self.encoders = TendonEncoders(self.config.encoders, system, mk("encoders"), t0=t0)
         self.sensors.append(self.encoders)
+
+    @property
+    def named(self) -> dict:
+        out = {"pose": self.pose, "imu": self.imu, "encoders": self.encoders}
+        return {k: v for k, v in out.items() if v is not None}
+
+    def reset(self, t0: float = 0.0) -> None:
+        for s in self.sensors:
+            s.reset(t0)
 
     def sample(self, t, q, qd, qdd=None) -> list:
         out = []

@@ -38,6 +38,9 @@ VECTOR_SERIES = (
     "points_virtual",
     "twist",
     "delta_hat",
+    "q_hat",  # the state estimate the blocks after the sensors used (= q for source "true")
+    "qd_hat",
+    "P_diag",  # diagonal of its covariance [q, qd] (NaN for the true state)
 )
 LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
 
@@ -58,6 +61,7 @@ def _columns(a: dict, system):
         ("features", ["p_phi", "p_theta", "p_psi", "p_x", "p_y", "p_z"]),
         ("feature_error", [f"e_{x}" for x in ("phi", "theta", "psi", "x", "y", "z")]),
         ("twist", ["w_x", "w_y", "w_z", "v_x", "v_y", "v_z"]),
+        ("q_hat", [f"{x}_hat" for x in qn]),
     ):
         cols.append(a[key].reshape(len(a["t"]), -1))
         names += labels
@@ -213,4 +217,41 @@ def plot_all(out: Path, a: dict, summary: dict, desired_pts, system) -> None:
     mark(ax)
     fig.tight_layout()
     fig.savefig(out / "lyapunov.png", dpi=110)
+    plt.close(fig)
+
+    if "P_diag" in a and np.isfinite(a["P_diag"]).any():
+        plot_estimation(out / "estimation.png", a, summary, system)
+
+
+def plot_estimation(path: Path, a: dict, summary: dict, system) -> None:
+    """``estimation.png``: true vs estimated strains and drone position, 2-sigma bands."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t, q, qh = a["t"], a["q"], a["q_hat"]
+    sd = np.sqrt(np.maximum(a["P_diag"][:, : system.n], 0.0))
+    idx = list(range(system.n - system.n_s, system.n)) + ([3, 4, 5] if system.floating else [])
+    names = Q_NAMES if system.floating else Q_NAMES[6:]
+    units = {3: "m", 4: "m", 5: "m"}
+    fig, axes = plt.subplots(len(idx), 1, figsize=(8, 1.8 * len(idx)), sharex=True, squeeze=False)
+    for ax, i in zip(axes[:, 0], idx, strict=True):
+        ax.fill_between(t, qh[:, i] - 2 * sd[:, i], qh[:, i] + 2 * sd[:, i], color="C1",
+                        alpha=0.3, lw=0, label="estimate +- 2 sigma")  # fmt: skip
+        ax.plot(t, q[:, i], "k", lw=1.2, label="true")
+        ax.plot(t, qh[:, i], "C1--", lw=1.0, label="estimate")
+        label = names[i] if i < len(names) else f"q{i}"
+        ax.set_ylabel(f"{label} ({units.get(i, 'rad/m')})")
+    axes[0, 0].legend(fontsize=8, loc="best")
+    axes[-1, 0].set_xlabel("t (s)")
+    s_rms = summary.get("strain_estimation_rms")
+    p_rms = summary.get("drone_position_estimation_rms")
+    extra = ""
+    if s_rms is not None:
+        extra = f" (RMS after 1 s: strains {s_rms:.2g} rad/m"
+        extra += f", drone position {p_rms:.2g} m)" if p_rms is not None else ")"
+    fig.suptitle(f"{summary['scenario']}: state estimation{extra}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)
