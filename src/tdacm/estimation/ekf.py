@@ -362,24 +362,18 @@ class Estimator:
         tk.x_prior, tk.p_prior = xp, 0.5 * (pp + pp.T)
 
     # ------------------------------------------------------------------ updates
-    @staticmethod
-    def _kalman(x, p, r, h, rr):
-        """Joseph-form update with residual ``r`` (z - h(x)), Jacobian ``h``, noise ``rr``."""
-        ph = p @ h.T
-        s = h @ ph + rr
-        k = np.linalg.solve(s, ph.T).T
-        x = x + k @ r
-        ikh = np.eye(p.shape[0]) - k @ h
-        p = ikh @ p @ ikh.T + k @ rr @ k.T
-        return x, 0.5 * (p + p.T)
-
-    def _update_tick(self, tk: _Tick) -> None:
-        x, p = tk.x_prior.copy(), tk.p_prior.copy()
+    def _update_tick(self, tk: _Tick, late=None) -> None:
+        """Fuse the tick's measurements into its prior (``late is None``) or only the
+        ``late`` ones into its current posterior (the others are in it already)."""
+        if late is None:
+            x, p, todo = tk.x_prior, tk.p_prior, tk.meas
+        else:
+            x, p, todo = tk.x_post, tk.p_post, late
         order = {EncoderMeasurement: 0, PoseMeasurement: 1, ImuMeasurement: 2}
-        for meas in sorted(tk.meas, key=lambda m: order[type(m)]):
+        for meas in sorted(todo, key=lambda m: order[type(m)]):
             res = self._measurement(x, meas, tk)
             if res is not None:
-                x, p = self._kalman(x, p, *res)
+                x, p, _ = EK.kalman_update(x, p, *res)
         tk.x_post, tk.p_post = x, p
 
     def _measurement(self, x, meas, tk: _Tick):
@@ -458,7 +452,7 @@ class Estimator:
             tol = 0.5 * (last.t - self._hist[-2].t)
         else:
             tol = 1e-6
-        current, earliest = [], len(self._hist)
+        current, earliest, late = [], len(self._hist), {}
         for m in measurements:
             if new_tick and m.t > last.t + tol:
                 current.append(m)
@@ -468,9 +462,12 @@ class Estimator:
                 self.dropped_late += 1  # older than the kept history
                 continue
             self._hist[j].meas.append(m)
+            late.setdefault(j, []).append(m)
             earliest = min(earliest, j)
         if earliest < len(self._hist):
-            self._update_tick(self._hist[earliest])
+            # the late ones on top of the posterior of their tick (sequential updates), then
+            # the later ticks re-run from their re-propagated priors with all their updates
+            self._update_tick(self._hist[earliest], late[earliest])
             for i in range(earliest + 1, len(self._hist)):
                 self._repropagate(self._hist[i - 1], self._hist[i])
                 self._update_tick(self._hist[i])

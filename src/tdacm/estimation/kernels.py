@@ -187,3 +187,19 @@ def specific_force(q, qdd, gravity):
 def body_rate(q, qd):
     """Gyroscope: body angular velocity ``T(phi, theta) Phi_dot`` (paper eq. (4))."""
     return euler_rate_matrix(q[0], q[1]) @ qd[:3]
+
+
+@njit(cache=True)
+def kalman_update(x, p, r, h, rr):
+    """Joseph-form EKF update with residual ``r = z - h(x)``, Jacobian ``h``, noise ``rr``:
+    ``K = P H^T (H P H^T + R)^-1``, ``x + K r``, ``(I - K H) P (I - K H)^T + K R K^T``
+    (symmetrized). Returns ``(x, P, nis)`` with the normalized innovation squared."""
+    ph = p @ h.T
+    s = h @ ph + rr
+    s = 0.5 * (s + s.T)
+    k = np.linalg.solve(s, ph.T).T
+    nis = r @ np.linalg.solve(s, r)
+    x1 = x + k @ r
+    ikh = np.eye(p.shape[0]) - k @ h
+    p1 = ikh @ p @ ikh.T + k @ rr @ k.T
+    return x1, 0.5 * (p1 + p1.T), nis
