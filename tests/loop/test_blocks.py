@@ -224,8 +224,8 @@ def test_allocation_box_least_squares_is_exact():
         x = box_least_squares(a, rhs, 0.0, 20.0)
         ref = lsq_linear(a, rhs, bounds=(0, 20), method="bvls", tol=1e-14).x
         assert np.all((x >= 0) & (x <= 20))
-        f = lambda v: np.sum((a @ v - rhs) ** 2)  # noqa: E731
-        assert f(x) <= f(ref) * (1 + 1e-8) + 1e-300
+        cost_x, cost_ref = (np.sum((a @ v - rhs) ** 2) for v in (x, ref))
+        assert cost_x <= cost_ref * (1 + 1e-8) + 1e-300
 
 
 # ---------------------------------------------------------------------- robot section
