@@ -5,7 +5,9 @@
 with ``K_hat`` the controller's estimated elastic and gravity load (the perturbed model of
 :class:`~.model.EstimatedModel`) and the inertia-scaled gains of :func:`~.hierarchical.default_gains`. It has
 no adaptation and no Coriolis feed-forward, so with a 10 % model error it leaves a steady-state
-error (``A_p^-1`` times the load error); it shares the hierarchical drone loop and the
+joint error (``A_p^-1`` times the load error), which the visual loop absorbs by integrating the
+image error into ``q_d`` (paper-in-fov: final RMSE 0.0045 against 0.0039 with the adaptive
+law); it shares the hierarchical drone loop and the
 allocation with the adaptive controller. Use it in a scenario with
 ``controller.class = "tdacm.control.pd:PDGravityController"``; it is also an example of the
 controller protocol (:mod:`tdacm.loop.protocols`).

@@ -205,6 +205,7 @@ def build_loop(
     )
     loop.world = world
     loop.seed = seed
+    warm_up(s, world.q0)
     return loop
 
 
@@ -247,6 +248,20 @@ def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors,
     return FilterBlock(
         filt, init, q_nominal, est["initial_strain_error"], est["initial_position_error"]
     )
+
+
+def warm_up(system, q) -> None:
+    """Call the numba kernels of one period once, so that their first-use compilation (or
+    loading from the on-disk cache) happens before the run, not inside its first step."""
+    from ..control.allocation import box_least_squares
+    from ..system.kernels import rk4_run
+
+    q = np.asarray(q, float)
+    qd = np.zeros(system.n)
+    system.terms(q, qd)
+    system.tip_kinematics(q, qd)
+    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
+    box_least_squares(np.eye(3), np.ones(3), 0.0, 1.0)
 
 
 #: The ``[sensors]`` keys of the camera imperfection model.

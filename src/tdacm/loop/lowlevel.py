@@ -51,7 +51,15 @@ def make_low_level(path: str | None, context: ControllerContext) -> LowLevelCont
     """The scenario's controller: the adaptive one, or ``path`` built as ``cls(context)``."""
     if not path:
         return AdaptiveLowLevel(context)
-    ctl = load_class(path)(context)
+    try:
+        ctl = load_class(path)(context)
+    except ValueError:
+        raise
+    except Exception as exc:  # a user's constructor: report it under the scenario key
+        raise ValueError(
+            f"controller.class {path!r}: building it from a ControllerContext failed: "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
     if not isinstance(ctl, LowLevelController):
         raise ValueError(
             f"controller.class {path!r} does not implement reset(estimate) and "

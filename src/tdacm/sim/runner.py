@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..loop import ClosedLoop, SafetyMonitor, build_loop, normalized_rmse
-from ..loop.build import camera_pose_error
-from ..loop.servo import MODE_CODES
+# submodules, not the tdacm.loop package: tdacm.loop imports tdacm.sim (scenarios, robot)
+from ..loop.closed_loop import ClosedLoop
+from ..loop.safety import SafetyMonitor
+from ..loop.servo import MODE_CODES, normalized_rmse
 from .scenario import Scenario, load_scenario
 
 __all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
@@ -50,6 +51,8 @@ class Simulation:
         self.loop: ClosedLoop | None = None
 
     def build(self) -> ClosedLoop:
+        from ..loop.build import build_loop
+
         composer = None
         if self.video:
             from ..viz.video import caption_frame_composer
@@ -104,6 +107,8 @@ class Simulation:
         q_star = loop.world.q_star
         cam_dp = cam_da = drone_dp = None
         if t.size:
+            from ..loop.build import camera_pose_error
+
             cam_dp, cam_da = camera_pose_error(loop, a["q"][-1], q_star)
             if s.floating:
                 drone_dp = float(np.linalg.norm(a["q"][-1][3:6] - q_star[3:6]))
