@@ -6,7 +6,6 @@ import json
 import numpy as np
 import pytest
 
-import tdacm.sim  # noqa: F401  (first: `import tdacm.loop` alone hits main's import cycle)
 from tdacm.estimation import FilterBlock
 from tdacm.loop import build_loop
 from tdacm.sim.runner import Simulation

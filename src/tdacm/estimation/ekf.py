@@ -282,6 +282,23 @@ class Estimator:
         self.timings = []
         return self.estimate
 
+    def warm_up(self) -> None:
+        """Run every kernel once (numba compiles or loads them), leaving no state behind."""
+        n = self.n
+        q = np.zeros(n)
+        if self.floating:
+            q[5] = 1.0
+        hist, dropped, timings = self._hist, self.dropped_late, self.timings
+        self.reset(q)
+        u = np.zeros(self.system.n_u)
+        meas = [EncoderMeasurement(0.0, np.zeros(self.n_a))]
+        if self.floating:
+            meas += [PoseMeasurement(0.0, q[3:6], np.eye(3)),
+                     ImuMeasurement(0.02, np.zeros(3), np.array([0.0, 0.0, 9.81]))]  # fmt: skip
+        self.step(0.0, None, meas[:2])
+        self.step(0.02, u, meas[2:])
+        self._hist, self.dropped_late, self.timings = hist, dropped, timings
+
     # ------------------------------------------------------------------ outputs
     @property
     def estimate(self) -> StateEstimate:

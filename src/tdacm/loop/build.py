@@ -245,6 +245,7 @@ def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors,
             return first.sample(st.t, st.q, st.qd, None)
 
     filt = Estimator(model, cfg, EstimatorConfig.from_section(est))
+    filt.warm_up()
     return FilterBlock(
         filt, init, q_nominal, est["initial_strain_error"], est["initial_position_error"]
     )
