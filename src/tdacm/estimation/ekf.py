@@ -75,7 +75,7 @@ class EstimatorConfig:
     rk4_steps: int = 1
     accel_noise_angular: float = 0.3  # rad/s^2/sqrt(Hz), drone Euler angles
     accel_noise_linear: float = 0.005  # m/s^2/sqrt(Hz)
-    accel_noise_strain: float = 0.05  # rad/m/s^2/sqrt(Hz)
+    accel_noise_strain: float = 0.2  # rad/m/s^2/sqrt(Hz) (covers the downwash of test C)
     disturbance_walk_angular: float = 1.0  # rad/s^3/sqrt(Hz)
     disturbance_walk_linear: float = 0.02  # m/s^3/sqrt(Hz)
     disturbance_walk_strain: float = 0.3  # rad/m/s^3/sqrt(Hz)
