@@ -38,6 +38,9 @@ ROW_FIELDS = (
     "max_tension",
     "max_thrust",
     "local_detection_rate",
+    "estimation_source",
+    "strain_estimation_rms",
+    "drone_position_estimation_rms",
 )
 
 

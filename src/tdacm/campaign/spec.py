@@ -15,6 +15,8 @@ A spec is a TOML file::
     "sensors.pixel_noise" = { kind = "fixed", value = 1.0 }
     "sensors.dropout"    = { kind = "uniform", low = 0.0, high = 0.05 }
     "sensors.latency_steps" = { kind = "choice", values = [0, 1] }
+    "estimation.source"  = { kind = "fixed", value = "estimated" }   # strings/booleans:
+                                                                      # fixed or choice
 
 Kinds: ``fixed`` (``value``), ``normal`` (``std``, optional ``mean``; added to the scenario's
 value when ``relative = false`` (default) — a perturbation around the nominal — or multiplying
@@ -152,7 +154,9 @@ def parse_spec(
             length = None
             if isinstance(base, list):
                 length = len(base)
-            elif isinstance(base, bool) or (base is not None and not isinstance(base, int | float)):
+            elif isinstance(base, bool | str):
+                length = type(base)  # categorical: kind fixed or choice, values of that type
+            elif base is not None and not isinstance(base, int | float):
                 _err(source, f"{where}: only numeric parameters can be sampled, {key} is {base!r}")
         if not isinstance(d, dict) or d.get("kind") not in KINDS:
             _err(source, f"{where} must be a table with kind = one of {sorted(KINDS)}, got {d!r}")
@@ -161,6 +165,20 @@ def parse_spec(
         if extra:
             _err(source, f"{where}: unknown parameters {sorted(extra)} for kind {kind!r}")
         out = {"kind": kind}
+        if scenario_defaults is None:  # first pass: the values say whether it is categorical
+            first = d.get("value", (d.get("values") or [None])[0])
+            if isinstance(first, bool | str):
+                length = type(first)
+        if isinstance(length, type):  # a string or boolean key (e.g. estimation.source)
+            vals = [d.get("value")] if kind == "fixed" else d.get("values")
+            if kind not in ("fixed", "choice") or not isinstance(vals, list) or not vals:
+                _err(source, f"{where}: {key} is categorical: use kind 'fixed' or 'choice'")
+            for v in vals:
+                if not isinstance(v, length):
+                    _err(source, f"{where}: values must be {length.__name__}s, got {v!r}")
+            out["value" if kind == "fixed" else "values"] = vals[0] if kind == "fixed" else vals
+            clean[key] = out
+            continue
         if kind == "fixed":
             if "value" not in d:
                 _err(source, f"{where}: kind 'fixed' needs 'value'")
@@ -211,6 +229,13 @@ def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> 
         d = spec.distributions[key]
         section, name = key.split(".")
         base = scenario_data[section][name]
+        if isinstance(base, bool | str):  # categorical
+            if d["kind"] == "fixed":
+                pick = d["value"]
+            else:
+                pick = d["values"][int(rng.integers(len(d["values"])))]
+            out.setdefault(section, {})[name] = pick
+            continue
         base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
         shape = base_arr.shape
         kind = d["kind"]
