@@ -86,3 +86,17 @@ def test_estimated_run_is_reproducible_from_its_seed():
     np.testing.assert_array_equal(runs[0]["q_hat"], runs[1]["q_hat"])
     other = Simulation(scenario(), duration=0.3, seed=6).run()[0]
     assert not np.array_equal(other["q_hat"], runs[0]["q_hat"])
+
+
+def test_gymnasium_env_on_estimates():
+    from tdacm.envs.servo import TipServoEnv
+
+    env = TipServoEnv(overrides={**FAST, "estimation": {"source": "estimated"}}, max_steps=5)
+    obs, _ = env.reset(seed=1)
+    assert isinstance(env.loop.estimator, FilterBlock)
+    for _ in range(3):
+        obs, reward, term, trunc, info = env.step(np.zeros(env.action_space.shape))
+        assert np.all(np.isfinite(obs))
+    q_hat = obs[15 : 15 + env.n]
+    assert not np.allclose(q_hat, env.loop.plant.state.q, rtol=0, atol=1e-5)  # the estimate
+    env.close()

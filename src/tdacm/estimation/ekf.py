@@ -348,9 +348,10 @@ class Estimator:
         phi = EK.transition(a, dt)
         qn = EK.discrete_noise(a, self._qc, dt)
         # relative model error: the perturbed M, C, D, K are off by up to ~10 %, so the
-        # predicted acceleration f_hat is, over this period, off by ~ fraction * |f_hat|
+        # predicted acceleration (f_hat + a_d; a_d holds the slow bias, e.g. the gravity
+        # error at hover) is, over this period, off by ~ fraction * |f_hat + a_d|
         # (systematic within the period: a fully correlated position/velocity increment)
-        rel = self.config.model_error_fraction * np.abs(a0 - ad)
+        rel = self.config.model_error_fraction * np.abs(a0)
         g = np.concatenate([0.5 * dt * dt * rel, dt * rel])
         idx = np.arange(2 * n)
         sub = np.zeros((2 * n, 2 * n))
