@@ -100,3 +100,25 @@ def test_gymnasium_env_on_estimates():
     q_hat = obs[15 : 15 + env.n]
     assert not np.allclose(q_hat, env.loop.plant.state.q, rtol=0, atol=1e-5)  # the estimate
     env.close()
+
+
+def test_plant_accelerations_for_the_imu():
+    """With ``accelerations`` on, the plant's state carries ``qdd`` at the end of the period
+    under the input just applied and the period's loads (disturbances included)."""
+    from tdacm.loop.plant import Disturbances, Plant
+    from tdacm.system import kernels as K
+    from tdacm.system.tdacm import Loads
+
+    loop = build_loop(load_scenario("flight-test-c").with_overrides(FAST), seed=0)
+    s = loop.plant.system
+    dist = Disturbances(np.array([0.01, 0.0, 0.0, 0.2, 0.0, 0.0]), 8.0)
+    q0 = np.array([0.0, 0.0, 0.2, 0.25, -0.25, 3.0, 0.2, 0.2])
+    p = Plant(s, q0, np.zeros(8), 4, dist)
+    assert p.advance(np.full(8, 1.5), 0.02).qdd is None
+    p.accelerations = True
+    u = np.concatenate([np.full(4, 2.0), np.full(4, 0.5)])
+    st = p.advance(u, 0.02)
+    loads = Loads(base_wrench=dist.loads_at(0.02, None, True)["base_wrench"])
+    expected, ok = K.forward_dynamics(st.q, st.qd, u, s.model_arrays, loads.packed())
+    assert ok
+    np.testing.assert_allclose(st.qdd, expected, rtol=1e-12, atol=1e-12)
