@@ -55,12 +55,14 @@ def test_bad_action_is_refused(env):
         gym.make("tdacm/TipServo-v0", action_type="torques")
 
 
-def test_vector_env_sync_steps():
-    """The env works under gymnasium.vector (the loop's blocks hold no shared state)."""
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_vector_env_steps(mode):
+    """The env works under gymnasium.vector, in one process and in worker processes (the
+    loop's blocks hold no shared state and pickle through the env's constructor)."""
     envs = gym.make_vec(
         "tdacm/TipServo-v0",
         num_envs=2,
-        vectorization_mode="sync",
+        vectorization_mode=mode,
         overrides={"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}},
     )
     try:

@@ -75,7 +75,9 @@ def _front_end(kind: str, camera, scene: SceneConfig, target, backend: str = "au
         return RenderedFrontEnd(
             camera, lambda: PyBulletRenderer(scene, backend=backend), target, False
         )
-    return RenderedFrontEnd(camera, PlanarRenderer(scene), target, kind == "planar-local")
+    if kind == "planar-local":  # C_L: grey images (what the detector uses; faster)
+        return RenderedFrontEnd(camera, PlanarRenderer(scene, grayscale=True), target, True)
+    return RenderedFrontEnd(camera, PlanarRenderer(scene), target, False)
 
 
 def reference_snapshot(local: CameraSensor, robot: Robot, target, scene, q_star, controller_camera):

@@ -193,6 +193,8 @@ def write_scene_picture(path: Path, loop: ClosedLoop) -> None:
         if sensor is None or not isinstance(sensor.front_end, RenderedFrontEnd):
             continue
         img = sensor.front_end.render(sensor.pose(q), loop.plant.system, q)
+        if img.ndim == 2:
+            img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
         t = cv2.resize(
             np.ascontiguousarray(img[:, :, :3]), (500, 500), interpolation=cv2.INTER_AREA
         )

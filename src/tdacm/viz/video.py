@@ -9,6 +9,8 @@ def side_by_side(img_l, img_g, pix) -> np.ndarray:
     """C_L (detected points in red) | C_G, 500 x 500 each."""
     import cv2
 
+    if img_l.ndim == 2:
+        img_l = cv2.cvtColor(img_l, cv2.COLOR_GRAY2RGB)
     left = cv2.resize(img_l, (500, 500), interpolation=cv2.INTER_AREA)
     if pix is not None:
         for p in np.asarray(pix) * 500 / img_l.shape[1]:
