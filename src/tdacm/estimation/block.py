@@ -15,6 +15,10 @@ from __future__ import annotations
 import numpy as np
 
 from .ekf import Estimator, StateEstimate
+from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
+
+#: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
+_KNOWN = (PoseMeasurement, ImuMeasurement, EncoderMeasurement)
 
 
 def _loop_record(e: StateEstimate):
@@ -84,7 +88,7 @@ class FilterBlock:
         return _loop_record(f.step(t, None, meas))
 
     def step(self, readings, u_applied, dt: float):
-        meas = [m for m in readings.other.values() if m is not None]
+        meas = [m for m in readings.other.values() if isinstance(m, _KNOWN)]
         return _loop_record(self.filter.step(readings.t, u_applied, meas))
 
     @property
