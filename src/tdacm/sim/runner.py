@@ -62,8 +62,9 @@ from ..vision import (
 )
 from ..vision.features import estimate_depths
 from ..vision.virtual import virtual_camera_points
+from ..viz.video import compose_frame  # issue 11
 from .outputs import LOG_KEYS
-from .scenario import Scenario, load_scenario, vec
+from .scenario import Scenario, check_run, check_with_system, load_scenario, vec  # issue 11
 from .sensors import Delay, NoisyDetector, SensorModel, perturbed_camera
 
 MODE_CODES = {"ibvs": 0, "recovery": 1}
@@ -259,12 +260,19 @@ class Simulation:
         need_global = True
         setup = build(self.scenario, need_global)
         s = setup.system
+        interrupted = False  # issue 11: Ctrl-C writes what was simulated, then re-raises
+        try:  # issue 11: inputs that need the built system (dt stability, target in front)
+            check_with_system(self.scenario, s)
+        except Exception:
+            setup.close()
+            raise
         n = s.n
         rng = np.random.default_rng(self.seed)
         try:
             if out_dir is not None:
                 write_scene_picture(Path(out_dir) / "scene.png", setup)
             desired_pts, desired_z = self._desired_view(setup)
+            desired_pix = reference_pixels(setup)  # issue 11: for the video captions
             ib = d["ibvs"]
             servo = LocalCameraServo(
                 LOCAL_CAMERA,
@@ -334,8 +342,6 @@ class Simulation:
                 if want_global:
                     img_g = setup.render_global(q)
                     det_g = TargetDetector(setup.target).detect(img_g)
-                if self.video:
-                    frames.append(_side_by_side(img_l, img_g, pix))
                 # ---------------------------------------------------------- mode + reference
                 prev_mode = switch.mode
                 mode = switch.update(pix)
@@ -433,6 +439,11 @@ class Simulation:
                 log["tension_saturated"].append(cs.tension_saturated)
                 log["twist"].append(twist)
                 log["delta_hat"].append(cs.delta_hat)
+                if self.video:  # issue 11: captioned frame (tdacm.viz.video.compose_frame)
+                    gpix = det_g.points if det_g is not None and det_g.found else None
+                    frames.append(compose_frame(img_l, img_g, t=t, mode=mode, rmse=rmse,
+                                                detected=pix, desired=desired_pix,
+                                                detected_global=gpix))  # fmt: skip
                 if mode == ModeSwitch.IBVS and not safety.check(t, rmse):
                     terminated, reason = True, safety.reason
                     break
@@ -452,14 +463,24 @@ class Simulation:
                     terminated, reason = True, "plant integration failed (singular mass matrix)"
                     break
             wall = time.perf_counter() - wall0
+        except KeyboardInterrupt:  # issue 11: keep the steps simulated so far
+            if "log" not in locals():
+                raise
+            interrupted, terminated, reason = True, True, "interrupted by the user (Ctrl-C)"
+            wall = time.perf_counter() - wall0
+            m = min(len(v) for v in log.values())
+            log = {k: v[:m] for k, v in log.items()}
         finally:
             setup.close()
         arrays = {k: np.asarray(v) for k, v in log.items()}
         summary = self._summary(
             arrays, terminated, reason, wall, switch_time, plan_info, s, desired_pts
         )
+        summary["interrupted"] = interrupted  # issue 11
         if out_dir is not None:
-            write_outputs(out_dir, arrays, summary, desired_pts, frames, s)
+            write_outputs(out_dir, arrays, summary, desired_pts, frames, s, self.scenario)
+        if interrupted:  # issue 11: the CLI turns this into one line and exit 130
+            raise KeyboardInterrupt
         return arrays, summary
 
     def _summary(self, a, terminated, reason, wall, switch_time, plan_info, s, desired_pts):
@@ -517,6 +538,13 @@ def _side_by_side(img_l, img_g, pix):
     return np.concatenate((left, right[:, :, :3]), axis=1)
 
 
+def reference_pixels(setup: Setup):
+    """Issue 11: C_L pixels of the target at the desired configuration (video overlay)."""
+    return LOCAL_CAMERA.project_world(
+        setup.scene.target_points_world(), setup.local_pose(setup.q_star)
+    )
+
+
 def write_scene_picture(path: Path, setup: Setup) -> None:
     """The scenario's geometry as the cameras see it: C_L at the start, C_L at the desired
     configuration (the reference snapshot), C_G at the start (arm drawn)."""
@@ -537,10 +565,10 @@ def write_scene_picture(path: Path, setup: Setup) -> None:
     cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=1), cv2.COLOR_RGB2BGR))
 
 
-def write_outputs(out_dir, a, summary, desired_pts, frames, system):
+def write_outputs(out_dir, a, summary, desired_pts, frames, system, scenario=None):
     from .outputs import write_all
 
-    write_all(Path(out_dir), a, summary, desired_pts, frames, system)
+    write_all(Path(out_dir), a, summary, desired_pts, frames, system, scenario=scenario)
 
 
 def run_scenario(
@@ -548,5 +576,6 @@ def run_scenario(
 ):
     """Load and run a scenario; returns ``(arrays, summary)`` and writes ``out`` if given."""
     sc = load_scenario(name, config)
+    check_run(sc, duration, seed, flags=False)  # issue 11: reject nan/inf/<=0, seed < 0
     sim = Simulation(sc, duration=duration, seed=seed, video=video, progress=progress)
     return sim.run(out)
