@@ -365,6 +365,11 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         _note("interrupted (Ctrl-C)")
         return 130
+    except SystemError as exc:  # Ctrl-C inside a numba kernel
+        if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            _note("interrupted (Ctrl-C)")
+            return 130
+        raise
 
 
 if __name__ == "__main__":

@@ -463,8 +463,12 @@ class Simulation:
                     terminated, reason = True, "plant integration failed (singular mass matrix)"
                     break
             wall = time.perf_counter() - wall0
-        except KeyboardInterrupt:  # issue 11: keep the steps simulated so far
-            if "log" not in locals():
+        except (KeyboardInterrupt, SystemError) as exc:  # issue 11: keep the steps so far
+            # (Ctrl-C inside a numba kernel surfaces as a SystemError caused by the interrupt)
+            ctrl_c = isinstance(exc, KeyboardInterrupt) or isinstance(
+                exc.__cause__ or exc.__context__, KeyboardInterrupt
+            )
+            if "log" not in locals() or not ctrl_c:
                 raise
             interrupted, terminated, reason = True, True, "interrupted by the user (Ctrl-C)"
             wall = time.perf_counter() - wall0

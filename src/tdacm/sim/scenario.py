@@ -325,17 +325,17 @@ def check_with_system(scenario: Scenario, system=None) -> None:
             held = np.zeros(8)
             held[:6] = d["system"]["held_base_q"]
             system = paper_system(fixed_base_pose=paper_system().base_pose(held))
+    if d["dt"] > MAX_CONTROL_PERIOD:
+        raise ScenarioError(
+            f"{src}: dt = {d['dt']} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
+            f"loop is unstable there (measured: stopped at 0.05 s, diverges at 0.1 s; paper: 0.02 s)"
+        )
     h = d["dt"] / d["substeps"]
     h_max = MAX_STEP_FACTOR * system.suggested_dt()
     if h > h_max:
         raise ScenarioError(
             f"{src}: dt / substeps = {h:.4g} s exceeds the plant's RK4 step limit "
             f"{h_max:.4g} s ({MAX_STEP_FACTOR:g} x suggested_dt()); raise substeps or lower dt"
-        )
-    if d["dt"] > MAX_CONTROL_PERIOD:
-        raise ScenarioError(
-            f"{src}: dt = {d['dt']} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
-            f"loop is unstable there (measured: stopped at 0.05 s, diverges at 0.1 s; paper: 0.02 s)"
         )
     sc = d["scene"]
     scene = SceneConfig(
