@@ -127,7 +127,7 @@ def _finish(fig, rd: RunData, what: str, out: Path, name: str, formats) -> list[
     return paths
 
 
-def _config_axes(plt, rd: RunData, err, ylabel_prefix, alt=None):
+def _config_axes(plt, rd: RunData, err, ylabel_prefix, angle_labels=_ANGLES):
     """Three (floating) or one (fixed) axes of a configuration-space error ``err`` (T, n)."""
     t = rd.t
     n = err.shape[1]
@@ -136,8 +136,7 @@ def _config_axes(plt, rd: RunData, err, ylabel_prefix, alt=None):
     axes = axes[:, 0]
     if rd.floating:
         for i in range(3):
-            y = np.degrees(err[:, i]) if alt is None or i > 2 else np.degrees(alt(i))
-            axes[0].plot(t, y, label=_ANGLES[i])
+            axes[0].plot(t, np.degrees(err[:, i]), label=angle_labels[i])
         axes[0].set_ylabel(f"{ylabel_prefix} angle (deg)")
         for i in range(3):
             axes[1].plot(t, err[:, 3 + i], label=_POS[i])
@@ -149,7 +148,7 @@ def _config_axes(plt, rd: RunData, err, ylabel_prefix, alt=None):
     ax.set_xlabel("time (s)")
     for a in axes:
         a.axhline(0, color="0.5", lw=0.6)
-        _mark(a, rd, ncol=4, loc="upper right")
+        _mark(a, rd, ncol=4, loc="best")
     return fig
 
 
@@ -172,29 +171,12 @@ def fig_tracking_errors(rd: RunData, out, formats):
 
     q = np.asarray(rd.arrays["q"])
     err = q - np.asarray(rd.arrays["q_d"])
-    alt = None
+    labels = _ANGLES
     if rd.floating and rd.has("q_ref"):
-        ref = np.asarray(rd.arrays["q_ref"])
-
-        def alt(i):  # roll/pitch are not commanded: the drone loop's reference instead
-            return q[:, i] - ref[:, i] if i < 2 else err[:, i]
-
-    fig = _config_axes(plt, rd, err, "tracking")
-    if alt is not None:  # redraw the angle axis with roll/pitch against q_ref
-        ax = fig.axes[0]
-        for line in list(ax.lines)[:3]:
-            line.remove()
-        for i in range(3):
-            ax.plot(
-                rd.t,
-                np.degrees(alt(i)),
-                color=f"C{i}",
-                label=_ANGLES[i]
-                + (r" $- \phi_{ref}$" if i == 0 else r" $- \theta_{ref}$" if i == 1 else ""),
-            )
-        ax.relim()
-        ax.autoscale_view()
-        _mark(ax, rd, ncol=4, loc="upper right")
+        # roll and pitch are not commanded by the servo: the drone loop's reference instead
+        err[:, :2] = q[:, :2] - np.asarray(rd.arrays["q_ref"])[:, :2]
+        labels = (r"$\phi - \phi_{ref}$", r"$\theta - \theta_{ref}$", r"$\psi$")
+    fig = _config_axes(plt, rd, err, "tracking", labels)
     return _finish(
         fig, rd, "low-level tracking error $q - q_d(t)$", out, "tracking_errors", formats
     )
@@ -220,7 +202,7 @@ def fig_actuation(rd: RunData, out, formats):
     axes[-1].set_ylabel("tendon tension (N)")
     axes[-1].set_xlabel("time (s)")
     for a in axes:
-        _mark(a, rd, ncol=5, loc="upper right")
+        _mark(a, rd, ncol=5, loc="best")
     return _finish(fig, rd, "input actuation", out, "actuation", formats)
 
 
@@ -267,7 +249,7 @@ def fig_features(rd: RunData, out, formats):
     ax1.set_xlabel("time (s)")
     ax1.set_ylabel("normalized RMSE (-)")
     ax1.set_title("normalized image error")
-    _mark(ax1, rd, loc="upper right")
+    _mark(ax1, rd, loc="best")
     return _finish(fig, rd, "feature trajectories and normalized error", out, "features", formats)
 
 
@@ -287,7 +269,7 @@ def fig_feature_error(rd: RunData, out, formats):
     axes[1].set_xlabel("time (s)")
     for a in axes:
         a.axhline(0, color="0.5", lw=0.6)
-        _mark(a, rd, ncol=4, loc="upper right")
+        _mark(a, rd, ncol=4, loc="best")
     return _finish(
         fig, rd, "(a) advanced-feature error $p^* - p^*_d$", out, "feature_error", formats
     )
@@ -308,7 +290,7 @@ def fig_camera_twist(rd: RunData, out, formats):
     axes[1].set_xlabel("time (s)")
     for a in axes:
         a.axhline(0, color="0.5", lw=0.6)
-        _mark(a, rd, ncol=4, loc="upper right")
+        _mark(a, rd, ncol=4, loc="best")
     return _finish(fig, rd, "(b) commanded local camera twist", out, "camera_twist", formats)
 
 
@@ -334,7 +316,7 @@ def fig_strain_rates(rd: RunData, out, formats):
     ax.set_ylabel("strain rate (1/(m s))")
     ax.set_xlabel("time (s)")
     ax.axhline(0, color="0.5", lw=0.6)
-    _mark(ax, rd, ncol=3, loc="upper right")
+    _mark(ax, rd, ncol=3, loc="best")
     return _finish(
         fig, rd, "(c) time derivative of the rod's strain coordinates", out, "strain_rates", formats
     )
@@ -393,7 +375,15 @@ def fig_snapshots(rd: RunData, out, formats, times=None):
             ax.set_xticks([])
             ax.set_yticks([])
             ax.grid(False)
-        axes[0, 0].legend(loc="lower left")
+        from matplotlib.lines import Line2D
+
+        axes[0, 0].legend(
+            handles=[
+                Line2D([], [], ls="", marker="o", color="red", mfc="none", label="detected"),
+                Line2D([], [], ls="", marker="x", color="lime", mew=1.6, label="desired"),
+            ],
+            loc="lower left",
+        )
     finally:
         renderer.close()
     return _finish(fig, rd, "(d) local camera $C_L$ snapshots", out, "snapshots", formats)
@@ -408,7 +398,7 @@ def fig_lyapunov(rd: RunData, out, formats):
     ax.semilogy(rd.t, np.maximum(np.asarray(rd.arrays["V"], float), 1e-12), label="$V$")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("Lyapunov function\n(known part, J)")
-    _mark(ax, rd, loc="upper right")
+    _mark(ax, rd, loc="best")
     return _finish(fig, rd, "Lyapunov function", out, "lyapunov", formats)
 
 

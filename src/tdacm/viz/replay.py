@@ -4,8 +4,9 @@ GIF or MP4.
 
 Playback is real time by default (``speed = 1``): the frame count and the frame rate are chosen
 so that the animation lasts ``duration / speed``; when ``max_frames`` or an explicit ``fps``
-makes that impossible, the title states the actual speed. Views: ``"follow"`` (a 2.4 m cube
-that follows the arm) or ``"scene"`` (fixed, the whole motion and the target).
+makes that impossible, the title states the actual speed. Views: ``"follow"`` (centred on the arm
+in x and y, from the ground to above the drone) or ``"scene"`` (fixed, the whole motion and the
+target).
 
 GIF uses Pillow; MP4 uses :func:`tdacm.viz.video.write_video` (H.264 through imageio-ffmpeg,
 else OpenCV), so nothing is downloaded.
@@ -107,14 +108,15 @@ def replay_frames(
     frames = []
     for j, (bb, gb) in enumerate(zip(bbs, bases, strict=True)):
         ax.cla()
-        if view == "follow":
-            c = 0.5 * (bb[0, :3, 3] + bb[-1, :3, 3])
-            h = 1.2
+        if view == "follow":  # centred on the arm in x, y; from the ground to above the drone
+            top = max(gb[2, 3], bb[0, 2, 3]) + 0.4
+            h = max(1.0, 0.5 * top)
+            c = np.array([*(0.5 * (bb[0, :2, 3] + bb[-1, :2, 3])), h])
         else:
             c, h = centre, half
         ax.set_xlim(c[0] - h, c[0] + h)
         ax.set_ylim(c[1] - h, c[1] + h)
-        zlo = max(c[2] - h, -0.05) if view == "follow" else min(c[2] - h, -0.05)
+        zlo = -0.05 if view == "follow" else min(c[2] - h, -0.05)
         ax.set_zlim(zlo, zlo + 2 * h)
         ax.set_box_aspect((1, 1, 1))
         ax.set_xlabel("x (m)")
