@@ -204,12 +204,13 @@ def _run_cli(args, cwd, **kw):
 
 def test_run_stdout_is_the_summary_json_only(tmp_path):
     cfg = _cfg(tmp_path, '[cameras]\nglobal_every = 0\nglobal_backend = "auto"\n')
-    r = _run_cli(["run", "paper-in-fov", "--duration", "0.06", "--out", "o", "--config", cfg],
-                 tmp_path)  # fmt: skip
+    r = _run_cli(["run", "paper-in-fov", "--duration", "0.06", "--out", "o", "--config", cfg,
+                  "--rerun", "o/run.rrd"], tmp_path)  # fmt: skip
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)  # no PyBullet banner, no "written to" line
     assert summary["scenario"] == "paper-in-fov" and summary["duration"] == pytest.approx(0.06)
     assert "Run written to" in r.stderr
+    assert (tmp_path / "o" / "run.rrd").stat().st_size > 0  # --rerun: converted at the end
 
 
 def _wait_for(proc, path_or_fn, timeout=120):

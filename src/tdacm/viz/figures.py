@@ -350,6 +350,11 @@ def fig_snapshots(rd: RunData, out, formats, times=None):
             k = int(np.argmin(np.abs(rd.t - ti)))
             q = np.asarray(rd.arrays["q"])[k]
             img = renderer.render(LOCAL_CAMERA, g.local_pose(q))
+            if img.shape[1] > 512:  # a 2.5-inch panel needs no more (faster to draw and save)
+                import cv2
+
+                img = cv2.resize(np.ascontiguousarray(img[:, :, :3]), (512, 512),
+                                 interpolation=cv2.INTER_AREA)  # fmt: skip
             ax.imshow(img, extent=(0, LOCAL_CAMERA.width, LOCAL_CAMERA.height, 0))
             ax.plot(*np.vstack([desired, desired[:1]]).T, "-", color="lime", lw=0.8)
             ax.plot(desired[:, 0], desired[:, 1], "x", color="lime", ms=7, mew=1.6, label="desired")
