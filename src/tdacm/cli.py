@@ -69,11 +69,13 @@ def numba_cache_is_cold() -> bool:
         return False
     src = Path(spec.origin)
     cache_dir = os.environ.get("NUMBA_CACHE_DIR")
-    places = [src.parent / "__pycache__"]
-    if cache_dir:
-        places = list(Path(cache_dir).rglob("__pycache__")) + [Path(cache_dir)]
     for kernel in ("rk4_run", "forward_dynamics"):
-        if not any(any(p.glob(f"kernels.{kernel}-*.nbi")) for p in places if p.is_dir()):
+        pattern = f"kernels.{kernel}-*.nbi"  # numba's index file of a cached function
+        if cache_dir:  # numba mirrors the source folder's path under NUMBA_CACHE_DIR
+            found = Path(cache_dir).is_dir() and any(Path(cache_dir).rglob(pattern))
+        else:
+            found = any((src.parent / "__pycache__").glob(pattern))
+        if not found:
             return True
     return False
 
