@@ -77,6 +77,13 @@ def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
     return row
 
 
+def _silence_distributed() -> None:
+    import logging
+
+    for name in ("distributed", "distributed.nanny", "distributed.worker", "tornado"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
 def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
@@ -269,11 +276,14 @@ def run_campaign(
         except KeyboardInterrupt:
             import logging
 
-            # shutting the cluster down mid-task makes distributed log warnings: not for users
-            for name in ("distributed", "distributed.nanny", "distributed.worker"):
-                logging.getLogger(name).setLevel(logging.CRITICAL)
-            for f in futures if "futures" in locals() else []:
-                f.cancel()
+            # shutting the cluster down mid-task makes distributed log warnings and heartbeat
+            # tracebacks (driver and workers): not for users, whose rows are safe on disk
+            _silence_distributed()
+            try:
+                client.run(_silence_distributed)
+                client.cancel(futures if "futures" in locals() else [])
+            except Exception:  # noqa: BLE001 - best effort while shutting down
+                pass
             raise
         finally:
             if bar is not None:

@@ -23,63 +23,34 @@ class Geometry:
     tip_mount: np.ndarray
     drone_mount: np.ndarray
     q_star: np.ndarray
+    local_camera: object
+    global_camera: object
 
     def local_pose(self, q):
-        from ..vision import camera_pose
-
-        return camera_pose(self.system.tip_pose(q), self.tip_mount)
+        return self.system.tip_pose(q) @ self.tip_mount
 
     def global_pose(self, q):
-        from ..vision import camera_pose
-
-        return camera_pose(self.system.base_pose(q), self.drone_mount)
+        return self.system.base_pose(q) @ self.drone_mount
 
     def desired_local_pixels(self) -> np.ndarray:
         """The target's four corners in C_L at the desired configuration (4, 2) px: where the
         detected points go when the servo converges (the reference view)."""
-        from ..vision import LOCAL_CAMERA
-
-        return LOCAL_CAMERA.project_world(
+        return self.local_camera.project_world(
             self.scene.target_points_world(), self.local_pose(self.q_star)
         )
 
 
 def geometry(scenario) -> Geometry:
-    """Build the :class:`Geometry` of a :class:`~tdacm.sim.Scenario`."""
-    from .. import paper_system
-    from ..vision import (
-        PAPER_MARKER,
-        PAPER_PATTERN,
-        SceneConfig,
-        drone_camera_mount,
-        tip_camera_mount,
-    )
+    """The :class:`Geometry` of a :class:`~tdacm.sim.Scenario` (its ``[robot]`` section,
+    through :func:`tdacm.loop.build_scene`)."""
+    from ..loop.build import build_scene
 
-    d = scenario.data
-    if scenario.floating:
-        system = paper_system()
-    else:
-        held = np.zeros(8)
-        held[:6] = d["system"]["held_base_q"]
-        system = paper_system(fixed_base_pose=paper_system().base_pose(held))
-    sc = d["scene"]
-    target = PAPER_MARKER if sc["target"] == "aruco" else PAPER_PATTERN
-    scene = SceneConfig(
-        target=target,
-        box_size=sc["box_size"],
-        box_xy=tuple(sc["box_xy"]),
-        target_yaw_deg=sc["target_yaw_deg"],
-    )
-    cams = d["cameras"]
+    w = build_scene(scenario)
+    r = w.robot
     return Geometry(
-        scenario,
-        system,
-        scene,
-        target,
-        tip_camera_mount(system.attachment, cams["tip_offset"]),
-        drone_camera_mount(tuple(cams["drone_camera_position"]), cams["drone_camera_tilt_deg"]),
-        np.asarray(d["desired"]["q"], float),
-    )
+        scenario, r.system, w.scene, w.target, r.tip_mount, r.drone_mount, w.q_star,
+        r.local_camera, r.global_camera,
+    )  # fmt: skip
 
 
 class RunDirError(ValueError):

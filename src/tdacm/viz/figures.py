@@ -72,6 +72,15 @@ class RunData:
     desired_points: np.ndarray | None = None  # (4, 2) normalized (C_V floating, C_L fixed)
     geometry: object = None  # viz._scene.Geometry, for the snapshots
     title: str = ""
+    camera: object = None  # C_L's intrinsics (default: the paper's LOCAL_CAMERA)
+
+    @property
+    def cam(self):
+        if self.camera is not None:
+            return self.camera
+        from ..vision import LOCAL_CAMERA
+
+        return LOCAL_CAMERA
 
     @property
     def t(self):
@@ -206,9 +215,7 @@ def fig_actuation(rd: RunData, out, formats):
     return _finish(fig, rd, "input actuation", out, "actuation", formats)
 
 
-def _to_px(xy):
-    from ..vision import LOCAL_CAMERA as cam
-
+def _to_px(xy, cam):
     xy = np.asarray(xy, float)
     return np.stack((cam.fx * xy[..., 0] + cam.cx, cam.fy * xy[..., 1] + cam.cy), axis=-1)
 
@@ -218,18 +225,17 @@ def fig_features(rd: RunData, out, formats):
         return []
     import matplotlib.pyplot as plt
 
-    from ..vision import LOCAL_CAMERA as cam
-
+    cam = rd.cam
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9.6, 4.0))
     if rd.has("points_virtual"):
-        uv = _to_px(rd.arrays["points_virtual"])
+        uv = _to_px(rd.arrays["points_virtual"], cam)
         for k in range(uv.shape[1]):
             ax0.plot(uv[:, k, 0], uv[:, k, 1], lw=1.2, color=f"C{k}", label=f"point {k + 1}")
             good = np.flatnonzero(np.isfinite(uv[:, k, 0]))
             if good.size:
                 ax0.plot(*uv[good[0], k], "o", color=f"C{k}", mfc="none")
         if rd.desired_points is not None:
-            dp = _to_px(rd.desired_points)
+            dp = _to_px(rd.desired_points, cam)
             ax0.plot(dp[:, 0], dp[:, 1], "x", color="k", ms=8, label="desired")
         ax0.plot([], [], "o", color="0.3", mfc="none", label="start")
     ax0.set_xlim(0, cam.width)
@@ -338,9 +344,10 @@ def fig_snapshots(rd: RunData, out, formats, times=None):
         return []
     import matplotlib.pyplot as plt
 
-    from ..vision import LOCAL_CAMERA, PlanarRenderer
+    from ..vision import PlanarRenderer
 
     g = rd.geometry
+    LOCAL_CAMERA = g.local_camera
     times = snapshot_times(rd) if times is None else list(times)
     renderer = PlanarRenderer(g.scene)
     desired = g.desired_local_pixels()
@@ -359,7 +366,7 @@ def fig_snapshots(rd: RunData, out, formats, times=None):
             ax.plot(*np.vstack([desired, desired[:1]]).T, "-", color="lime", lw=0.8)
             ax.plot(desired[:, 0], desired[:, 1], "x", color="lime", ms=7, mew=1.6, label="desired")
             if rd.has("points_local"):
-                p = _to_px(np.asarray(rd.arrays["points_local"])[k])
+                p = _to_px(np.asarray(rd.arrays["points_local"])[k], LOCAL_CAMERA)
                 if np.all(np.isfinite(p)):
                     ax.plot(
                         p[:, 0],
@@ -457,11 +464,10 @@ def plot_run(
     q_star = None
     geom = None
     if scenario is not None:
-        q_star = np.asarray(scenario["desired"]["q"], float)
-        if "snapshots" in kinds:
-            from ._scene import geometry
+        from ._scene import geometry
 
-            geom = geometry(scenario)
+        q_star = np.asarray(scenario["desired"]["q"], float)
+        geom = geometry(scenario)
     elif "q_star" in arrays:
         q_star = np.asarray(arrays["q_star"], float)
     if desired_pts is None and "desired_points" in arrays:
@@ -474,6 +480,7 @@ def plot_run(
         desired_points=None if desired_pts is None else np.asarray(desired_pts, float),
         geometry=geom,
         title=(summary or {}).get("scenario", ""),
+        camera=geom.local_camera if geom is not None else None,
     )
     paths = []
     with plt.rc_context(_STYLE):

@@ -215,7 +215,8 @@ def replay_run(
     title = f"{summary.get('scenario', scenario.name)}  (playback {actual:.2g}x real time)"
     frames = replay_frames(
         g.system, q, g.scene.target_points_world(), g.tip_mount, stride, title=title,
-        times=t, scene=g.scene, view=view, captions=captions, progress=progress,
+        times=t, scene=g.scene, view=view, camera=g.local_camera, captions=captions,
+        progress=progress,
     )  # fmt: skip
     out = Path(out) if out is not None else run_dir / "replay.gif"
     return write_animation(frames, out, fps)

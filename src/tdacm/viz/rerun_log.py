@@ -53,7 +53,7 @@ def record_run(
     (default: about 100 images over the run); ``progress(done, total)`` is called per step."""
     import rerun as rr
 
-    from ..vision import GLOBAL_CAMERA, LOCAL_CAMERA, PlanarRenderer, TargetDetector
+    from ..vision import PlanarRenderer, TargetDetector
     from ._scene import geometry, load_run
 
     run_dir = Path(run_dir)
@@ -61,6 +61,7 @@ def record_run(
     path = Path(path) if path is not None else run_dir / "run.rrd"
     path.parent.mkdir(parents=True, exist_ok=True)
     g = geometry(scenario)
+    LOCAL_CAMERA, GLOBAL_CAMERA = g.local_camera, g.global_camera
     s = g.system
     t = np.asarray(arrays["t"], float)
     q = np.asarray(arrays["q"], float)

@@ -60,7 +60,12 @@ def compose_frame(
     """
     import cv2
 
-    img_local = np.ascontiguousarray(np.asarray(img_local)[:, :, :3], dtype=np.uint8)
+    img_local = np.asarray(img_local)
+    if img_local.ndim == 2:  # the loop renders C_L in grey
+        img_local = cv2.cvtColor(
+            np.ascontiguousarray(img_local, dtype=np.uint8), cv2.COLOR_GRAY2RGB
+        )
+    img_local = np.ascontiguousarray(img_local[:, :, :3], dtype=np.uint8)
     h0, w0 = img_local.shape[:2]
     left = cv2.resize(img_local, (TILE, TILE), interpolation=cv2.INTER_AREA)
     sx, sy = TILE / w0, TILE / h0
@@ -83,7 +88,10 @@ def compose_frame(
         right = np.zeros((TILE, TILE, 3), np.uint8)
         _text(right, "C_G not rendered", (150, TILE // 2), 0.6, (160, 160, 160))
     else:
-        g = np.ascontiguousarray(np.asarray(img_global)[:, :, :3], dtype=np.uint8)
+        g = np.asarray(img_global)
+        if g.ndim == 2:
+            g = cv2.cvtColor(np.ascontiguousarray(g, dtype=np.uint8), cv2.COLOR_GRAY2RGB)
+        g = np.ascontiguousarray(g[:, :, :3], dtype=np.uint8)
         gh, gw = g.shape[:2]
         right = (
             cv2.resize(g, (TILE, TILE), interpolation=cv2.INTER_AREA)
@@ -168,3 +176,62 @@ def write_video(path, frames, fps: float = 50) -> str:
         vw.write(cv2.cvtColor(np.ascontiguousarray(np.asarray(f)[:, :, :3]), cv2.COLOR_RGB2BGR))
     vw.release()
     return "mp4v"
+
+
+def side_by_side(img_l, img_g, pix) -> np.ndarray:
+    """Uncaptioned C_L (detected points in red) | C_G, 500 x 500 each (the old frame)."""
+    import cv2
+
+    if img_l.ndim == 2:
+        img_l = cv2.cvtColor(img_l, cv2.COLOR_GRAY2RGB)
+    left = cv2.resize(img_l, (TILE, TILE), interpolation=cv2.INTER_AREA)
+    if pix is not None:
+        for p in np.asarray(pix) * TILE / img_l.shape[1]:
+            cv2.circle(left, (int(p[0]), int(p[1])), 4, (255, 0, 0), -1)
+    right = img_g if img_g is not None else np.zeros((TILE, TILE, 3), np.uint8)
+    if right.shape[:2] != (TILE, TILE):
+        right = cv2.resize(right, (TILE, TILE))
+    return np.concatenate((left[:, :, :3], right[:, :, :3]), axis=1)
+
+
+class CaptionedFrames:
+    """The loop's per-period frame composer (``RunLog(frame_composer=...)``,
+    ``build_loop(frame_composer=...)``): ``composer(readings, view, command, t)`` returns
+    :func:`compose_frame` of the C_L and C_G images with the detected points, the desired
+    points ``desired`` (C_L pixels, set after the loop is built: :func:`desired_pixels`), the
+    time, the mode and the RMSE of ``command``."""
+
+    def __init__(self, desired=None):
+        self.desired = desired
+
+    def __call__(self, readings, view, command, t) -> np.ndarray:
+        loc = readings.local
+        img_l = loc.image if loc is not None and loc.image is not None else None
+        if img_l is None:
+            img_l = np.zeros((TILE, TILE, 3), np.uint8)
+        g = readings.global_
+        img_g = g.image if g is not None else None
+        det_g = g.detection.points if g is not None and g.found else None
+        return compose_frame(
+            img_l,
+            img_g,
+            t=float(t),
+            mode=getattr(command, "mode", None),
+            rmse=getattr(command, "rmse", None),
+            detected=view.pixels if view is not None and view.found else None,
+            desired=self.desired,
+            detected_global=det_g,
+        )
+
+
+#: Old name: a composer without the desired points.
+caption_frame_composer = CaptionedFrames()
+
+
+def desired_pixels(loop) -> np.ndarray:
+    """C_L pixels (4, 2) of the target at the desired configuration of a built
+    :class:`tdacm.loop.ClosedLoop` (where the detected points converge)."""
+    local = loop.sensors.local
+    return local.camera.project_world(
+        loop.world.scene.target_points_world(), local.pose(loop.world.q_star)
+    )
