@@ -192,13 +192,20 @@ def _cmd_run(args) -> int:
 
 def _cmd_plot(args) -> int:
     from .viz._scene import RunDirError
-    from .viz.figures import plot_run_dir
+    from .viz.figures import KINDS, plot_run_dir
 
+    kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else KINDS
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        return _err(f"--kinds: unknown figure {unknown[0]!r} (known: {', '.join(KINDS)})")
+    formats = tuple(f.strip() for f in args.formats.split(","))
+    if any(f not in ("png", "pdf", "svg") for f in formats):
+        return _err(f"--formats must list png, pdf or svg, got {args.formats!r}")
     try:
-        paths = plot_run_dir(args.run_dir, args.out, formats=tuple(args.formats.split(",")))
+        paths = plot_run_dir(args.run_dir, args.out, formats=formats, kinds=kinds)
     except RunDirError as exc:
         return _err(str(exc))
-    _note(f"{len(paths)} figure files written to {Path(paths[0]).parent.resolve()}/"
+    _note(f"{len(paths)} figure file{'s' if len(paths) != 1 else ''} written to {Path(paths[0]).parent.resolve()}/"
           if paths else "no figures written (empty run)")  # fmt: skip
     return 0
 
@@ -324,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--out", help="folder for the figures (default: RUN_DIR)")
     s.add_argument("--formats", default="png,pdf", help="comma-separated (default png,pdf)")
+    s.add_argument("--kinds", help="comma-separated figure kinds (default: all)")
     s.set_defaults(func=_cmd_plot)
     s = sub.add_parser("scenarios", help="list the shipped scenarios")
     s.set_defaults(func=_cmd_scenarios)

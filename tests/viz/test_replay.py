@@ -53,9 +53,13 @@ def test_frames_show_the_arm_moving():
 
 def test_plot_command_regenerates_figures(run_dir, capsys):
     (run_dir / "snapshots.png").unlink()
-    assert main(["plot", str(run_dir), "--formats", "png"]) == 0
+    before = (run_dir / "features.png").stat().st_mtime_ns
+    assert main(["plot", str(run_dir), "--formats", "png", "--kinds", "snapshots"]) == 0
     assert (run_dir / "snapshots.png").stat().st_size > 0
-    assert "figure files written" in capsys.readouterr().err
+    assert (run_dir / "features.png").stat().st_mtime_ns == before  # only the kind asked for
+    assert "1 figure file written" in capsys.readouterr().err
+    assert main(["plot", str(run_dir), "--kinds", "nope"]) == 2
+    assert "--kinds" in capsys.readouterr().err
 
 
 def test_rerun_recording_reads_back(run_dir, capsys):

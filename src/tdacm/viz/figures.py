@@ -492,7 +492,9 @@ def plot_run(
     return paths
 
 
-def plot_run_dir(run_dir, out=None, formats=("png", "pdf"), snapshot_at=None) -> list[Path]:
+def plot_run_dir(
+    run_dir, out=None, formats=("png", "pdf"), snapshot_at=None, kinds=KINDS
+) -> list[Path]:
     """Regenerate the figures of a ``tdacm run`` folder from its stored time series
     (``timeseries.npz``, ``summary.json``, ``scenario.toml``); ``tdacm plot RUN_DIR``."""
     from ._scene import load_run
@@ -506,5 +508,6 @@ def plot_run_dir(run_dir, out=None, formats=("png", "pdf"), snapshot_at=None) ->
         desired,
         scenario=scenario,
         formats=formats,
+        kinds=kinds,
         snapshot_at=snapshot_at,
     )
