@@ -14,6 +14,7 @@ Sensors read the true :class:`~.data.PlantState`; nothing after them does.
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
@@ -75,11 +76,27 @@ class RenderedFrontEnd:
     def reset(self) -> None:
         self.detector.reset()
 
-    def render(self, pose: np.ndarray, system=None, q=None) -> np.ndarray:
+    def render(self, pose: np.ndarray, system=None, q=None, camera=None) -> np.ndarray:
         r = self.renderer
         if getattr(r, "draws_arm", False) and system is not None:
             r.set_arm(system.base_pose(q), system.backbone(q, 21))
-        return r.render(self.camera, pose)
+        return r.render(self.camera if camera is None else camera, pose)
+
+    def detect_at(self, pose, system, q, need_image: bool) -> tuple:
+        """``(detection, image)``. While the detector tracks the target and no full image is
+        needed, only its tracking window is rendered (a camera with the window's size and
+        shifted principal point gives the same pixels) and searched; otherwise, or if the
+        window misses, the whole image, as :meth:`TargetDetector.detect` does."""
+        cam = self.camera
+        win = None if need_image else self.detector.tracking_window((cam.height, cam.width))
+        if win is not None and not getattr(self.renderer, "draws_arm", False):
+            x0, y0, x1, y1 = win
+            crop_cam = replace(cam, width=x1 - x0, height=y1 - y0, cx=cam.cx - x0, cy=cam.cy - y0)
+            det = self.detector.detect_in_window(self.render(pose, camera=crop_cam), win)
+            if det.found:
+                return det, None
+        image = self.render(pose, system, q)
+        return self.detector.detect(image), image
 
     def close(self) -> None:
         if hasattr(self._renderer, "close"):
@@ -133,8 +150,7 @@ class CameraSensor:
         fe = self.front_end
         if isinstance(fe, AnalyticFrontEnd):
             return fe.detect_at(pose), None
-        image = fe.render(pose, self.system, q)
-        return fe.detector.detect(image), image
+        return fe.detect_at(pose, self.system, q, self.keep_images)
 
     def _imperfect(self, det: Detection) -> Detection:
         m = self.model
