@@ -24,6 +24,17 @@ from .system import kernels as K
 from .system import paper_system, simulate
 
 
+def _stage(text: str, end: bool = False) -> None:
+    """One progress line on stderr (overwritten in a terminal), so stdout keeps the tables."""
+    import sys
+
+    tty = sys.stderr.isatty()
+    sys.stderr.write(
+        ("\r\033[K" if tty else "") + f"bench: {text}" + ("\n" if end or not tty else "")
+    )
+    sys.stderr.flush()
+
+
 def _median_time(fn, number, repeats):
     samples = []
     for _ in range(repeats):
@@ -82,7 +93,11 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4),
         ),
     ]
-    rows = [bench_system(name, s, repeats) for name, s in systems]
+    rows = []
+    for i, (name, s) in enumerate(systems):
+        _stage(f"model {i + 1}/{len(systems)}: {name}")
+        rows.append(bench_system(name, s, repeats))
+    _stage("model: done", end=True)
     print(
         f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} {'RK4 dt':>9s} {'RTF':>8s}"
     )
@@ -118,18 +133,23 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     result = run_model_bench(out=out, repeats=repeats)
     walls["model"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    _stage("full 1/4: GVS vs CC timing")
     timing = study.timing_study()
     walls["baseline_timing"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    _stage("full 2/4: DoF scaling")
     rows = study.scaling_study() if scaling else []
     walls["scaling"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    _stage("full 3/4: accuracy study")
     acc = study.accuracy_study() if accuracy else {"duration_s": 0, "rk4_dt_s": 0, "cases": {}}
     walls["accuracy"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     swing = acc["cases"].get("swing")
     ref = dict(swing, record_dt_s=acc["record_dt_s"]) if swing else None
+    _stage("full 4/4: PyElastica")
     elastica = study.pyelastica_study(reference=ref)
+    _stage("full: done", end=True)
     walls["pyelastica"] = time.perf_counter() - t0
     study.print_report(timing, rows, acc, elastica)
     print("\nsection wall times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in walls.items()))

@@ -37,7 +37,9 @@ def test_short_closed_loop_on_estimates(tmp_path):
     assert np.max(np.abs(err[:, 6:])) < 0.01
     # the servo is converging (noise-free cameras), as with the true state
     assert s["final_rmse"] < 0.7 * s["initial_rmse"]
-    assert (tmp_path / "estimation.png").is_file()
+    assert (tmp_path / "estimation.png").is_file() and (tmp_path / "estimation.pdf").is_file()
+    header = (tmp_path / "timeseries.csv").read_text().splitlines()[0].split(",")
+    assert {"q_s1_hat", "dq_s2_hat", "var_q_s1", "var_dz"} <= set(header)
     saved = json.loads((tmp_path / "summary.json").read_text())
     assert saved["strain_estimation_rms"] == pytest.approx(s["strain_estimation_rms"])
     sd = np.sqrt(a["P_diag"])

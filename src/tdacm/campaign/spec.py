@@ -152,6 +152,10 @@ def parse_spec(
                 )
             base = scenario_defaults[section][name]
             length = None
+            if base is None and key == "initial.qd":  # unset: zero velocity of len(initial.q)
+                base = [0.0] * len(scenario_defaults["initial"]["q"])
+            if base is None:
+                _err(source, f"{where}: {key} has no value in the scenario; it cannot be sampled")
             if isinstance(base, list):
                 length = len(base)
             elif isinstance(base, bool | str):
@@ -208,17 +212,43 @@ def parse_spec(
     return CampaignSpec(data["scenario"], runs, seed, clean, duration, success, source)
 
 
+def resolve_scenario(ref: str, spec_path: Path) -> str:
+    """A spec's ``scenario``: a shipped name stays a name; a path (ends in ``.toml`` or has a
+    folder) is resolved against the spec file's folder, not the current directory."""
+    if ref.endswith(".toml") or "/" in ref or "\\" in ref:
+        p = Path(ref).expanduser()
+        if not p.is_absolute():
+            p = (Path(spec_path).resolve().parent / p).resolve()
+        return str(p)
+    return ref
+
+
 def load_spec(path) -> CampaignSpec:
-    """Read a spec file and validate it against its scenario."""
-    from ..sim.scenario import load_scenario
+    """Read a spec file and validate it against its scenario (resolved with
+    :func:`resolve_scenario`; an unknown or invalid scenario, a directory or a non-UTF-8 file
+    raise :class:`CampaignSpecError` naming the file and the key)."""
+    from ..sim.scenario import ScenarioError, check_run, check_with_system, load_scenario
 
     p = Path(path)
+    if p.is_dir():
+        raise CampaignSpecError(f"campaign spec {path} is a directory, not a TOML file")
     if not p.is_file():
         raise CampaignSpecError(f"campaign spec {path} does not exist")
-    text = p.read_text()
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CampaignSpecError(f"campaign spec {p} is not UTF-8 text: {exc}") from None
     first = parse_spec(text, str(p))
-    scenario = load_scenario(first.scenario)
-    return parse_spec(text, str(p), scenario.data)
+    ref = resolve_scenario(first.scenario, p)
+    try:
+        scenario = load_scenario(ref)
+        check_run(scenario, first.duration, flags=False)
+        check_with_system(scenario)
+    except ScenarioError as exc:
+        raise CampaignSpecError(f"{p}: scenario = {first.scenario!r}: {exc}") from None
+    spec = parse_spec(text, str(p), scenario.data)
+    spec.scenario = ref
+    return spec
 
 
 def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> dict:
@@ -229,6 +259,8 @@ def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> 
         d = spec.distributions[key]
         section, name = key.split(".")
         base = scenario_data[section][name]
+        if base is None and key == "initial.qd":
+            base = [0.0] * len(scenario_data["initial"]["q"])
         if isinstance(base, bool | str):  # categorical
             if d["kind"] == "fixed":
                 pick = d["value"]

@@ -266,6 +266,12 @@ def validate(d: dict, source: str) -> Scenario:
             raise ScenarioError(f"{source}: {key} must be positive, got {d[key]!r}")
     if d["substeps"] < 1:
         raise ScenarioError(f"{source}: substeps must be >= 1")
+    if d["dt"] > d["duration"]:
+        raise ScenarioError(
+            f"{source}: dt ({d['dt']} s) must not exceed duration ({d['duration']} s)"
+        )
+    if d["seed"] < 0:
+        raise ScenarioError(f"{source}: seed must be a non-negative integer, got {d['seed']}")
     base = d["system"]["base"]
     if base not in ("floating", "fixed"):
         raise ScenarioError(f"{source}: system.base must be 'floating' or 'fixed', got {base!r}")
@@ -322,13 +328,125 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: {exc}") from None
     for sec, key in (
         ("ibvs", "gain"),
+        ("ibvs", "max_joint_rate"),
+        ("ibvs", "max_drone_speed"),
+        ("ibvs", "max_vertical_speed"),
         ("recovery", "max_speed"),
         ("safety", "growth_limit"),
         ("scene", "box_size"),
+        ("controller", "max_tilt"),
     ):
         if d[sec][key] <= 0:
-            raise ScenarioError(f"{source}: {sec}.{key} must be positive")
+            raise ScenarioError(f"{source}: {sec}.{key} must be positive, got {d[sec][key]!r}")
+    for sec, key in (
+        ("controller", "pretension"),
+        ("controller", "attitude_filter"),
+        ("controller", "max_tilt_rate"),
+        ("ibvs", "soft_start"),
+        ("ibvs", "rate_filter"),
+        ("recovery", "margin_px"),
+        ("safety", "min_increase"),
+        ("safety", "grace"),
+        ("disturbances", "base_wrench_frequency"),
+        ("disturbances", "downwash_noise"),
+        ("cameras", "global_every"),
+    ):
+        if d[sec][key] < 0:
+            raise ScenarioError(f"{source}: {sec}.{key} must be non-negative, got {d[sec][key]!r}")
+    if d["controller"]["max_tilt"] >= math.pi / 2:
+        raise ScenarioError(
+            f"{source}: controller.max_tilt must be below pi/2 rad, got {d['controller']['max_tilt']!r}"
+        )
+    for key in ("confirm", "lose"):
+        if d["recovery"][key] < 1:
+            raise ScenarioError(
+                f"{source}: recovery.{key} must be >= 1 (frames), got {d['recovery'][key]!r}"
+            )
     return Scenario(d, source)
+
+
+#: Longest plant step ``dt / substeps``, as a multiple of ``TDACM.suggested_dt()`` (10 ms for
+#: the paper system: 2x keeps the tip within ~2e-5 m of an adaptive reference over 5 s).
+MAX_STEP_FACTOR = 2.0
+#: Longest control period accepted (s). Measured on ``paper-in-fov`` (3 s, substeps 4): dt =
+#: 0.02 and 0.04 s converge alike; at 0.05 s the safety monitor stops the loop at 1.6 s (error
+#: growth); at 0.1 s the rod diverges (|q_s1| = 2.5) even with the plant at 5 ms (substeps 20).
+MAX_CONTROL_PERIOD = 0.04
+
+
+def check_run(scenario: Scenario, duration=None, seed=None, flags: bool = True) -> None:
+    """Checks of the run-time overrides (``--duration``, ``--seed``): ``duration`` finite,
+    positive and at least one control period, ``seed`` a non-negative integer. The message
+    names the flag (``flags=True``) or the keyword."""
+    dn, sn = ("--duration", "--seed") if flags else ("duration", "seed")
+    if duration is not None:
+        if isinstance(duration, bool) or not isinstance(duration, _NUM):
+            raise ScenarioError(f"{dn} must be a number of seconds, got {duration!r}")
+        if not math.isfinite(duration) or duration <= 0:
+            raise ScenarioError(f"{dn} must be a finite positive number of seconds, got {duration}")
+        if scenario["dt"] > duration:
+            raise ScenarioError(
+                f"{dn} ({duration} s) is shorter than the control period dt = {scenario['dt']} s"
+            )
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise ScenarioError(f"{sn} must be a non-negative integer, got {seed!r}")
+
+
+def check_with_system(scenario: Scenario, system=None) -> None:
+    """Checks that need the built robot (:func:`tdacm.loop.build_scene`):
+
+    * the plant's RK4 step ``dt / substeps`` at most ``MAX_STEP_FACTOR`` times
+      ``system.suggested_dt()``, and the control period ``dt`` at most ``MAX_CONTROL_PERIOD``
+      (the sampled closed loop diverges at longer periods, see the constant);
+    * the target in front of the tip camera C_L at the desired configuration (the reference
+      view of the IBVS is taken there).
+
+    ``system`` (the built plant) is used for the step limit when given.
+    """
+    from ..loop.build import build_scene
+
+    d = scenario.data
+    src = scenario.source
+    world = build_scene(scenario)
+    if system is None:
+        system = world.robot.system
+    if d["dt"] > MAX_CONTROL_PERIOD:
+        raise ScenarioError(
+            f"{src}: dt = {d['dt']} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
+            f"loop is unstable there (measured: stopped at 0.05 s, diverges at 0.1 s; paper: 0.02 s)"
+        )
+    h = d["dt"] / d["substeps"]
+    h_max = MAX_STEP_FACTOR * system.suggested_dt()
+    if h > h_max:
+        raise ScenarioError(
+            f"{src}: dt / substeps = {h:.4g} s exceeds the plant's RK4 step limit "
+            f"{h_max:.4g} s ({MAX_STEP_FACTOR:g} x suggested_dt()); raise substeps or lower dt"
+        )
+    robot = world.robot
+    g_c = robot.system.tip_pose(world.q_star) @ robot.tip_mount
+    pts = world.scene.target_points_world()
+    depth = (pts - g_c[:3, 3]) @ g_c[:3, 2]
+    if np.any(depth <= 0):
+        raise ScenarioError(
+            f"{src}: desired.q puts the target behind the tip camera C_L (depths "
+            f"{np.round(depth, 3).tolist()} m); the reference view needs the target in front"
+        )
+
+
+def _read_text(path: Path, what: str) -> str:
+    """A text file's content; a directory, a missing file or non-UTF-8 bytes raise
+    :class:`ScenarioError` naming the file."""
+    if path.is_dir():
+        raise ScenarioError(f"{what} {path} is a directory, not a TOML file")
+    if not path.is_file():
+        raise ScenarioError(f"{what} {path} does not exist")
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(
+            f"{what} {path} is not UTF-8 text (TOML must be UTF-8): {exc}"
+        ) from None
 
 
 def parse_scenario(text: str, source: str = "<string>") -> Scenario:
@@ -349,27 +467,74 @@ def list_scenarios() -> list[str]:
 
 
 def load_scenario(name_or_path, config=None) -> Scenario:
-    """Load a shipped scenario by name, or a TOML file by path; ``config`` (a path) overrides."""
-    p = Path(str(name_or_path))
-    if p.suffix == ".toml" and p.exists():
-        sc = parse_scenario(p.read_text(), str(p))
+    """Load a shipped scenario by name, a TOML file by path, or pass a :class:`Scenario`
+    through; ``config`` (a path) overrides. Errors (unknown name, a directory, a missing or
+    non-UTF-8 file, invalid TOML or values) raise :class:`ScenarioError` naming the file."""
+    if isinstance(name_or_path, Scenario):
+        sc = name_or_path
     else:
-        f = _package_files() / f"{name_or_path}.toml"
-        if not f.is_file():
-            raise ScenarioError(
-                f"unknown scenario {name_or_path!r}; available: {', '.join(list_scenarios())}"
-            )
-        sc = parse_scenario(f.read_text(), f"scenario {name_or_path}")
+        p = Path(str(name_or_path))
+        if p.is_dir():
+            raise ScenarioError(f"scenario {p} is a directory, not a scenario name or TOML file")
+        if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+            if not p.exists() and p.suffix != ".toml":
+                raise ScenarioError(
+                    f"unknown scenario {str(name_or_path)!r}; available: {', '.join(list_scenarios())}"
+                )
+            sc = parse_scenario(_read_text(p, "scenario file"), str(p))
+        else:
+            f = _package_files() / f"{name_or_path}.toml"
+            if not f.is_file():
+                raise ScenarioError(
+                    f"unknown scenario {name_or_path!r}; available: {', '.join(list_scenarios())}"
+                )
+            sc = parse_scenario(f.read_text(encoding="utf-8"), f"scenario {name_or_path}")
     if config is not None:
         cp = Path(config)
-        if not cp.is_file():
-            raise ScenarioError(f"config file {config} does not exist")
+        text = _read_text(cp, "--config file")
         try:
-            data = tomllib.loads(cp.read_text())
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ScenarioError(f"{cp}: invalid TOML: {exc}") from None
         sc = sc.with_overrides(data, str(cp))
     return sc
+
+
+def scenario_to_toml(scenario: Scenario) -> str:
+    """The resolved scenario (defaults filled in) as TOML text; ``load_scenario`` of the
+    written file gives the same data (keys left unset, such as ``initial.qd``, are omitted)."""
+    import json
+
+    def fmt(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, float):
+            return repr(v)
+        if isinstance(v, int):
+            return str(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        return "[" + ", ".join(fmt(x) for x in v) + "]"
+
+    d = scenario.data
+    lines = [f"# resolved from {scenario.source}"]
+    lines += [f"{k} = {fmt(d[k])}" for k in SCHEMA[""] if d.get(k) is not None]
+
+    def table(name, values):  # keys first, then the nested subsections ([robot.rod], ...)
+        lines.append(f"\n[{name}]")
+        lines.extend(
+            f"{k} = {fmt(v)}"
+            for k, v in values.items()
+            if v is not None and not isinstance(v, dict)
+        )
+        for k, v in values.items():
+            if isinstance(v, dict):
+                table(f"{name}.{k}", v)
+
+    for sec in SCHEMA:
+        if sec:
+            table(sec, d[sec])
+    return "\n".join(lines) + "\n"
 
 
 def vec(x) -> np.ndarray:
