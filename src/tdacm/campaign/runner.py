@@ -95,7 +95,7 @@ def _row_path(store: Path, index: int) -> Path:
     return store / f"run-{index:06d}.parquet"
 
 
-_STRING_FIELDS = ("status", "termination_reason", "overrides", "error")
+_STRING_FIELDS = ("status", "termination_reason", "overrides", "error", "estimation_source")
 _BOOL_FIELDS = ("success", "terminated")
 _INT_FIELDS = ("run", "seed")
 #: Column order of the store; every other column is float64 (None -> NaN).
@@ -277,7 +277,6 @@ def run_campaign(
                 if bar is not None:
                     bar.update(1)
         except KeyboardInterrupt:
-
             # shutting the cluster down mid-task makes distributed log warnings and heartbeat
             # tracebacks (driver and workers): not for users, whose rows are safe on disk
             _silence_distributed()
