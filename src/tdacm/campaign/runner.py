@@ -274,7 +274,6 @@ def run_campaign(
                 if bar is not None:
                     bar.update(1)
         except KeyboardInterrupt:
-
             # shutting the cluster down mid-task makes distributed log warnings and heartbeat
             # tracebacks (driver and workers): not for users, whose rows are safe on disk
             _silence_distributed()
