@@ -214,3 +214,35 @@ def test_ctrl_c_stops_a_campaign_cleanly_keeping_stored_rows(tmp_path):
     n = len(read_results(tmp_path / "c"))
     assert 1 <= n < 40
     assert json.loads((tmp_path / "c" / "campaign.json").read_text())["fingerprint"]
+
+
+def test_spec_samples_nested_robot_keys_and_fixes_text_keys():
+    """Dotted paths of any depth ([robot.rod] length) and string/boolean parameters (kinds
+    'fixed' and 'choice' only), with the key named when a path is wrong."""
+    from tdacm.campaign.spec import to_toml
+    from tdacm.sim.scenario import parse_scenario
+
+    sc = load_scenario("paper-in-fov")
+    text = (
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n'
+        '"robot.rod.length" = { kind = "uniform", low = 0.9, high = 1.1 }\n'
+        '"ibvs.mode" = { kind = "choice", values = ["mean", "current"] }\n'
+        '"safety.enabled" = { kind = "fixed", value = false }\n'
+    )
+    spec = parse_spec(text, "t", sc.data)
+    o = sample_overrides(spec, sc.data, 5)
+    assert 0.9 <= o["robot"]["rod"]["length"] <= 1.1
+    assert o["ibvs"]["mode"] in ("mean", "current") and o["safety"]["enabled"] is False
+    again = sc.with_overrides(o, "run")
+    assert again["robot"]["rod"]["length"] == o["robot"]["rod"]["length"]
+    # the per-run config file round-trips
+    assert parse_scenario(to_toml({"name": "x", **again.data}), "rt")["robot"] == again["robot"]
+    head = 'scenario = "paper-in-fov"\nruns = 1\n[distributions]\n'
+    for bad, match in [
+        ('"robot.rod.lenght" = { kind = "fixed", value = 1.0 }', "has no key 'lenght'"),
+        ('"ibvs.mode" = { kind = "normal", std = 1 }', "use kind 'fixed' or 'choice'"),
+        ('"robot.rod" = { kind = "fixed", value = 1 }', r"\[robot.rod\] is a section"),
+        ('"ibvs.mode" = { kind = "fixed", value = 3 }', "give str value"),
+    ]:
+        with pytest.raises(CampaignSpecError, match=match):
+            parse_spec(head + bad, "t", sc.data)

@@ -15,8 +15,6 @@ A spec is a TOML file::
     "sensors.pixel_noise" = { kind = "fixed", value = 1.0 }
     "sensors.dropout"    = { kind = "uniform", low = 0.0, high = 0.05 }
     "sensors.latency_steps" = { kind = "choice", values = [0, 1] }
-    "estimation.source"  = { kind = "fixed", value = "estimated" }   # strings/booleans:
-                                                                      # fixed or choice
 
 Kinds: ``fixed`` (``value``), ``normal`` (``std``, optional ``mean``; added to the scenario's
 value when ``relative = false`` (default) — a perturbation around the nominal — or multiplying
@@ -27,7 +25,6 @@ parameters of the key's length or scalars (broadcast).
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
 import math
@@ -137,20 +134,29 @@ def parse_spec(
     clean = {}
     for key, d in dists.items():
         where = f"distributions.{key!r}"
-        if key.count(".") != 1:
-            _err(source, f"{where}: keys are 'section.key' paths, e.g. 'initial.q'")
-        section, name = key.split(".")
+        parts = key.split(".")
+        if len(parts) < 2 or not all(parts):
+            _err(source, f"{where}: keys are dotted paths, e.g. 'initial.q' or 'robot.rod.length'")
         length = -1  # unknown until checked against the scenario
+        text_value = False  # a string or boolean parameter: kinds 'fixed' and 'choice' only
         if scenario_defaults is not None:
-            if section not in scenario_defaults or not isinstance(scenario_defaults[section], dict):
-                _err(source, f"{where}: the scenario has no section [{section}]")
-            if name not in scenario_defaults[section]:
+            table = scenario_defaults
+            for i, part in enumerate(parts[:-1]):
+                if not isinstance(table.get(part), dict):
+                    _err(
+                        source, f"{where}: the scenario has no section [{'.'.join(parts[: i + 1])}]"
+                    )
+                table = table[part]
+            name = parts[-1]
+            if isinstance(table.get(name), dict):
+                _err(source, f"{where}: [{key}] is a section; name one of its keys")
+            if name not in table:
+                known = sorted(k for k, v in table.items() if not isinstance(v, dict))
                 _err(
                     source,
-                    f"{where}: section [{section}] has no key {name!r} "
-                    f"(known: {sorted(scenario_defaults[section])})",
+                    f"{where}: [{'.'.join(parts[:-1])}] has no key {name!r} (known: {known})",
                 )
-            base = scenario_defaults[section][name]
+            base = table[name]
             length = None
             if base is None and key == "initial.qd":  # unset: zero velocity of len(initial.q)
                 base = [0.0] * len(scenario_defaults["initial"]["q"])
@@ -159,9 +165,9 @@ def parse_spec(
             if isinstance(base, list):
                 length = len(base)
             elif isinstance(base, bool | str):
-                length = type(base)  # categorical: kind fixed or choice, values of that type
-            elif base is not None and not isinstance(base, int | float):
-                _err(source, f"{where}: only numeric parameters can be sampled, {key} is {base!r}")
+                text_value = True
+            elif not isinstance(base, int | float):
+                _err(source, f"{where}: {key} = {base!r} cannot be sampled")
         if not isinstance(d, dict) or d.get("kind") not in KINDS:
             _err(source, f"{where} must be a table with kind = one of {sorted(KINDS)}, got {d!r}")
         kind = d["kind"]
@@ -169,21 +175,18 @@ def parse_spec(
         if extra:
             _err(source, f"{where}: unknown parameters {sorted(extra)} for kind {kind!r}")
         out = {"kind": kind}
-        if scenario_defaults is None:  # first pass: the values say whether it is categorical
-            first = d.get("value", (d.get("values") or [None])[0])
-            if isinstance(first, bool | str):
-                length = type(first)
-        if isinstance(length, type):  # a string or boolean key (e.g. estimation.source)
+        if text_value:
+            if kind not in ("fixed", "choice"):
+                _err(source, f"{where}: {key} is not numeric; use kind 'fixed' or 'choice'")
             vals = [d.get("value")] if kind == "fixed" else d.get("values")
-            if kind not in ("fixed", "choice") or not isinstance(vals, list) or not vals:
-                _err(source, f"{where}: {key} is categorical: use kind 'fixed' or 'choice'")
-            for v in vals:
-                if not isinstance(v, length):
-                    _err(source, f"{where}: values must be {length.__name__}s, got {v!r}")
+            if (
+                not isinstance(vals, list)
+                or not vals
+                or any(type(v) is not type(base) for v in vals)
+            ):
+                _err(source, f"{where}: give {type(base).__name__} value(s) for {key}, got {d!r}")
             out["value" if kind == "fixed" else "values"] = vals[0] if kind == "fixed" else vals
-            clean[key] = out
-            continue
-        if kind == "fixed":
+        elif kind == "fixed":
             if "value" not in d:
                 _err(source, f"{where}: kind 'fixed' needs 'value'")
             out["value"] = _vec_or_scalar(source, f"{where}.value", d["value"], length)
@@ -257,60 +260,51 @@ def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> 
     out: dict = {}
     for key in sorted(spec.distributions):
         d = spec.distributions[key]
-        section, name = key.split(".")
-        base = scenario_data[section][name]
+        parts = key.split(".")
+        table = scenario_data
+        for part in parts[:-1]:
+            table = table[part]
+        base = table[parts[-1]]
         if base is None and key == "initial.qd":
             base = [0.0] * len(scenario_data["initial"]["q"])
-        if isinstance(base, bool | str):  # categorical
-            if d["kind"] == "fixed":
-                pick = d["value"]
-            else:
-                pick = d["values"][int(rng.integers(len(d["values"])))]
-            out.setdefault(section, {})[name] = pick
-            continue
-        base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
-        shape = base_arr.shape
         kind = d["kind"]
-        if kind == "fixed":
-            value = np.broadcast_to(np.asarray(d["value"], float), shape)
-        elif kind == "normal":
-            draw = rng.normal(np.broadcast_to(d["mean"], shape), np.broadcast_to(d["std"], shape))
-            value = base_arr * (1.0 + draw) if d["relative"] else base_arr + draw
-        elif kind == "uniform":
-            draw = rng.uniform(np.broadcast_to(d["low"], shape), np.broadcast_to(d["high"], shape))
-            value = base_arr + draw if d["offset"] else draw
+        if isinstance(base, bool | str):
+            pyval = d["value"] if kind == "fixed" else d["values"][rng.integers(len(d["values"]))]
         else:
-            value = np.broadcast_to(
-                np.asarray(d["values"][rng.integers(len(d["values"]))], float), shape
-            )
-        value = np.array(value, dtype=float)
-        if isinstance(base, int) and not isinstance(base, bool):
-            pyval = int(round(float(value)))
-        elif shape == ():
-            pyval = float(value)
-        else:
-            pyval = value.tolist()
-        out.setdefault(section, {})[name] = pyval
+            pyval = _draw(d, base, rng)
+        node = out
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = pyval
     return out
 
 
+def _draw(d: dict, base, rng) -> object:
+    base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
+    shape = base_arr.shape
+    kind = d["kind"]
+    if kind == "fixed":
+        value = np.broadcast_to(np.asarray(d["value"], float), shape)
+    elif kind == "normal":
+        draw = rng.normal(np.broadcast_to(d["mean"], shape), np.broadcast_to(d["std"], shape))
+        value = base_arr * (1.0 + draw) if d["relative"] else base_arr + draw
+    elif kind == "uniform":
+        draw = rng.uniform(np.broadcast_to(d["low"], shape), np.broadcast_to(d["high"], shape))
+        value = base_arr + draw if d["offset"] else draw
+    else:
+        value = np.broadcast_to(
+            np.asarray(d["values"][rng.integers(len(d["values"]))], float), shape
+        )
+    value = np.array(value, dtype=float)
+    if isinstance(base, int) and not isinstance(base, bool):
+        return int(round(float(value)))
+    if shape == ():
+        return float(value)
+    return value.tolist()
+
+
 def to_toml(data: dict) -> str:
-    """Serialize a two-level dict of scalars and lists (a scenario override) to TOML."""
+    """A run's scenario overrides (nested sections) as TOML."""
+    from ..sim.scenario import dict_to_toml
 
-    def fmt(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int | float):
-            return repr(float(v)) if isinstance(v, float) else str(v)
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(fmt(x) for x in v) + "]"
-        raise TypeError(f"cannot write {v!r} to TOML")
-
-    lines = [f"{k} = {fmt(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for sec, table in data.items():
-        if isinstance(table, dict):
-            lines.append(f"\n[{sec}]")
-            lines.extend(f"{k} = {fmt(v)}" for k, v in copy.deepcopy(table).items())
-    return "\n".join(lines) + "\n"
+    return dict_to_toml(data)

@@ -19,7 +19,7 @@ import numpy as np
 from ..loop.closed_loop import ClosedLoop
 from ..loop.safety import SafetyMonitor
 from ..loop.servo import MODE_CODES, normalized_rmse
-from .scenario import Scenario, check_run, check_with_system, load_scenario  # issue 11
+from .scenario import Scenario, check_run, check_with_system, load_scenario
 
 __all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
 
@@ -55,13 +55,13 @@ class Simulation:
 
         composer = None
         if self.video:
-            from ..viz.video import CaptionedFrames  # issue 11: captioned frames
+            from ..viz.video import CaptionedFrames  # captioned frames
 
             composer = CaptionedFrames()
         loop = build_loop(
             self.scenario, self.seed, video=self.video, frame_composer=composer, **self.blocks
         )
-        if composer is not None:  # issue 11: the desired points drawn on C_L
+        if composer is not None:  # the desired points drawn on C_L
             from ..viz.video import desired_pixels
 
             composer.desired = desired_pixels(loop)
@@ -72,12 +72,12 @@ class Simulation:
         re-raises ``KeyboardInterrupt``."""
         loop = self.loop = self.build()
         try:
-            check_with_system(self.scenario, loop.plant.system)  # issue 11: dt, target in front
+            check_with_system(self.scenario, loop.plant.system)  # dt, target in front
             if out_dir is not None:
                 write_scene_picture(Path(out_dir) / "scene.png", loop)
             result = loop.run(self.duration, progress=self.progress)
             summary = self.summary(loop, result)
-            summary["interrupted"] = bool(result.interrupted)  # issue 11
+            summary["interrupted"] = bool(result.interrupted)
             if out_dir is not None:
                 from .outputs import write_all
 
@@ -88,7 +88,7 @@ class Simulation:
                     loop.servo.desired_points,
                     result.frames,
                     loop.plant.system,
-                    scenario=self.scenario,  # issue 11: scenario.toml, figures, snapshots
+                    scenario=self.scenario,  # scenario.toml, figures, snapshots
                 )
         finally:
             loop.close()
@@ -218,6 +218,6 @@ def run_scenario(
 ):
     """Load and run a scenario; returns ``(arrays, summary)`` and writes ``out`` if given."""
     sc = load_scenario(name, config)
-    check_run(sc, duration, seed, flags=False)  # issue 11: reject nan/inf/<=0, seed < 0
+    check_run(sc, duration, seed, flags=False)  # reject nan/inf/<=0, seed < 0
     sim = Simulation(sc, duration=duration, seed=seed, video=video, progress=progress)
     return sim.run(out)

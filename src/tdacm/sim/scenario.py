@@ -500,9 +500,9 @@ def load_scenario(name_or_path, config=None) -> Scenario:
     return sc
 
 
-def scenario_to_toml(scenario: Scenario) -> str:
-    """The resolved scenario (defaults filled in) as TOML text; ``load_scenario`` of the
-    written file gives the same data (keys left unset, such as ``initial.qd``, are omitted)."""
+def dict_to_toml(data: dict, header: str | None = None) -> str:
+    """Nested scenario data (scalars, lists, sections, subsections) as TOML text; ``None``
+    values (keys left unset) are omitted."""
     import json
 
     def fmt(v):
@@ -514,27 +514,41 @@ def scenario_to_toml(scenario: Scenario) -> str:
             return str(v)
         if isinstance(v, str):
             return json.dumps(v)
-        return "[" + ", ".join(fmt(x) for x in v) + "]"
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(fmt(x) for x in v) + "]"
+        raise TypeError(f"cannot write {v!r} to TOML")
 
-    d = scenario.data
-    lines = [f"# resolved from {scenario.source}"]
-    lines += [f"{k} = {fmt(d[k])}" for k in SCHEMA[""] if d.get(k) is not None]
+    lines = [header] if header else []
+    lines += [
+        f"{k} = {fmt(v)}" for k, v in data.items() if v is not None and not isinstance(v, dict)
+    ]
 
     def table(name, values):  # keys first, then the nested subsections ([robot.rod], ...)
-        lines.append(f"\n[{name}]")
-        lines.extend(
+        keys = [
             f"{k} = {fmt(v)}"
             for k, v in values.items()
             if v is not None and not isinstance(v, dict)
-        )
+        ]
+        if keys or not any(isinstance(v, dict) for v in values.values()):
+            lines.append(f"\n[{name}]")
+            lines.extend(keys)
         for k, v in values.items():
             if isinstance(v, dict):
                 table(f"{name}.{k}", v)
 
-    for sec in SCHEMA:
-        if sec:
-            table(sec, d[sec])
+    for sec, values in data.items():
+        if isinstance(values, dict):
+            table(sec, values)
     return "\n".join(lines) + "\n"
+
+
+def scenario_to_toml(scenario: Scenario) -> str:
+    """The resolved scenario (defaults filled in) as TOML text; ``load_scenario`` of the
+    written file gives the same data (keys left unset, such as ``initial.qd``, are omitted)."""
+    d = scenario.data
+    ordered = {k: d[k] for k in SCHEMA[""] if k in d}
+    ordered.update({sec: d[sec] for sec in SCHEMA if sec})
+    return dict_to_toml(ordered, f"# resolved from {scenario.source}")
 
 
 def vec(x) -> np.ndarray:
