@@ -42,6 +42,9 @@ ROW_FIELDS = (
     "max_tension",
     "max_thrust",
     "local_detection_rate",
+    "estimation_source",
+    "strain_estimation_rms",
+    "drone_position_estimation_rms",
 )
 
 
@@ -92,7 +95,7 @@ def _row_path(store: Path, index: int) -> Path:
     return store / f"run-{index:06d}.parquet"
 
 
-_STRING_FIELDS = ("status", "termination_reason", "overrides", "error")
+_STRING_FIELDS = ("status", "termination_reason", "overrides", "error", "estimation_source")
 _BOOL_FIELDS = ("success", "terminated")
 _INT_FIELDS = ("run", "seed")
 #: Column order of the store; every other column is float64 (None -> NaN).

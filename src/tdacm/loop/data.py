@@ -23,11 +23,14 @@ from ..vision.detect import NOT_DETECTED, Detection
 
 @dataclass(frozen=True)
 class PlantState:
-    """The simulated robot's true state at time ``t`` (read by sensors and the logger only)."""
+    """The simulated robot's true state at time ``t`` (read by sensors and the logger only).
+    ``qdd``: the accelerations at ``t`` under the input held over the period that ended at
+    ``t`` (what an accelerometer senses; computed only when a sensor needs it, else ``None``)."""
 
     t: float
     q: np.ndarray
     qd: np.ndarray
+    qdd: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

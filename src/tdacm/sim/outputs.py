@@ -52,6 +52,9 @@ VECTOR_SERIES = (
     "points_virtual",
     "twist",
     "delta_hat",
+    "q_hat",  # the state estimate the blocks after the sensors used (= q for source "true")
+    "qd_hat",
+    "P_diag",  # diagonal of its covariance [q, qd] (NaN for the true state)
 )
 LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
 
@@ -80,6 +83,9 @@ SERIES_INFO = {
     "detected_global": ("-", "1 if the target was detected in C_G (when rendered)"),
     "thrust_saturated": ("-", "1 if a rotor thrust hit its limit"),
     "tension_saturated": ("-", "1 if a tendon tension hit its limit"),
+    "q_hat": ("q", "state estimate used after the sensors (= q for estimation.source = true)"),
+    "qd_hat": ("qd", "generalized-velocity estimate used after the sensors"),
+    "P_diag": ("var", "variances of the estimate [q_hat, qd_hat] (NaN for the true state)"),
 }
 
 #: Files a run writes (removed before a new run writes into the same folder).
@@ -167,9 +173,15 @@ def columns(a: dict, floating: bool, n_a: int | None = None):
             add(key, v, ["t"], ["s"])
         elif kind in ("q", "qd", "tau"):
             suffix = {"q": "", "qd": "", "q_d": "_d", "qd_d": "_d", "q_ref": "_ref",
-                      "tau": "", "delta_hat": ""}.get(key, "")  # fmt: skip
-            prefix = {"qd": "d", "qd_d": "d", "tau": "tau_", "delta_hat": "delta_"}.get(key, "")
+                      "tau": "", "delta_hat": "", "q_hat": "_hat",
+                      "qd_hat": "_hat"}.get(key, "")  # fmt: skip
+            prefix = {"qd": "d", "qd_d": "d", "tau": "tau_", "delta_hat": "delta_",
+                      "qd_hat": "d"}.get(key, "")  # fmt: skip
             add(key, v, [f"{prefix}{c}{suffix}" for c in qn], [_unit(kind, c) for c in qn])
+        elif key == "P_diag" and width == 2 * len(qn):
+            names = [f"var_{c}" for c in qn] + [f"var_d{c}" for c in qn]
+            units = [f"({_unit('q', c)})^2" for c in qn] + [f"({_unit('qd', c)})^2" for c in qn]
+            add(key, v, names, units)
         elif key == "u":
             m = 4 if floating else 0
             names = [f"f{i + 1}" for i in range(m)] + [f"T{i + 1}" for i in range(width - m)]

@@ -149,7 +149,38 @@ class Simulation:
             "thrust_saturated_steps": int(np.sum(a["thrust_saturated"])),
             "final_q": a["q"][-1].tolist() if a["q"].size else None,
             "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
+            **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
+
+
+#: Estimation errors are summarized after this time (the filter's convergence, issue 10).
+ESTIMATION_WINDOW_S = 1.0
+
+
+def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
+    """RMS estimation errors after :data:`ESTIMATION_WINDOW_S` (all samples if the run is
+    shorter): strains (per component, pooled; rad/m) and drone position (Euclidean; m);
+    ``None`` for ``source = "true"``. Plus the filter's median cost per period."""
+    out = {
+        "estimation_source": source,
+        "strain_estimation_rms": None,
+        "drone_position_estimation_rms": None,
+        "estimator_step_ms_median": None,
+    }
+    t = a["t"]
+    if source != "estimated" or not t.size or "q_hat" not in a:
+        return out
+    win = t >= min(ESTIMATION_WINDOW_S, float(t[-1]))
+    err = a["q_hat"][win] - a["q"][win]
+    out["strain_estimation_rms"] = float(np.sqrt(np.mean(err[:, s.n - s.n_s :] ** 2)))
+    if s.floating:
+        out["drone_position_estimation_rms"] = float(
+            np.sqrt(np.mean(np.sum(err[:, 3:6] ** 2, axis=1)))
+        )
+    timings = getattr(getattr(loop, "estimator", None), "timings", None)
+    if timings is not None and len(timings) > 1:
+        out["estimator_step_ms_median"] = float(np.median(timings[1:]) * 1e3)
+    return out
 
 
 def write_scene_picture(path: Path, loop: ClosedLoop) -> None:

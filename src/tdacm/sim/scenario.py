@@ -97,6 +97,54 @@ SCHEMA = {
         "dropout": (float, 0.0),  # probability that a frame has no detection
         "latency_steps": (int, 0),  # control steps between image and use
         "intrinsics_error": (float, 0.0),  # relative std of the controller's fx, fy, cx, cy
+        # proprioceptive sensors (tdacm.estimation.sensors; used when estimation.source =
+        # "estimated"): drone pose (mocap/VIO), IMU at the drone's CoM, tendon encoders
+        "pose_enabled": (bool, True),
+        "pose_rate": (float, 50.0),  # Hz
+        "pose_latency": (float, 0.02),  # s
+        "pose_position_noise": (float, 0.003),  # m
+        "pose_attitude_noise": (float, 0.005),  # rad (body-frame rotation vector)
+        "pose_dropout": (float, 0.0),  # probability that a sample is lost
+        "imu_enabled": (bool, True),
+        "imu_rate": (float, 50.0),  # Hz
+        "imu_latency": (float, 0.0),  # s
+        "gyro_noise": (float, 0.005),  # rad/s per sample
+        "gyro_bias": (float, 0.005),  # rad/s, std of the turn-on bias
+        "gyro_bias_walk": (float, 0.0),  # rad/s/sqrt(s)
+        "accel_noise": (float, 0.05),  # m/s^2 per sample
+        "accel_bias": (float, 0.05),  # m/s^2, std of the turn-on bias
+        "accel_bias_walk": (float, 0.0),  # m/s^2/sqrt(s)
+        "imu_dropout": (float, 0.0),
+        "encoder_enabled": (bool, True),
+        "encoder_rate": (float, 50.0),  # Hz
+        "encoder_latency": (float, 0.0),  # s
+        "encoder_resolution": (float, 1e-5),  # m of tendon per count
+        "encoder_noise": (float, 5e-6),  # m
+        "encoder_bias": (float, 0.0),  # m, std of a constant per-tendon offset (slack)
+        "encoder_dropout": (float, 0.0),
+    },
+    "estimation": {  # state source of everything downstream of the sensors (tdacm.estimation)
+        "source": (str, "true"),  # "true" (plant state) | "estimated" (EKF)
+        "initial_guess": (str, "measured"),  # "measured" (pose + tendon inversion) | "true"
+        "initial_strain_error": (float, 0.0),  # rad/m added to every strain of the guess
+        "initial_position_error": (float, 0.0),  # m added to every drone position coordinate
+        "rk4_steps": (int, 1),
+        "accel_noise_angular": (float, 0.3),  # rad/s^2/sqrt(Hz)
+        "accel_noise_linear": (float, 0.005),  # m/s^2/sqrt(Hz)
+        "accel_noise_strain": (float, 0.2),  # rad/m/s^2/sqrt(Hz)
+        "disturbance_walk_angular": (float, 1.0),  # rad/s^3/sqrt(Hz)
+        "disturbance_walk_linear": (float, 0.02),  # m/s^3/sqrt(Hz)
+        "disturbance_walk_strain": (float, 0.3),  # rad/m/s^3/sqrt(Hz)
+        "accel_model_error": (float, 0.03),  # m/s^2
+        "model_error_fraction": (float, 0.1),  # relative error of the predicted acceleration
+        "initial_attitude_std": (float, 0.02),  # rad
+        "initial_position_std": (float, 0.02),  # m
+        "initial_strain_std": (float, 0.3),  # rad/m
+        "initial_velocity_std": (float, 0.1),
+        "initial_disturbance_angular_std": (float, 2.0),
+        "initial_disturbance_linear_std": (float, 1.5),
+        "initial_disturbance_strain_std": (float, 5.0),
+        "max_delay": (float, 0.2),  # s of filter history kept for late measurements
     },
     "expect": {
         "initial_in_local_fov": (bool, None),
@@ -264,10 +312,18 @@ def validate(d: dict, source: str) -> Scenario:
     for sec, key in (("model", "perturbation"), ("sensors", "dropout")):
         if not 0 <= d[sec][key] < 1:
             raise ScenarioError(f"{source}: {sec}.{key} must lie in [0, 1)")
+    from ..estimation import EstimatorConfig, SensorSuiteConfig
     from .sensors import SensorModel
 
-    try:
-        SensorModel(**d["sensors"])
+    est = d["estimation"]
+    if est["source"] not in ("true", "estimated"):
+        raise ScenarioError(f"{source}: estimation.source must be 'true' or 'estimated'")
+    if est["initial_guess"] not in ("measured", "true"):
+        raise ScenarioError(f"{source}: estimation.initial_guess must be 'measured' or 'true'")
+    try:  # the messages name the key (sensors.<key>, estimation.<key>)
+        SensorModel(**{k: d["sensors"][k] for k in SensorModel.__dataclass_fields__})
+        SensorSuiteConfig.from_section(d["sensors"])
+        EstimatorConfig.from_section(est)
     except ValueError as exc:
         raise ScenarioError(f"{source}: {exc}") from None
     for sec, key in (

@@ -20,6 +20,11 @@ Experiment panels (paper, Tests A-C: (a)-(d)):
 * ``snapshots``: four C_L frames at chosen times, re-rendered from the stored ``q``, with the
   detected (stored) and desired points.
 
+State estimation (``estimation.source = "estimated"``, ``docs/estimation.md``):
+
+* ``estimation``: true vs estimated rod strains and drone position with 2-sigma bands (written
+  only when the log has a covariance).
+
 Every figure marks the switch from recovery to IBVS with a legend entry and shades the recovery
 phase. Functions read only the log keys they need and skip a figure whose keys are missing;
 extra keys are ignored, so the figures survive new log fields.
@@ -43,6 +48,7 @@ KINDS = (
     "strain_rates",
     "snapshots",
     "lyapunov",
+    "estimation",
 )
 
 _ANGLES = (r"$\phi$", r"$\theta$", r"$\psi$")
@@ -414,6 +420,40 @@ def fig_lyapunov(rd: RunData, out, formats):
     return _finish(fig, rd, "Lyapunov function", out, "lyapunov", formats)
 
 
+def fig_estimation(rd: RunData, out, formats):
+    if not rd.has("q", "q_hat", "P_diag"):
+        return []
+    var = np.asarray(rd.arrays["P_diag"], float)
+    if not np.isfinite(var).any():  # the true state: nothing to show
+        return []
+    import matplotlib.pyplot as plt
+
+    q = np.asarray(rd.arrays["q"], float)
+    qh = np.asarray(rd.arrays["q_hat"], float)
+    n = q.shape[1]
+    sd = np.sqrt(np.maximum(var[:, :n], 0.0))
+    idx = list(range(rd.n_base, n)) + ([3, 4, 5] if rd.floating else [])
+    names = rd.strain_names(n) + (list(_POS) if rd.floating else [])
+    units = ["1/m"] * (n - rd.n_base) + (["m"] * 3 if rd.floating else [])
+    fig, axes = plt.subplots(len(idx), 1, figsize=(6.4, 1.5 * len(idx) + 0.6), sharex=True,
+                             squeeze=False)  # fmt: skip
+    for ax, i, name, unit in zip(axes[:, 0], idx, names, units, strict=True):
+        ax.fill_between(rd.t, qh[:, i] - 2 * sd[:, i], qh[:, i] + 2 * sd[:, i], color="C1",
+                        alpha=0.3, lw=0, label=r"estimate $\pm 2\sigma$")  # fmt: skip
+        ax.plot(rd.t, q[:, i], "k", lw=1.1, label="true")
+        ax.plot(rd.t, qh[:, i], "C1--", lw=1.0, label="estimate")
+        ax.set_ylabel(f"{name} ({unit})")
+        _mark(ax, rd, legend=ax is axes[0, 0], loc="best", ncol=3)
+    axes[-1, 0].set_xlabel("time (s)")
+    s = rd.summary
+    what = "state estimation"
+    if s.get("strain_estimation_rms") is not None:
+        what += f" (RMS after 1 s: strains {s['strain_estimation_rms']:.2g} 1/m"
+        p = s.get("drone_position_estimation_rms")
+        what += f", drone position {p:.2g} m)" if p is not None else ")"
+    return _finish(fig, rd, what, out, "estimation", formats)
+
+
 _FUNCS = {
     "state_errors": fig_state_errors,
     "tracking_errors": fig_tracking_errors,
@@ -424,6 +464,7 @@ _FUNCS = {
     "strain_rates": fig_strain_rates,
     "snapshots": fig_snapshots,
     "lyapunov": fig_lyapunov,
+    "estimation": fig_estimation,
 }
 
 
