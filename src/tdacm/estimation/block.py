@@ -14,19 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ekf import Estimator, StateEstimate
+from .ekf import Estimator
 from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
 #: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
 _KNOWN = (PoseMeasurement, ImuMeasurement, EncoderMeasurement)
-
-
-def _loop_record(e: StateEstimate):
-    """The loop's :class:`tdacm.loop.data.StateEstimate` (imported here, at run time, so
-    that importing the estimator does not import the loop)."""
-    from ..loop.data import StateEstimate as LoopEstimate
-
-    return LoopEstimate(e.t, e.q, e.qd, e.P)
 
 
 class FilterBlock:
@@ -78,18 +70,18 @@ class FilterBlock:
         sensors before engaging the controller."""
         f = self.filter
         if self.initial_measurements is None:
-            return _loop_record(f.reset(self.initial_guess(t), t0=t))
+            return f.reset(self.initial_guess(t), t0=t)
         meas = self.initial_measurements(t)
         q = f.initial_guess(meas, self.nominal_q)
         q[f.n - f.n_s :] += self.strain_error
         if f.floating:
             q[3:6] += self.position_error
         self.prior = f.reset(q, t0=t)
-        return _loop_record(f.step(t, None, meas))
+        return f.step(t, None, meas)
 
     def step(self, readings, u_applied, dt: float):
         meas = [m for m in readings.other.values() if isinstance(m, _KNOWN)]
-        return _loop_record(self.filter.step(readings.t, u_applied, meas))
+        return self.filter.step(readings.t, u_applied, meas)
 
     @property
     def timings(self):

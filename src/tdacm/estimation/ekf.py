@@ -45,6 +45,7 @@ import numpy as np
 from ..control.model import EstimatedModel
 from ..lie.euler import euler_rate_matrix, rot_zyx
 from . import kernels as EK
+from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
 from .sensors import (
     EncoderMeasurement,
@@ -52,19 +53,6 @@ from .sensors import (
     PoseMeasurement,
     SensorSuiteConfig,
 )
-
-
-@dataclass(frozen=True)
-class StateEstimate:
-    """What every block downstream of the sensors reads: ``q``, ``qd`` and the covariance
-    ``P`` of ``[q, qd]`` (2n x 2n) at time ``t``. The same fields as
-    :class:`tdacm.loop.data.StateEstimate` (the loop's record; kept separate here so that
-    importing the estimator does not import the loop)."""
-
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
-    P: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

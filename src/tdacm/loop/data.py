@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..estimation.estimate import StateEstimate  # noqa: F401  (shared with the estimator)
 from ..vision.detect import NOT_DETECTED, Detection
 
 
@@ -61,17 +62,6 @@ class SensorReadings:
     local: CameraMeasurement
     global_: CameraMeasurement | None = None
     other: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class StateEstimate:
-    """The state every block downstream of the sensors uses: ``q_hat``, ``qdot_hat`` and,
-    from an estimator, their covariance ``P`` (``2n x 2n``; ``None`` for the true state)."""
-
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
-    P: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
