@@ -1,0 +1,82 @@
+"""The Rosenbrock-W integrator for stiff strain bases (issue 12)."""
+
+import numpy as np
+import pytest
+
+import tdacm
+from tdacm.system.integrate import is_stiff
+
+
+@pytest.fixture(scope="module")
+def rod18():
+    """The 18-DoF rod of ``tdacm bench``: torsion + 2 bendings of order 3, 8 Gauss points,
+    Magnus order 4, on the floating base."""
+    return tdacm.paper_system(
+        basis=tdacm.StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4
+    )
+
+
+def released_state(system):
+    """Rod held in equilibrium by tendons 0 and 1 (2 N, 1 N) below a held drone at 3 m."""
+    q0 = np.zeros(system.n)
+    q0[5] = 3.0
+    u = np.zeros(system.n_u)
+    u[4:6] = [2.0, 1.0]
+    return system.static_equilibrium(u, q0=q0, load_steps=4)
+
+
+def test_auto_method_picks_rosenbrock_only_for_stiff_bases(rod18):
+    assert is_stiff(rod18)
+    assert not is_stiff(tdacm.paper_system())
+    assert not is_stiff(tdacm.paper_system(basis=tdacm.StrainBasis.bending(7)))
+
+
+def test_rosenbrock_matches_dop853_on_the_18_dof_rod(rod18):
+    system = rod18
+    q0 = released_state(system)
+    u = np.r_[np.full(4, system.total_mass * 9.81 / 4), np.zeros(system.n_a)]
+    dur = 0.1
+    ref = tdacm.simulate(
+        system, q0, None, dur, u=u, method="adaptive", rtol=1e-10, atol=1e-12, record_dt=0.05
+    )
+    res = tdacm.simulate(system, q0, None, dur, u=u, record_dt=0.05)  # auto -> rosenbrock
+    assert ref.completed and res.completed
+    tips = [np.array([system.tip_pose(q)[:3, 3] for q in r.q]) for r in (ref, res)]
+    moved = np.abs(tips[0] - tips[0][0]).max()
+    err = np.abs(tips[1] - tips[0]).max()
+    assert moved > 2e-3  # the released rod really swings
+    assert err < 1e-4  # 2.5 ms steps, 40 steps
+
+
+def test_rosenbrock_is_third_order_on_the_paper_system():
+    system = tdacm.paper_system()
+    q0 = np.zeros(8)
+    q0[5] = 3.0
+    q0[6:] = [0.3, -0.2]
+    qd0 = np.r_[np.full(6, 0.1), 0.0, 0.0]
+    u = np.r_[np.full(4, system.total_mass * 9.81 / 4), np.zeros(4)]
+    ref = tdacm.simulate(system, q0, qd0, 1.0, dt=1e-3, u=u, method="rk4").q[-1]
+    errs = [
+        np.abs(tdacm.simulate(system, q0, qd0, 1.0, dt=h, u=u, method="rosenbrock").q[-1] - ref).max()
+        for h in (0.02, 0.01)
+    ]
+    assert 2.7 < np.log2(errs[0] / errs[1]) < 3.3
+
+
+def test_rosenbrock_adaptive_and_callable_inputs():
+    system = tdacm.paper_system(fixed_base_pose=np.eye(4), basis=tdacm.StrainBasis.full(0))
+    assert is_stiff(system)
+    q0 = np.zeros(system.n)
+    q0[1:3] = [0.5, -0.3]
+    ad = tdacm.simulate(system, q0, None, 0.2, dt=5e-3, method="rosenbrock", rtol=1e-4, atol=1e-7)
+    fx = tdacm.simulate(system, q0, None, 0.2, dt=1e-3, method="rosenbrock", record_dt=5e-3)
+    assert ad.completed and fx.completed and ad.q.shape == fx.q.shape
+    assert np.abs(ad.q[:, 1:3] - fx.q[:, 1:3]).max() < 1e-3
+    cb = tdacm.simulate(
+        system, q0, None, 0.2, dt=1e-3, method="rosenbrock", record_dt=5e-3, u=lambda t, q, qd: np.zeros(4)
+    )
+    assert np.allclose(cb.q, fx.q, atol=1e-12)
+    with pytest.raises(ValueError, match="multiple"):
+        tdacm.simulate(system, q0, None, 0.2, dt=2e-3, method="rosenbrock", record_dt=5e-3)
+    with pytest.raises(ValueError, match="method must be"):
+        tdacm.simulate(system, q0, None, 0.2, method="euler")
