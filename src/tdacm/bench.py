@@ -36,6 +36,7 @@ def _median_time(fn, number, repeats):
 
 
 def bench_system(name, system, repeats=7, duration=5.0):
+    """Per-call costs and the RK4 passive real-time factor (random bent, moving state)."""
     rng = np.random.default_rng(0)
     q = np.zeros(system.n)
     q[5] = 3.0
@@ -46,7 +47,7 @@ def bench_system(name, system, repeats=7, duration=5.0):
     # warm-up (compilation is cached on disk after the first run)
     system.terms(q, qd)
     system.forward_dynamics(q, qd, u)
-    simulate(system, q, qd, duration=0.02, u=u)
+    simulate(system, q, qd, duration=0.02, u=u, method="rk4")
     t_terms = _median_time(lambda: system.terms(q, qd), 2000, repeats)
     t_fd_api = _median_time(lambda: system.forward_dynamics(q, qd, u), 5000, repeats)
     t_fd_kernel = _median_time(lambda: K.forward_dynamics(q, qd, u, m, loads), 5000, repeats)
@@ -54,7 +55,7 @@ def bench_system(name, system, repeats=7, duration=5.0):
     walls = []
     for _ in range(max(3, repeats // 2)):
         t0 = time.perf_counter()
-        res = simulate(system, q, qd, duration=duration, dt=dt, u=u, record_dt=0.01)
+        res = simulate(system, q, qd, duration=duration, dt=dt, u=u, record_dt=0.01, method="rk4")
         walls.append(time.perf_counter() - t0)
     wall = float(np.median(walls))
     return {
@@ -74,15 +75,74 @@ def bench_system(name, system, repeats=7, duration=5.0):
     }
 
 
+def _released(system):
+    """The rod held by tendons 0 and 1 (2 N, 1 N) below the drone held at 3 m, in equilibrium;
+    released with hover thrust (the stiff benchmark's passive case)."""
+    q0 = np.zeros(system.n)
+    q0[5] = 3.0
+    ut = np.zeros(system.n_u)
+    ut[4:6] = [2.0, 1.0]
+    q = system.static_equilibrium(ut, q0=q0, load_steps=4)
+    u = np.r_[np.full(4, system.total_mass * 9.81 / 4), np.zeros(system.n_a)]
+    return q, u
+
+
+def bench_stiff(name, system, duration=5.0, check=0.5, reference="dop853", repeats=3):
+    """Rosenbrock (ROS34PW2, fixed 2.5 ms) on a stiff rod: median wall time of ``duration`` s of
+    the released passive case, and the tip error over the first ``check`` s against a converged
+    reference: DOP853 at rtol 1e-10 (``reference="dop853"``) or, when DOP853 cannot afford the
+    stiffness, the same Rosenbrock at a tenth of the step (``"rosenbrock/10"``)."""
+    from .system.integrate import ROSENBROCK_DT
+
+    q, u = _released(system)
+    simulate(system, q, None, duration=0.01, u=u, method="rosenbrock")  # warm-up
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = simulate(system, q, None, duration=duration, u=u, method="rosenbrock", record_dt=0.01)
+        walls.append(time.perf_counter() - t0)
+    wall = float(np.median(walls))
+    t0 = time.perf_counter()
+    if reference == "dop853":
+        ref = simulate(
+            system, q, None, check, u=u, method="adaptive", rtol=1e-10, atol=1e-12, record_dt=0.01
+        )
+    else:
+        ref = simulate(
+            system, q, None, check, u=u, method="rosenbrock", dt=ROSENBROCK_DT / 10, record_dt=0.01
+        )
+    ref_wall = time.perf_counter() - t0
+    k = min(ref.q.shape[0], res.q.shape[0])
+    tip = np.array([system.tip_pose(x)[:3, 3] for x in res.q[:k]])
+    tref = np.array([system.tip_pose(x)[:3, 3] for x in ref.q[:k]])
+    e = [system.energy(a, b)["total"] for a, b in zip(res.q, res.qd, strict=True)]
+    return {
+        "system": name,
+        "n": system.n,
+        "w_max_rad_s": float(system.natural_frequencies().max()),
+        "rk4_stable_dt_s": system.suggested_dt(),
+        "method": "rosenbrock (ROS34PW2), fixed step",
+        "dt_s": ROSENBROCK_DT,
+        "passive_sim_s": duration,
+        "passive_wall_s": wall,
+        "real_time_factor": duration / wall,
+        "completed": bool(res.completed),
+        "reference": reference,
+        "reference_wall_s": ref_wall,
+        "check_s": check,
+        "tip_error_max_m": float(np.abs(tip - tref).max()),
+        "tip_travel_m": float(np.abs(tref - tref[0]).max()),
+        "energy_change_J": float(e[-1] - e[0]),
+    }
+
+
 def run_model_bench(out="out/bench", repeats=7) -> dict:
+    rich = paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4)
     systems = [
-        ("paper (2 bending, order 0)", paper_system()),
-        (
-            "rich (torsion + 2 bending, order 3)",
-            paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4),
-        ),
+        ("paper (2 bending, order 0)", paper_system(), 5.0),
+        ("rich (torsion + 2 bending, order 3)", rich, 1.0),
     ]
-    rows = [bench_system(name, s, repeats) for name, s in systems]
+    rows = [bench_system(name, s, repeats, duration=d) for name, s, d in systems]
     print(
         f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} {'RK4 dt':>9s} {'RTF':>8s}"
     )
@@ -91,7 +151,31 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             f"{r['system']:38s} {r['n']:3d} {r['terms_us']:8.1f}us {r['forward_dynamics_api_us']:8.1f}us "
             f"{r['forward_dynamics_kernel_us']:9.1f}us {r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
         )
-    result = {"model": rows, "machine_note": "medians; IQR in *_iqr_us"}
+    stiff = [
+        bench_stiff("18-DoF (torsion + 2 bending, order 3)", rich),
+        bench_stiff(
+            "full 6 strains, order 2 (n = 24)",
+            paper_system(basis=StrainBasis.full(2)),
+            reference="rosenbrock/10",
+        ),
+    ]
+    print(
+        f"\n{'stiff rod, Rosenbrock 2.5 ms':38s} {'n':>3s} {'w_max':>9s} {'RTF':>8s} {'tip err':>10s} (first s, reference)"
+    )
+    for r in stiff:
+        print(
+            f"{r['system']:38s} {r['n']:3d} {r['w_max_rad_s']:9.3g} {r['real_time_factor']:7.1f}x "
+            f"{r['tip_error_max_m'] * 1e3:8.3f}mm ({r['check_s']} s, {r['reference']}, "
+            f"travel {r['tip_travel_m'] * 1e3:.0f} mm, completed {r['completed']})"
+        )
+    load = open("/proc/loadavg").read().split()[:3] if Path("/proc/loadavg").exists() else []
+    result = {
+        "model": rows,
+        "stiff": stiff,
+        "load_average": load,
+        "machine_note": "medians; IQR in *_iqr_us",
+    }
+    print(f"load average (1, 5, 15 min) at the end: {load}")
     path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "bench.json").write_text(json.dumps(result, indent=2))

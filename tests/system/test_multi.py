@@ -33,7 +33,9 @@ def two_section_cantilever(gravity=(0.0, 0.0, 0.0), damping=0.0, ends=0.4):
 @pytest.fixture(scope="module")
 def sectioned_floating():
     s1 = tdacm.Rod(length=0.5, basis=tdacm.StrainBasis.bending(1), tip_mass=0.003)
-    s2 = tdacm.Rod(length=0.5, diameter=1.5e-3, basis=tdacm.StrainBasis((1, 1, 1, None, None, None)))
+    s2 = tdacm.Rod(
+        length=0.5, diameter=1.5e-3, basis=tdacm.StrainBasis((1, 1, 1, None, None, None))
+    )
     tendons = tdacm.Tendons.parallel(0.01, count=4, ends=[0.5, 0.5, None, 0.8])
     return tdacm.TDACM(tdacm.SectionedRod([s1, s2]), tendons, tdacm.Quadrotor())
 
@@ -89,7 +91,10 @@ def test_tendon_ending_mid_section_acts_only_before_its_end():
     k2 = 0.01 / sec2.bending_stiffness
     # section 1 carries the full tendon moment; section 2 (order-1 basis) bends where the tendon
     # runs and relaxes after its end
-    assert abs(system.strain(q, 0.2)[2] - 0.01 / system.arms[0].rod.sections[0].bending_stiffness) < 1e-10
+    assert (
+        abs(system.strain(q, 0.2)[2] - 0.01 / system.arms[0].rod.sections[0].bending_stiffness)
+        < 1e-10
+    )
     assert system.strain(q, 0.55)[2] > 0.5 * k2
     # tendon lengths: B_s = -dl/dq, and the tendon ending at 0.7 m is 0.7 m long when straight
     assert np.allclose(system.tendon_lengths(np.zeros(system.n)), [0.7, 1.0], atol=1e-14)
@@ -111,7 +116,9 @@ def test_jacobians_match_finite_differences(which, request):
     for rod in range(system.n_rods):
         length = system.arms[rod].length
         for s in (0.0, 0.31 * length, 0.5 * length, 0.77 * length, length):
-            assert np.allclose(system.jacobian(q, s, rod), fd_jacobian(system, q, s, rod), atol=1e-8)
+            assert np.allclose(
+                system.jacobian(q, s, rod), fd_jacobian(system, q, s, rod), atol=1e-8
+            )
         h = 1e-6
         fd = (system.tip_jacobian(q + h * qd, rod) - system.tip_jacobian(q - h * qd, rod)) / (2 * h)
         assert np.allclose(system.tip_jacobian_dot(q, qd, rod), fd, atol=1e-7)

@@ -6,6 +6,9 @@
   (numba), for stiff strain bases (torsion, elongation, shear); fixed step ``dt`` (default
   :data:`ROSENBROCK_DT`) or, with ``rtol`` given, adaptive steps of at most ``dt`` with
   embedded error control.
+* ``method="radau"``: the 3-stage Radau IIA method (order 5, L-stable) of
+  :func:`tdacm.system.stiff.radau_run`, fixed step ``dt`` (default :data:`RADAU_DT`), simplified
+  Newton iterations with a reused finite-difference Jacobian.
 * ``method="adaptive"``: scipy's ``solve_ivp`` (DOP853 by default) with error control, for
   accuracy studies.
 * ``method="auto"`` (the default): RK4 unless the model is stiff (:func:`is_stiff`: a basis
@@ -32,6 +35,9 @@ from . import stiff as ST
 STIFF_DT = 1e-3
 #: Default fixed step of ``method="rosenbrock"`` (s).
 ROSENBROCK_DT = 2.5e-3
+#: Default fixed step of ``method="radau"`` (s) and its Newton settings.
+RADAU_DT = 1e-2
+RADAU_NEWTON = {"tol_q": 1e-7, "tol_v": 1e-3, "max_iter": 10, "slow_iter": 6}
 
 
 @dataclass
@@ -83,14 +89,14 @@ def simulate(
     q0 = system._q(q0, "q0")
     qd0 = np.zeros(system.n) if qd0 is None else system._q(qd0, "qd0")
     duration = V.positive("duration", duration)
-    if method not in ("auto", "rk4", "rosenbrock", "adaptive"):
+    if method not in ("auto", "rk4", "rosenbrock", "radau", "adaptive"):
         raise ValueError(
-            f"method must be 'auto', 'rk4', 'rosenbrock' or 'adaptive', got {method!r}"
+            f"method must be 'auto', 'rk4', 'rosenbrock', 'radau' or 'adaptive', got {method!r}"
         )
     if method == "auto":
         method = "rosenbrock" if is_stiff(system) else "rk4"
     if dt is None:
-        dt = ROSENBROCK_DT if method == "rosenbrock" else system.suggested_dt()
+        dt = {"rosenbrock": ROSENBROCK_DT, "radau": RADAU_DT}.get(method) or system.suggested_dt()
     else:
         dt = V.positive("dt", dt)
     record_dt = dt if record_dt is None else V.positive("record_dt", record_dt)
@@ -109,6 +115,8 @@ def simulate(
             msg = "" if ok else "stopped: mass matrix singular (Euler singularity)"
             return SimulationResult(t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, msg)
         return _rk4_callable(system, q0, qd0, u, dt, nsteps, every, progress)
+    if method == "radau":
+        return _radau(system, q0, qd0, u, duration, dt, every)
     if method == "rosenbrock":
         return _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol)
     rtol = 1e-8 if rtol is None else rtol
@@ -153,6 +161,40 @@ def _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
         qds.append(qd.copy())
     u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]
     return SimulationResult(np.array(ts), np.array(qs), np.array(qds), u_arr, ok, msg)
+
+
+def _radau(system, q0, qd0, u, duration, dt, every):
+    """Radau IIA at constant input (one numba call) or with ``u(t, q, qd)`` held over every
+    recording interval."""
+    m, loads = system.model_arrays, system.loads.packed()
+    nw = RADAU_NEWTON
+    args = (nw["tol_q"], nw["tol_v"], nw["max_iter"], nw["slow_iter"])
+    nsteps = int(round(duration / dt))
+    msg_bad = "stopped: the Newton iteration failed (or a singular mass matrix)"
+    if not callable(u):
+        uc = system._u(u)
+        qs, qds, ok, _ = ST.radau_run(q0, qd0, uc, dt, nsteps, every, m, loads, *args)
+        t = np.arange(qs.shape[0]) * dt * every
+        return SimulationResult(
+            t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, "" if ok else msg_bad
+        )
+    q, qd = q0.copy(), qd0.copy()
+    ts, qs, qds, us = [0.0], [q.copy()], [qd.copy()], []
+    ok = True
+    for k in range(nsteps // every):
+        uk = system._u(u(k * every * dt, q, qd))
+        us.append(uk)
+        qq, qqd, ok, _ = ST.radau_run(q, qd, uk, dt, every, every, m, loads, *args)
+        if not ok:
+            break
+        q, qd = qq[-1], qqd[-1]
+        ts.append((k + 1) * every * dt)
+        qs.append(q.copy())
+        qds.append(qd.copy())
+    u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]
+    return SimulationResult(
+        np.array(ts), np.array(qs), np.array(qds), u_arr, ok, "" if ok else msg_bad
+    )
 
 
 def _rk4_callable(system, q0, qd0, ufun, dt, nsteps, every, progress):

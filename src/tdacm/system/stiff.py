@@ -1,4 +1,5 @@
-"""A linearly implicit (Rosenbrock-W) integrator for stiff strain bases, in numba.
+"""Integrators for stiff strain bases, in numba: a linearly implicit Rosenbrock-W method
+(:func:`rosw_run`) and the implicit Radau IIA method (:func:`radau_run`).
 
 Torsion, elongation and shear modes of a thin rod vibrate at 10^3-10^6 rad/s, far above the
 motion of interest (a few rad/s), so explicit RK4 must take steps of microseconds.  These modes
@@ -274,3 +275,233 @@ def rosw_run(q0, qd0, u, duration, record_dt, h0, h_max, rtol, atol_q, atol_v, m
         qs[rec] = q
         qds[rec] = qd
     return ts, qs, qds, True, n_acc, n_rej, h
+
+
+# ---------------------------------------------------------------------------------- Radau IIA
+def _radau_tableau():
+    r6 = np.sqrt(6.0)
+    c = np.array([(4.0 - r6) / 10.0, (4.0 + r6) / 10.0, 1.0])
+    a = np.array(
+        [
+            [(88.0 - 7.0 * r6) / 360.0, (296.0 - 169.0 * r6) / 1800.0, (-2.0 + 3.0 * r6) / 225.0],
+            [(296.0 + 169.0 * r6) / 1800.0, (88.0 + 7.0 * r6) / 360.0, (-2.0 - 3.0 * r6) / 225.0],
+            [(16.0 - r6) / 36.0, (16.0 + r6) / 36.0, 1.0 / 9.0],
+        ]
+    )
+    return c, a
+
+
+RADAU_C, RADAU_A = _radau_tableau()
+
+
+@njit(cache=True)
+def _f(y, u, m, loads, n):
+    out = np.empty(2 * n)
+    qdd, ok = K.forward_dynamics(y[:n], y[n:], u, m, loads)
+    out[:n] = y[n:]
+    out[n:] = qdd
+    return out, ok
+
+
+@njit(cache=True)
+def state_jacobian(y, u, m, loads, n):
+    """Forward-difference Jacobian of ``y' = f(y) = [qd; qdd(q, qd)]`` (2n x 2n; 2n + 1
+    evaluations of the forward dynamics, the ``[I]`` block is exact)."""
+    nn = 2 * n
+    f0, ok = _f(y, u, m, loads, n)
+    if not ok:
+        return np.zeros((nn, nn)), False
+    jac = np.zeros((nn, nn))
+    for i in range(n):
+        jac[i, n + i] = 1.0
+    for i in range(nn):
+        e = 1e-7 * max(1.0, abs(y[i]))
+        yp = y.copy()
+        yp[i] += e
+        fp, ok = _f(yp, u, m, loads, n)
+        if not ok:
+            return jac, False
+        for r in range(n, nn):
+            jac[r, i] = (fp[r] - f0[r]) / e
+    return jac, True
+
+
+@njit(cache=True)
+def _radau_matrix(jac, h, a):
+    """``I - h (A kron J)`` (3N x 3N) of the simplified Newton iteration."""
+    nn = jac.shape[0]
+    g = np.zeros((3 * nn, 3 * nn))
+    for i in range(3):
+        for j in range(3):
+            hij = h * a[i, j]
+            for r in range(nn):
+                for c in range(nn):
+                    g[i * nn + r, j * nn + c] = -hij * jac[r, c]
+    for r in range(3 * nn):
+        g[r, r] += 1.0
+    return g
+
+
+@njit(cache=True)
+def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, slow_iter):
+    """Integrate ``nsteps`` fixed steps ``h`` of the 3-stage Radau IIA method (order 5, L-stable,
+    stiffly accurate) at constant input ``u``; keep every ``every``-th state.
+
+    The stage equations are solved by simplified Newton iterations with a forward-difference
+    Jacobian that is *reused* across steps (recomputed only when an iteration converges slowly
+    or fails: more than ``slow_iter`` iterations); the stage values start from the previous step's collocation polynomial.  An
+    iteration has converged when the weighted RMS norm of its update, weights
+    ``tol_q (1 + |q_i|)`` and ``tol_v (1 + |qd_i|)``, is below 1 (the velocities of the stiff
+    modes carry the round-off of ``M^-1``, whose condition number reaches 1e8-1e10 with torsion:
+    their updates stagnate near 1e-4, hence a looser ``tol_v``).  A step whose iteration fails even with a fresh Jacobian is
+    split in two (recursively, down to ``h / 64``).
+
+    Returns ``(qs, qds, ok, stats)`` with ``stats = [f evaluations, Jacobians, LU
+    factorizations, Newton iterations, split steps]``.
+    """
+    n = q0.shape[0]
+    nn = 2 * n
+    c = RADAU_C
+    a = RADAU_A
+    nrec = nsteps // every + 1
+    qs = np.empty((nrec, n))
+    qds = np.empty((nrec, n))
+    qs[0] = q0
+    qds[0] = qd0
+    y = np.empty(nn)
+    y[:n] = q0
+    y[n:] = qd0
+    stats = np.zeros(5, dtype=np.int64)
+    f0, ok = _f(y, u, m, loads, n)
+    stats[0] += 1
+    if not ok:
+        return qs[:1], qds[:1], False, stats
+    jac, ok = state_jacobian(y, u, m, loads, n)
+    stats[0] += nn + 1
+    stats[1] += 1
+    hj = h
+    lu, piv, ok = _lu(_radau_matrix(jac, hj, a))
+    stats[2] += 1
+    z = np.zeros((3, nn))  # stage increments of the last step (for the extrapolation)
+    have_prev = False
+    fresh = True
+    rec = 1
+    k = 0
+    sub = 1  # current number of substeps per step (after failures)
+    while k < nsteps:
+        hs = h / sub
+        done_sub = 0
+        while done_sub < sub:
+            if hs != hj:
+                lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
+                stats[2] += 1
+                hj = hs
+                have_prev = False
+            # initial stage values: previous collocation polynomial, or h c_i f(y0)
+            zz = np.empty((3, nn))
+            if have_prev:
+                for i in range(3):
+                    s = 1.0 + c[i]
+                    # Lagrange basis through nodes 0, c1, c2, c3 (value 0 at node 0)
+                    for r in range(nn):
+                        acc = 0.0
+                        for j in range(3):
+                            lj = s / c[j]
+                            for p in range(3):
+                                if p != j:
+                                    lj *= (s - c[p]) / (c[j] - c[p])
+                            acc += lj * z[j, r]
+                        zz[i, r] = acc - z[2, r]
+            else:
+                for i in range(3):
+                    for r in range(nn):
+                        zz[i, r] = hs * c[i] * f0[r]
+            converged = False
+            theta_bad = False
+            old = 0.0
+            fs = np.empty((3, nn))
+            for it in range(max_iter):
+                ok_all = True
+                for i in range(3):
+                    fi, oki = _f(y + zz[i], u, m, loads, n)
+                    stats[0] += 1
+                    if not oki:
+                        ok_all = False
+                        break
+                    fs[i] = fi
+                if not ok_all:
+                    break
+                rhs = np.empty(3 * nn)
+                for i in range(3):
+                    for r in range(nn):
+                        acc = -zz[i, r]
+                        for j in range(3):
+                            acc += hs * a[i, j] * fs[j, r]
+                        rhs[i * nn + r] = acc
+                dz = _lu_solve(lu, piv, rhs)
+                stats[3] += 1
+                nrm = 0.0
+                for i in range(3):
+                    for r in range(nn):
+                        zz[i, r] += dz[i * nn + r]
+                        w = (tol_q if r < n else tol_v) * (1.0 + abs(y[r]))
+                        nrm += (dz[i * nn + r] / w) ** 2
+                nrm = np.sqrt(nrm / (3 * nn))
+                if not np.isfinite(nrm):
+                    break
+                if it > 0:
+                    theta = nrm / old
+                    if theta > 0.9:
+                        theta_bad = True
+                        break
+                if nrm <= 1.0:
+                    converged = True
+                    break
+                old = nrm
+            if converged:
+                for r in range(nn):
+                    y[r] += zz[2, r]
+                for i in range(3):
+                    for r in range(nn):
+                        z[i, r] = zz[i, r]
+                f0 = fs[2].copy()  # f at the last iterate (a starting guess only)
+                have_prev = True
+                done_sub += 1
+                # a slow iteration: refresh the Jacobian for the next step
+                if it >= slow_iter and not fresh:
+                    jac, okj = state_jacobian(y, u, m, loads, n)
+                    stats[0] += nn + 1
+                    stats[1] += 1
+                    lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
+                    stats[2] += 1
+                    fresh = True
+                else:
+                    fresh = False
+                continue
+            # failure: fresh Jacobian first, then split the step
+            if not fresh:
+                jac, okj = state_jacobian(y, u, m, loads, n)
+                stats[0] += nn + 1
+                stats[1] += 1
+                if not okj:
+                    return qs[:rec], qds[:rec], False, stats
+                lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
+                stats[2] += 1
+                fresh = True
+                have_prev = False
+                continue
+            if sub >= 64 or theta_bad and sub >= 64:
+                return qs[:rec], qds[:rec], False, stats
+            sub *= 2
+            done_sub *= 2
+            hs = h / sub
+            stats[4] += 1
+            fresh = False  # the Jacobian is still fresh; force the LU update only
+            have_prev = False
+        sub = max(1, sub // 2) if sub > 1 else 1
+        k += 1
+        if k % every == 0:
+            qs[rec] = y[:n]
+            qds[rec] = y[n:]
+            rec += 1
+    return qs, qds, True, stats
