@@ -304,25 +304,42 @@ def _f(y, u, m, loads, n):
 
 
 @njit(cache=True)
-def state_jacobian(y, u, m, loads, n):
-    """Forward-difference Jacobian of ``y' = f(y) = [qd; qdd(q, qd)]`` (2n x 2n; 2n + 1
-    evaluations of the forward dynamics, the ``[I]`` block is exact)."""
+def state_jacobian(y, u, m, loads, n, full_v):
+    """Jacobian of ``y' = f(y) = [qd; qdd(q, qd)]`` (2n x 2n).
+
+    The ``[I]`` block is exact; ``d qdd / dq`` by forward differences, skipping the drone
+    position (``qdd`` does not depend on it: uniform gravity, no ground); ``d qdd / dqd`` by
+    forward differences when ``full_v``, else ``-M^-1 D`` (the damping part; the Coriolis part is
+    left to the Newton iteration).  Costs ``n - 2`` (``2 n - 2`` with ``full_v``) evaluations.
+    """
     nn = 2 * n
-    f0, ok = _f(y, u, m, loads, n)
-    if not ok:
-        return np.zeros((nn, nn)), False
     jac = np.zeros((nn, nn))
+    f0, mm, ok = dynamics_and_mass(y[:n], y[n:], u, m, loads)
+    if not ok:
+        return jac, False
     for i in range(n):
         jac[i, n + i] = 1.0
     for i in range(nn):
+        if m.floating and 3 <= i < 6:
+            continue
+        if i >= n and not full_v:
+            break
         e = 1e-7 * max(1.0, abs(y[i]))
         yp = y.copy()
         yp[i] += e
-        fp, ok = _f(yp, u, m, loads, n)
+        fp, ok = K.forward_dynamics(yp[:n], yp[n:], u, m, loads)
         if not ok:
             return jac, False
-        for r in range(n, nn):
-            jac[r, i] = (fp[r] - f0[r]) / e
+        for r in range(n):
+            jac[n + r, i] = (fp[r] - f0[r]) / e
+    if not full_v:
+        col = np.empty(n)
+        for c in range(n):
+            for r in range(n):
+                col[r] = -m.damping[r, c]
+            x, ok = K.cholesky_solve(mm, col)
+            for r in range(n):
+                jac[n + r, n + c] = x[r]
     return jac, True
 
 
@@ -343,7 +360,7 @@ def _radau_matrix(jac, h, a):
 
 
 @njit(cache=True)
-def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, slow_iter):
+def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, slow_iter, full_v):
     """Integrate ``nsteps`` fixed steps ``h`` of the 3-stage Radau IIA method (order 5, L-stable,
     stiffly accurate) at constant input ``u``; keep every ``every``-th state.
 
@@ -376,8 +393,8 @@ def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, sl
     stats[0] += 1
     if not ok:
         return qs[:1], qds[:1], False, stats
-    jac, ok = state_jacobian(y, u, m, loads, n)
-    stats[0] += nn + 1
+    jac, ok = state_jacobian(y, u, m, loads, n, full_v)
+    stats[0] += (nn if full_v else n) - (2 if m.floating else -1)
     stats[1] += 1
     hj = h
     lu, piv, ok = _lu(_radau_matrix(jac, hj, a))
@@ -469,8 +486,8 @@ def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, sl
                 done_sub += 1
                 # a slow iteration: refresh the Jacobian for the next step
                 if it >= slow_iter and not fresh:
-                    jac, okj = state_jacobian(y, u, m, loads, n)
-                    stats[0] += nn + 1
+                    jac, okj = state_jacobian(y, u, m, loads, n, full_v)
+                    stats[0] += (nn if full_v else n) - (2 if m.floating else -1)
                     stats[1] += 1
                     lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
                     stats[2] += 1
@@ -480,8 +497,8 @@ def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, sl
                 continue
             # failure: fresh Jacobian first, then split the step
             if not fresh:
-                jac, okj = state_jacobian(y, u, m, loads, n)
-                stats[0] += nn + 1
+                jac, okj = state_jacobian(y, u, m, loads, n, full_v)
+                stats[0] += (nn if full_v else n) - (2 if m.floating else -1)
                 stats[1] += 1
                 if not okj:
                     return qs[:rec], qds[:rec], False, stats
