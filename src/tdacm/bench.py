@@ -146,6 +146,10 @@ def bench_stiff(
         "tip_error_max_m": float(np.abs(tip - tref).max()),
         "tip_travel_m": float(np.abs(tref - tref[0]).max()),
         "energy_change_J": float(e[-1] - e[0]),
+        "energy_span_J": float(max(e) - min(e)),
+        "kinetic_max_J": float(
+            max(system.energy(a, b)["kinetic"] for a, b in zip(res.q, res.qd, strict=True))
+        ),
         "_ref": ref,
     }
 
@@ -165,16 +169,19 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             f"{r['system']:38s} {r['n']:3d} {r['terms_us']:8.1f}us {r['forward_dynamics_api_us']:8.1f}us "
             f"{r['forward_dynamics_kernel_us']:9.1f}us {r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
         )
-    stiff = [
-        bench_stiff("18-DoF (torsion + 2 bending, order 3)", rich),
-        bench_stiff(
-            "full 6 strains, order 2 (n = 24)",
-            paper_system(basis=StrainBasis.full(2)),
-            reference="rosenbrock/10",
-        ),
-    ]
+    full = paper_system(basis=StrainBasis.full(2))
+    stiff = []
+    for sysname, s_, refname in (
+        ("18-DoF (torsion + 2 bending, order 3)", rich, "dop853"),
+        ("full 6 strains, order 2 (n = 24)", full, "rosenbrock/10"),
+    ):
+        ref = None
+        for method in ("rosenbrock", "radau"):
+            row = bench_stiff(sysname, s_, method, reference=refname, ref=ref)
+            ref = row.pop("_ref")
+            stiff.append(row)
     print(
-        f"\n{'stiff rod, Rosenbrock 2.5 ms':38s} {'n':>3s} {'w_max':>9s} {'RTF':>8s} {'tip err':>10s} (first s, reference)"
+        f"\n{'stiff rod, fixed steps':38s} {'n':>3s} {'w_max':>9s} {'RTF':>8s} {'tip err':>10s} (first s, reference)"
     )
     for r in stiff:
         print(
