@@ -226,7 +226,9 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     timing = study.timing_study()
     walls["baseline_timing"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    rows = study.scaling_study() if scaling else []
+    # 10 and 16 points: a mode of order p needs p + 2 points (tdacm.rod.min_gauss_points), so
+    # the 4- and 8-point columns of the earlier runs are refused for orders above 2 and 6
+    rows = study.scaling_study(gauss=(10, 16)) if scaling else []
     walls["scaling"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     acc = study.accuracy_study() if accuracy else {"duration_s": 0, "rk4_dt_s": 0, "cases": {}}
