@@ -37,7 +37,14 @@ STIFF_DT = 1e-3
 ROSENBROCK_DT = 2.5e-3
 #: Default fixed step of ``method="radau"`` (s) and its Newton settings.
 RADAU_DT = 1e-2
-RADAU_NEWTON = {"tol_q": 1e-7, "tol_v": 1e-3, "max_iter": 10, "slow_iter": 6, "full_v": False}
+RADAU_NEWTON = {
+    "tol_q": 1e-7,
+    "tol_v": 1e-3,
+    "max_iter": 10,
+    "slow_iter": 6,
+    "full_v": False,
+    "stall_ok": 20.0,
+}
 
 
 @dataclass
@@ -168,7 +175,7 @@ def _radau(system, q0, qd0, u, duration, dt, every):
     recording interval."""
     m, loads = system.model_arrays, system.loads.packed()
     nw = RADAU_NEWTON
-    args = (nw["tol_q"], nw["tol_v"], nw["max_iter"], nw["slow_iter"], nw["full_v"])
+    args = tuple(nw[k] for k in ("tol_q", "tol_v", "max_iter", "slow_iter", "full_v", "stall_ok"))
     nsteps = int(round(duration / dt))
     msg_bad = "stopped: the Newton iteration failed (or a singular mass matrix)"
     if not callable(u):

@@ -360,7 +360,9 @@ def _radau_matrix(jac, h, a):
 
 
 @njit(cache=True)
-def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, slow_iter, full_v):
+def radau_run(
+    q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, slow_iter, full_v, stall_ok
+):
     """Integrate ``nsteps`` fixed steps ``h`` of the 3-stage Radau IIA method (order 5, L-stable,
     stiffly accurate) at constant input ``u``; keep every ``every``-th state.
 
@@ -469,7 +471,9 @@ def radau_run(q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, sl
                 if it > 0:
                     theta = nrm / old
                     if theta > 0.9:
-                        theta_bad = True
+                        # stagnation at the round-off floor of M^-1 is convergence
+                        converged = nrm <= stall_ok
+                        theta_bad = not converged
                         break
                 if nrm <= 1.0:
                     converged = True
