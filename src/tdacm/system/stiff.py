@@ -372,8 +372,10 @@ def radau_run(
     iteration has converged when the weighted RMS norm of its update, weights
     ``tol_q (1 + |q_i|)`` and ``tol_v (1 + |qd_i|)``, is below 1 (the velocities of the stiff
     modes carry the round-off of ``M^-1``, whose condition number reaches 1e8-1e10 with torsion:
-    their updates stagnate near 1e-4, hence a looser ``tol_v``).  A step whose iteration fails even with a fresh Jacobian is
-    split in two (recursively, down to ``h / 64``).
+    their updates stagnate near 1e-4, hence a looser ``tol_v``); an iteration that stalls
+    (contraction above 0.9) with a norm below ``stall_ok`` has reached that floor and is
+    accepted too.  ``full_v``: see :func:`state_jacobian`.  A step whose iteration fails even
+    with a fresh Jacobian is split in two (recursively, down to ``h / 64``).
 
     Returns ``(qs, qds, ok, stats)`` with ``stats = [f evaluations, Jacobians, LU
     factorizations, Newton iterations, split steps]``.
