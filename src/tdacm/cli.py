@@ -29,7 +29,7 @@ def _cmd_info(args) -> int:
         "  several rods on one drone: TDACM([rod_1, rod_2], [tendons_1, tendons_2], base,\n"
         "    [g_a1, g_a2]); q = [drone, rod 1, rod 2, ...]; dual_paper_system() = the dual TD-CR\n"
         "  integrators: simulate(method='auto'|'rk4'|'rosenbrock'|'radau'|'adaptive'); 'auto' = RK4\n"
-        "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'rosenbrock'"
+        "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'radau'"
     )
     return 0
 

@@ -13,7 +13,8 @@
   accuracy studies.
 * ``method="auto"`` (the default): RK4 unless the model is stiff (:func:`is_stiff`: a basis
   with torsion, elongation or shear and an RK4 step :meth:`TDACM.suggested_dt` below
-  :data:`STIFF_DT`, 1 ms), then ``"rosenbrock"``.  The
+  :data:`STIFF_DT`, 1 ms), then ``"radau"`` (measured 4-6x faster than ``"rosenbrock"`` at the
+  same accuracy on the 18-DoF rod of ``tdacm bench``).  The
   paper system (``suggested_dt`` = 10 ms) integrates with RK4 exactly as before.
 
 Inputs are either a constant vector ``u`` or a callable ``u(t, q, qd) -> u`` (held constant over
@@ -31,7 +32,7 @@ from .. import _validate as V
 from . import kernels as K
 from . import stiff as ST
 
-#: Below this RK4 step (s) ``method="auto"`` switches to the Rosenbrock integrator.
+#: Below this RK4 step (s) ``method="auto"`` switches to the Radau integrator (stiff bases).
 STIFF_DT = 1e-3
 #: Default fixed step of ``method="rosenbrock"`` (s).
 ROSENBROCK_DT = 2.5e-3
@@ -101,7 +102,7 @@ def simulate(
             f"method must be 'auto', 'rk4', 'rosenbrock', 'radau' or 'adaptive', got {method!r}"
         )
     if method == "auto":
-        method = "rosenbrock" if is_stiff(system) else "rk4"
+        method = "radau" if is_stiff(system) else "rk4"
     if dt is None:
         dt = {"rosenbrock": ROSENBROCK_DT, "radau": RADAU_DT}.get(method) or system.suggested_dt()
     else:
