@@ -113,6 +113,19 @@ def _cmd_info(args) -> int:
     print("  defaults not given by the paper:")
     for name, (value, why) in PAPER_DEFAULTS_NOT_IN_PAPER.items():
         print(f"    {name} = {value}  ({why})")
+    print(
+        "\nModel options (docs/model.md):\n"
+        "  strain bases: StrainBasis(orders per mode [torsion, bending_y, bending_z, elongation,\n"
+        "    shear_y, shear_z], kind='legendre'|'monomial' (monomial refused above order 6));\n"
+        "    Rod(n_gauss=None, magnus_order=None) picks Magnus order 4 and max(8, 2(p+1)) Gauss\n"
+        "    points; n_gauss must be >= p + 2 for a mode of order p\n"
+        "  multi-section rods: SectionedRod([Rod(...), Rod(...)]), own length/material/basis each\n"
+        "  tendons ending part-way: Tendons(offsets=..., ends=[s_i or None]) (arc length, m)\n"
+        "  several rods on one drone: TDACM([rod_1, rod_2], [tendons_1, tendons_2], base,\n"
+        "    [g_a1, g_a2]); q = [drone, rod 1, rod 2, ...]; dual_paper_system() = the dual TD-CR\n"
+        "  integrators: simulate(method='auto'|'rk4'|'rosenbrock'|'radau'|'adaptive'); 'auto' = RK4\n"
+        "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'radau'"
+    )
     return 0
 
 
@@ -294,13 +307,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"tdacm {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("info", help="print the paper system's model summary")
+    s = sub.add_parser("info", help="print the paper system's model summary and the model options")
     s.set_defaults(func=_cmd_info)
     s = sub.add_parser("demo", help="simulate the paper TD-ACM hovering with a tendon step")
     s.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     s.add_argument("--duration", type=_positive_float, default=4.0, help="simulated seconds")
     s.set_defaults(func=_cmd_demo)
-    s = sub.add_parser("bench", help="time the model (terms, forward dynamics, passive simulation)")
+    s = sub.add_parser(
+        "bench",
+        help="time the model (terms, forward dynamics, passive simulation, stiff integrators)",
+    )
     s.add_argument("--out", default="out/bench", help="output folder for bench.json")
     s.add_argument("--repeats", type=_positive_int, default=7, help="timing repeats (median)")
     s.add_argument(
