@@ -20,7 +20,12 @@ import numpy as np
 from numba import njit
 
 from ..lie.euler import euler_rate_matrix, rot_zyx
-from ..system.kernels import cholesky_solve, coupled_terms, input_matrix
+from ..system.kernels import (
+    cholesky_solve,
+    coupled_terms,
+    input_matrix,
+    tendon_lengths_and_matrix,
+)
 
 
 @njit(cache=True)
@@ -132,42 +137,10 @@ def discrete_noise(a, qc, dt):
 
 @njit(cache=True)
 def tendon_lengths_and_jacobian(qs, m):
-    """Tendon path lengths ``l_i = int |k x d_i + u + d_i'| ds`` on the model's Gauss points
-    (as :meth:`tdacm.system.tdacm.TDACM.tendon_lengths`) and ``dl/dq_s`` (n_a x n_s), which is
-    ``-B_s^T`` (paper eq. (13))."""
-    ng = m.bg.shape[0]
-    ns = qs.shape[0]
-    na = m.tendon_d.shape[1]
-    lengths = np.zeros(na)
-    jac = np.zeros((na, ns))
-    col = np.empty(6)
-    for gi in range(ng):
-        b = m.bg[gi]
-        xi = b @ qs
-        for r in range(6):
-            xi[r] += m.xi0g[gi, r]
-        k0, k1, k2 = xi[0], xi[1], xi[2]
-        for i in range(na):
-            d0, d1, d2 = m.tendon_d[gi, i, 0], m.tendon_d[gi, i, 1], m.tendon_d[gi, i, 2]
-            v0 = k1 * d2 - k2 * d1 + xi[3] + m.tendon_dd[gi, i, 0]
-            v1 = k2 * d0 - k0 * d2 + xi[4] + m.tendon_dd[gi, i, 1]
-            v2 = k0 * d1 - k1 * d0 + xi[5] + m.tendon_dd[gi, i, 2]
-            nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-            t0, t1, t2 = v0 / nv, v1 / nv, v2 / nv
-            col[0] = d1 * t2 - d2 * t1
-            col[1] = d2 * t0 - d0 * t2
-            col[2] = d0 * t1 - d1 * t0
-            col[3] = t0
-            col[4] = t1
-            col[5] = t2
-            wq = m.wq[gi]
-            lengths[i] += wq * nv
-            for c in range(ns):
-                acc = 0.0
-                for r in range(6):
-                    acc += b[r, c] * col[r]
-                jac[i, c] += wq * acc
-    return lengths, jac
+    """Tendon path lengths and ``dl/dq_s = -B_s^T`` (n_a x n_s) of the model
+    (:func:`tdacm.system.kernels.tendon_lengths_and_matrix`, paper eq. (13))."""
+    lengths, b_s = tendon_lengths_and_matrix(qs, m)
+    return lengths, -b_s.T.copy()
 
 
 @njit(cache=True)

@@ -496,12 +496,14 @@ def cholesky_solve(a, b):
 
 
 @njit(cache=True)
-def tendon_matrix(qs, m):
-    """``B_s(q) = int B_q^T B_a ds`` (n_s x n_a), ``B_a = -[d~ t; t]`` (paper eq. (13)); each
-    tendon integrates over the Gauss points where it runs (``m.tendon_on``)."""
+def tendon_lengths_and_matrix(qs, m):
+    """Tendon path lengths ``l_i = int_0^{end_i} |k x d_i + u + d_i'| ds`` and
+    ``B_s(q) = int B_q^T B_a ds = -dl/dq_s`` (n_s x n_a), ``B_a = -[d~ t; t]`` (paper eq. (13)),
+    on the same Gauss points; each tendon integrates where it runs (``m.tendon_on``)."""
     ng = m.bg.shape[0]
     ns = qs.shape[0]
     na = m.tendon_d.shape[1]
+    lengths = np.zeros(na)
     out = np.zeros((ns, na))
     col = np.empty(6)
     xi = np.empty(6)
@@ -531,12 +533,19 @@ def tendon_matrix(qs, m):
             col[4] = -t1
             col[5] = -t2
             wq = m.wq[gi]
+            lengths[i] += wq * nv
             for c in range(nc):
                 acc = 0.0
                 for r in range(6):
                     acc += b[r, c] * col[r]
                 out[c0 + c, i] += wq * acc
-    return out
+    return lengths, out
+
+
+@njit(cache=True)
+def tendon_matrix(qs, m):
+    """``B_s(q)`` (n_s x n_a) of :func:`tendon_lengths_and_matrix`."""
+    return tendon_lengths_and_matrix(qs, m)[1]
 
 
 @njit(cache=True)

@@ -341,10 +341,6 @@ class TDACM:
         self._step_s, self._step_sec = cat["s"], cat["sec"].astype(np.int64)
         self._rod_steps = np.array(rod_steps, dtype=np.int64)
         self.quadrature_points = gcat["s"]
-        # dense basis at the Gauss points (n_g, 6, n_s), for the tendon lengths
-        self._bg_full = np.zeros((gcat["s"].size, 6, self.n_s))
-        for gi, (c, nc) in enumerate(zip(gcat["col"], gcat["nc"], strict=True)):
-            self._bg_full[gi, :, c : c + nc] = gcat["bg"][gi, :, :nc]
         if self.floating:
             mb6 = np.diag(self.base.spatial_inertia).copy()
             gamma = self.base.gamma
@@ -579,11 +575,7 @@ class TDACM:
         """Tendon path lengths ``l_i = int_0^{end_i} |k x d_i + u + d_i'| ds`` on the Gauss
         quadrature (the same discretization as :meth:`tendon_matrix`, so ``B_s = -dl/dq_s``)."""
         q = self._q(q)
-        m = self._m
-        qs = q[self.n - self.n_s :]
-        xi = m.xi0g + np.einsum("gij,j->gi", self._bg_full, qs)
-        v = np.cross(xi[:, None, :3], m.tendon_d) + xi[:, None, 3:] + m.tendon_dd
-        return m.wq @ (m.tendon_on * np.linalg.norm(v, axis=2))
+        return K.tendon_lengths_and_matrix(q[self.n - self.n_s :], self._m)[0]
 
     def forward_dynamics(self, q, qd, u=None) -> np.ndarray:
         """Generalized accelerations for inputs ``u = [4 thrusts, tensions]`` (tensions only for
