@@ -198,14 +198,22 @@ def test_compile_notice_is_one_stderr_line_when_cold(monkeypatch, capsys, tmp_pa
 
 def test_bench_progress_line_on_stderr(monkeypatch, capsys, tmp_path):
     import tdacm.bench as bench
+    import tdacm.loop.bench as loop_bench
 
-    monkeypatch.setattr(bench, "bench_system", lambda name, s, repeats: {
+    monkeypatch.setattr(bench, "bench_system", lambda name, s, repeats, duration=5.0: {
         "system": name, "n": s.n, "terms_us": 1.0, "forward_dynamics_api_us": 1.0,
         "forward_dynamics_kernel_us": 1.0, "rk4_dt_s": 0.01, "real_time_factor": 1.0})  # fmt: skip
+    monkeypatch.setattr(bench, "bench_stiff", lambda name, s, method, **kw: {
+        "system": name, "method": method, "n": s.n, "w_max_rad_s": 1.0, "real_time_factor": 1.0,
+        "tip_error_max_m": 0.0, "check_s": 0.5, "reference": "x", "tip_travel_m": 0.0,
+        "completed": True, "_ref": None})  # fmt: skip
     monkeypatch.setattr(bench, "paper_system", lambda **kw: type("S", (), {"n": 8})())
+    one = {"wall_per_sim_second": 0.1, "real_time_factor": 10.0}
+    monkeypatch.setattr(loop_bench, "time_loop", lambda ov, repeats=5: one)
     assert main(["bench", "--out", str(tmp_path)]) == 0
     cap = capsys.readouterr()
     assert "bench: model 1/2" in cap.err and "bench: model 2/2" in cap.err
+    assert "bench: stiff integrators" in cap.err and "closed loop" in cap.err
     assert "bench:" not in cap.out and "RTF" in cap.out
 
 

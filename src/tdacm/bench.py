@@ -192,6 +192,7 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
     ):
         ref = None
         for method in ("rosenbrock", "radau"):
+            _stage(f"stiff integrators: {sysname}, {method}")
             row = bench_stiff(sysname, s_, method, reference=refname, ref=ref)
             ref = row.pop("_ref")
             stiff.append(row)

@@ -80,13 +80,13 @@ def loop_bench(repeats: int = 5, cold: bool = True, progress=print) -> dict:
     """All closed-loop figures (the ``loop`` section of ``bench.json``)."""
     res = {}
     for name, ov in LOOP_CASES.items():
-        progress(f"[bench] closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
+        progress(f"closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
         res[name] = time_loop(ov, repeats=repeats)
-        progress(f"[bench]   {res[name]['real_time_factor']:.1f}x real time")
+        progress(f"  {res[name]['real_time_factor']:.1f}x real time")
     if cold:
-        progress("[bench] cold first run (empty numba cache)...")
+        progress("cold first run (empty numba cache)...")
         res["cold_start"] = time_cold_start()
-        progress(f"[bench]   {res['cold_start']['cold_wall_s']:.1f} s")
+        progress(f"  {res['cold_start']['cold_wall_s']:.1f} s")
     res["cpu_count"] = os.cpu_count()
     return res
 
