@@ -38,6 +38,10 @@ ROW_FIELDS = (
     "max_tension",
     "max_thrust",
     "local_detection_rate",
+    "final_rmse_true",
+    "final_camera_position_error_m",
+    "final_camera_rotation_error_deg",
+    "final_drone_position_error_m",
 )
 
 

@@ -15,6 +15,8 @@ Q_NAMES = ["phi", "theta", "psi", "x", "y", "z", "q_s1", "q_s2"]
 SCALAR_SERIES = (
     "rmse",
     "rmse_raw",
+    "rmse_measured",
+    "rmse_true",
     "mode",
     "V",
     "detected_local",

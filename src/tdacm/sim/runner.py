@@ -28,6 +28,7 @@ coordinates (C_V for a floating base, C_L for a fixed one).
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,6 +53,7 @@ from ..vision import (
     PAPER_PATTERN,
     LocalCameraServo,
     PlanarRenderer,
+    PredictiveServo,
     SceneConfig,
     TargetDetector,
     camera_joint_rates,
@@ -61,12 +63,37 @@ from ..vision import (
     virtual_camera_transform,
 )
 from ..vision.features import estimate_depths
-from ..vision.virtual import virtual_camera_points
+from ..vision.virtual import virtual_camera_points, virtual_camera_pose
 from .outputs import LOG_KEYS
 from .scenario import Scenario, load_scenario, vec
 from .sensors import Delay, NoisyDetector, SensorModel, perturbed_camera
 
 MODE_CODES = {"ibvs": 0, "recovery": 1}
+
+#: What ``controller.profile = "paper"`` sets (the paper's literal choices, docs/control.md):
+#: gravity lumped into Delta_hat, the approximate compensation p_V = R p_L on the measured
+#: points, the plain law v = -lambda J_img^-1 e (no floor, no command shaping), the bare 5 %
+#: safety rule.
+PAPER_PROFILE = {
+    "model": {"gravity_feedforward": False},
+    "ibvs": {"compensation": "approx", "features": "measured", "floor": 0.0},
+    "safety": {"min_increase": 0.0, "grace": 0.0},
+}
+
+
+def apply_profile(scenario: Scenario) -> Scenario:
+    """The scenario with its ``controller.profile`` applied (unchanged for "default")."""
+    if scenario.data["controller"]["profile"] != "paper":
+        return scenario
+    d = copy.deepcopy(scenario.data)
+    for sec, kv in PAPER_PROFILE.items():
+        d[sec].update(kv)
+    return Scenario(d, scenario.source + " (profile paper)")
+
+
+def _rotation_angle_deg(r) -> float:
+    c = np.clip(0.5 * (np.trace(r) - 1.0), -1.0, 1.0)
+    return float(np.degrees(np.arccos(c)))
 
 
 def normalized_rmse(points, desired) -> float:
@@ -212,7 +239,8 @@ class Simulation:
     def __init__(
         self, scenario: Scenario | str, duration=None, seed=None, video=False, progress=False
     ):
-        self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
+        sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+        self.scenario = apply_profile(sc)
         d = self.scenario.data
         self.duration = float(d["duration"] if duration is None else duration)
         self.seed = int(d["seed"] if seed is None else seed)
@@ -266,6 +294,8 @@ class Simulation:
                 write_scene_picture(Path(out_dir) / "scene.png", setup)
             desired_pts, desired_z = self._desired_view(setup)
             ib = d["ibvs"]
+            paper = d["controller"]["profile"] == "paper"
+            predicted = ib["features"] == "predicted"
             servo = LocalCameraServo(
                 LOCAL_CAMERA,
                 setup.target,
@@ -275,6 +305,23 @@ class Simulation:
                 mode=ib["mode"],
                 compensation=ib["compensation"],
             )
+            servo.controller.floor = ib["floor"]
+            servo.controller.solver = ib["solver"]
+            pservo = None
+            if predicted:
+                pservo = PredictiveServo(
+                    LOCAL_CAMERA,
+                    setup.target,
+                    desired_pts,
+                    desired_z,
+                    gain=ib["gain"],
+                    mode=ib["mode"],
+                    floor=ib["floor"],
+                    solver=ib["solver"],
+                    pixel_sigma=ib["filter_pixel_sigma"],
+                    window=ib["filter_window"],
+                )
+                pservo.detector = servo.detector
             # sensor imperfections (campaigns): their own random stream, seeded by the run seed
             sensors = SensorModel(**d["sensors"])
             sensor_rng = np.random.default_rng([self.seed, 1])
@@ -282,6 +329,10 @@ class Simulation:
                 servo.detector = NoisyDetector(servo.detector, sensors, sensor_rng)
             if sensors.intrinsics_error > 0:
                 servo.camera = perturbed_camera(LOCAL_CAMERA, sensors.intrinsics_error, sensor_rng)
+            if pservo is not None:
+                pservo.detector = servo.detector
+                pservo.camera = servo.camera
+                pservo.filter.camera = servo.camera
             delay = Delay(sensors.latency_steps) if sensors.latency_steps > 0 else None
             ctl = make_controller(setup, self.seed)
             rc = d["recovery"]
@@ -295,6 +346,8 @@ class Simulation:
             safety = SafetyMonitor(**d["safety"])
             dist = d["disturbances"]
             loads0 = s.loads.packed().copy()
+            g_target = setup.scene.target_pose
+            g_cl_star = setup.local_pose(setup.q_star)
 
             q, qd = setup.q0.copy(), setup.qd0.copy()
             q_d = q.copy()
@@ -308,6 +361,9 @@ class Simulation:
             terminated, reason = False, None
             log = {k: [] for k in LOG_KEYS}
             frames = []
+            pose_hist = {}  # capture step -> C_L pose (latency compensation)
+            last_fused = -1
+            last_seen = None  # time of the last fused detection
             wall0 = time.perf_counter()
             steps = range(nsteps + 1)
             if self.progress:
@@ -320,11 +376,46 @@ class Simulation:
                 # ---------------------------------------------------------- cameras
                 img_l = setup.render_local(q)
                 g_cl = setup.local_pose(q)
-                gv = virtual_camera_transform(s.base_pose(q), g_cl) if s.floating else None
-                st = servo.step(img_l, gv)
-                if delay is not None:  # the controller acts on an older image
-                    st = delay(st)
-                pix = st.detection.points if st.found else None
+                g_b = s.base_pose(q)
+                gv = virtual_camera_transform(g_b, g_cl) if s.floating else None
+                g_servo = virtual_camera_pose(g_b, g_cl) if s.floating else g_cl
+                if predicted:
+                    # detection of this frame, delivered `latency_steps` later with its
+                    # capture step; fused with the C_L pose at capture time
+                    pose_hist[k] = g_cl
+                    det_now = servo.detector.detect(img_l)
+                    k_cap, det = delay((k, det_now)) if delay is not None else (k, det_now)
+                    for old in [j for j in pose_hist if j < k_cap]:
+                        del pose_hist[old]
+                    pservo.predict(dt)
+                    fused = False
+                    if det.found and k_cap > last_fused:
+                        last_fused = k_cap
+                        fused = pservo.measure(det, pose_hist[k_cap])
+                        if fused:
+                            last_seen = k_cap * dt
+                    ps = pservo.step(g_servo, g_cl)
+                    pix = det.points if det.found else None
+                    # measured points in the servo camera (for the log only)
+                    st = None
+                    meas_pts = None
+                    if det.found:
+                        try:
+                            xy = servo.camera.normalize(det.points)
+                            z = estimate_depths(xy, setup.target.feature_points)
+                            meas_pts = (
+                                virtual_camera_points(xy, gv, z, "exact") if gv is not None else xy
+                            )
+                        except ValueError:
+                            meas_pts = None
+                    found = ps.valid
+                else:
+                    st = servo.step(img_l, gv)
+                    if delay is not None:  # the controller acts on an older image
+                        st = delay(st)
+                    pix = st.detection.points if st.found else None
+                    meas_pts = st.points if st.found else None
+                    found = st.found and st.twist is not None
                 want_global = (
                     self.video
                     or (glob_every > 0 and k % glob_every == 0)
@@ -338,7 +429,19 @@ class Simulation:
                     frames.append(_side_by_side(img_l, img_g, pix))
                 # ---------------------------------------------------------- mode + reference
                 prev_mode = switch.mode
-                mode = switch.update(pix)
+                if predicted and switch.mode == ModeSwitch.IBVS:
+                    # lost only if nothing was fused for `lost_timeout` s or the predicted
+                    # points leave C_L's image (for `lose` frames)
+                    ok = (
+                        ps.valid
+                        and last_seen is not None
+                        and t - last_seen <= rc["lost_timeout"]
+                        and ps.pixels_local is not None
+                        and bool(np.all(LOCAL_CAMERA.pixels_in_image(ps.pixels_local, 0.0)))
+                    )
+                    mode = switch.update(ps.pixels_local if ok else None)
+                else:
+                    mode = switch.update(pix)
                 if prev_mode == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
                     if switch_time is None:
                         switch_time = t
@@ -348,8 +451,8 @@ class Simulation:
                     # q_d continues from the recovery reference (continuous error)
                 twist = np.zeros(6)
                 qdd_d = np.zeros(n)
-                if mode == ModeSwitch.IBVS and st.found and st.twist is not None:
-                    twist = st.twist
+                if mode == ModeSwitch.IBVS and found:
+                    twist = ps.twist if predicted else st.twist
                     rates = camera_joint_rates(
                         s,
                         q,
@@ -357,26 +460,44 @@ class Simulation:
                         setup.tip_mount,
                         jacobian_at="virtual" if s.floating else "actual",
                     )
-                    lim = np.full(n, ib["max_joint_rate"])
-                    if s.floating:
-                        lim[3:5] = ib["max_drone_speed"]
-                        lim[5] = ib["max_vertical_speed"]
-                    t_ib = t - ibvs_start
-                    ramp = 1.0 - np.exp(-t_ib / ib["soft_start"]) if ib["soft_start"] > 0 else 1.0
-                    scale = max(1.0, float(np.max(np.abs(rates[cmd]) / lim[cmd])))
                     new_qd = np.zeros(n)
-                    new_qd[cmd] = rates[cmd] / scale
-                    # soft start; the first-order smoothing below starts from the recovery's
-                    # last joint rates (smooth hand-over) and keeps the IBVS from exciting the
-                    # coupled roll/strain mode (~2 Hz)
-                    target_qd = ramp * new_qd
-                    a_f = min(1.0, dt / ib["rate_filter"]) if ib["rate_filter"] > 0 else 1.0
-                    qd_d = qd_d + a_f * (target_qd - qd_d)
-                    # qdd_d = 0: IBVS gives rates only (qdd_r = -beta edot)
+                    if paper:  # the plain law: no limits, no ramp, no filter
+                        new_qd[cmd] = rates[cmd]
+                        qd_d = new_qd
+                    else:
+                        lim = np.full(n, ib["max_joint_rate"])
+                        if s.floating:
+                            lim[3:5] = ib["max_drone_speed"]
+                            lim[5] = ib["max_vertical_speed"]
+                        t_ib = t - ibvs_start
+                        ramp = (
+                            1.0 - np.exp(-t_ib / ib["soft_start"]) if ib["soft_start"] > 0 else 1.0
+                        )
+                        scale = max(1.0, float(np.max(np.abs(rates[cmd]) / lim[cmd])))
+                        new_qd[cmd] = rates[cmd] / scale
+                        # soft start; the first-order smoothing below starts from the
+                        # recovery's last joint rates (smooth hand-over) and keeps the IBVS
+                        # from exciting the coupled roll/strain mode (~2 Hz)
+                        target_qd = ramp * new_qd
+                        a_f = min(1.0, dt / ib["rate_filter"]) if ib["rate_filter"] > 0 else 1.0
+                        qd_prev = qd_d
+                        qd_d = qd_d + a_f * (target_qd - qd_d)
+                        if ib["accel_feedforward"]:
+                            # the filtered rate's derivative: the low-level loop follows the
+                            # deceleration instead of lagging into an overshoot
+                            qdd_d = (qd_d - qd_prev) / dt
+                    # paper: qdd_d = 0 (IBVS gives rates only, qdd_r = -beta edot)
                     q_d = q_d + qd_d * dt
+                    if not paper and ib["reference_leak"] > 0:
+                        # q_d is only an integrated rate; the vision loop closes on the
+                        # actual pose, so pull q_d toward q (no wind-up while the plant lags)
+                        q_d[cmd] += ib["reference_leak"] * dt * (q[cmd] - q_d[cmd])
                 elif mode == ModeSwitch.RECOVERY:
                     if traj is None:
-                        if det_g is None or not det_g.corners:
+                        if det_g is None:  # recovery needs a snapshot: render C_G now
+                            img_g = setup.render_global(q)
+                            det_g = TargetDetector(setup.target).detect(img_g)
+                        if not det_g.corners:
                             terminated, reason = True, "recovery: target not seen by C_G"
                             break
                         try:
@@ -401,15 +522,25 @@ class Simulation:
                     qd_d[n - s.n_s :] = qsd_d
                     qdd_d = np.zeros(n)
                     qdd_d[n - s.n_s :] = qsdd_d
-                else:  # IBVS mode but target lost this frame: hold
+                else:  # IBVS mode, measured features, target missed this frame: hold
                     qd_d = np.zeros(n)
                 # ---------------------------------------------------------- low level
                 cs = ctl.step(q, qd, q_d, qd_d, qdd_d, dt)
                 # ---------------------------------------------------------- logging
-                pts_v = st.points if st.found else None
+                if predicted:
+                    pts_v = ps.points if ps.valid else None
+                    feats = ps.features if ps.valid else np.full(6, np.nan)
+                    ferr = ps.error if ps.valid else np.full(6, np.nan)
+                else:
+                    pts_v = meas_pts
+                    feats = st.features if st.found else np.full(6, np.nan)
+                    ferr = st.error if st.found else np.full(6, np.nan)
                 raw = LOCAL_CAMERA.normalize(pix) if pix is not None else None
                 rmse = normalized_rmse(pts_v, desired_pts)
                 rmse_raw = normalized_rmse(raw, desired_pts)
+                true_pts, _ = LocalCameraServo.reference_from_pose(
+                    LOCAL_CAMERA, setup.target, g_target, g_servo
+                )
                 nanp = np.full((4, 2), np.nan)
                 log["t"].append(t)
                 log["q"].append(q.copy())
@@ -419,15 +550,17 @@ class Simulation:
                 log["u"].append(cs.u)
                 log["tau"].append(cs.tau)
                 log["q_ref"].append(cs.q_ref)
-                log["features"].append(st.features if st.found else np.full(6, np.nan))
-                log["feature_error"].append(st.error if st.found else np.full(6, np.nan))
+                log["features"].append(feats)
+                log["feature_error"].append(ferr)
                 log["points_local"].append(raw if raw is not None else nanp)
                 log["points_virtual"].append(pts_v if pts_v is not None else nanp)
                 log["rmse"].append(rmse)
                 log["rmse_raw"].append(rmse_raw)
+                log["rmse_measured"].append(normalized_rmse(meas_pts, desired_pts))
+                log["rmse_true"].append(normalized_rmse(true_pts, desired_pts))
                 log["mode"].append(MODE_CODES[mode])
                 log["V"].append(cs.V)
-                log["detected_local"].append(bool(st.found))
+                log["detected_local"].append(bool(pix is not None))
                 log["detected_global"].append(bool(det_g.found) if det_g is not None else False)
                 log["thrust_saturated"].append(cs.thrust_saturated)
                 log["tension_saturated"].append(cs.tension_saturated)
@@ -451,6 +584,22 @@ class Simulation:
                 if not ok or not np.all(np.isfinite(q)):
                     terminated, reason = True, "plant integration failed (singular mass matrix)"
                     break
+            # figures of merit against the reference (desired) configuration
+            g_cl_end = setup.local_pose(q)
+            dg = np.linalg.solve(g_cl_star, g_cl_end)
+            self._merit = {
+                "final_camera_position_error_m": float(
+                    np.linalg.norm(g_cl_end[:3, 3] - g_cl_star[:3, 3])
+                ),
+                "final_camera_rotation_error_deg": _rotation_angle_deg(dg[:3, :3]),
+                "final_drone_position_error_m": (
+                    float(np.linalg.norm(q[3:6] - setup.q_star[3:6])) if s.floating else None
+                ),
+            }
+            if pservo is not None and pservo.filter.initialized:
+                e = np.linalg.solve(g_target, pservo.filter.pose)
+                self._merit["final_target_estimate_error_m"] = float(np.linalg.norm(e[:3, 3]))
+                self._merit["final_target_estimate_error_deg"] = _rotation_angle_deg(e[:3, :3])
             wall = time.perf_counter() - wall0
         finally:
             setup.close()
@@ -501,7 +650,17 @@ class Simulation:
             "thrust_saturated_steps": int(np.sum(a["thrust_saturated"])),
             "final_q": a["q"][-1].tolist() if a["q"].size else None,
             "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
+            "final_rmse_true": _last_finite(a["rmse_true"]),
+            "final_rmse_measured": _last_finite(a["rmse_measured"]),
+            "profile": self.scenario.data["controller"]["profile"],
+            **getattr(self, "_merit", {}),
         }
+
+
+def _last_finite(x):
+    x = np.asarray(x, float)
+    f = np.isfinite(x)
+    return float(x[f][-1]) if f.any() else None
 
 
 def _side_by_side(img_l, img_g, pix):

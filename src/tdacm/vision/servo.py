@@ -111,3 +111,101 @@ class LocalCameraServo:
         e = self.controller.error(xy)
         v = self.controller.twist(xy, z)
         return ServoStep(det, xy, z, f, e, v)
+
+
+@dataclass(frozen=True)
+class PredictedStep:
+    """One step of :class:`PredictiveServo` (``twist`` is ``None`` before the first frame).
+
+    ``points``/``depths``: the target's feature points predicted in the servo camera (C_V)
+    from the world-frame estimate; ``pixels_local``: the same points predicted in the real
+    camera C_L (pixels), for the field-of-view test of the mode switch."""
+
+    points: np.ndarray | None = None
+    depths: np.ndarray | None = None
+    features: np.ndarray | None = None
+    error: np.ndarray | None = None
+    twist: np.ndarray | None = None
+    pixels_local: np.ndarray | None = None
+
+    @property
+    def valid(self) -> bool:
+        return self.twist is not None
+
+
+class PredictiveServo:
+    """Advanced-feature IBVS on features predicted from a world-frame target estimate.
+
+    The detections of C_L update a :class:`~.target_filter.TargetFilter` (static target,
+    corner pixels as measurements, each associated with the camera pose at its capture
+    time); every control period the four feature points are predicted at the *current*
+    pose of the servo camera (C_V for a flying base, C_L for a held one) and the paper's
+    advanced features, their interaction matrix and the well-conditioned solve
+    (:func:`~.ibvs.robust_solve`, singular-value ``floor``) give the twist.
+    See docs/control.md, "Robust servo".
+
+    Parameters
+    ----------
+    camera, target, desired_points, desired_depths, gain, mode:
+        As :class:`LocalCameraServo`.
+    floor, solver:
+        Singular-value floor of the IBVS solve (:class:`~.ibvs.IBVSController`).
+    pixel_sigma, window:
+        Noise model of the filter (:class:`~.target_filter.TargetFilter`).
+    track:
+        Tracking window of the detector.
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        target: FiducialTarget,
+        desired_points,
+        desired_depths,
+        gain: float = 1.0,
+        mode: str = "mean",
+        floor: float = 0.05,
+        solver: str = "floor",
+        pixel_sigma: float = 1.0,
+        window: int = 250,
+        track: bool = True,
+    ):
+        from .target_filter import TargetFilter
+
+        self.camera = camera
+        self.target = target
+        self.detector = TargetDetector(target, track=track)
+        self.controller = IBVSController(
+            desired_points, desired_depths, gain=gain, mode=mode, floor=floor, solver=solver
+        )
+        self.filter = TargetFilter(
+            camera, target.feature_points, pixel_sigma=pixel_sigma, window=window
+        )
+
+    def measure(self, detection: Detection, camera_pose) -> bool:
+        """Fuse a detection captured with C_L at ``camera_pose`` (4x4, world, at the capture
+        time); False if not found or gated out."""
+        if detection is None or not detection.found:
+            return False
+        return self.filter.update(detection.points, camera_pose)
+
+    def predict(self, dt: float) -> None:
+        self.filter.predict(dt)
+
+    def step(self, servo_pose, camera_pose=None) -> PredictedStep:
+        """Twist of the servo camera at ``servo_pose`` (4x4 world pose of C_V, or of C_L
+        for a held base); ``camera_pose`` (C_L) adds the predicted C_L pixels."""
+        pred = self.filter.points_in(servo_pose)
+        if pred is None:
+            return PredictedStep()
+        xy, z = pred
+        if np.any(z <= 0):
+            return PredictedStep()
+        pix = None
+        if camera_pose is not None:
+            xl, zl = self.filter.points_in(camera_pose)
+            pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
+        f = advanced_features(xy)
+        e = self.controller.error(xy)
+        v = self.controller.twist(xy, z)
+        return PredictedStep(xy, z, f, e, v, pix)
