@@ -17,6 +17,7 @@ SCALAR_SERIES = (
     "rmse_raw",
     "rmse_measured",
     "rmse_true",
+    "target_error_deg",
     "mode",
     "V",
     "detected_local",

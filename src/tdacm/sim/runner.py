@@ -320,6 +320,7 @@ class Simulation:
                     solver=ib["solver"],
                     pixel_sigma=ib["filter_pixel_sigma"],
                     window=ib["filter_window"],
+                    smoothing=ib["filter_smoothing"],
                 )
                 pservo.detector = servo.detector
             # sensor imperfections (campaigns): their own random stream, seeded by the run seed
@@ -387,13 +388,11 @@ class Simulation:
                     k_cap, det = delay((k, det_now)) if delay is not None else (k, det_now)
                     for old in [j for j in pose_hist if j < k_cap]:
                         del pose_hist[old]
-                    pservo.predict(dt)
-                    fused = False
                     if det.found and k_cap > last_fused:
                         last_fused = k_cap
-                        fused = pservo.measure(det, pose_hist[k_cap])
-                        if fused:
+                        if pservo.measure(det, pose_hist[k_cap]):
                             last_seen = k_cap * dt
+                    pservo.predict(dt)
                     ps = pservo.step(g_servo, g_cl)
                     pix = det.points if det.found else None
                     # measured points in the servo camera (for the log only)
@@ -558,6 +557,10 @@ class Simulation:
                 log["rmse_raw"].append(rmse_raw)
                 log["rmse_measured"].append(normalized_rmse(meas_pts, desired_pts))
                 log["rmse_true"].append(normalized_rmse(true_pts, desired_pts))
+                te = np.nan
+                if pservo is not None and pservo.filter.initialized:
+                    te = _rotation_angle_deg(np.linalg.solve(g_target, pservo.filter.pose)[:3, :3])
+                log["target_error_deg"].append(te)
                 log["mode"].append(MODE_CODES[mode])
                 log["V"].append(cs.V)
                 log["detected_local"].append(bool(pix is not None))

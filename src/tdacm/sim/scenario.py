@@ -60,7 +60,7 @@ SCHEMA = {
         "max_vertical_speed": (float, 1.0),  # m/s
         "soft_start": (float, 1.0),
         "rate_filter": (float, 0.15),  # s, time constant of the joint-rate command filter
-        "accel_feedforward": (bool, False),  # qdd_d from the filtered rate command
+        "accel_feedforward": (bool, True),  # qdd_d from the filtered rate command
         "reference_leak": (float, 0.0),  # 1/s, pull of q_d toward q (anti wind-up)
         # robust servo (docs/control.md, "Robust servo")
         "features": (str, "predicted"),  # "predicted" (target filter) | "measured"
@@ -68,6 +68,7 @@ SCHEMA = {
         "solver": (str, "floor"),  # "floor" | "damped"
         "filter_pixel_sigma": (float, 1.0),  # px, corner noise assumed by the target filter
         "filter_window": (int, 250),  # frames fused by the target filter (sliding window)
+        "filter_smoothing": (float, 0.5),  # s, smoothing of the estimate used for prediction
     },
     "recovery": {
         "max_speed": (float, 0.3),
@@ -240,6 +241,8 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: ibvs.floor must be >= 0")
     if d["ibvs"]["filter_pixel_sigma"] <= 0:
         raise ScenarioError(f"{source}: ibvs.filter_pixel_sigma must be positive")
+    if d["ibvs"]["filter_smoothing"] < 0:
+        raise ScenarioError(f"{source}: ibvs.filter_smoothing must be >= 0")
     if d["ibvs"]["filter_window"] < 1:
         raise ScenarioError(f"{source}: ibvs.filter_window must be >= 1")
     if d["recovery"]["lost_timeout"] <= 0:

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .camera import PinholeCamera
 from .detect import Detection, TargetDetector
@@ -152,6 +153,12 @@ class PredictiveServo:
         Singular-value floor of the IBVS solve (:class:`~.ibvs.IBVSController`).
     pixel_sigma, window:
         Noise model of the filter (:class:`~.target_filter.TargetFilter`).
+    smoothing:
+        Time constant (s) of a first-order filter on the target estimate used for the
+        prediction (0: none). The target is static, so this adds no lag to the camera's
+        motion (which enters through the exact camera pose); it only spreads the estimate's
+        corrections - large along the weakly observable directions while few frames are
+        fused - over time, so that they do not kick the TD-ACM.
     track:
         Tracking window of the detector.
     """
@@ -168,6 +175,7 @@ class PredictiveServo:
         solver: str = "floor",
         pixel_sigma: float = 1.0,
         window: int = 250,
+        smoothing: float = 0.3,
         track: bool = True,
     ):
         from .target_filter import TargetFilter
@@ -181,6 +189,10 @@ class PredictiveServo:
         self.filter = TargetFilter(
             camera, target.feature_points, pixel_sigma=pixel_sigma, window=window
         )
+        if not np.isfinite(smoothing) or smoothing < 0:
+            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
+        self.smoothing = float(smoothing)
+        self.target_pose = None  # smoothed estimate used by the prediction
 
     def measure(self, detection: Detection, camera_pose) -> bool:
         """Fuse a detection captured with C_L at ``camera_pose`` (4x4, world, at the capture
@@ -190,20 +202,43 @@ class PredictiveServo:
         return self.filter.update(detection.points, camera_pose)
 
     def predict(self, dt: float) -> None:
+        """Advance the smoothed target pose toward the filter's estimate by one period."""
         self.filter.predict(dt)
+        est = self.filter.pose
+        if est is None:
+            self.target_pose = None
+            return
+        if self.target_pose is None or self.smoothing == 0:
+            self.target_pose = est.copy()
+            return
+        a = min(1.0, dt / self.smoothing)
+        d = np.linalg.solve(self.target_pose, est)  # g_s^-1 g_T
+        rv = Rotation.from_matrix(d[:3, :3]).as_rotvec()
+        step = np.eye(4)
+        step[:3, :3] = Rotation.from_rotvec(a * rv).as_matrix()
+        step[:3, 3] = a * d[:3, 3]
+        self.target_pose = self.target_pose @ step
+
+    def _points_in(self, camera_pose):
+        g = np.linalg.solve(np.asarray(camera_pose, float), self.target_pose)
+        obj = self.filter.object_points
+        r = obj @ g[:3, :3].T + g[:3, 3]
+        return r[:, :2] / r[:, 2:3], r[:, 2].copy()
 
     def step(self, servo_pose, camera_pose=None) -> PredictedStep:
         """Twist of the servo camera at ``servo_pose`` (4x4 world pose of C_V, or of C_L
         for a held base); ``camera_pose`` (C_L) adds the predicted C_L pixels."""
-        pred = self.filter.points_in(servo_pose)
-        if pred is None:
-            return PredictedStep()
+        if self.target_pose is None:
+            if self.filter.pose is None:
+                return PredictedStep()
+            self.target_pose = self.filter.pose.copy()
+        pred = self._points_in(servo_pose)
         xy, z = pred
         if np.any(z <= 0):
             return PredictedStep()
         pix = None
         if camera_pose is not None:
-            xl, zl = self.filter.points_in(camera_pose)
+            xl, zl = self._points_in(camera_pose)
             pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
         f = advanced_features(xy)
         e = self.controller.error(xy)
