@@ -338,7 +338,13 @@ class Simulation:
             ctl = make_controller(setup, self.seed)
             rc = d["recovery"]
             # initial mode from the first local image
-            det0 = servo.detector.detect(setup.render_local(setup.q0))
+            # (up to 3 captures of the first image: one dropped frame must not start a
+            # recovery)
+            img0 = setup.render_local(setup.q0)
+            for _ in range(3):
+                det0 = servo.detector.detect(img0)
+                if det0.found:
+                    break
             switch = ModeSwitch(LOCAL_CAMERA, rc["margin_px"], rc["confirm"], rc["lose"])
             ibvs_start = 0.0
             if det0.found and switch.inside(det0.points):
@@ -365,6 +371,7 @@ class Simulation:
             pose_hist = {}  # capture step -> C_L pose (latency compensation)
             last_fused = -1
             last_seen = None  # time of the last fused detection
+            cg_missed = None  # since when recovery waits for a C_G snapshot
             wall0 = time.perf_counter()
             steps = range(nsteps + 1)
             if self.progress:
@@ -497,30 +504,38 @@ class Simulation:
                             img_g = setup.render_global(q)
                             det_g = TargetDetector(setup.target).detect(img_g)
                         if not det_g.corners:
-                            terminated, reason = True, "recovery: target not seen by C_G"
-                            break
-                        try:
-                            plan, traj, g_t = self._plan(setup, q, t, det_g)
-                        except ValueError as exc:
-                            terminated, reason = True, f"recovery planning failed: {exc}"
-                            break
-                        plan_info = {
-                            "t": t,
-                            "q_s_d": plan.q_s.tolist(),
-                            "point_local": plan.point_local.tolist(),
-                            "cost": plan.cost,
-                            "success": plan.success,
-                            "duration": traj.duration,
-                        }
-                        q_d = q.copy()
-                        if s.floating:
-                            q_d[:2] = 0.0
-                    qs_d, qsd_d, qsdd_d = traj(t)
-                    q_d[n - s.n_s :] = qs_d
-                    qd_d = np.zeros(n)
-                    qd_d[n - s.n_s :] = qsd_d
-                    qdd_d = np.zeros(n)
-                    qdd_d[n - s.n_s :] = qsdd_d
+                            # hold and retry (C_L may see it again, C_G on the next frame)
+                            # until the loss is confirmed for `lost_timeout` s
+                            cg_missed = t if cg_missed is None else cg_missed
+                            if paper or t - cg_missed >= rc["lost_timeout"]:
+                                terminated, reason = True, "recovery: target not seen by C_G"
+                                break
+                            qd_d = np.zeros(n)
+                        else:
+                            cg_missed = None
+                            try:
+                                plan, traj, g_t = self._plan(setup, q, t, det_g)
+                            except ValueError as exc:
+                                terminated, reason = True, f"recovery planning failed: {exc}"
+                                break
+                            plan_info = {
+                                "t": t,
+                                "q_s_d": plan.q_s.tolist(),
+                                "point_local": plan.point_local.tolist(),
+                                "cost": plan.cost,
+                                "success": plan.success,
+                                "duration": traj.duration,
+                            }
+                            q_d = q.copy()
+                            if s.floating:
+                                q_d[:2] = 0.0
+                    if traj is not None:
+                        qs_d, qsd_d, qsdd_d = traj(t)
+                        q_d[n - s.n_s :] = qs_d
+                        qd_d = np.zeros(n)
+                        qd_d[n - s.n_s :] = qsd_d
+                        qdd_d = np.zeros(n)
+                        qdd_d[n - s.n_s :] = qsdd_d
                 else:  # IBVS mode, measured features, target missed this frame: hold
                     qd_d = np.zeros(n)
                 # ---------------------------------------------------------- low level

@@ -61,7 +61,7 @@ SCHEMA = {
         "soft_start": (float, 1.0),
         "rate_filter": (float, 0.15),  # s, time constant of the joint-rate command filter
         "accel_feedforward": (bool, True),  # qdd_d from the filtered rate command
-        "reference_leak": (float, 0.0),  # 1/s, pull of q_d toward q (anti wind-up)
+        "reference_leak": (float, 4.0),  # 1/s, pull of q_d toward q (anti wind-up)
         # robust servo (docs/control.md, "Robust servo")
         "features": (str, "predicted"),  # "predicted" (target filter) | "measured"
         "floor": (float, 0.05),  # singular-value floor of the J_img solve (0: plain inverse)

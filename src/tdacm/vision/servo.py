@@ -205,8 +205,7 @@ class PredictiveServo:
         """Advance the smoothed target pose toward the filter's estimate by one period."""
         self.filter.predict(dt)
         est = self.filter.pose
-        if est is None:
-            self.target_pose = None
+        if est is None:  # not seen yet, or the filter restarted: keep the last estimate
             return
         if self.target_pose is None or self.smoothing == 0:
             self.target_pose = est.copy()
