@@ -42,6 +42,8 @@ ROW_FIELDS = (
     "final_camera_position_error_m",
     "final_camera_rotation_error_deg",
     "final_drone_position_error_m",
+    "final_target_estimate_error_deg",
+    "final_target_estimate_sigma_deg",
 )
 
 

@@ -618,6 +618,10 @@ class Simulation:
                 e = np.linalg.solve(g_target, pservo.filter.pose)
                 self._merit["final_target_estimate_error_m"] = float(np.linalg.norm(e[:3, 3]))
                 self._merit["final_target_estimate_error_deg"] = _rotation_angle_deg(e[:3, :3])
+                # the filter's own 1-sigma of the worst rotation direction (its covariance)
+                self._merit["final_target_estimate_sigma_deg"] = float(
+                    np.degrees(np.sqrt(np.linalg.eigvalsh(pservo.filter.P[:3, :3]).max()))
+                )
             wall = time.perf_counter() - wall0
         finally:
             setup.close()
