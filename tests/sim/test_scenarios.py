@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tdacm.cli import main as cli_main
+from tdacm.loop import build_scene
 from tdacm.sim import (
     SafetyMonitor,
     ScenarioError,
@@ -14,10 +15,16 @@ from tdacm.sim import (
     load_scenario,
     parse_scenario,
 )
-from tdacm.sim.runner import build
-from tdacm.vision import GLOBAL_CAMERA, LOCAL_CAMERA, world_to_camera
+from tdacm.vision import camera_pose, world_to_camera
 
-NAMES = ["flight-test-c", "ground-test-a", "ground-test-b", "paper-in-fov", "paper-out-of-fov"]
+NAMES = [
+    "custom-robot-example",
+    "flight-test-c",
+    "ground-test-a",
+    "ground-test-b",
+    "paper-in-fov",
+    "paper-out-of-fov",
+]
 
 
 def test_shipped_scenarios_load():
@@ -31,21 +38,19 @@ def test_shipped_scenarios_load():
 def test_scenario_geometry_matches_expectations(name):
     """The documented visibility conditions hold at the initial configuration."""
     sc = load_scenario(name)
-    st = build(sc, need_global=False)
-    try:
-        pts = st.scene.target_points_world()
-        exp = sc["expect"]
-        if exp["initial_in_local_fov"] is not None:
-            pc = world_to_camera(pts, st.local_pose(st.q0))
-            assert LOCAL_CAMERA.all_in_fov(pc) == exp["initial_in_local_fov"]
-        if exp["initial_in_global_fov"] is not None:
-            pg = world_to_camera(pts, st.global_pose(st.q0))
-            assert GLOBAL_CAMERA.all_in_fov(pg) == exp["initial_in_global_fov"]
-        # the desired view always sees the target
-        pd = world_to_camera(pts, st.local_pose(st.q_star))
-        assert LOCAL_CAMERA.all_in_fov(pd, 20)
-    finally:
-        st.close()
+    w = build_scene(sc)
+    r, s = w.robot, w.robot.system
+    pts = w.scene.target_points_world()
+    exp = sc["expect"]
+    if exp["initial_in_local_fov"] is not None:
+        pc = world_to_camera(pts, camera_pose(s.tip_pose(w.q0), r.tip_mount))
+        assert r.local_camera.all_in_fov(pc) == exp["initial_in_local_fov"]
+    if exp["initial_in_global_fov"] is not None:
+        pg = world_to_camera(pts, camera_pose(s.base_pose(w.q0), r.drone_mount))
+        assert r.global_camera.all_in_fov(pg) == exp["initial_in_global_fov"]
+    # the desired view always sees the target
+    pd = world_to_camera(pts, camera_pose(s.tip_pose(w.q_star), r.tip_mount))
+    assert r.local_camera.all_in_fov(pd, 20)
 
 
 def test_paper_in_fov_values():

@@ -5,10 +5,11 @@
   ``[0, max_thrust]`` (:func:`allocate_thrusts`).
 * Tendons: ``B_s(q) T = tau_s`` with ``0 <= T <= T_max`` (tendons only pull). With two
   antagonistic pairs the common mode of each pair is free; it is set to the pretension
-  ``T_pre`` when possible. Solved as a bounded least-squares problem
-  (``scipy.optimize.lsq_linear``) on ``[B_s; w I] T = [tau_s; w T_pre]`` with a small ``w``;
-  the result never has a negative tension, and :class:`TendonAllocation` reports whether a
-  bound was active and the generalized force could not be produced exactly.
+  ``T_pre`` when possible. Solved as a bounded least-squares problem on
+  ``[B_s; w I] T = [tau_s; w T_pre]`` with a small ``w`` (a strictly convex box-constrained QP,
+  solved exactly by a primal active-set method in numba, :func:`box_least_squares`; any
+  number of tendons); the result never has a negative tension, and :class:`TendonAllocation`
+  reports whether a bound was active and the generalized force could not be produced exactly.
 """
 
 from __future__ import annotations
@@ -16,7 +17,60 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import lsq_linear
+from numba import njit
+
+
+@njit(cache=True)
+def box_least_squares(a, b, lo, hi, max_iter=100):
+    """``argmin |a x - b|^2`` subject to ``lo <= x <= hi``, for ``a`` of full column rank
+    (a strictly convex QP with Hessian ``H = a^T a``): the primal active-set method (Nocedal and
+    Wright, Algorithm 16.3) with bound constraints, from the feasible start ``clip(0)``. Exact
+    in a finite number of steps (each step adds a blocking bound or drops the bound with the
+    most negative multiplier)."""
+    n = a.shape[1]
+    h = a.T @ a
+    c = a.T @ b
+    x = np.minimum(np.maximum(np.zeros(n), lo), hi)
+    # state: 0 free, -1 at lo, +1 at hi
+    w = np.zeros(n, np.int64)
+    for i in range(n):
+        if x[i] <= lo:
+            w[i] = -1
+        elif x[i] >= hi:
+            w[i] = 1
+    for _ in range(max_iter):
+        free = np.flatnonzero(w == 0)
+        xn = x.copy()
+        if free.size:
+            rhs = c[free] - h[free][:, w != 0] @ x[w != 0]
+            xn[free] = np.linalg.solve(h[free][:, free], rhs)
+        d = xn - x
+        if np.max(np.abs(d)) <= 1e-14 * (1.0 + np.max(np.abs(x))):
+            g = h @ x - c  # multipliers of the active bounds: g_i >= 0 at lo, <= 0 at hi
+            worst, k = 0.0, -1
+            for i in range(n):
+                m = g[i] if w[i] == -1 else (-g[i] if w[i] == 1 else 0.0)
+                if m < worst:
+                    worst, k = m, i
+            if k < 0:
+                return x
+            w[k] = 0
+            continue
+        alpha, block = 1.0, -1
+        for i in free:
+            if d[i] < 0.0 and x[i] + d[i] < lo:
+                r = (lo - x[i]) / d[i]
+                if r < alpha:
+                    alpha, block = r, i
+            elif d[i] > 0.0 and x[i] + d[i] > hi:
+                r = (hi - x[i]) / d[i]
+                if r < alpha:
+                    alpha, block = r, i
+        x = x + alpha * d
+        if block >= 0:
+            w[block] = -1 if d[block] < 0.0 else 1
+            x[block] = lo if d[block] < 0.0 else hi
+    return x
 
 
 @dataclass(frozen=True)
@@ -46,8 +100,7 @@ def allocate_tensions(
     w = weight * max(float(np.linalg.norm(b, axis=0).max()), 1e-12)
     a = np.vstack((b, w * np.eye(na)))
     rhs = np.concatenate((tau, np.full(na, w * pretension)))
-    res = lsq_linear(a, rhs, bounds=(0.0, max_tension), method="bvls")
-    t = np.clip(res.x, 0.0, max_tension)
+    t = np.clip(box_least_squares(a, rhs, 0.0, max_tension), 0.0, max_tension)
     resid = float(np.linalg.norm(b @ t - tau))
     at_max = bool(np.any(t >= max_tension - 1e-9))
     at_zero = bool(np.any(t <= 1e-9))

@@ -141,6 +141,19 @@ class TDACMController:
         self._att = None  # filtered roll/pitch command
         self._att_rate = np.zeros(2)
 
+    @classmethod
+    def from_options(cls, system, model, q_star, options: dict) -> TDACMController:
+        """The scenario's controller: gains for the desired configuration ``q_star``
+        (:func:`default_gains`) and the ``[controller]`` options (``pretension``,
+        ``max_tilt``, ``attitude_filter``, ``max_tilt_rate``; missing ones take the defaults)."""
+        keys = ("pretension", "max_tilt", "attitude_filter", "max_tilt_rate")
+        return cls(
+            system,
+            model,
+            default_gains(system, q_star),
+            **{k: options[k] for k in keys if k in options},
+        )
+
     def reset(self, q=None):
         self.law.reset()
         self._att = None if q is None else np.asarray(q, float)[:2].copy()

@@ -1,25 +1,27 @@
 """Gymnasium environment of the TD-ACM servoing task (registered as ``tdacm/TipServo-v0``).
 
-Each step is one control period of a scenario (paper: 20 ms): the local camera C_L is rendered
-and the target detected, then the action is applied, then the plant (true coupled model) is
-integrated with RK4.
+The env drives the same :class:`tdacm.loop.ClosedLoop` as ``tdacm run`` and the campaigns, so
+every scenario option applies: the robot, the sensor imperfections, the disturbances, the
+command shaping, the estimator. Each step is one control period (paper: 20 ms): the action is
+applied through the loop's blocks, the plant advances, and the new C_L view is observed.
 
 Actions (``action_type``):
 
 * ``"twist"`` (default): the virtual-camera twist ``[w; v]`` (angular first, in C_V, or in C_L
-  for a fixed base), scaled by ``max_angular``/``max_linear`` from ``[-1, 1]^6``.  It goes
-  through the same chain as the paper's IBVS: ``qdot_d = pinv(J_L^L) Ad v`` over the commanded
-  coordinates (no roll/pitch), integrated to ``q_d``, and the adaptive low-level controller
-  (estimated model, thrust allocation, non-negative tensions) tracks it.
+  for a fixed base), scaled by ``max_angular``/``max_linear`` from ``[-1, 1]^6``; it replaces
+  the IBVS twist, then goes through the servo's mapping ``qdot_d = pinv(J_L^L) Ad v`` and its
+  command shaping, and the scenario's low-level controller tracks the result.
 * ``"actuators"``: raw inputs in ``[0, 1]`` scaled to ``[0, max_thrust]`` per motor and
   ``[0, max_tension]`` per tendon (fixed base: tensions only); no controller.
 
 Observation (float32): the advanced-feature error ``p* - p*_d`` (6), the normalized image
-points (8, zeros when not detected), a detection flag (1), then proprioception ``q`` and
-``qdot`` (2 n).  Reward: ``-RMSE`` of the normalized points (``-lost_penalty`` when the target
-is not detected), plus ``success_bonus`` when the RMSE falls below ``success_rmse``, which ends
-the episode.  The episode also ends when the target stays lost for ``max_lost`` steps or the
-state leaves a sane envelope; it is truncated after ``max_steps``.
+points in C_V (8, zeros when not detected), a detection flag (1), then the state estimate
+``q_hat``, ``qdot_hat`` (2 n; the true state when ``estimation.source = "true"``). Reward:
+``-RMSE`` of the normalized points (``-lost_penalty`` when the target is not detected), plus
+``success_bonus`` when the RMSE falls below ``success_rmse``, which ends the episode. The episode
+also ends when the target stays lost for ``max_lost`` steps, when the loop terminates (plant
+failure; the safety monitor too if ``safety=True``) or the state leaves a sane envelope; it is
+truncated after ``max_steps``.
 """
 
 from __future__ import annotations
@@ -27,8 +29,6 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-
-from ..system.kernels import rk4_run
 
 
 class TipServoEnv(gym.Env):
@@ -46,9 +46,10 @@ class TipServoEnv(gym.Env):
         max_lost: int = 10,
         max_angular: float = 0.5,
         max_linear: float = 0.5,
+        overrides: dict | None = None,
+        safety: bool = False,
         render_mode: str | None = None,
     ):
-        from ..sim.runner import Simulation, build
         from ..sim.scenario import load_scenario
 
         if action_type not in ("twist", "actuators"):
@@ -57,9 +58,12 @@ class TipServoEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps!r}")
-        self.scenario = load_scenario(scenario)
-        self.setup = build(self.scenario, need_global=False)
-        self._sim = Simulation(self.scenario)
+        sc = load_scenario(scenario)
+        if overrides:
+            sc = sc.with_overrides(overrides, "env overrides")
+        if not safety:
+            sc = sc.with_overrides({"safety": {"enabled": False}}, "env")
+        self.scenario = sc
         self.action_type = action_type
         self.max_steps = int(max_steps)
         self.init_noise = float(init_noise)
@@ -69,90 +73,81 @@ class TipServoEnv(gym.Env):
         self.max_lost = int(max_lost)
         self.scale = np.array([max_angular] * 3 + [max_linear] * 3)
         self.render_mode = render_mode
-        s = self.setup.system
+        self.loop = None
+        self._build(int(sc["seed"]))
+        s = self.loop.plant.system
         self.n = s.n
-        d = self.scenario.data
-        self.dt, self.substeps = d["dt"], d["substeps"]
-        self.desired_points, self.desired_depths = self._sim._desired_view(self.setup)
         if action_type == "twist":
             self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
         else:
             self.action_space = spaces.Box(0.0, 1.0, shape=(s.n_u,), dtype=np.float32)
+            self._top = np.r_[
+                np.full(4, s.base.max_thrust) if s.floating else [],
+                np.full(s.n_a, s.tendons.max_tension),
+            ]
         # finite bounds (observations are clipped to them): feature errors, normalized points,
         # detection flag, q (angles, positions, strains), qdot
         high = np.concatenate(
-            [
-                np.full(6, 10.0),
-                np.full(8, 5.0),
-                [1.0],
-                np.full(self.n, 100.0),
-                np.full(self.n, 1000.0),
-            ]
-        )
+            [np.full(6, 10.0), np.full(8, 5.0), [1.0], np.full(self.n, 100.0),
+             np.full(self.n, 1000.0)]
+        )  # fmt: skip
         low = -high
         low[14] = 0.0
         self.observation_space = spaces.Box(
             low.astype(np.float32), high.astype(np.float32), dtype=np.float32
         )
-        self._image = None
+
+    def _build(self, seed: int) -> None:
+        from ..loop import build_loop
+
+        if self.loop is not None:
+            self.loop.close()
+        self.loop = build_loop(self.scenario, seed, video=self.render_mode == "rgb_array")
+        self._seed = seed
+
+    @property
+    def desired_points(self) -> np.ndarray:
+        """The reference snapshot (normalized points in C_V)."""
+        return self.loop.servo.desired_points
+
+    @property
+    def desired_depths(self) -> np.ndarray:
+        return self.loop.servo.desired_depths
 
     # ------------------------------------------------------------------ helpers
     def _observe(self):
-        from ..sim.runner import normalized_rmse
-        from ..vision import virtual_camera_transform
-
-        s, setup = self.setup.system, self.setup
-        self._image = setup.render_local(self.q)
-        gv = (
-            virtual_camera_transform(s.base_pose(self.q), setup.local_pose(self.q))
-            if s.floating
-            else None
-        )
-        st = self.servo.step(self._image, gv)
+        sensed = self.loop.sense()
+        self._sensed = sensed
+        view, est = sensed.view, sensed.estimate
         obs = np.zeros(self.observation_space.shape, dtype=np.float32)
-        if st.found:
-            obs[:6] = st.error
-            obs[6:14] = np.asarray(st.points).ravel()
+        rmse = float("nan")
+        if view.found:
+            points, _, _, error, rmse = self.loop.servo.observe(view, est.q)
+            obs[:6] = error
+            obs[6:14] = np.asarray(points).ravel()
             obs[14] = 1.0
-        obs[15 : 15 + self.n] = self.q
-        obs[15 + self.n :] = self.qd
-        rmse = normalized_rmse(st.points, self.desired_points) if st.found else float("nan")
+        obs[15 : 15 + self.n] = est.q
+        obs[15 + self.n :] = est.qd
         np.clip(obs, self.observation_space.low, self.observation_space.high, out=obs)
-        return obs, st, rmse
+        return obs, view, rmse
 
     def reset(self, *, seed=None, options=None):
-        from ..sim.runner import make_controller
-        from ..vision import LOCAL_CAMERA, LocalCameraServo
-
         super().reset(seed=seed)
-        d = self.scenario.data
-        s, setup = self.setup.system, self.setup
-        self.q = setup.q0 + self.np_random.normal(0.0, self.init_noise, size=self.n)
-        if s.floating:
-            self.q[:2] = setup.q0[:2]  # roll/pitch are not free: start level as the scenario
-        self.qd = setup.qd0.copy()
-        self.q_d = self.q.copy()
-        if s.floating:
-            self.q_d[:2] = 0.0
-        self.ctl = make_controller(setup, int(self.np_random.integers(2**31)))
-        ib = d["ibvs"]
-        self.servo = LocalCameraServo(
-            LOCAL_CAMERA,
-            setup.target,
-            self.desired_points,
-            self.desired_depths,
-            gain=ib["gain"],
-            mode=ib["mode"],
-        )
+        if seed is not None:  # a new model perturbation and sensor-noise stream
+            self._build(int(self.np_random.integers(2**31)))
+        loop = self.loop
+        w = loop.world
+        q = w.q0 + self.np_random.normal(0.0, self.init_noise, size=self.n)
+        if loop.plant.system.floating:
+            q[:2] = w.q0[:2]  # roll/pitch are not free: start level as the scenario
+        loop.plant.reset(q, w.qd0)
+        loop.reset()
         self.steps = 0
         self.lost = 0
-        obs, st, rmse = self._observe()
-        return obs, {"rmse": rmse, "detected": bool(st.found)}
+        obs, view, rmse = self._observe()
+        return obs, {"rmse": rmse, "detected": bool(view.found)}
 
     def step(self, action):
-        from ..vision import camera_joint_rates
-
-        s, setup = self.setup.system, self.setup
         a = np.asarray(action, dtype=float)
         if a.shape != self.action_space.shape or not np.all(np.isfinite(a)):
             raise ValueError(
@@ -160,58 +155,38 @@ class TipServoEnv(gym.Env):
             )
         a = np.clip(a, self.action_space.low, self.action_space.high)
         if self.action_type == "twist":
-            twist = a * self.scale
-            rates = camera_joint_rates(
-                s, self.q, twist, setup.tip_mount, jacobian_at="virtual" if s.floating else "actual"
-            )
-            qd_d = np.zeros(self.n)
-            cmd = [i for i in range(self.n) if not (s.floating and i < 2)]
-            qd_d[cmd] = rates[cmd]
-            self.q_d = self.q_d + qd_d * self.dt
-            u = self.ctl.step(self.q, self.qd, self.q_d, qd_d, np.zeros(self.n), self.dt).u
+            st = self.loop.act(self._sensed, twist=a * self.scale)
         else:
-            top = np.r_[
-                np.full(4, s.base.max_thrust) if s.floating else [],
-                np.full(s.n_a, s.tendons.max_tension),
-            ]
-            u = a * top
-        qs, qds, ok = rk4_run(
-            self.q,
-            self.qd,
-            np.asarray(u, float),
-            self.dt / self.substeps,
-            self.substeps,
-            self.substeps,
-            s.model_arrays,
-            s.loads.packed(),
-        )
+            st = self.loop.act(self._sensed, u=a * self._top)
         self.steps += 1
-        self.q, self.qd = qs[-1].copy(), qds[-1].copy()
-        diverged = (
-            (not ok)
-            or not np.all(np.isfinite(self.q))
-            or (s.floating and np.max(np.abs(self.q[:2])) > 1.2)
+        q = self.loop.plant.state.q
+        diverged = bool(
+            (st.done and st.reason is not None)
+            or not np.all(np.isfinite(q))
+            or (self.loop.plant.system.floating and np.max(np.abs(q[:2])) > 1.2)
         )
-        obs, st, rmse = self._observe()
-        self.lost = 0 if st.found else self.lost + 1
-        success = bool(st.found and rmse <= self.success_rmse)
-        reward = -rmse if st.found else -self.lost_penalty
+        obs, view, rmse = self._observe()
+        self.lost = 0 if view.found else self.lost + 1
+        success = bool(view.found and rmse <= self.success_rmse)
+        reward = -rmse if view.found else -self.lost_penalty
         if success:
             reward += self.success_bonus
         terminated = success or diverged or self.lost >= self.max_lost
         truncated = (not terminated) and self.steps >= self.max_steps
         info = {
             "rmse": rmse,
-            "detected": bool(st.found),
+            "detected": bool(view.found),
             "success": success,
-            "diverged": bool(diverged),
+            "diverged": diverged,
+            "reason": st.reason,
         }
         return obs, float(reward), bool(terminated), bool(truncated), info
 
     def render(self):
         if self.render_mode == "rgb_array":
-            return self._image
+            return self._sensed.readings.local.image
         return None
 
     def close(self):
-        self.setup.close()
+        if self.loop is not None:
+            self.loop.close()

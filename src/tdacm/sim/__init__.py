@@ -1,6 +1,6 @@
 """Closed-loop simulation of the TD-ACM scenarios (see ``docs/control.md``)."""
 
-from .runner import SafetyMonitor, Simulation, build, normalized_rmse, run_scenario
+from .runner import SafetyMonitor, Simulation, normalized_rmse, run_scenario
 from .scenario import (
     Scenario,
     ScenarioError,
@@ -14,7 +14,6 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "Simulation",
-    "build",
     "list_scenarios",
     "load_scenario",
     "normalized_rmse",

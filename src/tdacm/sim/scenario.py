@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .robot import ROBOT_SCHEMA, RobotError, strain_count
+
 
 class ScenarioError(ValueError):
     """Invalid scenario data."""
@@ -39,6 +41,7 @@ SCHEMA = {
         "base": (str, "floating"),  # "floating" | "fixed"
         "held_base_q": ("vec:6", [0.0, 0.0, 0.0, 0.0, 0.0, 3.0]),  # drone pose for "fixed"
     },
+    "robot": ROBOT_SCHEMA,  # nested subsections: see tdacm.sim.robot
     "initial": {"q": ("vec", None), "qd": ("vec", None)},
     "desired": {"q": ("vec", None)},
     "model": {"perturbation": (float, 0.1), "gravity_feedforward": (bool, True)},
@@ -46,6 +49,7 @@ SCHEMA = {
         # "default": the robust servo (target filter, predicted features, floored solve,
         # shaping); "paper": the paper's literal choices (docs/control.md, "Profiles")
         "profile": (str, "default"),
+        "class": (str, ""),  # "package.module:ClassName" of a user controller ("": adaptive)
         "pretension": (float, 0.5),
         "max_tilt": (float, 0.35),
         "attitude_filter": (float, 0.1),
@@ -85,10 +89,8 @@ SCHEMA = {
         "box_xy": ("vec:2", [0.0, 0.0]),
         "target_yaw_deg": (float, 0.0),
     },
-    "cameras": {
-        "tip_offset": (float, 0.0),
-        "drone_camera_position": ("vec:3", [0.10, 0.0, -0.06]),
-        "drone_camera_tilt_deg": (float, 10.0),
+    "cameras": {  # the cameras' intrinsics and mounts are in [robot.cameras.*]
+        "local_renderer": (str, "planar"),  # "planar" (image + detector) | "analytic"
         "global_every": (int, 1),
         "global_renderer": (str, "pybullet"),  # "pybullet" | "planar"
         "global_backend": (str, "auto"),  # PyBullet: "auto" (EGL if available), "egl", "tiny"
@@ -135,6 +137,13 @@ def _check(where: str, typ, value):
         if not isinstance(value, str):
             raise ScenarioError(f"{where} must be a string, got {value!r}")
         return value
+    if typ == "points":  # a list of equal-length lists of numbers
+        if not isinstance(value, list) or not value or not all(isinstance(r, list) for r in value):
+            raise ScenarioError(f"{where} must be a list of [y, z] lists, got {value!r}")
+        rows = [_check(f"{where}[{i}]", "vec", r) for i, r in enumerate(value)]
+        if len({len(r) for r in rows}) != 1:
+            raise ScenarioError(f"{where}: every entry must have the same length")
+        return rows
     # vectors
     if not isinstance(value, list) or not all(
         isinstance(v, _NUM) and not isinstance(v, bool) and math.isfinite(v) for v in value
@@ -145,15 +154,33 @@ def _check(where: str, typ, value):
     return [float(v) for v in value]
 
 
+def _is_leaf(entry) -> bool:
+    return isinstance(entry, tuple)
+
+
+def _section_defaults(schema: dict) -> dict:
+    return {
+        k: copy.deepcopy(v[1]) if _is_leaf(v) else _section_defaults(v) for k, v in schema.items()
+    }
+
+
 def _defaults() -> dict:
-    out = {}
-    for sec, keys in SCHEMA.items():
-        d = {k: copy.deepcopy(v[1]) for k, v in keys.items()}
-        if sec == "":
-            out.update(d)
-        else:
-            out[sec] = d
+    out = _section_defaults({k: v for k, v in SCHEMA.items() if k})
+    out.update(_section_defaults(SCHEMA[""]))
     return out
+
+
+def _merge_section(out: dict, schema: dict, data: dict, where: str, source: str) -> None:
+    for k, v in data.items():
+        if k not in schema:
+            raise ScenarioError(f"{source}: unknown key {where}.{k} (known: {', '.join(schema)})")
+        entry = schema[k]
+        if _is_leaf(entry):
+            out[k] = _check(f"{source}: {where}.{k}", entry[0], v)
+        elif not isinstance(v, dict):
+            raise ScenarioError(f"{source}: {where}.{k} must be a section [{where}.{k}]")
+        else:
+            _merge_section(out[k], entry, v, f"{where}.{k}", source)
 
 
 def _merge(base: dict, data: dict, source: str) -> dict:
@@ -165,12 +192,7 @@ def _merge(base: dict, data: dict, source: str) -> dict:
                     f"{source}: unknown section [{key}] "
                     f"(known: {', '.join(k for k in SCHEMA if k)})"
                 )
-            for k, v in value.items():
-                if k not in SCHEMA[key]:
-                    raise ScenarioError(
-                        f"{source}: unknown key {key}.{k} (known: {', '.join(SCHEMA[key])})"
-                    )
-                out[key][k] = _check(f"{source}: {key}.{k}", SCHEMA[key][k][0], v)
+            _merge_section(out[key], SCHEMA[key], value, key, source)
         else:
             if key not in SCHEMA[""]:
                 raise ScenarioError(
@@ -214,7 +236,16 @@ def validate(d: dict, source: str) -> Scenario:
     base = d["system"]["base"]
     if base not in ("floating", "fixed"):
         raise ScenarioError(f"{source}: system.base must be 'floating' or 'fixed', got {base!r}")
-    n = 8 if base == "floating" else 2
+    if d["robot"]["base"]["pose_q"] is not None:  # [robot.base] is a clamp at that pose
+        d["system"]["base"] = base = "fixed"
+    try:
+        n_s = strain_count(d["robot"])
+    except RobotError as exc:
+        raise ScenarioError(f"{source}: {exc}") from None
+    n = n_s + (6 if base == "floating" else 0)
+    names = (["phi", "theta", "psi", "x", "y", "z"] if base == "floating" else []) + [
+        f"q_s{i + 1}" for i in range(n_s)
+    ]
     for sec in ("initial", "desired"):
         q = d[sec]["q"]
         if q is None:
@@ -222,7 +253,7 @@ def validate(d: dict, source: str) -> Scenario:
         if len(q) != n:
             raise ScenarioError(
                 f"{source}: {sec}.q must have {n} entries for a {base} base "
-                f"(q = {'[phi, theta, psi, x, y, z, q_s1, q_s2]' if n == 8 else '[q_s1, q_s2]'}), got {len(q)}"
+                f"(q = [{', '.join(names)}]), got {len(q)}"
             )
     qd = d["initial"]["qd"]
     if qd is not None and len(qd) != n:
@@ -251,6 +282,8 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: ibvs.compensation must be exact, rotation or approx")
     if d["cameras"]["global_backend"] not in ("auto", "egl", "tiny"):
         raise ScenarioError(f"{source}: cameras.global_backend must be auto, egl or tiny")
+    if d["cameras"]["local_renderer"] not in ("planar", "analytic"):
+        raise ScenarioError(f"{source}: cameras.local_renderer must be planar or analytic")
     if d["cameras"]["global_renderer"] not in ("pybullet", "planar"):
         raise ScenarioError(f"{source}: cameras.global_renderer must be pybullet or planar")
     for sec, key in (("model", "perturbation"), ("sensors", "dropout")):

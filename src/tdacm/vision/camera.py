@@ -225,10 +225,14 @@ class PinholeCamera:
 
 def world_to_camera(points_world, camera_pose) -> np.ndarray:
     """Camera-frame coordinates ``(N, 3)`` of world points for the camera pose ``T_wc``."""
-    p = C.points("points_world", points_world, 3)
-    g = C.transform("camera_pose", camera_pose)
-    r, t = g[:3, :3], g[:3, 3]
-    return (p - t) @ r
+    return points_in_camera(
+        C.points("points_world", points_world, 3), C.transform("camera_pose", camera_pose)
+    )
+
+
+def points_in_camera(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """:func:`world_to_camera` on checked inputs (``(N, 3)`` points, a rigid ``T_wc``)."""
+    return (p - g[:3, 3]) @ g[:3, :3]
 
 
 #: Paper Table II, local tip camera C_L (1024 x 1024, FoV 60 deg, f = 886.8 px).

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 
 from .targets import OPENCV_TO_PAPER, AprilTagPattern, ArucoMarker, FiducialTarget
 
@@ -139,49 +140,99 @@ def refine_corners_edges(
         .astype(float)
         .reshape(4, m, k)
     )
+    return _fit_edges(prof, base, n, half, c, float(max_shift))
+
+
+@njit(cache=True)
+def _median(x):
+    return np.median(x)
+
+
+@njit(cache=True)
+def _fit_edges(prof, base, n, half, c, max_shift):
+    """The fit of :func:`refine_corners_edges` after the profiles are sampled: edge points by
+    the area method, one total-least-squares line per side with one pass of MAD outlier
+    rejection, adjacent lines intersected (corners that fail or move too far are kept)."""
+    sides, m, k = prof.shape
     q = max(1, k // 5)
-    i_in = prof[:, :, :q].mean(axis=2)
-    i_out = prof[:, :, -q:].mean(axis=2)
-    contrast = i_out - i_in
-    good = contrast > 20.0
-    if np.any(good.sum(axis=1) < 4):
-        return c
-    frac = np.clip((prof - i_in[:, :, None]) / np.maximum(contrast, 1e-9)[:, :, None], 0, 1)
-    area = 0.25 * (frac.sum(axis=2) - 0.5 * (frac[:, :, 0] + frac[:, :, -1]))
-    edge = base + (half - area)[:, :, None] * n[:, None, :]  # (4, m, 2)
-    w = good.astype(float)
-    for _ in range(2):  # total least squares, then once more without the outliers
-        cnt = w.sum(axis=1)
-        if np.any(cnt < 4):
-            return c
-        mean = (edge * w[:, :, None]).sum(axis=1) / cnt[:, None]
-        d = edge - mean[:, None, :]
-        sxx = (w * d[:, :, 0] ** 2).sum(axis=1)
-        syy = (w * d[:, :, 1] ** 2).sum(axis=1)
-        sxy = (w * d[:, :, 0] * d[:, :, 1]).sum(axis=1)
-        ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
-        direction = np.column_stack((np.cos(ang), np.sin(ang)))
-        normal = np.column_stack((-direction[:, 1], direction[:, 0]))
-        r = np.abs(np.einsum("imj,ij->im", d, normal))
-        mad = np.array([np.median(r[i][w[i] > 0]) for i in range(4)])
-        keep = (r <= np.maximum(0.3, 4.45 * mad)[:, None]) & good
-        if np.array_equal(keep, w > 0):
-            break
-        w = keep.astype(float)
-    # corner i joins side i-1 and side i: mean_p + u d_p = mean_i + v d_i
-    prev = np.roll(np.arange(4), 1)
-    d1, d2 = direction[prev], direction
-    det = d1[:, 0] * (-d2[:, 1]) - d1[:, 1] * (-d2[:, 0])
-    rhs = mean - mean[prev]
-    ok = np.abs(det) > 1e-9
-    u = np.where(
-        ok, (rhs[:, 0] * (-d2[:, 1]) - rhs[:, 1] * (-d2[:, 0])) / np.where(ok, det, 1), 0.0
-    )
-    new = mean[prev] + u[:, None] * d1
-    move = np.linalg.norm(new - c, axis=1)
-    use = ok & (move <= max_shift)
+    edge = np.empty((4, m, 2))
+    good = np.zeros((4, m), np.bool_)
+    for i in range(4):
+        cnt = 0
+        for j in range(m):
+            i_in = prof[i, j, :q].mean()
+            i_out = prof[i, j, k - q :].mean()
+            contrast = i_out - i_in
+            good[i, j] = contrast > 20.0
+            cnt += good[i, j]
+            area = 0.0
+            for l in range(k):
+                f = (prof[i, j, l] - i_in) / max(contrast, 1e-9)
+                f = min(max(f, 0.0), 1.0)
+                area += f if (l != 0 and l != k - 1) else 0.5 * f
+            area *= 0.25
+            edge[i, j, 0] = base[i, j, 0] + (half - area) * n[i, 0]
+            edge[i, j, 1] = base[i, j, 1] + (half - area) * n[i, 1]
+        if cnt < 4:
+            return c.copy()
+    mean = np.zeros((4, 2))
+    direction = np.zeros((4, 2))
+    for i in range(4):
+        w = good[i].copy()
+        for _ in range(2):  # total least squares, then once more without the outliers
+            cnt = w.sum()
+            if cnt < 4:
+                return c.copy()
+            mx = 0.0
+            my = 0.0
+            for j in range(m):
+                if w[j]:
+                    mx += edge[i, j, 0]
+                    my += edge[i, j, 1]
+            mx /= cnt
+            my /= cnt
+            sxx = 0.0
+            syy = 0.0
+            sxy = 0.0
+            for j in range(m):
+                if w[j]:
+                    dx = edge[i, j, 0] - mx
+                    dy = edge[i, j, 1] - my
+                    sxx += dx * dx
+                    syy += dy * dy
+                    sxy += dx * dy
+            ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+            ux, uy = np.cos(ang), np.sin(ang)
+            r = np.empty(m)
+            rw = np.empty(cnt)
+            p = 0
+            for j in range(m):
+                r[j] = abs((edge[i, j, 0] - mx) * (-uy) + (edge[i, j, 1] - my) * ux)
+                if w[j]:
+                    rw[p] = r[j]
+                    p += 1
+            lim = max(0.3, 4.45 * _median(rw))
+            keep = (r <= lim) & good[i]
+            mean[i, 0], mean[i, 1] = mx, my
+            direction[i, 0], direction[i, 1] = ux, uy
+            if np.all(keep == w):
+                break
+            w = keep
     out = c.copy()
-    out[use] = new[use]
+    for i in range(4):
+        p = (i + 3) % 4  # corner i joins side i-1 and side i
+        d1x, d1y = direction[p, 0], direction[p, 1]
+        d2x, d2y = direction[i, 0], direction[i, 1]
+        det = d1x * (-d2y) - d1y * (-d2x)
+        if abs(det) <= 1e-9:
+            continue
+        rx = mean[i, 0] - mean[p, 0]
+        ry = mean[i, 1] - mean[p, 1]
+        u = (rx * (-d2y) - ry * (-d2x)) / det
+        nx = mean[p, 0] + u * d1x
+        ny = mean[p, 1] + u * d1y
+        if np.hypot(nx - c[i, 0], ny - c[i, 1]) <= max_shift:
+            out[i, 0], out[i, 1] = nx, ny
     return out
 
 
@@ -242,15 +293,29 @@ class TargetDetector:
         """Forget the tracking window."""
         self._last_box = None
 
+    def tracking_window(self, shape) -> tuple | None:
+        """``(x0, y0, x1, y1)``: the window searched first in the next frame of ``shape``
+        (``None`` when not tracking or nothing was tracked)."""
+        if self.track and self._last_box is not None and self._last_shape == tuple(shape):
+            return self._last_box
+        return None
+
+    def detect_in_window(self, crop, window) -> Detection:
+        """Detect in the tracking window's pixels only (``crop = image[y0:y1, x0:x1]``, e.g.
+        rendered or read out as a region of interest); the window follows a detection."""
+        det = self._detect_in(to_gray(crop), window[:2], self._track_detector)
+        if det.found:
+            self._update_box(det, self._last_shape)
+        return det
+
     def detect(self, image) -> Detection:
         """Detect the target in ``image`` (see :func:`to_gray` for accepted formats)."""
         shape = np.shape(image)[:2]
-        if self.track and self._last_box is not None and self._last_shape == shape:
-            x0, y0, x1, y1 = self._last_box
-            crop = to_gray(np.asarray(image)[y0:y1, x0:x1])  # convert only the window
-            det = self._detect_in(crop, (x0, y0), self._track_detector)
+        win = self.tracking_window(shape)
+        if win is not None:
+            x0, y0, x1, y1 = win
+            det = self.detect_in_window(np.asarray(image)[y0:y1, x0:x1], win)
             if det.found:
-                self._update_box(det, shape)
                 return det
         gray = to_gray(image)
         det = self._detect_in(gray, (0, 0))

@@ -88,8 +88,14 @@ def tip_joint_rates(
     jac = np.asarray(system.tip_jacobian(qv), dtype=float)
     if jac.shape != (6, n):
         raise ValueError(f"system.tip_jacobian(q) must have shape (6, {n}), got {jac.shape}")
-    qdot = np.zeros(n)
-    qdot[idx] = np.linalg.pinv(jac[:, idx], rcond=rcond) @ v
+    return rates_from_jacobian(jac, v, idx, rcond)
+
+
+def rates_from_jacobian(jac, tip_twist, commanded, rcond: float = 1e-8) -> np.ndarray:
+    """``qdot_d[commanded] = (J[:, commanded])^+ v`` (zeros elsewhere), on checked inputs:
+    the per-period core of :func:`tip_joint_rates`."""
+    qdot = np.zeros(jac.shape[1])
+    qdot[commanded] = np.linalg.pinv(jac[:, commanded], rcond=rcond) @ tip_twist
     return qdot
 
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..lie.se3 import inv_se3
 from . import _checks as C
 
 METHODS = ("exact", "rotation", "approx")
@@ -45,7 +46,10 @@ def _rz(psi: float) -> np.ndarray:
 def yaw_only_pose(base_pose) -> np.ndarray:
     """``g_psi``: the drone pose with roll and pitch removed (ZYX Euler, same yaw and
     position)."""
-    g = C.transform("base_pose", base_pose)
+    return _yaw_only_pose(C.transform("base_pose", base_pose))
+
+
+def _yaw_only_pose(g: np.ndarray) -> np.ndarray:
     r = g[:3, :3]
     psi = np.arctan2(r[1, 0], r[0, 0])
     out = np.eye(4)
@@ -57,17 +61,28 @@ def yaw_only_pose(base_pose) -> np.ndarray:
 def virtual_camera_pose(base_pose, camera_pose) -> np.ndarray:
     """``g_{C_V} = g_psi g_{C_L}^b`` (inertial), from the inertial drone pose ``g_b`` and
     the inertial pose of the real camera ``g_{C_L}``."""
-    g_b = C.transform("base_pose", base_pose)
-    g_c = C.transform("camera_pose", camera_pose)
-    return yaw_only_pose(g_b) @ np.linalg.solve(g_b, g_c)
+    return _virtual_pose(
+        C.transform("base_pose", base_pose), C.transform("camera_pose", camera_pose)
+    )
+
+
+def _virtual_pose(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
+    return _yaw_only_pose(g_b) @ inv_se3(g_b) @ g_c
 
 
 def virtual_camera_transform(base_pose, camera_pose) -> np.ndarray:
     """``g_{C_L}^{C_V} = g_{C_V}^-1 g_{C_L}`` (4x4; pose of the real camera in the virtual
     camera's frame). Its rotation is ``R_{C_L}^{C_V}``; its translation is zero only for a
     camera at the drone's centre of mass (see module docstring)."""
-    g_c = C.transform("camera_pose", camera_pose)
-    return np.linalg.solve(virtual_camera_pose(base_pose, g_c), g_c)
+    return virtual_transform(
+        C.transform("base_pose", base_pose), C.transform("camera_pose", camera_pose)
+    )
+
+
+def virtual_transform(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
+    """:func:`virtual_camera_transform` of transforms already known to be rigid (the model's
+    poses; no checks: the closed loop's per-period path)."""
+    return inv_se3(_virtual_pose(g_b, g_c)) @ g_c
 
 
 def virtual_camera_points(
@@ -96,10 +111,10 @@ def virtual_camera_points(
     t = np.asarray(transform, dtype=float)
     if t.shape == (4, 4):
         g = C.transform("transform", t)
-        r, tr = g[:3, :3], g[:3, 3]
     else:
-        r, tr = C.rotation("transform", t), np.zeros(3)
-    h = np.column_stack((p, np.ones(p.shape[0])))
+        g = np.eye(4)
+        g[:3, :3] = C.rotation("transform", t)
+    z = None
     if method == "exact":
         if depths is None:
             raise ValueError("depths are required by method='exact'")
@@ -108,6 +123,15 @@ def virtual_camera_points(
         z = C.array("depths", z, (p.shape[0],))
         if np.any(z <= 0.0):
             raise ValueError(f"depths must be positive, got {z!r}")
+    return virtual_points(p, g, z, method, return_depths)
+
+
+def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
+    """:func:`virtual_camera_points` on checked inputs (``(N, 2)`` points, a rigid 4x4
+    ``g_{C_L}^{C_V}``, positive depths for ``"exact"``); the closed loop's per-period path."""
+    r, tr = g[:3, :3], g[:3, 3]
+    h = np.column_stack((p, np.ones(p.shape[0])))
+    if method == "exact":
         rv = (h * z[:, None]) @ r.T + tr
         if np.any(rv[:, 2] <= 0.0):
             raise ValueError("a point lies behind the virtual camera")

@@ -96,7 +96,7 @@ def write_animation(frames, path, fps=20) -> Path:
 
 def replay_run(run_dir, out=None, fps=20, max_frames=60) -> Path:
     """Animate a ``tdacm run`` folder (``timeseries.npz`` + ``summary.json``)."""
-    from ..sim.runner import build
+    from ..loop import build_scene
     from ..sim.scenario import load_scenario
 
     run_dir = Path(run_dir)
@@ -105,30 +105,27 @@ def replay_run(run_dir, out=None, fps=20, max_frames=60) -> Path:
         raise FileNotFoundError(f"{npz} not found: is {run_dir} a `tdacm run` output folder?")
     data = np.load(npz)
     summary = json.loads((run_dir / "summary.json").read_text())
-    setup = build(load_scenario(summary["scenario"]), need_global=False)
-    try:
-        q = data["q"]
-        t = data["t"]
-        stride = max(1, int(np.ceil(len(q) / max_frames)))
-        target = setup.scene.target_points_world()
-        frames = replay_frames(
-            setup.system, q, target, setup.tip_mount, stride, title=summary["scenario"]
-        )
-        # stamp the simulated time on every frame
-        import cv2
+    world = build_scene(load_scenario(summary["scenario"]))
+    q = data["q"]
+    t = data["t"]
+    stride = max(1, int(np.ceil(len(q) / max_frames)))
+    target = world.scene.target_points_world()
+    frames = replay_frames(
+        world.robot.system, q, target, world.robot.tip_mount, stride, title=summary["scenario"]
+    )
+    # stamp the simulated time on every frame
+    import cv2
 
-        for f, ti in zip(frames, t[::stride], strict=False):
-            cv2.putText(
-                f,
-                f"t = {ti:.2f} s",
-                (10, 24),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.6,
-                (0, 0, 0),
-                1,
-                cv2.LINE_AA,
-            )
-    finally:
-        setup.close()
+    for f, ti in zip(frames, t[::stride], strict=False):
+        cv2.putText(
+            f,
+            f"t = {ti:.2f} s",
+            (10, 24),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.6,
+            (0, 0, 0),
+            1,
+            cv2.LINE_AA,
+        )
     out = Path(out) if out is not None else run_dir / "replay.gif"
     return write_animation(frames, out, fps)

@@ -60,18 +60,26 @@ class PlanarRenderer(Renderer):
         ``(ambient, diffuse)`` shading coefficients.
     sky_rgb:
         Colour above the horizon.
+    grayscale:
+        Render 8-bit grey images ``(H, W)`` (the luma of the colours; the detector works on grey
+        images anyway, and a third of the pixels to write makes the closed loop faster).
     """
 
     draws_arm = False
 
     def __init__(
-        self, scene: SceneConfig | None = None, light=(0.65, 0.35), sky_rgb=(170, 190, 215)
+        self,
+        scene: SceneConfig | None = None,
+        light=(0.65, 0.35),
+        sky_rgb=(170, 190, 215),
+        grayscale: bool = False,
     ):
+        self.grayscale = bool(grayscale)
         self.scene = SceneConfig() if scene is None else scene
         if not isinstance(self.scene, SceneConfig):
             raise ValueError(f"scene must be a SceneConfig, got {scene!r}")
         self.ambient, self.diffuse = (float(v) for v in light)
-        self.sky = tuple(int(c) for c in sky_rgb)
+        self.sky = self._colour(tuple(int(c) for c in sky_rgb))
         self._bg = {}
         sc = self.scene
         g = sc.ground_size / 2
@@ -87,7 +95,7 @@ class PlanarRenderer(Renderer):
         level = tex
         while True:
             rgb = np.clip(level.astype(np.float32) * shade, 0, 255).astype(np.uint8)
-            self._levels.append(cv2.cvtColor(rgb, cv2.COLOR_GRAY2RGB))
+            self._levels.append(rgb if self.grayscale else cv2.cvtColor(rgb, cv2.COLOR_GRAY2RGB))
             if min(level.shape) < 16:
                 break
             h, w = level.shape
@@ -99,14 +107,20 @@ class PlanarRenderer(Renderer):
         """A sky-coloured image (cached per size: copying is 30x faster than filling)."""
         bg = self._bg.get((h, w))
         if bg is None:
-            bg = np.empty((h, w, 3), np.uint8)
+            bg = np.empty((h, w) if self.grayscale else (h, w, 3), np.uint8)
             cv2.rectangle(bg, (0, 0), (w - 1, h - 1), self.sky, -1)
             self._bg = {(h, w): bg}
         return bg.copy()
 
+    def _colour(self, rgb: tuple) -> tuple:
+        """An RGB colour, or its luma (ITU-R BT.601, as ``cv2.cvtColor``) when grey."""
+        if not self.grayscale:
+            return rgb
+        return (int(round(0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2])),)
+
     def _shade(self, rgba, normal) -> tuple:
         k = self.ambient + self.diffuse * max(0.0, float(normal @ _LIGHT))
-        return tuple(int(round(min(255.0, 255.0 * c * k))) for c in rgba[:3])
+        return self._colour(tuple(int(round(min(255.0, 255.0 * c * k))) for c in rgba[:3]))
 
     def _box_faces(self):
         sc = self.scene
@@ -244,4 +258,4 @@ class PlanarRenderer(Renderer):
         mask = np.zeros(roi.shape[:2], np.uint8)
         pts = np.round((uv - [x0, y0]) * (1 << _SHIFT)).astype(np.int32)
         cv2.fillPoly(mask, [pts], 255, shift=_SHIFT)
-        np.copyto(roi, warped, where=mask[:, :, None] > 0)
+        np.copyto(roi, warped, where=(mask > 0) if roi.ndim == 2 else (mask[:, :, None] > 0))

@@ -1,0 +1,96 @@
+"""Closed-loop timings (``tdacm bench`` section ``loop``; ``benchmarks/bench_loop.py``).
+
+* ``rendered``: ``paper-in-fov`` for 5 s, C_L rendered (planar renderer) and detected every
+  period, C_G only when the servo needs it (``cameras.global_every = 0``);
+* ``analytic``: the same with ``cameras.local_renderer = "analytic"`` (campaigns);
+* ``cold_start``: a first ``tdacm run paper-in-fov --duration 1`` in a fresh numba cache
+  (``NUMBA_CACHE_DIR`` set to an empty folder), wall time of the whole command.
+
+Each loop figure is the median of ``repeats`` runs after one warm-up run (one process, one
+core), reported as wall seconds per simulated second and as the real-time factor.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+LOOP_CASES = {
+    "rendered": {"cameras": {"global_every": 0}},
+    "analytic": {"cameras": {"global_every": 0, "local_renderer": "analytic"}},
+}
+
+
+def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
+    from ..sim import load_scenario
+    from .build import build_loop
+
+    sc = load_scenario("paper-in-fov").with_overrides(overrides)
+    walls = []
+    for i in range(repeats + 1):
+        loop = build_loop(sc, 0)
+        t0 = time.perf_counter()
+        res = loop.run(duration)
+        wall = time.perf_counter() - t0
+        loop.close()
+        if res.terminated:
+            raise RuntimeError(f"benchmark run terminated: {res.reason}")
+        if i:  # the first run warms caches up
+            walls.append(wall)
+    med = float(np.median(walls))
+    return {
+        "duration_s": duration,
+        "repeats": repeats,
+        "wall_s_median": med,
+        "wall_s_all": walls,
+        "wall_per_sim_second": med / duration,
+        "real_time_factor": duration / med,
+    }
+
+
+def time_cold_start() -> dict:
+    """Wall time of ``tdacm run paper-in-fov --duration 1`` with an empty numba cache."""
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        cmd = [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "1",
+               "--out", out]  # fmt: skip
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        warm0 = time.perf_counter()
+        subprocess.run(cmd, env=env, capture_output=True, text=True)
+        warm = time.perf_counter() - warm0
+    return {
+        "command": "tdacm run paper-in-fov --duration 1 (empty NUMBA_CACHE_DIR)",
+        "cold_wall_s": wall,
+        "warm_wall_s": warm,
+        "exit_code": proc.returncode,
+        "stderr_first_lines": proc.stderr.splitlines()[:3],
+    }
+
+
+def run_loop_bench(out="out/bench", repeats: int = 5, cold: bool = True, progress=print) -> dict:
+    """All closed-loop figures; merged into ``OUT/bench.json`` under ``"loop"``."""
+    res = {}
+    for name, ov in LOOP_CASES.items():
+        progress(f"[bench] closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
+        res[name] = time_loop(ov, repeats=repeats)
+        progress(f"[bench]   {res[name]['real_time_factor']:.1f}x real time")
+    if cold:
+        progress("[bench] cold first run (empty numba cache)...")
+        res["cold_start"] = time_cold_start()
+        progress(f"[bench]   {res['cold_start']['cold_wall_s']:.1f} s")
+    res["cpu_count"] = os.cpu_count()
+    path = Path(out) / "bench.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    data["loop"] = res
+    path.write_text(json.dumps(data, indent=2))
+    return res

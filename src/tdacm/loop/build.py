@@ -1,0 +1,237 @@
+"""Assembling the closed loop from a scenario (``tdacm run``, campaigns and the env use it).
+
+:func:`build_loop` turns a validated :class:`~tdacm.sim.scenario.Scenario` into a
+:class:`~.closed_loop.ClosedLoop`: the robot of its ``[robot]`` section, the scene, the cameras
+and their imperfections (``[cameras]``, ``[sensors]``), the reference snapshot, the servo
+(``[ibvs]``, ``[recovery]``), the controller (``[model]``, ``[controller]``, or a user class),
+the disturbances and the safety monitor. Randomness: the model perturbation is drawn from the
+run's seed, the sensor imperfections from ``[seed, 1]`` and the disturbances from ``seed``, so a
+run is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control import EstimatedModel
+from ..sim.robot import Robot, build_robot
+from ..sim.scenario import Scenario, ScenarioError
+from ..sim.sensors import SensorModel, perturbed_camera
+from ..vision import PAPER_MARKER, PAPER_PATTERN, LocalCameraServo, PlanarRenderer, SceneConfig
+from ..vision.features import estimate_depths
+from ..vision.virtual import virtual_camera_points, virtual_camera_transform
+from .closed_loop import ClosedLoop
+from .logger import RunLog
+from .lowlevel import make_low_level
+from .perception import Perception
+from .plant import Disturbances, Plant
+from .protocols import ControllerContext
+from .safety import SafetyMonitor
+from .sensors import AnalyticFrontEnd, CameraSensor, RenderedFrontEnd, Sensors
+from .servo import RecoveryParams, ShapingParams, VisualServo
+
+
+@dataclass
+class Scene:
+    """The static world and the robot of a scenario."""
+
+    robot: Robot
+    scene: SceneConfig
+    target: object
+    q0: np.ndarray
+    qd0: np.ndarray
+    q_star: np.ndarray
+
+
+def build_scene(scenario: Scenario) -> Scene:
+    d = scenario.data
+    held = d["system"]["held_base_q"] if not scenario.floating else None
+    try:
+        robot = build_robot(d["robot"], held)
+    except ValueError as exc:
+        raise ScenarioError(f"{scenario.source}: {exc}") from None
+    sc = d["scene"]
+    target = PAPER_MARKER if sc["target"] == "aruco" else PAPER_PATTERN
+    scene = SceneConfig(
+        target=target,
+        box_size=sc["box_size"],
+        box_xy=tuple(sc["box_xy"]),
+        target_yaw_deg=sc["target_yaw_deg"],
+    )
+    n = robot.system.n
+    q0 = np.asarray(d["initial"]["q"], float)
+    qd0 = np.zeros(n) if d["initial"]["qd"] is None else np.asarray(d["initial"]["qd"], float)
+    return Scene(robot, scene, target, q0, qd0, np.asarray(d["desired"]["q"], float))
+
+
+def _front_end(kind: str, camera, scene: SceneConfig, target, backend: str = "auto"):
+    if kind == "analytic":
+        return AnalyticFrontEnd(camera, target, scene.target_pose)
+    if kind == "pybullet":
+        from ..vision import PyBulletRenderer
+
+        return RenderedFrontEnd(
+            camera, lambda: PyBulletRenderer(scene, backend=backend), target, False
+        )
+    if kind == "planar-local":  # C_L: grey images (what the detector uses; faster)
+        return RenderedFrontEnd(camera, PlanarRenderer(scene, grayscale=True), target, True)
+    return RenderedFrontEnd(camera, PlanarRenderer(scene), target, False)
+
+
+def reference_snapshot(local: CameraSensor, robot: Robot, target, scene, q_star, controller_camera):
+    """The paper's reference snapshot: C_L's view at the desired configuration (detected;
+    the analytic projection if the detector misses it), in C_V for a floating base."""
+    s = robot.system
+    g_c = local.pose(q_star)
+    try:
+        ref, z = LocalCameraServo.reference_from_pose(
+            controller_camera, target, scene.target_pose, g_c
+        )
+    except ValueError as exc:
+        raise ScenarioError(f"desired.q: {exc}") from None
+    det, _ = local.ideal(q_star)
+    local.reset()
+    if det.found:
+        pts = controller_camera.normalize(det.points)
+        z = estimate_depths(pts, target.feature_points)
+    else:
+        pts = ref
+    if s.floating:
+        gv = virtual_camera_transform(s.base_pose(q_star), g_c)
+        pts, z = virtual_camera_points(pts, gv, z, "exact", return_depths=True)
+    return pts, z
+
+
+def build_loop(
+    scenario: Scenario,
+    seed: int | None = None,
+    video: bool = False,
+    controller=None,
+    servo=None,
+    estimator=None,
+    frame_composer=None,
+) -> ClosedLoop:
+    """The closed loop of ``scenario`` (module docstring). ``controller``, ``servo`` and
+    ``estimator`` replace the scenario's blocks (objects implementing the protocols of
+    :mod:`tdacm.loop.protocols`)."""
+    d = scenario.data
+    seed = int(d["seed"] if seed is None else seed)
+    world = build_scene(scenario)
+    robot, s = world.robot, world.robot.system
+    cams = d["cameras"]
+    sensor_model = SensorModel(**{k: d["sensors"][k] for k in _CAMERA_SENSOR_KEYS})
+    sensor_rng = np.random.default_rng([seed, 1])
+    kind = "planar-local" if cams["local_renderer"] == "planar" else "analytic"
+    local = CameraSensor(
+        s,
+        "tip",
+        robot.tip_mount,
+        _front_end(kind, robot.local_camera, world.scene, world.target),
+        sensor_model,
+        sensor_rng,
+        keep_images=video,
+    )
+    glob = None
+    g_kind = cams["global_renderer"]
+    if g_kind == "planar" and cams["local_renderer"] == "analytic":
+        g_kind = "analytic"
+    glob = CameraSensor(
+        s,
+        "base",
+        robot.drone_mount,
+        _front_end(g_kind, robot.global_camera, world.scene, world.target, cams["global_backend"]),
+        keep_images=video,
+    )
+    sensors = Sensors(local, glob, cams["global_every"], always_global=video)
+    # the controller's model of C_L (intrinsics error drawn after nothing else: reproducible)
+    ctl_camera = perturbed_camera(robot.local_camera, sensor_model.intrinsics_error, sensor_rng)
+    perception = Perception(ctl_camera, robot.global_camera, world.target)
+    desired_pts, desired_z = reference_snapshot(
+        local, robot, world.target, world.scene, world.q_star, ctl_camera
+    )
+    ib, rc = d["ibvs"], d["recovery"]
+    if servo is None:
+        servo = VisualServo(
+            s,
+            ctl_camera,
+            robot.global_camera,
+            world.target,
+            robot.tip_mount,
+            robot.drone_mount,
+            desired_pts,
+            desired_z,
+            gain=ib["gain"],
+            mode=ib["mode"],
+            compensation=ib["compensation"],
+            shaping=ShapingParams(
+                ib["max_joint_rate"],
+                ib["max_drone_speed"],
+                ib["max_vertical_speed"],
+                ib["soft_start"],
+                ib["rate_filter"],
+            ),
+            recovery=RecoveryParams(rc["max_speed"], rc["margin_px"], rc["confirm"], rc["lose"]),
+        )
+    if controller is None:
+        m = d["model"]
+        model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
+        options = {k: v for k, v in d["controller"].items() if k != "class"}
+        ctx = ControllerContext(s, model, world.q_star, d["dt"], options)
+        try:
+            controller = make_low_level(d["controller"].get("class"), ctx)
+        except ValueError as exc:
+            raise ScenarioError(f"{scenario.source}: {exc}") from None
+    plant = Plant(
+        s,
+        world.q0,
+        world.qd0,
+        d["substeps"],
+        Disturbances.from_dict(d["disturbances"]),
+        np.random.default_rng(seed),
+    )
+    loop = ClosedLoop(
+        plant,
+        sensors,
+        perception,
+        servo,
+        controller,
+        d["dt"],
+        estimator=estimator,
+        safety=SafetyMonitor(**d["safety"]),
+        log=RunLog(servo.desired_points, frame_composer),
+        name=scenario.name,
+    )
+    loop.world = world
+    loop.seed = seed
+    warm_up(s, world.q0)
+    return loop
+
+
+def warm_up(system, q) -> None:
+    """Call the numba kernels of one period once, so that their first-use compilation (or
+    loading from the on-disk cache) happens before the run, not inside its first step."""
+    from ..control.allocation import box_least_squares
+    from ..system.kernels import rk4_run
+
+    q = np.asarray(q, float)
+    qd = np.zeros(system.n)
+    system.terms(q, qd)
+    system.tip_kinematics(q, qd)
+    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
+    box_least_squares(np.eye(3), np.ones(3), 0.0, 1.0)
+
+
+#: The ``[sensors]`` keys of the camera imperfection model.
+_CAMERA_SENSOR_KEYS = ("pixel_noise", "dropout", "latency_steps", "intrinsics_error")
+
+
+def camera_pose_error(loop: ClosedLoop, q, q_ref) -> tuple[float, float]:
+    """Position (m) and rotation (deg) error of C_L at ``q`` against its pose at ``q_ref``."""
+    a = loop.sensors.local.pose(q)
+    b = loop.sensors.local.pose(q_ref)
+    dp = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+    r = a[:3, :3].T @ b[:3, :3]
+    ang = float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))))
+    return dp, ang

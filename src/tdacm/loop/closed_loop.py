@@ -1,0 +1,237 @@
+"""The closed loop: the blocks stepped in order at the control period (paper, Fig. 2).
+
+One period of :meth:`ClosedLoop.step`, data flowing one way::
+
+    readings = sensors.read(plant.state)               # C_L (+ C_G when due or requested)
+    estimate = estimator.step(readings, u_prev, dt)    # q_hat, qdot_hat (true state: a pass-through)
+    view     = perception.local(readings.local)        # normalized points + depths
+    command  = servo.step(t, dt, view, global_view, estimate)   # IBVS / recovery -> q_d, qd_d
+    act      = controller.step(estimate, command, dt)  # adaptive law -> thrusts, tensions
+    logger.record(...); safety check
+    plant.advance(act.u, dt)                           # true model, disturbances
+
+``tdacm run``, campaigns and the Gymnasium env all drive this class
+(:func:`tdacm.loop.build.build_loop` assembles it from a scenario).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control import ModeSwitch
+from .data import (
+    ActuatorCommand,
+    CameraMeasurement,
+    GlobalView,
+    LocalView,
+    SensorReadings,
+    ServoCommand,
+    StateEstimate,
+)
+from .estimation import TrueState
+from .logger import RunLog
+from .safety import SafetyMonitor
+
+
+@dataclass(frozen=True)
+class LoopStep:
+    """What one period produced (the env and the tests read it)."""
+
+    t: float
+    view: LocalView
+    estimate: StateEstimate
+    command: ServoCommand
+    actuation: ActuatorCommand
+    done: bool
+    reason: str | None
+
+
+@dataclass(frozen=True)
+class Sensed:
+    """The first half of a period (:meth:`ClosedLoop.sense`)."""
+
+    readings: SensorReadings
+    estimate: StateEstimate
+    view: LocalView
+    global_view: GlobalView | None
+
+
+@dataclass
+class RunResult:
+    """A finished (or interrupted) run: the log arrays, the events and why it ended."""
+
+    arrays: dict
+    frames: list
+    terminated: bool
+    reason: str | None
+    wall_time_s: float
+    switch_time: float | None
+    plan: dict | None
+    interrupted: bool = False
+
+
+class ClosedLoop:
+    """The TD-ACM's closed loop made of blocks (module docstring).
+
+    Parameters
+    ----------
+    plant, sensors, perception, servo, controller:
+        The blocks (:class:`~.plant.Plant`, :class:`~.sensors.Sensors`,
+        :class:`~.perception.Perception`, a :class:`~.protocols.Servo`, a
+        :class:`~.protocols.LowLevelController`).
+    dt:
+        Control period (s).
+    estimator:
+        A :class:`~.protocols.Estimator` (default: the true state).
+    safety:
+        The paper's error-growth monitor (default: on, paper values).
+    log:
+        A :class:`~.logger.RunLog` (default: one on the servo's reference snapshot).
+    """
+
+    def __init__(
+        self,
+        plant,
+        sensors,
+        perception,
+        servo,
+        controller,
+        dt: float,
+        estimator=None,
+        safety: SafetyMonitor | None = None,
+        log: RunLog | None = None,
+        name: str = "",
+    ):
+        self.plant = plant
+        self.sensors = sensors
+        self.perception = perception
+        self.servo = servo
+        self.controller = controller
+        self.dt = float(dt)
+        self.estimator = estimator if estimator is not None else TrueState(plant)
+        self.safety = safety if safety is not None else SafetyMonitor()
+        self.log = log if log is not None else RunLog(servo.desired_points)
+        self.name = name
+        self._u = None
+        self._request_global = False
+        self.switch_time = None
+        self.plan = None
+
+    # ------------------------------------------------------------------ run control
+    def reset(self, q0=None, qd0=None) -> StateEstimate:
+        """Start a run at ``(q0, qd0)`` (default: the plant's initial state)."""
+        p = self.plant
+        if q0 is not None:
+            p.reset(q0, p.state.qd * 0 if qd0 is None else qd0)
+        self.sensors.reset()
+        self.perception.reset()
+        self.safety.reset()
+        est = self.estimator.reset(p.state.t)
+        # the initial mode from the first C_L view (an ideal look, no noise drawn)
+        det, _ = self.sensors.local.ideal(p.state.q)
+        first = self.perception.local(CameraMeasurement(p.state.t, det))
+        self.servo.reset(est.q, first)
+        self.sensors.local.reset()
+        self.controller.reset(est)
+        self._u = None
+        self._request_global = self.servo.mode == ModeSwitch.RECOVERY
+        self.switch_time = None
+        self.plan = None
+        self.log.rows = {k: [] for k in self.log.rows}
+        self.log.frames = []
+        return est
+
+    def sense(self) -> Sensed:
+        """The first half of a period: sensors, estimation, perception at the current state."""
+        readings = self.sensors.read(self.plant.state, self._request_global)
+        est = self.estimator.step(readings, self._u, self.dt)
+        view = self.perception.local(readings.local)
+        return Sensed(readings, est, view, self.perception.global_(readings.global_))
+
+    def act(self, sensed: Sensed, twist=None, u=None, last: bool = False) -> LoopStep:
+        """The second half: servo, low-level control, logging, safety, plant. ``twist``
+        replaces the IBVS twist and ``u`` the controller's output (external commands, e.g. the
+        Gymnasium env's actions); ``last`` records the period without advancing the plant."""
+        dt = self.dt
+        plant = self.plant
+        state = plant.state
+        t = state.t
+        est, view = sensed.estimate, sensed.view
+        cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        self._request_global = cmd.request_global
+        if cmd.event == "ibvs engaged":
+            if self.switch_time is None:
+                self.switch_time = t
+            self.safety.arm(t)
+        if cmd.plan is not None:
+            self.plan = cmd.plan
+        if cmd.failure is not None:
+            return LoopStep(t, view, est, cmd, _hold(est), True, cmd.failure)
+        if u is None:
+            act = self.controller.step(est, cmd, dt)
+        else:
+            act = ActuatorCommand(np.asarray(u, float), np.zeros(len(est.q)), cmd.q_d)
+        self.log.record(state, sensed.readings, view, est, cmd, act)
+        self._u = act.u
+        if cmd.mode == ModeSwitch.IBVS and not self.safety.check(t, cmd.rmse):
+            return LoopStep(t, view, est, cmd, act, True, self.safety.reason)
+        if last:
+            return LoopStep(t, view, est, cmd, act, True, None)
+        plant.advance(act.u, dt)
+        if not plant.ok:
+            return LoopStep(
+                t, view, est, cmd, act, True, "plant integration failed (singular mass matrix)"
+            )
+        return LoopStep(t, view, est, cmd, act, False, None)
+
+    def step(self, twist=None, u=None, last: bool = False) -> LoopStep:
+        """One control period: :meth:`sense` then :meth:`act`."""
+        return self.act(self.sense(), twist, u, last)
+
+    def run(self, duration: float, progress: bool = False) -> RunResult:
+        """Reset, then step until ``duration`` (``round(duration / dt) + 1`` samples) or a
+        termination. Ctrl-C ends the run early with what was simulated so far
+        (``interrupted``); the caller writes it and re-raises."""
+        nsteps = int(round(duration / self.dt))
+        self.reset()
+        steps = range(nsteps + 1)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            steps = bar = tqdm(steps, desc=self.name or "run", unit="step")
+        terminated, reason, interrupted = False, None, False
+        wall0 = time.perf_counter()
+        try:
+            for k in steps:
+                st = self.step(last=k == nsteps)
+                if st.done:
+                    terminated, reason = st.reason is not None, st.reason
+                    break
+        except KeyboardInterrupt:
+            interrupted, terminated, reason = True, True, "interrupted (Ctrl-C)"
+        finally:
+            if bar is not None:
+                bar.close()
+        wall = time.perf_counter() - wall0
+        return RunResult(
+            self.log.arrays(),
+            self.log.frames,
+            terminated,
+            reason,
+            wall,
+            self.switch_time,
+            self.plan,
+            interrupted,
+        )
+
+    def close(self) -> None:
+        self.sensors.close()
+
+
+def _hold(est: StateEstimate) -> ActuatorCommand:
+    n = len(est.q)
+    return ActuatorCommand(np.zeros(0), np.zeros(n), est.q)

@@ -1,0 +1,134 @@
+"""The small, explicit data that flows between the blocks of the closed loop.
+
+One control period moves data one way (paper, "Simulation Results" and Fig. 2):
+
+    PlantState --Sensors--> SensorReadings --Estimation--> StateEstimate
+    SensorReadings --Perception--> LocalView / GlobalView
+    (LocalView, GlobalView, StateEstimate) --Servo--> ServoCommand
+    (StateEstimate, ServoCommand) --LowLevel--> ActuatorCommand --Plant--> PlantState
+
+Every record is a frozen dataclass of plain numpy arrays and numbers; no block keeps a
+reference to another block's internals. Only :class:`PlantState` carries the true state: the
+sensors read it, the logger records it, nothing downstream of the sensors sees it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..vision.detect import NOT_DETECTED, Detection
+
+
+@dataclass(frozen=True)
+class PlantState:
+    """The simulated robot's true state at time ``t`` (read by sensors and the logger only)."""
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+
+
+@dataclass(frozen=True)
+class CameraMeasurement:
+    """What a camera delivers for one period: a detection (pixels in the paper's corner order,
+    with the imperfection models applied) captured at ``t_capture`` (earlier than now when the
+    camera has latency). ``image`` is kept only when asked for (video, snapshots)."""
+
+    t_capture: float
+    detection: Detection = NOT_DETECTED
+    image: np.ndarray | None = None
+
+    @property
+    def found(self) -> bool:
+        return self.detection.found
+
+
+NO_MEASUREMENT = CameraMeasurement(float("nan"))
+
+
+@dataclass(frozen=True)
+class SensorReadings:
+    """Everything the sensors produced in one period. ``global_`` is ``None`` when C_G was not
+    read this period (it is read on request of the servo, or every ``global_every`` periods);
+    ``other`` holds the measurements of further sensors by name (drone pose, IMU, encoders)."""
+
+    t: float
+    local: CameraMeasurement
+    global_: CameraMeasurement | None = None
+    other: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class StateEstimate:
+    """The state every block downstream of the sensors uses: ``q_hat``, ``qdot_hat`` and,
+    from an estimator, their covariance ``P`` (``2n x 2n``; ``None`` for the true state)."""
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    P: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class LocalView:
+    """Perception of C_L: the target's four points in normalized coordinates of C_L (with the
+    controller's intrinsics) and their depths from the known target geometry (planar PnP).
+    ``pixels`` are the detected pixels (for the mode switch and the logs)."""
+
+    t_capture: float
+    found: bool = False
+    pixels: np.ndarray | None = None
+    points: np.ndarray | None = None
+    depths: np.ndarray | None = None
+
+
+NOT_SEEN = LocalView(float("nan"))
+
+
+@dataclass(frozen=True)
+class GlobalView:
+    """Perception of C_G: the detection the recovery planner needs (target pose by IPPE)."""
+
+    t_capture: float
+    detection: Detection = NOT_DETECTED
+
+    @property
+    def found(self) -> bool:
+        return bool(self.detection.found or self.detection.corners)
+
+
+@dataclass(frozen=True)
+class ServoCommand:
+    """The servo's output: the joint reference for the low-level controller, and what the
+    servo computed on the way (logged). ``request_global`` asks the sensors for a C_G frame in
+    the next period (the recovery planner needs one snapshot)."""
+
+    mode: str
+    q_d: np.ndarray
+    qd_d: np.ndarray
+    qdd_d: np.ndarray
+    twist: np.ndarray  # [w; v] of C_V (C_L for a fixed base); zeros when not servoing
+    features: np.ndarray | None = None
+    error: np.ndarray | None = None
+    points: np.ndarray | None = None  # normalized points in C_V (C_L for a fixed base)
+    rmse: float = float("nan")  # normalized-point RMSE to the reference snapshot
+    request_global: bool = False
+    event: str | None = None  # e.g. "ibvs engaged", "recovery planned"
+    plan: dict | None = None  # the recovery plan, when one was made this period
+    failure: str | None = None  # set when the servo cannot go on (the run ends)
+
+
+@dataclass(frozen=True)
+class ActuatorCommand:
+    """The real inputs ``u = [thrusts (4), tensions (n_a)]`` (tensions only for a fixed base)
+    and the controller's internals worth logging."""
+
+    u: np.ndarray
+    tau: np.ndarray
+    q_ref: np.ndarray
+    V: float = float("nan")
+    delta_hat: np.ndarray | None = None
+    thrust_saturated: bool = False
+    tension_saturated: bool = False

@@ -1,0 +1,68 @@
+"""The low-level control block (paper, "Model-Based Control"): the adaptive sliding-mode law,
+the hierarchical drone loop and the thrust/tension allocation of
+:class:`~tdacm.control.TDACMController`, behind the :class:`~.protocols.LowLevelController`
+protocol; and the loader of user controllers named in a scenario."""
+
+from __future__ import annotations
+
+import importlib
+
+from ..control import TDACMController
+from .data import ActuatorCommand, ServoCommand, StateEstimate
+from .protocols import ControllerContext, LowLevelController
+
+
+class AdaptiveLowLevel:
+    """The paper's controller (eqs. S2-S10) with the drone loop and allocation."""
+
+    def __init__(self, context: ControllerContext):
+        self.controller = TDACMController.from_options(
+            context.system, context.model, context.q_star, context.options
+        )
+
+    def reset(self, estimate: StateEstimate) -> None:
+        self.controller.reset()
+
+    def step(self, estimate: StateEstimate, command: ServoCommand, dt: float) -> ActuatorCommand:
+        cs = self.controller.step(
+            estimate.q, estimate.qd, command.q_d, command.qd_d, command.qdd_d, dt
+        )
+        return ActuatorCommand(
+            cs.u, cs.tau, cs.q_ref, cs.V, cs.delta_hat, cs.thrust_saturated, cs.tension_saturated
+        )
+
+
+def load_class(path: str):
+    """``"package.module:ClassName"`` -> the class (``ValueError`` naming the path if absent)."""
+    mod_name, sep, cls_name = path.partition(":")
+    if not sep or not mod_name or not cls_name:
+        raise ValueError(f"controller.class must read 'package.module:ClassName', got {path!r}")
+    try:
+        module = importlib.import_module(mod_name)
+    except ImportError as exc:
+        raise ValueError(f"controller.class {path!r}: cannot import {mod_name!r} ({exc})") from None
+    cls = getattr(module, cls_name, None)
+    if cls is None:
+        raise ValueError(f"controller.class {path!r}: {mod_name} has no {cls_name!r}")
+    return cls
+
+
+def make_low_level(path: str | None, context: ControllerContext) -> LowLevelController:
+    """The scenario's controller: the adaptive one, or ``path`` built as ``cls(context)``."""
+    if not path:
+        return AdaptiveLowLevel(context)
+    try:
+        ctl = load_class(path)(context)
+    except ValueError:
+        raise
+    except Exception as exc:  # a user's constructor: report it under the scenario key
+        raise ValueError(
+            f"controller.class {path!r}: building it from a ControllerContext failed: "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
+    if not isinstance(ctl, LowLevelController):
+        raise ValueError(
+            f"controller.class {path!r} does not implement reset(estimate) and "
+            "step(estimate, command, dt) (see tdacm.loop.protocols.LowLevelController)"
+        )
+    return ctl

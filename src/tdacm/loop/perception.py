@@ -1,0 +1,38 @@
+"""The perception block: detections -> normalized image points and depths.
+
+The controller interprets pixels with *its* model of the camera (intrinsics possibly wrong,
+``sensors.intrinsics_error``): ``x = (u - c_x) / f_x``, ``y = (v - c_y) / f_y`` (NOTES.md), and
+the depths of the four points come from the known target geometry (planar PnP,
+:func:`~tdacm.vision.features.estimate_depths`) - the paper's depth estimation.
+"""
+
+from __future__ import annotations
+
+from ..vision.camera import PinholeCamera
+from ..vision.features import estimate_depths
+from .data import CameraMeasurement, GlobalView, LocalView
+
+
+class Perception:
+    """``local(measurement) -> LocalView``, ``global_(measurement) -> GlobalView``."""
+
+    def __init__(self, local_camera: PinholeCamera, global_camera: PinholeCamera, target):
+        self.local_camera = local_camera
+        self.global_camera = global_camera
+        self.target = target
+        self._object = target.feature_points
+
+    def reset(self) -> None:
+        pass
+
+    def local(self, m: CameraMeasurement) -> LocalView:
+        det = m.detection
+        if not det.found:
+            return LocalView(m.t_capture)
+        xy = self.local_camera.normalize(det.points)
+        return LocalView(m.t_capture, True, det.points, xy, estimate_depths(xy, self._object))
+
+    def global_(self, m: CameraMeasurement | None) -> GlobalView | None:
+        if m is None:
+            return None
+        return GlobalView(m.t_capture, m.detection)

@@ -1,0 +1,108 @@
+"""The plant block: the true coupled model (paper eq. (9)) under disturbances.
+
+:class:`Plant` integrates ``M qdd + (C + D) qd + K = tau_ext + B u`` with the input held over
+one control period (``substeps`` RK4 steps inside numba, :func:`tdacm.system.kernels.rk4_run`).
+Disturbances are loads by name (the attributes of :class:`~tdacm.system.tdacm.Loads`), never
+packed indices: :class:`Disturbances` gives, at time ``t``, the values of the loads it drives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..system.kernels import rk4_run
+from ..system.tdacm import TDACM, Loads
+from .data import PlantState
+
+
+@dataclass(frozen=True)
+class Disturbances:
+    """The scenario's ``[disturbances]`` (paper, test C):
+
+    * ``base_wrench_amplitude`` (6,), ``base_wrench_frequency`` (Hz): a structural vibration,
+      ``W_b^b = amplitude sin(2 pi f t)`` on the drone, in its body frame ``[m; f]``;
+    * ``downwash`` (3,) and ``downwash_noise``: the rotors' downwash on the rod, an inertial
+      force density (N/m) ``downwash + noise N(0, I)`` redrawn every control period.
+    """
+
+    base_wrench_amplitude: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    base_wrench_frequency: float = 0.0
+    downwash: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    downwash_noise: float = 0.0
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Disturbances:
+        return cls(
+            np.asarray(d["base_wrench_amplitude"], float),
+            float(d["base_wrench_frequency"]),
+            np.asarray(d["downwash"], float),
+            float(d["downwash_noise"]),
+        )
+
+    @property
+    def active(self) -> bool:
+        return bool(
+            (np.any(self.base_wrench_amplitude) and self.base_wrench_frequency > 0)
+            or np.any(self.downwash)
+            or self.downwash_noise > 0
+        )
+
+    def loads_at(self, t: float, rng: np.random.Generator, floating: bool) -> dict:
+        """``{load name: value}`` of the driven loads at time ``t``."""
+        out = {}
+        if floating and np.any(self.base_wrench_amplitude) and self.base_wrench_frequency > 0:
+            out["base_wrench"] = self.base_wrench_amplitude * np.sin(
+                2 * np.pi * self.base_wrench_frequency * t
+            )
+        if np.any(self.downwash) or self.downwash_noise > 0:
+            out["rod_force"] = self.downwash + self.downwash_noise * rng.standard_normal(3)
+        return out
+
+
+class Plant:
+    """The simulated TD-ACM. ``advance(u, dt)`` holds ``u`` over ``dt`` and returns the new
+    :class:`PlantState`; ``ok`` turns false when the integration fails (singular mass matrix
+    or a non-finite state)."""
+
+    def __init__(
+        self,
+        system: TDACM,
+        q0,
+        qd0,
+        substeps: int = 4,
+        disturbances: Disturbances | None = None,
+        rng: np.random.Generator | None = None,
+    ):
+        self.system = system
+        self.substeps = int(substeps)
+        self.disturbances = disturbances or Disturbances()
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        # the plant's own loads: gravity of the system plus the disturbances, by name
+        self._loads = Loads(gravity=system.loads.gravity.copy())
+        self._base = system.loads.packed().copy()
+        self.reset(q0, qd0)
+
+    def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
+        self.state = PlantState(float(t), np.array(q0, float), np.array(qd0, float))
+        self.ok = True
+        self._t0, self._k = float(t), 0  # t = t0 + k dt, without accumulated round-off
+        return self.state
+
+    def advance(self, u: np.ndarray, dt: float) -> PlantState:
+        s = self.state
+        loads = self._loads
+        loads.packed()[:] = self._base
+        for name, value in self.disturbances.loads_at(s.t, self.rng, self.system.floating).items():
+            getattr(loads, name)[:] = value  # a view into the packed loads
+        h = dt / self.substeps
+        qs, qds, ok = rk4_run(
+            s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
+            self.system.model_arrays, loads.packed(),
+        )  # fmt: skip
+        q, qd = qs[-1].copy(), qds[-1].copy()
+        self.ok = bool(ok and np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
+        self._k += 1
+        self.state = PlantState(self._t0 + self._k * dt, q, qd)
+        return self.state

@@ -1,0 +1,288 @@
+"""The servo block: dual-camera visual servoing (paper, "Dual-Camera Visual Servoing").
+
+Per period, from the perception of both cameras and the state estimate:
+
+1. **mode switch** (:class:`~tdacm.control.ModeSwitch`): IBVS while the target is in C_L's
+   view, recovery when it is lost (margin and hysteresis);
+2. **IBVS** (local camera): the normalized points of C_L are mapped to the virtual camera C_V
+   (roll/pitch compensation, eq. (18)), the six advanced features and their interaction
+   matrix give the twist ``v = -lambda J_img^+ e`` of C_V (eqs. (19)-(21)), and the tip-level
+   mapping ``qdot_d = (J_L^L)^+ Ad v`` over the commanded coordinates (roll and pitch are not
+   commanded) gives the joint rates; **command shaping** (ours, documented in
+   docs/control.md) limits them, ramps them up after IBVS engages and smooths them with a
+   first-order filter; ``q_d`` is their integral;
+3. **recovery** (global camera): one C_G snapshot gives the target pose (IPPE), the planner
+   solves for the rod configuration ``q_s^d`` that brings the target into C_L's view, and a
+   cubic trajectory drives the rod there while the drone holds its pose. If no C_G frame is
+   available when recovery starts, the servo holds and requests one (``request_global``).
+
+:class:`VisualServo` implements the servo protocol of :mod:`tdacm.loop.protocols`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
+from ..lie.se3 import Ad
+from ..vision.features import advanced_features
+from ..vision.ibvs import IBVSController
+from ..vision.tip import rates_from_jacobian
+from ..vision.virtual import virtual_points, virtual_transform
+from .data import GlobalView, LocalView, ServoCommand, StateEstimate
+
+MODE_CODES = {ModeSwitch.IBVS: 0, ModeSwitch.RECOVERY: 1}
+
+
+def normalized_rmse(points, desired) -> float:
+    """``sqrt(mean_k |p_k - p_k^d|^2)`` over the four points (normalized coordinates)."""
+    if points is None:
+        return float("nan")
+    d = np.asarray(points) - np.asarray(desired)
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+@dataclass(frozen=True)
+class ShapingParams:
+    """Command shaping of the IBVS joint rates (scenario section ``[ibvs]``)."""
+
+    max_joint_rate: float = 0.4  # rad/s, rod strains and yaw
+    max_drone_speed: float = 0.3  # m/s, horizontal
+    max_vertical_speed: float = 1.0  # m/s
+    soft_start: float = 1.0  # s, time constant of the ramp after IBVS engages (0: off)
+    rate_filter: float = 0.15  # s, time constant of the first-order rate filter (0: off)
+
+
+@dataclass(frozen=True)
+class RecoveryParams:
+    """Recovery planner and mode switch (scenario section ``[recovery]``)."""
+
+    max_speed: float = 0.3
+    margin_px: float = 20.0
+    confirm: int = 2
+    lose: int = 5
+
+
+class VisualServo:
+    """The paper's dual-camera servo (module docstring).
+
+    Parameters
+    ----------
+    system:
+        The controller's view of the robot's kinematics (Jacobians, poses).
+    local_camera, global_camera:
+        The controller's camera models (intrinsics used to interpret pixels).
+    target:
+        The fiducial target (its geometry is known to the controller).
+    tip_mount, drone_mount:
+        ``g_{C_L}^L`` and ``g_{C_G}^b``.
+    desired_points, desired_depths:
+        The reference snapshot in C_V (C_L for a fixed base).
+    gain, mode, compensation:
+        IBVS gain ``lambda``, interaction-matrix choice and the virtual-camera form.
+    """
+
+    def __init__(
+        self,
+        system,
+        local_camera,
+        global_camera,
+        target,
+        tip_mount,
+        drone_mount,
+        desired_points,
+        desired_depths,
+        gain: float = 1.0,
+        mode: str = "current",
+        compensation: str = "exact",
+        shaping: ShapingParams | None = None,
+        recovery: RecoveryParams | None = None,
+    ):
+        self.system = system
+        self.local_camera = local_camera
+        self.global_camera = global_camera
+        self.target = target
+        self.tip_mount = np.asarray(tip_mount, float)
+        self.drone_mount = np.asarray(drone_mount, float)
+        self.desired_points = np.asarray(desired_points, float)
+        self.desired_depths = np.asarray(desired_depths, float)
+        self.ibvs = IBVSController(self.desired_points, self.desired_depths, gain=gain, mode=mode)
+        self.compensation = compensation
+        self.shaping = shaping or ShapingParams()
+        self.recovery = recovery or RecoveryParams()
+        s = system
+        n = s.n
+        self.n = n
+        self._cmd = np.array([i for i in range(n) if not (s.floating and i < 2)])
+        lim = np.full(n, self.shaping.max_joint_rate)
+        if s.floating:
+            lim[3:5] = self.shaping.max_drone_speed
+            lim[5] = self.shaping.max_vertical_speed
+        self._lim = lim
+        self._ad_mount = Ad(np.ascontiguousarray(self.tip_mount))
+        self.switch = ModeSwitch(
+            local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
+        )
+        self.reset(np.zeros(n))
+
+    # ------------------------------------------------------------------ state
+    def reset(self, q0, first_view: LocalView | None = None) -> None:
+        """Start from configuration ``q0`` (the estimate); the initial mode is IBVS when the
+        first C_L view has the target inside the margin, recovery otherwise."""
+        s = self.system
+        self.switch.mode = ModeSwitch.RECOVERY
+        self.switch._good = self.switch._bad = 0
+        if first_view is not None and first_view.found and self.switch.inside(first_view.pixels):
+            self.switch.mode = ModeSwitch.IBVS
+        self.q_d = np.array(q0, float)
+        if s.floating:
+            self.q_d[:2] = 0.0
+        self.qd_d = np.zeros(self.n)
+        self.ibvs_start = 0.0
+        self.traj = None
+
+    @property
+    def mode(self) -> str:
+        return self.switch.mode
+
+    # ------------------------------------------------------------------ pieces
+    def local_camera_pose(self, q) -> np.ndarray:
+        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`)."""
+        return self.system.tip_pose(q) @ self.tip_mount
+
+    def to_virtual(self, view: LocalView, q):
+        """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""
+        if not self.system.floating:
+            return view.points, view.depths
+        gv = virtual_transform(self.system.base_pose(q), self.local_camera_pose(q))
+        xy, zv = virtual_points(view.points, gv, view.depths, self.compensation, True)
+        # "exact" returns z^{C_V}; the other forms the ratio z^{C_V} / z^{C_L}
+        return xy, (zv if self.compensation == "exact" else zv * view.depths)
+
+    def observe(self, view: LocalView, q):
+        """``(points, depths, features, error, rmse)`` of a view in C_V (no state change)."""
+        points, depths = self.to_virtual(view, q)
+        rmse = normalized_rmse(points, self.desired_points)
+        return points, depths, advanced_features(points), self.ibvs.error(points), rmse
+
+    def joint_rates(self, q, twist) -> np.ndarray:
+        """``qdot_d = (J_L^L[:, cmd])^+ Ad(g_{C_L}^L) v`` over the commanded coordinates, with
+        the Jacobian of the virtual-camera chain (roll and pitch set to zero) for a floating
+        base (:func:`~tdacm.vision.camera_joint_rates` with ``jacobian_at="virtual"``)."""
+        qv = q
+        if self.system.floating:
+            qv = q.copy()
+            qv[:2] = 0.0
+        return rates_from_jacobian(self.system.tip_jacobian(qv), self._ad_mount @ twist, self._cmd)
+
+    def shape(self, rates: np.ndarray, t: float, dt: float) -> None:
+        """Limit, ramp and filter the IBVS joint rates into ``qd_d``; integrate ``q_d``."""
+        sp = self.shaping
+        cmd = self._cmd
+        t_ib = t - self.ibvs_start
+        ramp = 1.0 - np.exp(-t_ib / sp.soft_start) if sp.soft_start > 0 else 1.0
+        scale = max(1.0, float(np.max(np.abs(rates[cmd]) / self._lim[cmd])))
+        new_qd = np.zeros(self.n)
+        new_qd[cmd] = rates[cmd] / scale
+        # the first-order filter starts from the recovery's last joint rates (smooth hand-over)
+        # and keeps the IBVS from exciting the coupled roll/strain mode (~2 Hz)
+        a_f = min(1.0, dt / sp.rate_filter) if sp.rate_filter > 0 else 1.0
+        self.qd_d = self.qd_d + a_f * (ramp * new_qd - self.qd_d)
+        self.q_d = self.q_d + self.qd_d * dt
+
+    def plan(self, q, t, gview: GlobalView):
+        """Recovery plan from one C_G snapshot."""
+        s = self.system
+        g_t_cg = estimate_target_pose(gview.detection, self.global_camera, self.target)
+        p_body = self.drone_mount @ g_t_cg[:, 3]
+        q_s_now = q[s.n - s.n_s :]
+        plan = plan_rod_configuration(
+            s, p_body[:3], self.tip_mount, q_s_now, z_min=self.local_camera.near
+        )
+        traj = CubicTrajectory.with_speed(q_s_now, plan.q_s, t, self.recovery.max_speed)
+        return plan, traj
+
+    # ------------------------------------------------------------------ the step
+    def step(
+        self,
+        t: float,
+        dt: float,
+        view: LocalView,
+        gview: GlobalView | None,
+        est: StateEstimate,
+        twist: np.ndarray | None = None,
+    ) -> ServoCommand:
+        """One servo period. ``twist`` (optional) replaces the IBVS twist (an external
+        command, e.g. a learning agent's action); shaping and the mapping still apply."""
+        s, n = self.system, self.n
+        q = est.q
+        prev = self.switch.mode
+        mode = self.switch.update(view.pixels if view.found else None)
+        event = None
+        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
+            # q_d continues from the recovery reference (continuous error)
+            self.ibvs_start = t
+            self.traj = None
+            event = "ibvs engaged"
+        elif prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
+            event = "target lost"
+        out_twist = np.zeros(6)
+        qdd_d = np.zeros(n)
+        points = features = error = None
+        rmse = float("nan")
+        plan_info = None
+        if view.found:
+            points, depths, features, error, rmse = self.observe(view, q)
+        if mode == ModeSwitch.IBVS and (view.found or twist is not None):
+            if twist is None:
+                twist = self.ibvs.twist(points, depths)
+            out_twist = np.asarray(twist, float)
+            rates = self.joint_rates(q, out_twist)
+            # qdd_d = 0: IBVS gives rates only (qdd_r = -beta edot)
+            self.shape(rates, t, dt)
+        elif mode == ModeSwitch.RECOVERY:
+            if self.traj is None:
+                if gview is None or not gview.found:
+                    # no C_G frame this period: hold, and ask for one
+                    self.qd_d = np.zeros(n)
+                    failure = None
+                    if gview is not None:  # C_G was read and does not see the target
+                        failure = "recovery: target not seen by C_G"
+                    return ServoCommand(
+                        mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist,
+                        features, error, points, rmse, request_global=True, event=event,
+                        failure=failure,
+                    )  # fmt: skip
+                try:
+                    plan, self.traj = self.plan(q, t, gview)
+                except ValueError as exc:
+                    return ServoCommand(
+                        mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
+                        points, rmse, failure=f"recovery planning failed: {exc}",
+                    )  # fmt: skip
+                plan_info = {
+                    "t": t,
+                    "q_s_d": plan.q_s.tolist(),
+                    "point_local": plan.point_local.tolist(),
+                    "cost": plan.cost,
+                    "success": plan.success,
+                    "duration": self.traj.duration,
+                }
+                event = "recovery planned"
+                self.q_d = np.array(q, float)
+                if s.floating:
+                    self.q_d[:2] = 0.0
+            qs_d, qsd_d, qsdd_d = self.traj(t)
+            ns = s.n_s
+            self.q_d[n - ns :] = qs_d
+            self.qd_d = np.zeros(n)
+            self.qd_d[n - ns :] = qsd_d
+            qdd_d[n - ns :] = qsdd_d
+        else:  # IBVS mode but the target is not seen this frame: hold
+            self.qd_d = np.zeros(n)
+        return ServoCommand(
+            mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features, error, points,
+            rmse, event=event, plan=plan_info,
+        )  # fmt: skip
