@@ -326,9 +326,10 @@ class TargetFilter:
             # keep the other PnP branch until the data decide: a log-likelihood margin of
             # `decisive` (cost difference), `young` frames at most, or the branches merged
             other = results[1] if len(results) > 1 else None
-            merged = other is None or np.linalg.norm(
-                np.linalg.solve(best[0], other[0]) - np.eye(4)
-            ) < 1e-4
+            merged = (
+                other is None
+                or np.linalg.norm(np.linalg.solve(best[0], other[0]) - np.eye(4)) < 1e-4
+            )
             done = other is None or other[2] - best[2] > self.decisive
             if merged or done or self.updates + 1 >= self.young:
                 self._hyp = []
