@@ -343,6 +343,10 @@ class RobustServo(VisualServo):
             smoothing=r.smoothing,
         )
         self.predictor.controller = self.ibvs
+        # feed-forward and leak are for the flying base, whose position lags the reference
+        # through the attitude loop (measured on paper-in-fov); a held rod tracks directly
+        self._flying = bool(self.system.floating)
+        self._leak = self._cmd if self._flying else np.zeros(0, int)
 
     def reset(self, q0, first_view: LocalView | None = None) -> None:
         super().reset(q0, first_view)
@@ -433,14 +437,14 @@ class RobustServo(VisualServo):
             out_twist = np.asarray(ps.twist if twist is None else twist, float)
             qd_prev = self.qd_d.copy()
             self.shape(self.joint_rates(q, out_twist), t, dt)
-            if r.accel_feedforward:
+            if r.accel_feedforward and self._flying:
                 # the low-level loop follows the deceleration instead of lagging into an
                 # overshoot (paper: qdd_d = 0)
                 qdd_d = (self.qd_d - qd_prev) / dt
             if r.reference_leak > 0:
                 # q_d is only an integrated rate; the vision loop closes on the actual pose,
                 # so pull q_d toward q_hat (no wind-up while the plant lags)
-                c = self._cmd
+                c = self._leak
                 self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
         elif mode == ModeSwitch.RECOVERY:
             if self.traj is None:
