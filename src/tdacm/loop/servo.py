@@ -296,7 +296,7 @@ class RobustParams:
     solver: str = "floor"  # "floor" | "damped"
     pixel_sigma: float = 1.0  # px, corner noise assumed by the target filter
     window: int = 250  # frames fused by the target filter
-    smoothing: float = 0.5  # s, smoothing of the estimate used by the prediction
+    smoothing: float = 1.0  # s, smoothing of the estimate used by the prediction
     accel_feedforward: bool = True  # qdd_d = d(qd_d)/dt of the filtered rate command
     reference_leak: float = 4.0  # 1/s, pull of q_d toward q_hat (anti wind-up)
     lost_timeout: float = 1.0  # s without a fused frame before the target counts as lost

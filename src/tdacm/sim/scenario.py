@@ -72,7 +72,7 @@ SCHEMA = {
         "solver": (str, "floor"),  # "floor" | "damped"
         "filter_pixel_sigma": (float, 1.0),  # px, corner noise assumed by the target filter
         "filter_window": (int, 250),  # frames fused by the target filter (sliding window)
-        "filter_smoothing": (float, 0.5),  # s, smoothing of the estimate used for prediction
+        "filter_smoothing": (float, 1.0),  # s, smoothing of the estimate used for prediction
     },
     "recovery": {
         "max_speed": (float, 0.3),

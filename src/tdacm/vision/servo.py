@@ -175,7 +175,7 @@ class PredictiveServo:
         solver: str = "floor",
         pixel_sigma: float = 1.0,
         window: int = 250,
-        smoothing: float = 0.3,
+        smoothing: float = 1.0,
         track: bool = True,
     ):
         from .target_filter import TargetFilter
