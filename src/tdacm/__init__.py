@@ -7,13 +7,14 @@ Aerial Continuum Manipulators".
 """
 
 from .base import FixedBase, Quadrotor
-from .rod import Rod, StrainBasis, Tendons
+from .rod import Rod, SectionedRod, StrainBasis, Tendons
 from .system import (
     TDACM,
     Loads,
     SimulationResult,
     SingularConfigurationError,
     Terms,
+    dual_paper_system,
     paper_system,
     simulate,
 )
@@ -26,11 +27,13 @@ __all__ = [
     "Loads",
     "Quadrotor",
     "Rod",
+    "SectionedRod",
     "SimulationResult",
     "SingularConfigurationError",
     "StrainBasis",
     "Tendons",
     "Terms",
+    "dual_paper_system",
     "paper_system",
     "simulate",
 ]

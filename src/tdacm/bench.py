@@ -24,6 +24,17 @@ from .system import kernels as K
 from .system import paper_system, simulate
 
 
+def _stage(text: str, end: bool = False) -> None:
+    """One progress line on stderr (overwritten in a terminal), so stdout keeps the tables."""
+    import sys
+
+    tty = sys.stderr.isatty()
+    sys.stderr.write(
+        ("\r\033[K" if tty else "") + f"bench: {text}" + ("\n" if end or not tty else "")
+    )
+    sys.stderr.flush()
+
+
 def _median_time(fn, number, repeats):
     samples = []
     for _ in range(repeats):
@@ -36,6 +47,7 @@ def _median_time(fn, number, repeats):
 
 
 def bench_system(name, system, repeats=7, duration=5.0):
+    """Per-call costs and the RK4 passive real-time factor (random bent, moving state)."""
     rng = np.random.default_rng(0)
     q = np.zeros(system.n)
     q[5] = 3.0
@@ -46,7 +58,7 @@ def bench_system(name, system, repeats=7, duration=5.0):
     # warm-up (compilation is cached on disk after the first run)
     system.terms(q, qd)
     system.forward_dynamics(q, qd, u)
-    simulate(system, q, qd, duration=0.02, u=u)
+    simulate(system, q, qd, duration=0.02, u=u, method="rk4")
     t_terms = _median_time(lambda: system.terms(q, qd), 2000, repeats)
     t_fd_api = _median_time(lambda: system.forward_dynamics(q, qd, u), 5000, repeats)
     t_fd_kernel = _median_time(lambda: K.forward_dynamics(q, qd, u, m, loads), 5000, repeats)
@@ -54,7 +66,7 @@ def bench_system(name, system, repeats=7, duration=5.0):
     walls = []
     for _ in range(max(3, repeats // 2)):
         t0 = time.perf_counter()
-        res = simulate(system, q, qd, duration=duration, dt=dt, u=u, record_dt=0.01)
+        res = simulate(system, q, qd, duration=duration, dt=dt, u=u, record_dt=0.01, method="rk4")
         walls.append(time.perf_counter() - t0)
     wall = float(np.median(walls))
     return {
@@ -74,15 +86,96 @@ def bench_system(name, system, repeats=7, duration=5.0):
     }
 
 
-def run_model_bench(out="out/bench", repeats=7) -> dict:
-    systems = [
-        ("paper (2 bending, order 0)", paper_system()),
-        (
-            "rich (torsion + 2 bending, order 3)",
-            paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4),
+def _released(system):
+    """The rod held by tendons 0 and 1 (2 N, 1 N) below the drone held at 3 m, in equilibrium;
+    released with hover thrust (the stiff benchmark's passive case)."""
+    q0 = np.zeros(system.n)
+    q0[5] = 3.0
+    ut = np.zeros(system.n_u)
+    ut[4:6] = [2.0, 1.0]
+    q = system.static_equilibrium(ut, q0=q0, load_steps=4)
+    u = np.r_[np.full(4, system.total_mass * 9.81 / 4), np.zeros(system.n_a)]
+    return q, u
+
+
+def bench_stiff(
+    name,
+    system,
+    method="rosenbrock",
+    duration=5.0,
+    check=0.5,
+    reference="dop853",
+    repeats=3,
+    ref=None,
+):
+    """A stiff integrator (``"rosenbrock"``: ROS34PW2 at 2.5 ms, ``"radau"``: Radau IIA at 10 ms,
+    fixed steps) on a stiff rod: median wall time of ``duration`` s of the released passive case,
+    and the tip error over the first ``check`` s against a converged reference: DOP853 at rtol
+    1e-10 (``reference="dop853"``) or, when DOP853 cannot afford the stiffness, Rosenbrock at a
+    tenth of its step (``"rosenbrock/10"``).  ``ref`` reuses a reference simulation."""
+    from .system.integrate import RADAU_DT, ROSENBROCK_DT
+
+    step = ROSENBROCK_DT if method == "rosenbrock" else RADAU_DT
+    q, u = _released(system)
+    simulate(system, q, None, duration=0.02, u=u, method=method, record_dt=0.01)  # warm-up
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = simulate(system, q, None, duration=duration, u=u, method=method, record_dt=0.01)
+        walls.append(time.perf_counter() - t0)
+    wall = float(np.median(walls))
+    t0 = time.perf_counter()
+    if ref is not None:
+        pass
+    elif reference == "dop853":
+        ref = simulate(
+            system, q, None, check, u=u, method="adaptive", rtol=1e-10, atol=1e-12, record_dt=0.01
+        )
+    else:
+        ref = simulate(
+            system, q, None, check, u=u, method="rosenbrock", dt=ROSENBROCK_DT / 10, record_dt=0.01
+        )
+    ref_wall = time.perf_counter() - t0
+    k = min(ref.q.shape[0], res.q.shape[0])
+    tip = np.array([system.tip_pose(x)[:3, 3] for x in res.q[:k]])
+    tref = np.array([system.tip_pose(x)[:3, 3] for x in ref.q[:k]])
+    e = [system.energy(a, b)["total"] for a, b in zip(res.q, res.qd, strict=True)]
+    return {
+        "system": name,
+        "n": system.n,
+        "w_max_rad_s": float(system.natural_frequencies().max()),
+        "rk4_stable_dt_s": system.suggested_dt(),
+        "method": method,
+        "dt_s": step,
+        "passive_sim_s": duration,
+        "passive_wall_s": wall,
+        "real_time_factor": duration / wall,
+        "completed": bool(res.completed),
+        "reference": reference,
+        "reference_wall_s": ref_wall,
+        "check_s": check,
+        "tip_error_max_m": float(np.abs(tip - tref).max()),
+        "tip_travel_m": float(np.abs(tref - tref[0]).max()),
+        "energy_change_J": float(e[-1] - e[0]),
+        "energy_span_J": float(max(e) - min(e)),
+        "kinetic_max_J": float(
+            max(system.energy(a, b)["kinetic"] for a, b in zip(res.q, res.qd, strict=True))
         ),
+        "_ref": ref,
+    }
+
+
+def run_model_bench(out="out/bench", repeats=7) -> dict:
+    rich = paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4)
+    systems = [
+        ("paper (2 bending, order 0)", paper_system(), 5.0),
+        ("rich (torsion + 2 bending, order 3)", rich, 1.0),
     ]
-    rows = [bench_system(name, s, repeats) for name, s in systems]
+    rows = []
+    for i, (name, s, d) in enumerate(systems):
+        _stage(f"model {i + 1}/{len(systems)}: {name}")
+        rows.append(bench_system(name, s, repeats, duration=d))
+    _stage("model: done", end=True)
     print(
         f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} {'RK4 dt':>9s} {'RTF':>8s}"
     )
@@ -91,7 +184,43 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             f"{r['system']:38s} {r['n']:3d} {r['terms_us']:8.1f}us {r['forward_dynamics_api_us']:8.1f}us "
             f"{r['forward_dynamics_kernel_us']:9.1f}us {r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
         )
-    result = {"model": rows, "machine_note": "medians; IQR in *_iqr_us"}
+    full = paper_system(basis=StrainBasis.full(2))
+    stiff = []
+    for sysname, s_, refname in (
+        ("18-DoF (torsion + 2 bending, order 3)", rich, "dop853"),
+        ("full 6 strains, order 2 (n = 24)", full, "rosenbrock/10"),
+    ):
+        ref = None
+        for method in ("rosenbrock", "radau"):
+            row = bench_stiff(sysname, s_, method, reference=refname, ref=ref)
+            ref = row.pop("_ref")
+            stiff.append(row)
+    print(
+        f"\n{'stiff rod, fixed steps':38s} {'n':>3s} {'w_max':>9s} {'RTF':>8s} {'tip err':>10s} (first s, reference)"
+    )
+    for r in stiff:
+        print(
+            f"{r['system'][:26] + ', ' + r['method']:38s} {r['n']:3d} {r['w_max_rad_s']:9.3g} {r['real_time_factor']:7.1f}x "
+            f"{r['tip_error_max_m'] * 1e3:8.3f}mm ({r['check_s']} s, {r['reference']}, "
+            f"travel {r['tip_travel_m'] * 1e3:.0f} mm, completed {r['completed']})"
+        )
+    from .loop.bench import loop_bench
+
+    _stage("closed loop (paper-in-fov, 5 s, rendered and analytic C_L)")
+    loop = loop_bench(repeats=5, cold=False, progress=_stage)
+    print(f"\n{'closed loop, paper-in-fov 5 s':38s} {'wall/sim s':>10s} {'RTF':>8s}")
+    for name in ("rendered", "analytic"):
+        r = loop[name]
+        print(f"{name + ' C_L':38s} {r['wall_per_sim_second']:10.3f} {r['real_time_factor']:7.1f}x")
+    load = open("/proc/loadavg").read().split()[:3] if Path("/proc/loadavg").exists() else []
+    result = {
+        "model": rows,
+        "stiff": stiff,
+        "loop": loop,
+        "load_average": load,
+        "machine_note": "medians; IQR in *_iqr_us",
+    }
+    print(f"load average (1, 5, 15 min) at the end: {load}")
     path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "bench.json").write_text(json.dumps(result, indent=2))
@@ -118,19 +247,32 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     result = run_model_bench(out=out, repeats=repeats)
     walls["model"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    _stage("full 1/4: GVS vs CC timing")
     timing = study.timing_study()
     walls["baseline_timing"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    rows = study.scaling_study() if scaling else []
+    _stage("full 2/4: DoF scaling")
+    # 10 and 16 points: a mode of order p needs p + 2 points (tdacm.rod.min_gauss_points), so
+    # the 4- and 8-point columns of the earlier runs are refused for orders above 2 and 6
+    rows = study.scaling_study(gauss=(10, 16)) if scaling else []
     walls["scaling"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    _stage("full 3/4: accuracy study")
     acc = study.accuracy_study() if accuracy else {"duration_s": 0, "rk4_dt_s": 0, "cases": {}}
     walls["accuracy"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     swing = acc["cases"].get("swing")
     ref = dict(swing, record_dt_s=acc["record_dt_s"]) if swing else None
+    _stage("full 4/4: PyElastica")
     elastica = study.pyelastica_study(reference=ref)
     walls["pyelastica"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    from .loop.bench import time_cold_start
+
+    _stage("full: cold first run (empty numba cache)")
+    result["loop"]["cold_start"] = time_cold_start()
+    walls["cold_start"] = time.perf_counter() - t0
+    _stage("full: done", end=True)
     study.print_report(timing, rows, acc, elastica)
     print("\nsection wall times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in walls.items()))
     result.update(

@@ -1,14 +1,109 @@
-"""Command-line interface: ``tdacm info``, ``tdacm demo``, ``tdacm bench``, ``tdacm run``,
-``tdacm scenarios``, ``tdacm campaign``, ``tdacm replay``."""
+"""Command-line interface: ``tdacm info``, ``demo``, ``bench``, ``run``, ``plot``, ``scenarios``,
+``campaign``, ``replay``.
+
+Conventions: stdout carries only the program's own output (``tdacm run`` prints the summary JSON
+alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress lines and "written
+to" lines go to stderr. Invalid input exits with status 2 and one ``error:`` line naming the
+flag or the scenario key; Ctrl-C exits with status 130 and one line (``tdacm run`` writes the
+steps simulated so far; a campaign keeps its stored runs and resumes when rerun).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 from pathlib import Path
 
 
+def _err(msg: str) -> int:
+    print(f"error: {msg}", file=sys.stderr)
+    return 2
+
+
+def _note(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+# ------------------------------------------------------------------ argument types
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {v}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {v}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text}")
+    return v
+
+
+# ------------------------------------------------------------------ helpers
+def numba_cache_is_cold() -> bool:
+    """True when the closed loop's numba kernels are not cached yet (first use in this
+    checkout or cache folder): they will compile, which takes tens of seconds."""
+    from importlib.util import find_spec
+
+    spec = find_spec("tdacm.system.kernels")
+    if spec is None or spec.origin is None:
+        return False
+    src = Path(spec.origin)
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    for kernel in ("rk4_run", "forward_dynamics"):
+        pattern = f"kernels.{kernel}-*.nbi"  # numba's index file of a cached function
+        if cache_dir:  # numba mirrors the source folder's path under NUMBA_CACHE_DIR
+            found = Path(cache_dir).is_dir() and any(Path(cache_dir).rglob(pattern))
+        else:
+            found = any((src.parent / "__pycache__").glob(pattern))
+        if not found:
+            return True
+    return False
+
+
+def _compile_notice() -> None:
+    if numba_cache_is_cold():
+        _note("tdacm: compiling the numba kernels on first use (30-60 s, cached afterwards)")
+
+
+def _progress(desc: str, unit: str = "frame"):
+    """A ``progress(done, total)`` callback drawing one tqdm line on stderr."""
+    from tqdm import tqdm
+
+    state = {}
+
+    def cb(done, total):
+        bar = state.get("bar")
+        if bar is None:
+            bar = state["bar"] = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
+        bar.n = done
+        bar.refresh()
+        if done >= total:
+            bar.close()
+
+    return cb
+
+
+# ------------------------------------------------------------------ commands
 def _cmd_info(args) -> int:
     from . import paper_system
     from .system.paper import PAPER_DEFAULTS_NOT_IN_PAPER
@@ -18,24 +113,37 @@ def _cmd_info(args) -> int:
     print("  defaults not given by the paper:")
     for name, (value, why) in PAPER_DEFAULTS_NOT_IN_PAPER.items():
         print(f"    {name} = {value}  ({why})")
+    print(
+        "\nModel options (docs/model.md):\n"
+        "  strain bases: StrainBasis(orders per mode [torsion, bending_y, bending_z, elongation,\n"
+        "    shear_y, shear_z], kind='legendre'|'monomial' (monomial refused above order 6));\n"
+        "    Rod(n_gauss=None, magnus_order=None) picks Magnus order 4 and max(8, 2(p+1)) Gauss\n"
+        "    points; n_gauss must be >= p + 2 for a mode of order p\n"
+        "  multi-section rods: SectionedRod([Rod(...), Rod(...)]), own length/material/basis each\n"
+        "  tendons ending part-way: Tendons(offsets=..., ends=[s_i or None]) (arc length, m)\n"
+        "  several rods on one drone: TDACM([rod_1, rod_2], [tendons_1, tendons_2], base,\n"
+        "    [g_a1, g_a2]); q = [drone, rod 1, rod 2, ...]; dual_paper_system() = the dual TD-CR\n"
+        "  integrators: simulate(method='auto'|'rk4'|'rosenbrock'|'radau'|'adaptive'); 'auto' = RK4\n"
+        "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'radau'"
+    )
     return 0
 
 
 def _cmd_demo(args) -> int:
-    from pathlib import Path
-
     from .demo import run_demo
 
+    _compile_notice()
     summary = run_demo(args.out, duration=args.duration)
     out = Path(args.out).resolve()
     print(json.dumps(summary, indent=2))
-    print(f"\nDemo output written to {out}/ (hover_tendon_step.png, .npz, .csv, summary.json)")
+    _note(f"Demo output written to {out}/ (hover_tendon_step.png, .npz, .csv, summary.json)")
     return 0
 
 
 def _cmd_bench(args) -> int:
     from .bench import run_full_bench, run_model_bench
 
+    _compile_notice()
     if args.full:
         run_full_bench(out=args.out, repeats=args.repeats)
     else:
@@ -44,27 +152,75 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from pathlib import Path
-
     from .sim import ScenarioError, run_scenario
+    from .sim.outputs import clear_run_outputs
+    from .sim.scenario import check_run, check_with_system, load_scenario
 
     out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
+    if out.exists() and not out.is_dir():
+        return _err(f"--out {out} is a file, not a folder")
+    try:
+        sc = load_scenario(args.scenario, args.config)
+        check_run(sc, args.duration, args.seed, flags=True)
+        check_with_system(sc)
+    except ScenarioError as exc:
+        return _err(str(exc))
+    if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
+        return _err(f"--rerun must name a .rrd file, got {args.rerun}")
+    removed = clear_run_outputs(out, keep=())
+    if removed:
+        _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
+    _compile_notice()
     try:
         _, summary = run_scenario(
-            args.scenario,
+            sc,
             out=out,
-            config=args.config,
             duration=args.duration,
             seed=args.seed,
             video=args.video,
             progress=True,
         )
     except ScenarioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return _err(str(exc))
+    except KeyboardInterrupt:
+        stored = (out / "timeseries.npz").is_file()
+        _note(
+            "interrupted (Ctrl-C): "
+            + (
+                f"the steps simulated so far are in {out.resolve()}/"
+                if stored
+                else "nothing written"
+            )
+        )
+        return 130
     print(json.dumps(summary, indent=2))
-    print(f"\nRun written to {out.resolve()}/")
+    _note(f"Run written to {out.resolve()}/")
+    if args.rerun is not None:
+        from .viz import record_run
+
+        path = record_run(out, args.rerun, progress=_progress("rerun", "step"))
+        _note(f"Rerun recording written to {Path(path).resolve()} (open with `rerun {path}`)")
     return 1 if summary["terminated"] else 0
+
+
+def _cmd_plot(args) -> int:
+    from .viz._scene import RunDirError
+    from .viz.figures import KINDS, plot_run_dir
+
+    kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else KINDS
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        return _err(f"--kinds: unknown figure {unknown[0]!r} (known: {', '.join(KINDS)})")
+    formats = tuple(f.strip() for f in args.formats.split(","))
+    if any(f not in ("png", "pdf", "svg") for f in formats):
+        return _err(f"--formats must list png, pdf or svg, got {args.formats!r}")
+    try:
+        paths = plot_run_dir(args.run_dir, args.out, formats=formats, kinds=kinds)
+    except RunDirError as exc:
+        return _err(str(exc))
+    _note(f"{len(paths)} figure file{'s' if len(paths) != 1 else ''} written to {Path(paths[0]).parent.resolve()}/"
+          if paths else "no figures written (empty run)")  # fmt: skip
+    return 0
 
 
 def _cmd_scenarios(args) -> int:
@@ -79,75 +235,167 @@ def _cmd_scenarios(args) -> int:
 def _cmd_campaign(args) -> int:
     from .campaign import CampaignSpecError, run_campaign
 
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        return _err(f"--out {out} is a file, not a folder")
+    _compile_notice()
     try:
         report = run_campaign(args.spec, args.out, workers=args.workers, scheduler=args.scheduler)
     except CampaignSpecError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out)
+        return _err(str(exc))
+    except KeyboardInterrupt:
+        from .campaign import completed_runs
+
+        n = len(completed_runs(out / "results")) if (out / "results").is_dir() else 0
+        _note(f"interrupted (Ctrl-C): {n} runs stored in {out.resolve()}/results; "
+              "rerun the same command to resume")  # fmt: skip
+        return 130
     print((out / "report.md").read_text())
-    print(f"Campaign written to {out.resolve()}/ (results/, report.md, report.png)")
+    _note(f"Campaign written to {out.resolve()}/ (results/, report.md, report.png)")
+    if report["runs_stored"] and report["errors"] == report["runs_stored"]:
+        _note(f"error: every run ({report['errors']}) raised an error; see the 'error' column "
+              f"of {out}/results (tdacm.campaign.read_results)")  # fmt: skip
+        return 1
     return 0 if report["complete"] else 1
 
 
 def _cmd_replay(args) -> int:
+    from .viz._scene import RunDirError
+
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        return _err(f"RUN_DIR {run_dir} does not exist or is not a folder")
+    if args.rerun is not None:
+        from .viz import record_run
+
+        rrd = None if args.rerun == "" else args.rerun
+        if rrd is not None and Path(rrd).suffix != ".rrd":
+            return _err(f"--rerun must name a .rrd file, got {rrd}")
+        try:
+            path = record_run(run_dir, rrd, progress=_progress("rerun", "step"))
+        except RunDirError as exc:
+            return _err(str(exc))
+        _note(f"Rerun recording written to {Path(path).resolve()} (open with `rerun {path}`)")
+        return 0
     from .viz import replay_run
 
-    path = replay_run(args.run_dir, args.out, fps=args.fps, max_frames=args.max_frames)
-    print(f"3-D replay written to {path.resolve()}")
+    if args.out is not None and Path(args.out).suffix.lower() not in (".gif", ".mp4"):
+        return _err(f"--out must end in .gif or .mp4, got {args.out}")
+    try:
+        path = replay_run(
+            run_dir,
+            args.out,
+            fps=args.fps,
+            max_frames=args.max_frames,
+            speed=args.speed,
+            view=args.view,
+            progress=_progress("replay"),
+        )
+    except RunDirError as exc:
+        return _err(str(exc))
+    _note(f"3-D replay written to {path.resolve()}")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
     p = argparse.ArgumentParser(
         prog="tdacm",
         description="Tendon-driven aerial continuum manipulators: strain-parameterized coupled "
         "dynamics, dual-camera visual servoing, adaptive control.",
     )
+    p.add_argument("--version", action="version", version=f"tdacm {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("info", help="print the paper system's model summary")
+    s = sub.add_parser("info", help="print the paper system's model summary and the model options")
     s.set_defaults(func=_cmd_info)
     s = sub.add_parser("demo", help="simulate the paper TD-ACM hovering with a tendon step")
     s.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    s.add_argument("--duration", type=float, default=4.0, help="simulated seconds (default 4)")
+    s.add_argument("--duration", type=_positive_float, default=4.0, help="simulated seconds")
     s.set_defaults(func=_cmd_demo)
-    s = sub.add_parser("bench", help="time the model (terms, forward dynamics, passive simulation)")
+    s = sub.add_parser(
+        "bench",
+        help="time the model (terms, forward dynamics, passive simulation, stiff integrators)",
+    )
     s.add_argument("--out", default="out/bench", help="output folder for bench.json")
-    s.add_argument("--repeats", type=int, default=7, help="timing repeats (median reported)")
+    s.add_argument("--repeats", type=_positive_int, default=7, help="timing repeats (median)")
     s.add_argument(
         "--full",
         action="store_true",
         help="add the CC Lagrangian baseline comparison, DoF scaling and accuracy study (minutes)",
     )
     s.set_defaults(func=_cmd_bench)
-    s = sub.add_parser("run", help="run a closed-loop scenario (see `tdacm scenarios`)")
+    s = sub.add_parser(
+        "run",
+        help="run a closed-loop scenario (see `tdacm scenarios`)",
+        description="Run a scenario; prints the summary JSON on stdout and writes the run "
+        "folder (summary.json, scenario.toml, timeseries.npz/.csv/.json, figures as PNG and "
+        "PDF, scene.png, video.mp4 with --video). Rerunning into a folder first removes the "
+        "previous run's files.",
+    )
     s.add_argument("scenario", help="scenario name or path to a scenario TOML file")
     s.add_argument("--config", help="TOML file overriding scenario values (same layout)")
     s.add_argument("--out", help="output folder (default: out/SCENARIO)")
-    s.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's)")
-    s.add_argument("--seed", type=int, help="seed of the model perturbation and noise")
-    s.add_argument("--video", action="store_true", help="write video.mp4 (C_L | C_G)")
+    s.add_argument(
+        "--duration", type=_positive_float, help="simulated seconds (default: the scenario's)"
+    )
+    s.add_argument("--seed", type=_nonneg_int, help="seed of the model perturbation and noise")
+    s.add_argument("--video", action="store_true", help="write video.mp4 (C_L | C_G, captioned)")
+    s.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording at the end")
     s.set_defaults(func=_cmd_run)
+    s = sub.add_parser("plot", help="regenerate the figures of a `tdacm run` folder")
+    s.add_argument("run_dir", help="a folder written by `tdacm run`")
+    s.add_argument("--out", help="folder for the figures (default: RUN_DIR)")
+    s.add_argument("--formats", default="png,pdf", help="comma-separated (default png,pdf)")
+    s.add_argument("--kinds", help="comma-separated figure kinds (default: all)")
+    s.set_defaults(func=_cmd_plot)
     s = sub.add_parser("scenarios", help="list the shipped scenarios")
     s.set_defaults(func=_cmd_scenarios)
     s = sub.add_parser("campaign", help="run a robustness campaign on Dask (resumable)")
     s.add_argument("spec", help="campaign spec TOML (see docs/campaigns.md)")
-    s.add_argument("--workers", type=int, help="local Dask worker processes (default: CPU count)")
+    s.add_argument(
+        "--workers", type=_positive_int, help="local Dask worker processes (default: CPU count)"
+    )
     s.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:port)")
     s.add_argument("--out", default="out/campaign", help="output folder; rerun to resume")
     s.set_defaults(func=_cmd_campaign)
-    s = sub.add_parser("replay", help="3-D animation (GIF or MP4) of a `tdacm run` folder")
+    s = sub.add_parser(
+        "replay",
+        help="3-D animation (GIF or MP4) or Rerun recording of a `tdacm run` folder",
+        description="Animate a run folder in 3-D (real time by default), or with --rerun "
+        "convert it to a Rerun recording (.rrd).",
+    )
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--out", help="output .gif or .mp4 (default: RUN_DIR/replay.gif)")
-    s.add_argument("--fps", type=int, default=20)
-    s.add_argument("--max-frames", type=int, default=60)
+    s.add_argument("--fps", type=_positive_int, help="frame rate (default: chosen for --speed)")
+    s.add_argument("--max-frames", type=_positive_int, default=200, help="frame cap (200)")
+    s.add_argument(
+        "--speed", type=_positive_float, default=1.0, help="playback speed (1 = real time)"
+    )
+    s.add_argument("--view", choices=("follow", "scene"), default="follow", help="camera view")
+    s.add_argument(
+        "--rerun",
+        nargs="?",
+        const="",
+        metavar="FILE.rrd",
+        help="write a Rerun recording instead (default RUN_DIR/run.rrd)",
+    )
     s.set_defaults(func=_cmd_replay)
     return p
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        _note("interrupted (Ctrl-C)")
+        return 130
+    except SystemError as exc:  # Ctrl-C inside a numba kernel
+        if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            _note("interrupted (Ctrl-C)")
+            return 130
+        raise
 
 
 if __name__ == "__main__":

@@ -119,3 +119,130 @@ def test_interrupted_campaign_resumes_and_scheduler_gives_same_rows(tmp_path, sc
     remote = read_results(tmp_path / "remote")
     for col in ("seed", "overrides", "final_rmse", "initial_rmse", "status"):
         assert remote[col].tolist() == rows[col].tolist(), col
+
+
+def test_parquet_store_has_a_fixed_schema(tmp_path):
+    """pandas.read_parquet(OUT/results) works when a metric is None in one row and a number in
+    another (issue 11: 'Unsupported cast from double to null')."""
+    import pandas as pd
+
+    from tdacm.campaign.runner import COLUMNS, write_row
+
+    store = tmp_path / "results"
+    store.mkdir()
+    write_row(store, {"run": 0, "seed": 1, "status": "ok", "success": False,
+                      "time_to_0.01": None, "final_rmse": 0.2, "terminated": True,
+                      "termination_reason": "safety", "overrides": "{}"})  # fmt: skip
+    write_row(store, {"run": 1, "seed": 2, "status": "ok", "success": True,
+                      "time_to_0.01": 3.5, "final_rmse": 0.005, "terminated": False})  # fmt: skip
+    write_row(store, {"run": 2, "seed": 3, "status": "error", "success": False,
+                      "error": "ValueError: x"})  # fmt: skip
+    (store / ".run-000003.parquet.tmp").write_bytes(b"partial")  # an interrupted write
+    df = pd.read_parquet(store)
+    assert len(df) == 3 and list(df.columns) == list(COLUMNS)
+    df = df.sort_values("run")
+    assert np.isnan(df["time_to_0.01"].iloc[0]) and df["time_to_0.01"].iloc[1] == 3.5
+    rr = read_results(tmp_path)
+    assert rr["run"].tolist() == [0, 1, 2] and rr["status"].tolist() == ["ok", "ok", "error"]
+
+
+def test_sampling_initial_qd_reaches_the_run(scenario_data):
+    spec = parse_spec(
+        'scenario = "paper-in-fov"\nruns = 1\nduration = 0.04\n[distributions]\n'
+        '"initial.qd" = { kind = "normal", std = [0, 0, 0, 0.01, 0.01, 0.01, 0.01, 0.01] }',
+        "s",
+        scenario_data,
+    )
+    over = sample_overrides(spec, scenario_data, 5)
+    assert len(over["initial"]["qd"]) == 8 and over["initial"]["qd"][0] == 0.0
+    row = execute_run(spec.__dict__, 0, 5)
+    assert row["status"] == "ok", row["error"]
+
+
+def test_sampling_an_unset_key_is_rejected(scenario_data):
+    with pytest.raises(CampaignSpecError, match="expect.initial_in_local_fov"):
+        parse_spec(
+            'scenario = "paper-in-fov"\nruns = 1\n[distributions]\n'
+            '"expect.initial_in_local_fov" = { kind = "fixed", value = 1 }',
+            "s",
+            {**scenario_data, "expect": {"initial_in_local_fov": None}},
+        )
+
+
+def test_campaign_cli_exits_nonzero_when_every_run_errors(tmp_path, capsys):
+    from tdacm.cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(
+        'scenario = "paper-in-fov"\nruns = 2\nduration = 0.04\n[distributions]\n'
+        '"model.perturbation" = { kind = "fixed", value = -3.0 }\n'
+    )
+    code = main(["campaign", str(spec), "--workers", "1", "--out", str(tmp_path / "c")])
+    cap = capsys.readouterr()
+    assert code == 1
+    assert "every run (2) raised an error" in cap.err
+
+
+def test_ctrl_c_stops_a_campaign_cleanly_keeping_stored_rows(tmp_path):
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2] / "src")}
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.replace("runs = 4", "runs = 40"))
+    cmd = [sys.executable, "-m", "tdacm.cli", "campaign", str(spec), "--workers", "1",
+           "--out", str(tmp_path / "c")]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)  # fmt: skip
+    store = tmp_path / "c" / "results"
+    t0 = time.time()
+    while time.time() - t0 < 180 and proc.poll() is None:
+        if store.is_dir() and len(list(store.glob("run-*.parquet"))) >= 1:
+            break
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)  # like Ctrl-C in a terminal: the whole process group
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err, err
+    lines = [ln for ln in err.splitlines() if ln.startswith("interrupted")]
+    assert len(lines) == 1 and "resume" in lines[0]
+    n = len(read_results(tmp_path / "c"))
+    assert 1 <= n < 40
+    assert json.loads((tmp_path / "c" / "campaign.json").read_text())["fingerprint"]
+
+
+def test_spec_samples_nested_robot_keys_and_fixes_text_keys():
+    """Dotted paths of any depth ([robot.rod] length) and string/boolean parameters (kinds
+    'fixed' and 'choice' only), with the key named when a path is wrong."""
+    from tdacm.campaign.spec import to_toml
+    from tdacm.sim.scenario import parse_scenario
+
+    sc = load_scenario("paper-in-fov")
+    text = (
+        'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n'
+        '"robot.rod.length" = { kind = "uniform", low = 0.9, high = 1.1 }\n'
+        '"ibvs.mode" = { kind = "choice", values = ["mean", "current"] }\n'
+        '"safety.enabled" = { kind = "fixed", value = false }\n'
+    )
+    spec = parse_spec(text, "t", sc.data)
+    o = sample_overrides(spec, sc.data, 5)
+    assert 0.9 <= o["robot"]["rod"]["length"] <= 1.1
+    assert o["ibvs"]["mode"] in ("mean", "current") and o["safety"]["enabled"] is False
+    again = sc.with_overrides(o, "run")
+    assert again["robot"]["rod"]["length"] == o["robot"]["rod"]["length"]
+    # the per-run config file round-trips
+    assert parse_scenario(to_toml({"name": "x", **again.data}), "rt")["robot"] == again["robot"]
+    head = 'scenario = "paper-in-fov"\nruns = 1\n[distributions]\n'
+    for bad, match in [
+        ('"robot.rod.lenght" = { kind = "fixed", value = 1.0 }', "has no key 'lenght'"),
+        ('"ibvs.mode" = { kind = "normal", std = 1 }', "use kind 'fixed' or 'choice'"),
+        ('"robot.rod" = { kind = "fixed", value = 1 }', r"\[robot.rod\] is a section"),
+        ('"ibvs.mode" = { kind = "fixed", value = 3 }', "give str value"),
+    ]:
+        with pytest.raises(CampaignSpecError, match=match):
+            parse_spec(head + bad, "t", sc.data)

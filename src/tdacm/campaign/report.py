@@ -62,6 +62,10 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
         else 0,
         "time_to_0.01": _stats(df["time_to_0.01"]) if n and "time_to_0.01" in df else None,
         "final_rmse": _stats(df["final_rmse"]) if n and "final_rmse" in df else None,
+        **{
+            k: _stats(df[k]) if n and k in df else None
+            for k in ("strain_estimation_rms", "drone_position_estimation_rms")
+        },
         "worst_runs": [],
     }
     if n:
@@ -107,8 +111,13 @@ def _write_markdown(report, out: Path):
     lines.append(
         f"- errors: {report['errors']}, safety-monitor terminations: {report['terminated']}"
     )
-    for key in ("time_to_0.01", "final_rmse"):
-        s = report[key]
+    for key in (
+        "time_to_0.01",
+        "final_rmse",
+        "strain_estimation_rms",
+        "drone_position_estimation_rms",
+    ):
+        s = report.get(key)
         if s:
             lines.append(
                 f"- {key}: median {s['median']:.4g}, 5-95 % [{s['p5']:.4g}, {s['p95']:.4g}], max {s['max']:.4g} (n = {s['n']})"

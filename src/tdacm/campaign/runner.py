@@ -1,7 +1,9 @@
 """Running a campaign on Dask, streaming one Parquet row per run, resumable.
 
-The store is a directory ``OUT/results/`` of one-row Parquet files ``run-000042.parquet`` (a
-Parquet dataset: ``pandas.read_parquet(OUT / "results")`` reads it as one table).  Only the
+The store is a directory ``OUT/results/`` of one-row Parquet files ``run-000042.parquet``, all
+with the fixed schema :data:`ROW_SCHEMA` (so the directory is one Parquet dataset:
+``pandas.read_parquet(OUT / "results")`` reads it as one table; :func:`read_results` does the
+same sorted by run and also reads stores of older versions).  Only the
 driver writes, each row to a temporary name renamed atomically, so an interrupted campaign
 holds complete rows only; on restart the runs already stored are skipped and the missing ones
 run, so no run is lost or run twice.  A run that raises is stored with ``status = "error"`` and
@@ -16,6 +18,8 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -38,6 +42,9 @@ ROW_FIELDS = (
     "max_tension",
     "max_thrust",
     "local_detection_rate",
+    "estimation_source",
+    "strain_estimation_rms",
+    "drone_position_estimation_rms",
     "final_rmse_true",
     "final_camera_position_error_m",
     "final_camera_rotation_error_deg",
@@ -79,23 +86,67 @@ def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
     return row
 
 
+def _silence_distributed() -> None:
+    import logging
+
+    for name in ("distributed", "distributed.nanny", "distributed.worker", "tornado"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
 def _row_path(store: Path, index: int) -> Path:
     return store / f"run-{index:06d}.parquet"
 
 
+_STRING_FIELDS = ("status", "termination_reason", "overrides", "error", "estimation_source")
+_BOOL_FIELDS = ("success", "terminated")
+_INT_FIELDS = ("run", "seed")
+#: Column order of the store; every other column is float64 (None -> NaN).
+COLUMNS = ("run", "seed", "status", "success", *ROW_FIELDS, "run_wall_s", "overrides", "error")
+
+
+def row_schema():
+    """The fixed Arrow schema of a stored row (the same for every run, whatever its
+    outcome: a metric that is missing in one run is NaN/null, never a column of type null)."""
+    import pyarrow as pa
+
+    def typ(k):
+        if k in _INT_FIELDS:
+            return pa.int64()
+        if k in _BOOL_FIELDS:
+            return pa.bool_()
+        if k in _STRING_FIELDS:
+            return pa.string()
+        return pa.float64()
+
+    return pa.schema([(k, typ(k)) for k in COLUMNS])
+
+
+def _typed(k, v):
+    if k in _INT_FIELDS:
+        return int(v)
+    if k in _BOOL_FIELDS:
+        return None if v is None else bool(v)
+    if k in _STRING_FIELDS:
+        return "" if v is None else str(v)
+    return float("nan") if v is None else float(v)
+
+
 def write_row(store: Path, row: dict) -> None:
-    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
-    frame = pd.DataFrame([{k: row.get(k) for k in _columns(row)}])
+    schema = row_schema()
+    table = pa.Table.from_pylist([{k: _typed(k, row.get(k)) for k in COLUMNS}], schema=schema)
     path = _row_path(store, row["run"])
-    tmp = path.with_suffix(".parquet.tmp")
-    frame.to_parquet(tmp, index=False)
-    os.replace(tmp, path)  # atomic: a row is either complete or absent
-
-
-def _columns(row: dict):
-    fixed = ["run", "seed", "status", "success", *ROW_FIELDS, "run_wall_s", "overrides", "error"]
-    return fixed + sorted(k for k in row if k not in fixed)
+    # hidden temporary name: pyarrow datasets skip files starting with "." (a partial row is
+    # never read), and the rename is atomic: a row is either complete or absent
+    tmp = path.with_name(f".{path.name}.tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
 
 
 def completed_runs(store: Path) -> set[int]:
@@ -104,16 +155,30 @@ def completed_runs(store: Path) -> set[int]:
 
 
 def read_results(out):
-    """All stored rows as one pandas DataFrame, sorted by run index."""
+    """All stored rows of campaign folder ``out`` as one pandas DataFrame sorted by run index
+    (columns :data:`COLUMNS`, see ``docs/campaigns.md``); an empty DataFrame if none.
+    Equivalent to ``pandas.read_parquet(out / "results")`` plus the sort, and it also reads
+    rows written with the schema of older versions (cast to :func:`row_schema`)."""
     import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
 
     store = Path(out) / "results"
     files = sorted(store.glob("run-*.parquet"))
     if not files:
-        return pd.DataFrame()
-    return pd.concat([pd.read_parquet(f) for f in files], ignore_index=True).sort_values(
-        "run", ignore_index=True
-    )
+        return pd.DataFrame(columns=list(COLUMNS))
+    schema = row_schema()
+    tables = []
+    for f in files:
+        t = pq.read_table(f)
+        cols = {}
+        for field in schema:
+            if field.name in t.column_names:
+                cols[field.name] = t[field.name].cast(field.type)
+            else:
+                cols[field.name] = pa.nulls(len(t), field.type)
+        tables.append(pa.table(cols, schema=schema))
+    return pa.concat_tables(tables).to_pandas().sort_values("run", ignore_index=True)
 
 
 def _prepare_out(spec: CampaignSpec, out: Path) -> Path:
@@ -132,7 +197,7 @@ def _prepare_out(spec: CampaignSpec, out: Path) -> Path:
             )
     else:
         meta.write_text(json.dumps(info, indent=2))
-    for tmp in store.glob("*.tmp"):
+    for tmp in [*store.glob("*.tmp"), *store.glob(".*.tmp")]:
         tmp.unlink()  # a row interrupted mid-write: its run is redone
     return store
 
@@ -173,9 +238,18 @@ def run_campaign(
             client = Client(scheduler)
         else:
             n = workers or max(1, (os.cpu_count() or 1))
-            cluster = LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
-            )
+            if int(n) < 1:
+                raise CampaignSpecError(f"--workers must be >= 1, got {n}")
+            # the worker processes ignore SIGINT (inherited across exec): Ctrl-C reaches the
+            # driver only, which stops cleanly (no traceback per worker); stored rows are kept
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+            try:
+                cluster = LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
+                )
+            finally:
+                if old is not None:
+                    signal.signal(signal.SIGINT, old)
             client = Client(cluster)
         bar = None
         if progress:
@@ -208,6 +282,16 @@ def run_campaign(
                 write_row(store, row)
                 if bar is not None:
                     bar.update(1)
+        except KeyboardInterrupt:
+            # shutting the cluster down mid-task makes distributed log warnings and heartbeat
+            # tracebacks (driver and workers): not for users, whose rows are safe on disk
+            _silence_distributed()
+            try:
+                client.run(_silence_distributed)
+                client.cancel(futures if "futures" in locals() else [])
+            except Exception:  # noqa: BLE001 - best effort while shutting down
+                pass
+            raise
         finally:
             if bar is not None:
                 bar.close()

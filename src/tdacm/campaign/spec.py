@@ -25,7 +25,6 @@ parameters of the key's length or scalars (broadcast).
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
 import math
@@ -135,25 +134,40 @@ def parse_spec(
     clean = {}
     for key, d in dists.items():
         where = f"distributions.{key!r}"
-        if key.count(".") != 1:
-            _err(source, f"{where}: keys are 'section.key' paths, e.g. 'initial.q'")
-        section, name = key.split(".")
+        parts = key.split(".")
+        if len(parts) < 2 or not all(parts):
+            _err(source, f"{where}: keys are dotted paths, e.g. 'initial.q' or 'robot.rod.length'")
         length = -1  # unknown until checked against the scenario
+        text_value = False  # a string or boolean parameter: kinds 'fixed' and 'choice' only
         if scenario_defaults is not None:
-            if section not in scenario_defaults or not isinstance(scenario_defaults[section], dict):
-                _err(source, f"{where}: the scenario has no section [{section}]")
-            if name not in scenario_defaults[section]:
+            table = scenario_defaults
+            for i, part in enumerate(parts[:-1]):
+                if not isinstance(table.get(part), dict):
+                    _err(
+                        source, f"{where}: the scenario has no section [{'.'.join(parts[: i + 1])}]"
+                    )
+                table = table[part]
+            name = parts[-1]
+            if isinstance(table.get(name), dict):
+                _err(source, f"{where}: [{key}] is a section; name one of its keys")
+            if name not in table:
+                known = sorted(k for k, v in table.items() if not isinstance(v, dict))
                 _err(
                     source,
-                    f"{where}: section [{section}] has no key {name!r} "
-                    f"(known: {sorted(scenario_defaults[section])})",
+                    f"{where}: [{'.'.join(parts[:-1])}] has no key {name!r} (known: {known})",
                 )
-            base = scenario_defaults[section][name]
+            base = table[name]
             length = None
+            if base is None and key == "initial.qd":  # unset: zero velocity of len(initial.q)
+                base = [0.0] * len(scenario_defaults["initial"]["q"])
+            if base is None:
+                _err(source, f"{where}: {key} has no value in the scenario; it cannot be sampled")
             if isinstance(base, list):
                 length = len(base)
-            elif isinstance(base, bool) or (base is not None and not isinstance(base, int | float)):
-                _err(source, f"{where}: only numeric parameters can be sampled, {key} is {base!r}")
+            elif isinstance(base, bool | str):
+                text_value = True
+            elif not isinstance(base, int | float):
+                _err(source, f"{where}: {key} = {base!r} cannot be sampled")
         if not isinstance(d, dict) or d.get("kind") not in KINDS:
             _err(source, f"{where} must be a table with kind = one of {sorted(KINDS)}, got {d!r}")
         kind = d["kind"]
@@ -161,7 +175,18 @@ def parse_spec(
         if extra:
             _err(source, f"{where}: unknown parameters {sorted(extra)} for kind {kind!r}")
         out = {"kind": kind}
-        if kind == "fixed":
+        if text_value:
+            if kind not in ("fixed", "choice"):
+                _err(source, f"{where}: {key} is not numeric; use kind 'fixed' or 'choice'")
+            vals = [d.get("value")] if kind == "fixed" else d.get("values")
+            if (
+                not isinstance(vals, list)
+                or not vals
+                or any(type(v) is not type(base) for v in vals)
+            ):
+                _err(source, f"{where}: give {type(base).__name__} value(s) for {key}, got {d!r}")
+            out["value" if kind == "fixed" else "values"] = vals[0] if kind == "fixed" else vals
+        elif kind == "fixed":
             if "value" not in d:
                 _err(source, f"{where}: kind 'fixed' needs 'value'")
             out["value"] = _vec_or_scalar(source, f"{where}.value", d["value"], length)
@@ -190,17 +215,43 @@ def parse_spec(
     return CampaignSpec(data["scenario"], runs, seed, clean, duration, success, source)
 
 
+def resolve_scenario(ref: str, spec_path: Path) -> str:
+    """A spec's ``scenario``: a shipped name stays a name; a path (ends in ``.toml`` or has a
+    folder) is resolved against the spec file's folder, not the current directory."""
+    if ref.endswith(".toml") or "/" in ref or "\\" in ref:
+        p = Path(ref).expanduser()
+        if not p.is_absolute():
+            p = (Path(spec_path).resolve().parent / p).resolve()
+        return str(p)
+    return ref
+
+
 def load_spec(path) -> CampaignSpec:
-    """Read a spec file and validate it against its scenario."""
-    from ..sim.scenario import load_scenario
+    """Read a spec file and validate it against its scenario (resolved with
+    :func:`resolve_scenario`; an unknown or invalid scenario, a directory or a non-UTF-8 file
+    raise :class:`CampaignSpecError` naming the file and the key)."""
+    from ..sim.scenario import ScenarioError, check_run, check_with_system, load_scenario
 
     p = Path(path)
+    if p.is_dir():
+        raise CampaignSpecError(f"campaign spec {path} is a directory, not a TOML file")
     if not p.is_file():
         raise CampaignSpecError(f"campaign spec {path} does not exist")
-    text = p.read_text()
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CampaignSpecError(f"campaign spec {p} is not UTF-8 text: {exc}") from None
     first = parse_spec(text, str(p))
-    scenario = load_scenario(first.scenario)
-    return parse_spec(text, str(p), scenario.data)
+    ref = resolve_scenario(first.scenario, p)
+    try:
+        scenario = load_scenario(ref)
+        check_run(scenario, first.duration, flags=False)
+        check_with_system(scenario)
+    except ScenarioError as exc:
+        raise CampaignSpecError(f"{p}: scenario = {first.scenario!r}: {exc}") from None
+    spec = parse_spec(text, str(p), scenario.data)
+    spec.scenario = ref
+    return spec
 
 
 def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> dict:
@@ -209,51 +260,51 @@ def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> 
     out: dict = {}
     for key in sorted(spec.distributions):
         d = spec.distributions[key]
-        section, name = key.split(".")
-        base = scenario_data[section][name]
-        base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
-        shape = base_arr.shape
+        parts = key.split(".")
+        table = scenario_data
+        for part in parts[:-1]:
+            table = table[part]
+        base = table[parts[-1]]
+        if base is None and key == "initial.qd":
+            base = [0.0] * len(scenario_data["initial"]["q"])
         kind = d["kind"]
-        if kind == "fixed":
-            value = np.broadcast_to(np.asarray(d["value"], float), shape)
-        elif kind == "normal":
-            draw = rng.normal(np.broadcast_to(d["mean"], shape), np.broadcast_to(d["std"], shape))
-            value = base_arr * (1.0 + draw) if d["relative"] else base_arr + draw
-        elif kind == "uniform":
-            draw = rng.uniform(np.broadcast_to(d["low"], shape), np.broadcast_to(d["high"], shape))
-            value = base_arr + draw if d["offset"] else draw
+        if isinstance(base, bool | str):
+            pyval = d["value"] if kind == "fixed" else d["values"][rng.integers(len(d["values"]))]
         else:
-            value = np.broadcast_to(
-                np.asarray(d["values"][rng.integers(len(d["values"]))], float), shape
-            )
-        value = np.array(value, dtype=float)
-        if isinstance(base, int) and not isinstance(base, bool):
-            pyval = int(round(float(value)))
-        elif shape == ():
-            pyval = float(value)
-        else:
-            pyval = value.tolist()
-        out.setdefault(section, {})[name] = pyval
+            pyval = _draw(d, base, rng)
+        node = out
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = pyval
     return out
 
 
+def _draw(d: dict, base, rng) -> object:
+    base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
+    shape = base_arr.shape
+    kind = d["kind"]
+    if kind == "fixed":
+        value = np.broadcast_to(np.asarray(d["value"], float), shape)
+    elif kind == "normal":
+        draw = rng.normal(np.broadcast_to(d["mean"], shape), np.broadcast_to(d["std"], shape))
+        value = base_arr * (1.0 + draw) if d["relative"] else base_arr + draw
+    elif kind == "uniform":
+        draw = rng.uniform(np.broadcast_to(d["low"], shape), np.broadcast_to(d["high"], shape))
+        value = base_arr + draw if d["offset"] else draw
+    else:
+        value = np.broadcast_to(
+            np.asarray(d["values"][rng.integers(len(d["values"]))], float), shape
+        )
+    value = np.array(value, dtype=float)
+    if isinstance(base, int) and not isinstance(base, bool):
+        return int(round(float(value)))
+    if shape == ():
+        return float(value)
+    return value.tolist()
+
+
 def to_toml(data: dict) -> str:
-    """Serialize a two-level dict of scalars and lists (a scenario override) to TOML."""
+    """A run's scenario overrides (nested sections) as TOML."""
+    from ..sim.scenario import dict_to_toml
 
-    def fmt(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int | float):
-            return repr(float(v)) if isinstance(v, float) else str(v)
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(fmt(x) for x in v) + "]"
-        raise TypeError(f"cannot write {v!r} to TOML")
-
-    lines = [f"{k} = {fmt(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for sec, table in data.items():
-        if isinstance(table, dict):
-            lines.append(f"\n[{sec}]")
-            lines.extend(f"{k} = {fmt(v)}" for k, v in copy.deepcopy(table).items())
-    return "\n".join(lines) + "\n"
+    return dict_to_toml(data)

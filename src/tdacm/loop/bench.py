@@ -76,8 +76,8 @@ def time_cold_start() -> dict:
     }
 
 
-def run_loop_bench(out="out/bench", repeats: int = 5, cold: bool = True, progress=print) -> dict:
-    """All closed-loop figures; merged into ``OUT/bench.json`` under ``"loop"``."""
+def loop_bench(repeats: int = 5, cold: bool = True, progress=print) -> dict:
+    """All closed-loop figures (the ``loop`` section of ``bench.json``)."""
     res = {}
     for name, ov in LOOP_CASES.items():
         progress(f"[bench] closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
@@ -88,6 +88,12 @@ def run_loop_bench(out="out/bench", repeats: int = 5, cold: bool = True, progres
         res["cold_start"] = time_cold_start()
         progress(f"[bench]   {res['cold_start']['cold_wall_s']:.1f} s")
     res["cpu_count"] = os.cpu_count()
+    return res
+
+
+def run_loop_bench(out="out/bench", repeats: int = 5, cold: bool = True, progress=print) -> dict:
+    """:func:`loop_bench`, merged into ``OUT/bench.json`` under ``"loop"``."""
+    res = loop_bench(repeats, cold, progress)
     path = Path(out) / "bench.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     data = json.loads(path.read_text()) if path.is_file() else {}

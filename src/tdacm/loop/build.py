@@ -220,9 +220,9 @@ def build_loop(
             servo = VisualServo(*args, **kwargs)
             servo.ibvs.floor = ib["floor"]
             servo.ibvs.solver = ib["solver"]
+    m = d["model"]
+    model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
     if controller is None:
-        m = d["model"]
-        model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
         options = {k: v for k, v in d["controller"].items() if k != "class"}
         ctx = ControllerContext(s, model, world.q_star, d["dt"], options)
         try:
@@ -237,6 +237,8 @@ def build_loop(
         Disturbances.from_dict(d["disturbances"]),
         np.random.default_rng(seed),
     )
+    if estimator is None and d["estimation"]["source"] == "estimated":
+        estimator = estimation_block(d, s, seed, plant, sensors, world.q0, model)
     loop = ClosedLoop(
         plant,
         sensors,
@@ -272,6 +274,48 @@ def _truth(system, local: CameraSensor, world: Scene):
         return pc[:, :2] / pc[:, 2:3], g_t
 
     return truth
+
+
+def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model):
+    """``estimation.source = "estimated"``: the proprioceptive sensors (drone pose, IMU,
+    tendon encoders; ``[sensors]``, seeded by ``[seed, 11..13]``) join ``sensors.other`` and
+    the EKF (``[estimation]``) runs on the controller's perturbed ``model``. The initial guess
+    (``initial_guess = "measured"``) comes from one start-up reading of an independent copy of
+    the sensors (no latency, no dropout: taken before the run starts)."""
+    from dataclasses import replace
+
+    from ..estimation import (
+        Estimator,
+        EstimatorConfig,
+        FilterBlock,
+        SensorSuite,
+        SensorSuiteConfig,
+    )
+
+    est = d["estimation"]
+    cfg = SensorSuiteConfig.from_section(d["sensors"])
+    suite = SensorSuite(system, cfg, seed)
+    sensors.other.update(suite.named)
+    plant.accelerations = True  # the accelerometer senses qdd
+    init = None
+    if est["initial_guess"] == "measured":
+        start = replace(
+            cfg,
+            pose=replace(cfg.pose, latency=0.0, dropout=0.0, enabled=True),
+            encoders=replace(cfg.encoders, latency=0.0, dropout=0.0, enabled=True),
+        )
+        first = SensorSuite(system, start, seed, stream_offset=100)
+
+        def init(t):
+            first.reset(t)
+            st = plant.state  # a sensor reading (sensors read the plant; nothing else does)
+            return first.sample(st.t, st.q, st.qd, None)
+
+    filt = Estimator(model, cfg, EstimatorConfig.from_section(est))
+    filt.warm_up()
+    return FilterBlock(
+        filt, init, q_nominal, est["initial_strain_error"], est["initial_position_error"]
+    )
 
 
 def warm_up(system, q) -> None:

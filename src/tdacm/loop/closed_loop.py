@@ -211,7 +211,11 @@ class ClosedLoop:
                 if st.done:
                     terminated, reason = st.reason is not None, st.reason
                     break
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as exc:
+            # Ctrl-C inside a numba kernel arrives as a SystemError caused by the interrupt
+            cause = exc.__cause__ or exc.__context__
+            if isinstance(exc, SystemError) and not isinstance(cause, KeyboardInterrupt):
+                raise
             interrupted, terminated, reason = True, True, "interrupted (Ctrl-C)"
         finally:
             if bar is not None:

@@ -18,16 +18,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..estimation.estimate import StateEstimate  # noqa: F401  (shared with the estimator)
 from ..vision.detect import NOT_DETECTED, Detection
 
 
 @dataclass(frozen=True)
 class PlantState:
-    """The simulated robot's true state at time ``t`` (read by sensors and the logger only)."""
+    """The simulated robot's true state at time ``t`` (read by sensors and the logger only).
+    ``qdd``: the accelerations at ``t`` under the input held over the period that ended at
+    ``t`` (what an accelerometer senses; computed only when a sensor needs it, else ``None``)."""
 
     t: float
     q: np.ndarray
     qd: np.ndarray
+    qdd: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -58,17 +62,6 @@ class SensorReadings:
     local: CameraMeasurement
     global_: CameraMeasurement | None = None
     other: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class StateEstimate:
-    """The state every block downstream of the sensors uses: ``q_hat``, ``qdot_hat`` and,
-    from an estimator, their covariance ``P`` (``2n x 2n``; ``None`` for the true state)."""
-
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
-    P: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -2,9 +2,10 @@
 
 :class:`TrueState` passes the plant's state through, as if every coordinate were measured
 exactly; it is the sensor of ``estimation.source = "true"``. It is the one place after the
-sensors that reads the plant, on purpose and by name. A real estimator (issue: state
-estimation) implements the same :class:`~.protocols.Estimator` protocol from the sensor
-readings instead.
+sensors that reads the plant, on purpose and by name. The real estimator,
+:class:`tdacm.estimation.FilterBlock` (``estimation.source = "estimated"``, assembled by
+:func:`tdacm.loop.build.estimation_block`), implements the same
+:class:`~.protocols.Estimator` protocol from the sensor readings instead.
 """
 
 from __future__ import annotations

@@ -85,6 +85,12 @@ class RunLog:
         r["twist"].append(cmd.twist)
         dh = act.delta_hat if act.delta_hat is not None else np.zeros(len(plant.q))
         r["delta_hat"].append(dh)
+        r["q_hat"].append(estimate.q)
+        r["qd_hat"].append(estimate.qd)
+        n2 = 2 * len(plant.q)
+        r["P_diag"].append(
+            np.diag(estimate.P).copy() if estimate.P is not None else np.full(n2, np.nan)
+        )
         if self.frame_composer is not None:
             self.frames.append(self.frame_composer(readings, view, cmd, plant.t))
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..system.kernels import rk4_run
+from ..system.kernels import forward_dynamics, rk4_run
 from ..system.tdacm import TDACM, Loads
 from .data import PlantState
 
@@ -82,6 +82,8 @@ class Plant:
         # the plant's own loads: gravity of the system plus the disturbances, by name
         self._loads = Loads(gravity=system.loads.gravity.copy())
         self._base = system.loads.packed().copy()
+        #: also compute the accelerations at the end of each period (for an IMU)
+        self.accelerations = False
         self.reset(q0, qd0)
 
     def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
@@ -104,5 +106,11 @@ class Plant:
         q, qd = qs[-1].copy(), qds[-1].copy()
         self.ok = bool(ok and np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
         self._k += 1
-        self.state = PlantState(self._t0 + self._k * dt, q, qd)
+        qdd = None
+        if self.accelerations and self.ok:
+            qdd, ok_a = forward_dynamics(
+                q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed()
+            )
+            self.ok = bool(ok_a)
+        self.state = PlantState(self._t0 + self._k * dt, q, qd, qdd)
         return self.state

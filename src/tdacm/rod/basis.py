@@ -17,6 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.polynomial import legendre
 
+#: Highest polynomial order accepted for ``kind="monomial"`` (see :class:`StrainBasis`).
+MAX_MONOMIAL_ORDER = 6
+
 MODE_NAMES = ("torsion", "bending_y", "bending_z", "elongation", "shear_y", "shear_z")
 
 
@@ -29,7 +32,8 @@ class StrainBasis:
     orders : six entries, one per mode ``[k1, k2, k3, u1, u2, u3]``; ``None`` (or a negative
         number) means the mode is inactive (held at its reference value), ``p >= 0`` means a
         polynomial of order ``p``.
-    kind : ``"legendre"`` (default, well conditioned) or ``"monomial"``.
+    kind : ``"legendre"`` (default, well conditioned) or ``"monomial"`` (refused above order
+        :data:`MAX_MONOMIAL_ORDER`: its stiffness becomes ill-conditioned).
     """
 
     orders: tuple = (None, 0, 0, None, None, None)
@@ -52,6 +56,12 @@ class StrainBasis:
             raise ValueError(f"kind must be 'legendre' or 'monomial', got {self.kind!r}")
         if all(p is None for p in clean):
             raise ValueError("a strain basis needs at least one active mode")
+        if self.kind == "monomial" and max(p for p in clean if p is not None) > MAX_MONOMIAL_ORDER:
+            raise ValueError(
+                f"monomial bases above order {MAX_MONOMIAL_ORDER} are refused: their stiffness "
+                "matrix is ill-conditioned (condition number 1.5e10 at order 7) and statics fail "
+                "to converge; kind='legendre' spans the same polynomials and is well conditioned"
+            )
         object.__setattr__(self, "orders", tuple(clean))
         cols = tuple((m, j) for m, p in enumerate(clean) if p is not None for j in range(p + 1))
         object.__setattr__(self, "_columns", cols)
@@ -82,6 +92,17 @@ class StrainBasis:
     def n(self) -> int:
         """Number of strain coordinates ``n_s``."""
         return len(self._columns)
+
+    @property
+    def max_order(self) -> int:
+        """Highest polynomial order of the active modes."""
+        return max(p for p in self.orders if p is not None)
+
+    @property
+    def stiff(self) -> bool:
+        """True when the basis has torsion, elongation or shear: modes of thousands of rad/s
+        (or millions, for shear) that an explicit integrator must resolve."""
+        return any(self.orders[m] is not None for m in (0, 3, 4, 5))
 
     @property
     def active_modes(self) -> tuple:

@@ -30,12 +30,17 @@ class Tendons:
         derivative is taken by central differences unless ``offset_derivative`` is given
         (``d/dX``; the model divides by ``L``).
     max_tension : upper bound used by allocation (N), > 0
+    ends : optional (n_a,) arc lengths (m) where each tendon is anchored; ``None`` (or an entry
+        ``None``/``inf``) means at the tip.  A tendon runs from the rod base to its end and acts
+        only there (its length and ``B_s`` integrate over ``[0, end]``); on a
+        :class:`~tdacm.rod.SectionedRod` it is routed through every section it crosses.
     """
 
     offsets: np.ndarray | None = None
     offset_function: Callable | None = None
     offset_derivative: Callable | None = None
     max_tension: float = 20.0
+    ends: np.ndarray | None = None
 
     def __post_init__(self):
         if self.offset_function is None:
@@ -50,9 +55,36 @@ class Tendons:
                 )
             self.offsets = off
         self.max_tension = V.positive("max_tension", self.max_tension)
+        if self.ends is not None:
+            raw = [
+                np.inf if e is None else e
+                for e in np.atleast_1d(np.asarray(self.ends, dtype=object))
+            ]
+            ends = np.array(
+                [
+                    V.positive(f"ends[{i}]", e) if np.isfinite(float(e)) else np.inf
+                    for i, e in enumerate(raw)
+                ]
+            )
+            if ends.shape != (self.n,):
+                raise ValueError(
+                    f"ends must hold one arc length per tendon ({self.n}), got {self.ends!r}"
+                )
+            self.ends = ends
+
+    def end_lengths(self, length: float) -> np.ndarray:
+        """Anchor arc length of every tendon on a rod of ``length`` (m); ``ValueError`` beyond it."""
+        if self.ends is None:
+            return np.full(self.n, float(length))
+        ends = np.where(np.isinf(self.ends), length, self.ends)
+        if np.any(ends > length * (1 + 1e-12)):
+            raise ValueError(f"tendon ends {self.ends.tolist()} lie beyond the rod length {length}")
+        return np.minimum(ends, length)
 
     @classmethod
-    def parallel(cls, radius: float = 0.01, count: int = 4, max_tension: float = 20.0) -> Tendons:
+    def parallel(
+        cls, radius: float = 0.01, count: int = 4, max_tension: float = 20.0, ends=None
+    ) -> Tendons:
         """``count`` parallel tendons evenly spaced at ``radius``; the first on +y.
 
         With ``count = 4`` they form two antagonistic pairs: (+y, -y) and (+z, -z), i.e. tendons
@@ -64,7 +96,7 @@ class Tendons:
         ang = 2 * np.pi * np.arange(count) / count
         off = np.column_stack([np.zeros(count), radius * np.cos(ang), radius * np.sin(ang)])
         off[np.abs(off) < 1e-15] = 0.0
-        return cls(offsets=off, max_tension=max_tension)
+        return cls(offsets=off, max_tension=max_tension, ends=ends)
 
     @property
     def n(self) -> int:

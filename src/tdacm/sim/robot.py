@@ -7,7 +7,9 @@ a scenario without ``[robot]`` simulates the paper's TD-ACM:
 * ``[robot.rod]``: :class:`~tdacm.rod.Rod` (``length, diameter, density, youngs_modulus,
   poisson_ratio, damping, tip_mass, n_gauss, magnus_order``) and ``basis``, a strain basis
   written ``"bending:P"`` (both curvatures of order ``P``, the paper's is ``"bending:0"``),
-  ``"full:P"`` (all six strains), or ``"modes:torsion=1,bending_y=2,..."``;
+  ``"full:P"`` (all six strains), or ``"modes:torsion=1,bending_y=2,..."``; ``n_gauss`` and
+  ``magnus_order`` default to the paper's 5 and 2 for its basis, and to what
+  :class:`~tdacm.rod.Rod` picks for any other (accurate by default);
 * ``[robot.tendons]``: :class:`~tdacm.rod.Tendons`: ``offsets`` (one ``[y, z]`` or
   ``[0, y, z]`` offset per tendon, metres) or ``radius`` and ``count`` (evenly spaced, the
   first on +y); ``max_tension``;
@@ -55,8 +57,8 @@ ROBOT_SCHEMA = {
         "damping": (float, 1e2),
         "tip_mass": (float, 0.01),
         "basis": (str, "bending:0"),
-        "n_gauss": (int, 5),
-        "magnus_order": (int, 2),
+        "n_gauss": (int, None),  # the paper's 5 for its basis, else the Rod default for the basis
+        "magnus_order": (int, None),  # the paper's 2 for its basis, else 4
     },
     "tendons": {
         "offsets": ("points", None),
@@ -138,6 +140,10 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
     ``held_base_q`` (``system.held_base_q``) clamps the rod at that drone pose when the scenario
     says ``system.base = "fixed"``; ``robot.base.pose_q`` does the same."""
     r = robot["rod"]
+    basis = parse_basis(r["basis"])
+    paper_basis = basis == StrainBasis.bending(0)
+    n_gauss = r["n_gauss"] if r["n_gauss"] is not None else (5 if paper_basis else None)
+    magnus = r["magnus_order"] if r["magnus_order"] is not None else (2 if paper_basis else None)
     try:
         rod = Rod(
             length=r["length"],
@@ -146,9 +152,9 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
             youngs_modulus=r["youngs_modulus"],
             poisson_ratio=r["poisson_ratio"],
             damping=r["damping"],
-            basis=parse_basis(r["basis"]),
-            n_gauss=r["n_gauss"],
-            magnus_order=r["magnus_order"],
+            basis=basis,
+            n_gauss=n_gauss,
+            magnus_order=magnus,
             tip_mass=r["tip_mass"],
         )
     except RobotError:

@@ -19,7 +19,7 @@ import numpy as np
 from ..loop.closed_loop import ClosedLoop
 from ..loop.safety import SafetyMonitor
 from ..loop.servo import MODE_CODES, normalized_rmse
-from .scenario import Scenario, load_scenario
+from .scenario import Scenario, check_run, check_with_system, load_scenario
 
 __all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
 
@@ -55,22 +55,29 @@ class Simulation:
 
         composer = None
         if self.video:
-            from ..viz.video import caption_frame_composer
+            from ..viz.video import CaptionedFrames  # captioned frames
 
-            composer = caption_frame_composer
-        return build_loop(
+            composer = CaptionedFrames()
+        loop = build_loop(
             self.scenario, self.seed, video=self.video, frame_composer=composer, **self.blocks
         )
+        if composer is not None:  # the desired points drawn on C_L
+            from ..viz.video import desired_pixels
+
+            composer.desired = desired_pixels(loop)
+        return loop
 
     def run(self, out_dir=None):
         """Run; write ``out_dir`` if given. Ctrl-C writes what was simulated so far, then
         re-raises ``KeyboardInterrupt``."""
         loop = self.loop = self.build()
         try:
+            check_with_system(self.scenario, loop.plant.system)  # dt, target in front
             if out_dir is not None:
                 write_scene_picture(Path(out_dir) / "scene.png", loop)
             result = loop.run(self.duration, progress=self.progress)
             summary = self.summary(loop, result)
+            summary["interrupted"] = bool(result.interrupted)
             if out_dir is not None:
                 from .outputs import write_all
 
@@ -81,6 +88,7 @@ class Simulation:
                     loop.servo.desired_points,
                     result.frames,
                     loop.plant.system,
+                    scenario=self.scenario,  # scenario.toml, figures, snapshots
                 )
         finally:
             loop.close()
@@ -145,6 +153,7 @@ class Simulation:
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
             **_target_merit(loop),
+            **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
 
 
@@ -172,6 +181,36 @@ def _target_merit(loop: ClosedLoop) -> dict:
         "final_target_estimate_sigma_deg": sig,
         "target_filter_rejected": int(pred.filter.rejected),
     }
+
+
+#: Estimation errors are summarized after this time (the filter's convergence, issue 10).
+ESTIMATION_WINDOW_S = 1.0
+
+
+def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
+    """RMS estimation errors after :data:`ESTIMATION_WINDOW_S` (all samples if the run is
+    shorter): strains (per component, pooled; rad/m) and drone position (Euclidean; m);
+    ``None`` for ``source = "true"``. Plus the filter's median cost per period."""
+    out = {
+        "estimation_source": source,
+        "strain_estimation_rms": None,
+        "drone_position_estimation_rms": None,
+        "estimator_step_ms_median": None,
+    }
+    t = a["t"]
+    if source != "estimated" or not t.size or "q_hat" not in a:
+        return out
+    win = t >= min(ESTIMATION_WINDOW_S, float(t[-1]))
+    err = a["q_hat"][win] - a["q"][win]
+    out["strain_estimation_rms"] = float(np.sqrt(np.mean(err[:, s.n - s.n_s :] ** 2)))
+    if s.floating:
+        out["drone_position_estimation_rms"] = float(
+            np.sqrt(np.mean(np.sum(err[:, 3:6] ** 2, axis=1)))
+        )
+    timings = getattr(getattr(loop, "estimator", None), "timings", None)
+    if timings is not None and len(timings) > 1:
+        out["estimator_step_ms_median"] = float(np.median(timings[1:]) * 1e3)
+    return out
 
 
 def write_scene_picture(path: Path, loop: ClosedLoop) -> None:
@@ -209,5 +248,6 @@ def run_scenario(
 ):
     """Load and run a scenario; returns ``(arrays, summary)`` and writes ``out`` if given."""
     sc = load_scenario(name, config)
+    check_run(sc, duration, seed, flags=False)  # reject nan/inf/<=0, seed < 0
     sim = Simulation(sc, duration=duration, seed=seed, video=video, progress=progress)
     return sim.run(out)

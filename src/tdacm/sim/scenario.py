@@ -112,6 +112,54 @@ SCHEMA = {
         "dropout": (float, 0.0),  # probability that a frame has no detection
         "latency_steps": (int, 0),  # control steps between image and use
         "intrinsics_error": (float, 0.0),  # relative std of the controller's fx, fy, cx, cy
+        # proprioceptive sensors (tdacm.estimation.sensors; used when estimation.source =
+        # "estimated"): drone pose (mocap/VIO), IMU at the drone's CoM, tendon encoders
+        "pose_enabled": (bool, True),
+        "pose_rate": (float, 50.0),  # Hz
+        "pose_latency": (float, 0.02),  # s
+        "pose_position_noise": (float, 0.003),  # m
+        "pose_attitude_noise": (float, 0.005),  # rad (body-frame rotation vector)
+        "pose_dropout": (float, 0.0),  # probability that a sample is lost
+        "imu_enabled": (bool, True),
+        "imu_rate": (float, 50.0),  # Hz
+        "imu_latency": (float, 0.0),  # s
+        "gyro_noise": (float, 0.005),  # rad/s per sample
+        "gyro_bias": (float, 0.005),  # rad/s, std of the turn-on bias
+        "gyro_bias_walk": (float, 0.0),  # rad/s/sqrt(s)
+        "accel_noise": (float, 0.05),  # m/s^2 per sample
+        "accel_bias": (float, 0.05),  # m/s^2, std of the turn-on bias
+        "accel_bias_walk": (float, 0.0),  # m/s^2/sqrt(s)
+        "imu_dropout": (float, 0.0),
+        "encoder_enabled": (bool, True),
+        "encoder_rate": (float, 50.0),  # Hz
+        "encoder_latency": (float, 0.0),  # s
+        "encoder_resolution": (float, 1e-5),  # m of tendon per count
+        "encoder_noise": (float, 5e-6),  # m
+        "encoder_bias": (float, 0.0),  # m, std of a constant per-tendon offset (slack)
+        "encoder_dropout": (float, 0.0),
+    },
+    "estimation": {  # state source of everything downstream of the sensors (tdacm.estimation)
+        "source": (str, "true"),  # "true" (plant state) | "estimated" (EKF)
+        "initial_guess": (str, "measured"),  # "measured" (pose + tendon inversion) | "true"
+        "initial_strain_error": (float, 0.0),  # rad/m added to every strain of the guess
+        "initial_position_error": (float, 0.0),  # m added to every drone position coordinate
+        "rk4_steps": (int, 1),
+        "accel_noise_angular": (float, 0.3),  # rad/s^2/sqrt(Hz)
+        "accel_noise_linear": (float, 0.005),  # m/s^2/sqrt(Hz)
+        "accel_noise_strain": (float, 0.2),  # rad/m/s^2/sqrt(Hz)
+        "disturbance_walk_angular": (float, 1.0),  # rad/s^3/sqrt(Hz)
+        "disturbance_walk_linear": (float, 0.02),  # m/s^3/sqrt(Hz)
+        "disturbance_walk_strain": (float, 0.3),  # rad/m/s^3/sqrt(Hz)
+        "accel_model_error": (float, 0.03),  # m/s^2
+        "model_error_fraction": (float, 0.1),  # relative error of the predicted acceleration
+        "initial_attitude_std": (float, 0.02),  # rad
+        "initial_position_std": (float, 0.02),  # m
+        "initial_strain_std": (float, 0.3),  # rad/m
+        "initial_velocity_std": (float, 0.1),
+        "initial_disturbance_angular_std": (float, 2.0),
+        "initial_disturbance_linear_std": (float, 1.5),
+        "initial_disturbance_strain_std": (float, 5.0),
+        "max_delay": (float, 0.2),  # s of filter history kept for late measurements
     },
     "expect": {
         "initial_in_local_fov": (bool, None),
@@ -233,6 +281,12 @@ def validate(d: dict, source: str) -> Scenario:
             raise ScenarioError(f"{source}: {key} must be positive, got {d[key]!r}")
     if d["substeps"] < 1:
         raise ScenarioError(f"{source}: substeps must be >= 1")
+    if d["dt"] > d["duration"]:
+        raise ScenarioError(
+            f"{source}: dt ({d['dt']} s) must not exceed duration ({d['duration']} s)"
+        )
+    if d["seed"] < 0:
+        raise ScenarioError(f"{source}: seed must be a non-negative integer, got {d['seed']}")
     base = d["system"]["base"]
     if base not in ("floating", "fixed"):
         raise ScenarioError(f"{source}: system.base must be 'floating' or 'fixed', got {base!r}")
@@ -289,21 +343,141 @@ def validate(d: dict, source: str) -> Scenario:
     for sec, key in (("model", "perturbation"), ("sensors", "dropout")):
         if not 0 <= d[sec][key] < 1:
             raise ScenarioError(f"{source}: {sec}.{key} must lie in [0, 1)")
+    from ..estimation import EstimatorConfig, SensorSuiteConfig
     from .sensors import SensorModel
 
-    try:
-        SensorModel(**d["sensors"])
+    est = d["estimation"]
+    if est["source"] not in ("true", "estimated"):
+        raise ScenarioError(f"{source}: estimation.source must be 'true' or 'estimated'")
+    if est["initial_guess"] not in ("measured", "true"):
+        raise ScenarioError(f"{source}: estimation.initial_guess must be 'measured' or 'true'")
+    try:  # the messages name the key (sensors.<key>, estimation.<key>)
+        SensorModel(**{k: d["sensors"][k] for k in SensorModel.__dataclass_fields__})
+        SensorSuiteConfig.from_section(d["sensors"])
+        EstimatorConfig.from_section(est)
     except ValueError as exc:
         raise ScenarioError(f"{source}: {exc}") from None
     for sec, key in (
         ("ibvs", "gain"),
+        ("ibvs", "max_joint_rate"),
+        ("ibvs", "max_drone_speed"),
+        ("ibvs", "max_vertical_speed"),
         ("recovery", "max_speed"),
         ("safety", "growth_limit"),
         ("scene", "box_size"),
+        ("controller", "max_tilt"),
     ):
         if d[sec][key] <= 0:
-            raise ScenarioError(f"{source}: {sec}.{key} must be positive")
+            raise ScenarioError(f"{source}: {sec}.{key} must be positive, got {d[sec][key]!r}")
+    for sec, key in (
+        ("controller", "pretension"),
+        ("controller", "attitude_filter"),
+        ("controller", "max_tilt_rate"),
+        ("ibvs", "soft_start"),
+        ("ibvs", "rate_filter"),
+        ("recovery", "margin_px"),
+        ("safety", "min_increase"),
+        ("safety", "grace"),
+        ("disturbances", "base_wrench_frequency"),
+        ("disturbances", "downwash_noise"),
+        ("cameras", "global_every"),
+    ):
+        if d[sec][key] < 0:
+            raise ScenarioError(f"{source}: {sec}.{key} must be non-negative, got {d[sec][key]!r}")
+    if d["controller"]["max_tilt"] >= math.pi / 2:
+        raise ScenarioError(
+            f"{source}: controller.max_tilt must be below pi/2 rad, got {d['controller']['max_tilt']!r}"
+        )
+    for key in ("confirm", "lose"):
+        if d["recovery"][key] < 1:
+            raise ScenarioError(
+                f"{source}: recovery.{key} must be >= 1 (frames), got {d['recovery'][key]!r}"
+            )
     return Scenario(d, source)
+
+
+#: Longest plant step ``dt / substeps``, as a multiple of ``TDACM.suggested_dt()`` (10 ms for
+#: the paper system: 2x keeps the tip within ~2e-5 m of an adaptive reference over 5 s).
+MAX_STEP_FACTOR = 2.0
+#: Longest control period accepted (s). Measured on ``paper-in-fov`` (3 s, substeps 4): dt =
+#: 0.02 and 0.04 s converge alike; at 0.05 s the safety monitor stops the loop at 1.6 s (error
+#: growth); at 0.1 s the rod diverges (|q_s1| = 2.5) even with the plant at 5 ms (substeps 20).
+MAX_CONTROL_PERIOD = 0.04
+
+
+def check_run(scenario: Scenario, duration=None, seed=None, flags: bool = True) -> None:
+    """Checks of the run-time overrides (``--duration``, ``--seed``): ``duration`` finite,
+    positive and at least one control period, ``seed`` a non-negative integer. The message
+    names the flag (``flags=True``) or the keyword."""
+    dn, sn = ("--duration", "--seed") if flags else ("duration", "seed")
+    if duration is not None:
+        if isinstance(duration, bool) or not isinstance(duration, _NUM):
+            raise ScenarioError(f"{dn} must be a number of seconds, got {duration!r}")
+        if not math.isfinite(duration) or duration <= 0:
+            raise ScenarioError(f"{dn} must be a finite positive number of seconds, got {duration}")
+        if scenario["dt"] > duration:
+            raise ScenarioError(
+                f"{dn} ({duration} s) is shorter than the control period dt = {scenario['dt']} s"
+            )
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise ScenarioError(f"{sn} must be a non-negative integer, got {seed!r}")
+
+
+def check_with_system(scenario: Scenario, system=None) -> None:
+    """Checks that need the built robot (:func:`tdacm.loop.build_scene`):
+
+    * the plant's RK4 step ``dt / substeps`` at most ``MAX_STEP_FACTOR`` times
+      ``system.suggested_dt()``, and the control period ``dt`` at most ``MAX_CONTROL_PERIOD``
+      (the sampled closed loop diverges at longer periods, see the constant);
+    * the target in front of the tip camera C_L at the desired configuration (the reference
+      view of the IBVS is taken there).
+
+    ``system`` (the built plant) is used for the step limit when given.
+    """
+    from ..loop.build import build_scene
+
+    d = scenario.data
+    src = scenario.source
+    world = build_scene(scenario)
+    if system is None:
+        system = world.robot.system
+    if d["dt"] > MAX_CONTROL_PERIOD:
+        raise ScenarioError(
+            f"{src}: dt = {d['dt']} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
+            f"loop is unstable there (measured: stopped at 0.05 s, diverges at 0.1 s; paper: 0.02 s)"
+        )
+    h = d["dt"] / d["substeps"]
+    h_max = MAX_STEP_FACTOR * system.suggested_dt()
+    if h > h_max:
+        raise ScenarioError(
+            f"{src}: dt / substeps = {h:.4g} s exceeds the plant's RK4 step limit "
+            f"{h_max:.4g} s ({MAX_STEP_FACTOR:g} x suggested_dt()); raise substeps or lower dt"
+        )
+    robot = world.robot
+    g_c = robot.system.tip_pose(world.q_star) @ robot.tip_mount
+    pts = world.scene.target_points_world()
+    depth = (pts - g_c[:3, 3]) @ g_c[:3, 2]
+    if np.any(depth <= 0):
+        raise ScenarioError(
+            f"{src}: desired.q puts the target behind the tip camera C_L (depths "
+            f"{np.round(depth, 3).tolist()} m); the reference view needs the target in front"
+        )
+
+
+def _read_text(path: Path, what: str) -> str:
+    """A text file's content; a directory, a missing file or non-UTF-8 bytes raise
+    :class:`ScenarioError` naming the file."""
+    if path.is_dir():
+        raise ScenarioError(f"{what} {path} is a directory, not a TOML file")
+    if not path.is_file():
+        raise ScenarioError(f"{what} {path} does not exist")
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(
+            f"{what} {path} is not UTF-8 text (TOML must be UTF-8): {exc}"
+        ) from None
 
 
 def parse_scenario(text: str, source: str = "<string>") -> Scenario:
@@ -324,27 +498,88 @@ def list_scenarios() -> list[str]:
 
 
 def load_scenario(name_or_path, config=None) -> Scenario:
-    """Load a shipped scenario by name, or a TOML file by path; ``config`` (a path) overrides."""
-    p = Path(str(name_or_path))
-    if p.suffix == ".toml" and p.exists():
-        sc = parse_scenario(p.read_text(), str(p))
+    """Load a shipped scenario by name, a TOML file by path, or pass a :class:`Scenario`
+    through; ``config`` (a path) overrides. Errors (unknown name, a directory, a missing or
+    non-UTF-8 file, invalid TOML or values) raise :class:`ScenarioError` naming the file."""
+    if isinstance(name_or_path, Scenario):
+        sc = name_or_path
     else:
-        f = _package_files() / f"{name_or_path}.toml"
-        if not f.is_file():
-            raise ScenarioError(
-                f"unknown scenario {name_or_path!r}; available: {', '.join(list_scenarios())}"
-            )
-        sc = parse_scenario(f.read_text(), f"scenario {name_or_path}")
+        p = Path(str(name_or_path))
+        if p.is_dir():
+            raise ScenarioError(f"scenario {p} is a directory, not a scenario name or TOML file")
+        if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+            if not p.exists() and p.suffix != ".toml":
+                raise ScenarioError(
+                    f"unknown scenario {str(name_or_path)!r}; available: {', '.join(list_scenarios())}"
+                )
+            sc = parse_scenario(_read_text(p, "scenario file"), str(p))
+        else:
+            f = _package_files() / f"{name_or_path}.toml"
+            if not f.is_file():
+                raise ScenarioError(
+                    f"unknown scenario {name_or_path!r}; available: {', '.join(list_scenarios())}"
+                )
+            sc = parse_scenario(f.read_text(encoding="utf-8"), f"scenario {name_or_path}")
     if config is not None:
         cp = Path(config)
-        if not cp.is_file():
-            raise ScenarioError(f"config file {config} does not exist")
+        text = _read_text(cp, "--config file")
         try:
-            data = tomllib.loads(cp.read_text())
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise ScenarioError(f"{cp}: invalid TOML: {exc}") from None
         sc = sc.with_overrides(data, str(cp))
     return sc
+
+
+def dict_to_toml(data: dict, header: str | None = None) -> str:
+    """Nested scenario data (scalars, lists, sections, subsections) as TOML text; ``None``
+    values (keys left unset) are omitted."""
+    import json
+
+    def fmt(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, float):
+            return repr(v)
+        if isinstance(v, int):
+            return str(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(fmt(x) for x in v) + "]"
+        raise TypeError(f"cannot write {v!r} to TOML")
+
+    lines = [header] if header else []
+    lines += [
+        f"{k} = {fmt(v)}" for k, v in data.items() if v is not None and not isinstance(v, dict)
+    ]
+
+    def table(name, values):  # keys first, then the nested subsections ([robot.rod], ...)
+        keys = [
+            f"{k} = {fmt(v)}"
+            for k, v in values.items()
+            if v is not None and not isinstance(v, dict)
+        ]
+        if keys or not any(isinstance(v, dict) for v in values.values()):
+            lines.append(f"\n[{name}]")
+            lines.extend(keys)
+        for k, v in values.items():
+            if isinstance(v, dict):
+                table(f"{name}.{k}", v)
+
+    for sec, values in data.items():
+        if isinstance(values, dict):
+            table(sec, values)
+    return "\n".join(lines) + "\n"
+
+
+def scenario_to_toml(scenario: Scenario) -> str:
+    """The resolved scenario (defaults filled in) as TOML text; ``load_scenario`` of the
+    written file gives the same data (keys left unset, such as ``initial.qd``, are omitted)."""
+    d = scenario.data
+    ordered = {k: d[k] for k in SCHEMA[""] if k in d}
+    ordered.update({sec: d[sec] for sec in SCHEMA if sec})
+    return dict_to_toml(ordered, f"# resolved from {scenario.source}")
 
 
 def vec(x) -> np.ndarray:

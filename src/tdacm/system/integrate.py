@@ -2,8 +2,20 @@
 
 * ``method="rk4"``: classical fixed-step Runge-Kutta, the integrator of control loops; with a
   constant input the whole loop runs inside numba (:func:`tdacm.system.kernels.rk4_run`).
+* ``method="rosenbrock"``: the linearly implicit ROS34PW2 W-method of :mod:`tdacm.system.stiff`
+  (numba), for stiff strain bases (torsion, elongation, shear); fixed step ``dt`` (default
+  :data:`ROSENBROCK_DT`) or, with ``rtol`` given, adaptive steps of at most ``dt`` with
+  embedded error control.
+* ``method="radau"``: the 3-stage Radau IIA method (order 5, L-stable) of
+  :func:`tdacm.system.stiff.radau_run`, fixed step ``dt`` (default :data:`RADAU_DT`), simplified
+  Newton iterations with a reused finite-difference Jacobian.
 * ``method="adaptive"``: scipy's ``solve_ivp`` (DOP853 by default) with error control, for
   accuracy studies.
+* ``method="auto"`` (the default): RK4 unless the model is stiff (:func:`is_stiff`: a basis
+  with torsion, elongation or shear and an RK4 step :meth:`TDACM.suggested_dt` below
+  :data:`STIFF_DT`, 1 ms), then ``"radau"`` (measured 4-6x faster than ``"rosenbrock"`` at the
+  same accuracy on the 18-DoF rod of ``tdacm bench``).  The
+  paper system (``suggested_dt`` = 10 ms) integrates with RK4 exactly as before.
 
 Inputs are either a constant vector ``u`` or a callable ``u(t, q, qd) -> u`` (held constant over
 each RK4 step, a zero-order hold; evaluated at every stage by the adaptive integrator).
@@ -18,6 +30,22 @@ import numpy as np
 
 from .. import _validate as V
 from . import kernels as K
+from . import stiff as ST
+
+#: Below this RK4 step (s) ``method="auto"`` switches to the Radau integrator (stiff bases).
+STIFF_DT = 1e-3
+#: Default fixed step of ``method="rosenbrock"`` (s).
+ROSENBROCK_DT = 2.5e-3
+#: Default fixed step of ``method="radau"`` (s) and its Newton settings.
+RADAU_DT = 1e-2
+RADAU_NEWTON = {
+    "tol_q": 1e-7,
+    "tol_v": 1e-3,
+    "max_iter": 10,
+    "slow_iter": 6,
+    "full_v": False,
+    "stall_ok": 20.0,
+}
 
 
 @dataclass
@@ -35,6 +63,13 @@ class SimulationResult:
         np.savez(path, t=self.t, q=self.q, qd=self.qd, u=self.u)
 
 
+def is_stiff(system) -> bool:
+    """True when a rod has torsion, elongation or shear strains and RK4 would need steps below
+    :data:`STIFF_DT` (bending-only bases stay with RK4 whatever their order)."""
+    has = any(sec.basis.stiff for arm in system.arms for sec in arm.sections)
+    return has and system.suggested_dt() < STIFF_DT
+
+
 def simulate(
     system,
     q0,
@@ -42,22 +77,36 @@ def simulate(
     duration: float = 1.0,
     dt: float | None = None,
     u: np.ndarray | Callable | None = None,
-    method: str = "rk4",
+    method: str = "auto",
     record_dt: float | None = None,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
+    rtol: float | None = None,
+    atol: float | None = None,
     solver: str = "DOP853",
     progress: bool = False,
 ) -> SimulationResult:
     """Integrate the TD-ACM from ``(q0, qd0)`` for ``duration`` seconds.
 
-    ``dt`` is the RK4 step (default :meth:`TDACM.suggested_dt`; ignored by the adaptive method except as the output spacing when
-    ``record_dt`` is None); states are recorded every ``record_dt`` (default ``dt``).
+    ``method``: ``"auto"`` (default), ``"rk4"``, ``"rosenbrock"`` or ``"adaptive"`` (module
+    docstring).  ``dt`` is the RK4 step (default :meth:`TDACM.suggested_dt`), the Rosenbrock
+    step (default :data:`ROSENBROCK_DT`; the largest step when ``rtol`` is given); ignored by
+    the adaptive method except as the output spacing when ``record_dt`` is None.  States are
+    recorded every ``record_dt`` (default ``dt``).  ``rtol``/``atol``: tolerances of the
+    adaptive method (default 1e-8 / 1e-10) and, if given, of the Rosenbrock method (``atol``
+    for the positions; the velocities use ``atol * 100``).
     """
     q0 = system._q(q0, "q0")
     qd0 = np.zeros(system.n) if qd0 is None else system._q(qd0, "qd0")
     duration = V.positive("duration", duration)
-    dt = system.suggested_dt() if dt is None else V.positive("dt", dt)
+    if method not in ("auto", "rk4", "rosenbrock", "radau", "adaptive"):
+        raise ValueError(
+            f"method must be 'auto', 'rk4', 'rosenbrock', 'radau' or 'adaptive', got {method!r}"
+        )
+    if method == "auto":
+        method = "radau" if is_stiff(system) else "rk4"
+    if dt is None:
+        dt = {"rosenbrock": ROSENBROCK_DT, "radau": RADAU_DT}.get(method) or system.suggested_dt()
+    else:
+        dt = V.positive("dt", dt)
     record_dt = dt if record_dt is None else V.positive("record_dt", record_dt)
     every = max(1, int(round(record_dt / dt)))
     system.check_regular(q0)
@@ -74,9 +123,86 @@ def simulate(
             msg = "" if ok else "stopped: mass matrix singular (Euler singularity)"
             return SimulationResult(t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, msg)
         return _rk4_callable(system, q0, qd0, u, dt, nsteps, every, progress)
-    if method == "adaptive":
-        return _adaptive(system, q0, qd0, u, duration, record_dt, rtol, atol, solver)
-    raise ValueError(f"method must be 'rk4' or 'adaptive', got {method!r}")
+    if method == "radau":
+        return _radau(system, q0, qd0, u, duration, dt, every)
+    if method == "rosenbrock":
+        return _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol)
+    rtol = 1e-8 if rtol is None else rtol
+    atol = 1e-10 if atol is None else atol
+    return _adaptive(system, q0, qd0, u, duration, record_dt, rtol, atol, solver)
+
+
+def _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
+    """ROS34PW2 at constant input (one numba call) or with ``u(t, q, qd)`` held over every
+    ``record_dt`` interval (a zero-order hold at the recording rate)."""
+    m, loads = system.model_arrays, system.loads.packed()
+    adaptive = rtol is not None
+    rt = V.positive("rtol", rtol) if adaptive else 0.0
+    at = (1e-6 if atol is None else V.positive("atol", atol)) if adaptive else 0.0
+    if not adaptive:
+        k = record_dt / dt
+        if abs(k - round(k)) > 1e-9 * max(1.0, k):
+            raise ValueError(f"record_dt ({record_dt}) must be a multiple of dt ({dt})")
+    if not callable(u):
+        uc = system._u(u)
+        t, qs, qds, ok, _, _, _ = ST.rosw_run(
+            q0, qd0, uc, duration, record_dt, dt, dt, rt, at, 100.0 * at, m, loads
+        )
+        msg = "" if ok else "stopped: singular mass or iteration matrix, or step size underflow"
+        return SimulationResult(t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, msg)
+    nrec = int(np.floor(duration / record_dt + 1e-9))
+    q, qd = q0.copy(), qd0.copy()
+    ts, qs, qds, us = [0.0], [q.copy()], [qd.copy()], []
+    ok, msg, h = True, "", dt
+    for k in range(nrec):
+        uk = system._u(u(k * record_dt, q, qd))
+        us.append(uk)
+        _, qq, qqd, ok, _, _, h = ST.rosw_run(
+            q, qd, uk, record_dt, record_dt, h if adaptive else dt, dt, rt, at, 100.0 * at, m, loads
+        )
+        if not ok:
+            msg = f"stopped at t = {k * record_dt:.4f} s: singular matrix or step underflow"
+            break
+        q, qd = qq[-1], qqd[-1]
+        ts.append((k + 1) * record_dt)
+        qs.append(q.copy())
+        qds.append(qd.copy())
+    u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]
+    return SimulationResult(np.array(ts), np.array(qs), np.array(qds), u_arr, ok, msg)
+
+
+def _radau(system, q0, qd0, u, duration, dt, every):
+    """Radau IIA at constant input (one numba call) or with ``u(t, q, qd)`` held over every
+    recording interval."""
+    m, loads = system.model_arrays, system.loads.packed()
+    nw = RADAU_NEWTON
+    args = tuple(nw[k] for k in ("tol_q", "tol_v", "max_iter", "slow_iter", "full_v", "stall_ok"))
+    nsteps = int(round(duration / dt))
+    msg_bad = "stopped: the Newton iteration failed (or a singular mass matrix)"
+    if not callable(u):
+        uc = system._u(u)
+        qs, qds, ok, _ = ST.radau_run(q0, qd0, uc, dt, nsteps, every, m, loads, *args)
+        t = np.arange(qs.shape[0]) * dt * every
+        return SimulationResult(
+            t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, "" if ok else msg_bad
+        )
+    q, qd = q0.copy(), qd0.copy()
+    ts, qs, qds, us = [0.0], [q.copy()], [qd.copy()], []
+    ok = True
+    for k in range(nsteps // every):
+        uk = system._u(u(k * every * dt, q, qd))
+        us.append(uk)
+        qq, qqd, ok, _ = ST.radau_run(q, qd, uk, dt, every, every, m, loads, *args)
+        if not ok:
+            break
+        q, qd = qq[-1], qqd[-1]
+        ts.append((k + 1) * every * dt)
+        qs.append(q.copy())
+        qds.append(qd.copy())
+    u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]
+    return SimulationResult(
+        np.array(ts), np.array(qs), np.array(qds), u_arr, ok, "" if ok else msg_bad
+    )
 
 
 def _rk4_callable(system, q0, qd0, ufun, dt, nsteps, every, progress):

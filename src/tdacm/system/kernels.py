@@ -39,25 +39,50 @@ from ..lie.magnus import magnus_step, magnus_step_into
 
 
 class ModelArrays(NamedTuple):
-    """Constant arrays of a built model, passed to every kernel (see ``TDACM``)."""
+    """Constant arrays of a built model, passed to every kernel (see ``TDACM``).
+
+    The rods (one or several, each of one or several sections) are stored as chains of Magnus
+    steps: rod ``r`` owns the steps ``rod_steps[r] <= k < rod_steps[r + 1]`` and starts at the
+    attachment ``g_att[r]``.  Step ``k`` depends on the ``step_nc[k]`` strain coordinates starting
+    at ``step_col[k]`` (indices into ``q_s``: the section it lies in); its basis block sits in the
+    first ``step_nc[k]`` columns of ``bs[k]``.  After the step, a section (or body) of inertia
+    ``step_mass[k]`` and weight ``step_w[k]`` (quadrature weight in metres, 1 for a point body,
+    0 for none) adds its share to ``M``, ``C`` and ``tau_ext``; ``step_load[k]`` says which loads
+    it carries (:data:`LOAD_DISTRIBUTED`, :data:`LOAD_TIP` or :data:`LOAD_GRAVITY` only).
+    The Gauss-point arrays (``g_*``, ``wq``, ``bg``, ``tendon_*``) serve the tendon model.
+    """
 
     floating: bool
     g_fixed: np.ndarray  # (4, 4) clamp pose (fixed base only)
-    g_att: np.ndarray  # (4, 4) attachment g_a^b
+    g_att: np.ndarray  # (n_rods, 4, 4) attachments g_a^b
+    rod_steps: np.ndarray  # (n_rods + 1,) int, first step of every rod (and the end)
     h: np.ndarray  # (n_steps,) Magnus step lengths (m)
     xi0s: np.ndarray  # (n_steps, p, 6) reference strain at the Magnus sample points
-    bs: np.ndarray  # (n_steps, p, 6, n_s) basis at the Magnus sample points
-    wq: np.ndarray  # (n_gauss,) quadrature weights (m)
-    mbar: np.ndarray  # (6,) diagonal of the section inertia density
-    tip6: np.ndarray  # (6,) diagonal of the tip body inertia
+    bs: np.ndarray  # (n_steps, p, 6, w) basis block at the Magnus sample points
+    step_col: np.ndarray  # (n_steps,) int, first strain coordinate of the step's section
+    step_nc: np.ndarray  # (n_steps,) int, its number of strain coordinates
+    step_w: np.ndarray  # (n_steps,) weight of the body after the step
+    step_mass: np.ndarray  # (n_steps, 6) diagonal inertia (density) of that body
+    step_load: np.ndarray  # (n_steps,) int, which loads it carries
     mb6: np.ndarray  # (6,) diagonal of the drone inertia (zeros for a fixed base)
     stiffness: np.ndarray  # (n, n) generalized stiffness, K(q) = stiffness @ q (eq. (18))
     damping: np.ndarray  # (n, n) generalized damping D (eq. (17), (19))
     gamma: np.ndarray  # (6, 4) motor thrusts -> body wrench (eq. (15))
-    xi0g: np.ndarray  # (n_gauss, 6) reference strain at the Gauss points
-    bg: np.ndarray  # (n_gauss, 6, n_s) basis at the Gauss points
-    tendon_d: np.ndarray  # (n_gauss, n_a, 3) tendon offsets
-    tendon_dd: np.ndarray  # (n_gauss, n_a, 3) d(offset)/ds
+    wq: np.ndarray  # (n_g,) quadrature weights (m) of all Gauss points of all rods
+    xi0g: np.ndarray  # (n_g, 6) reference strain at the Gauss points
+    bg: np.ndarray  # (n_g, 6, w) basis block at the Gauss points
+    g_col: np.ndarray  # (n_g,) int, first strain coordinate of the point's section
+    g_nc: np.ndarray  # (n_g,) int, its number of strain coordinates
+    tendon_d: np.ndarray  # (n_g, n_a, 3) tendon offsets
+    tendon_dd: np.ndarray  # (n_g, n_a, 3) d(offset)/ds
+    tendon_on: np.ndarray  # (n_g, n_a) 1 where the tendon runs (its rod, before its end)
+
+
+#: ``step_load`` codes: gravity only (a joint mass), the distributed loads (a Gauss section),
+#: the tip loads (the tip body of a rod).
+LOAD_GRAVITY = 0
+LOAD_DISTRIBUTED = 9
+LOAD_TIP = 18
 
 
 LOAD_SLICES = {
@@ -305,26 +330,22 @@ def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
 @njit(cache=True)
 def coupled_terms(q, qd, m, loads, want_c):
     """``M``, ``C`` (zeros unless ``want_c``), ``C qdot``, ``tau_ext``, tip pose, tip ``J``, tip
-    ``J_dot`` (paper eqs. (10), (11), (16)); the last is zeros unless ``want_c``.
+    ``J_dot`` (paper eqs. (10), (11), (16)); the last is zeros unless ``want_c``.  The tip
+    returned is the last rod's.
 
-    ``m`` is a :class:`ModelArrays`: ``m.h`` (n_steps,) step lengths in metres, the first
-    ``n_steps - 1`` steps ending at the Gauss points (weights ``m.wq`` in metres), the last at the
-    tip; ``m.mbar``, ``m.tip6`` and ``m.mb6`` are the diagonals of the section inertia density,
-    the tip body and the drone inertia.
+    ``m`` is a :class:`ModelArrays`: every rod is a chain of Magnus steps from its attachment;
+    after each step the body described by ``m.step_w``, ``m.step_mass`` and ``m.step_load``
+    (a Gauss section of the rod, a joint mass, the tip body) adds its inertia and loads.
     """
     floating = m.floating
-    mbar = m.mbar
-    tip6 = m.tip6
     n = q.shape[0]
     off = 6 if floating else 0
-    qs = q[off:]
-    qsd = qd[off:]
     m_out = np.zeros((n, n))
     c_out = np.zeros((n, n))
     cqd = np.zeros(n)
     tau = np.zeros(n)
     grav = loads[0:3]
-    gb, jb, jbd, g, j, jd, jdq = chain_start(q, qd, floating, m.g_fixed, m.g_att)
+    gb, jb, jbd = base_state(q, qd, floating, m.g_fixed, n)
     f = np.empty(6)
     if floating:
         _add_body(m.mb6, jb, jbd, _matvec(jb, qd), _matvec(jbd, qd), 1.0, want_c, m_out, c_out, cqd)
@@ -334,44 +355,70 @@ def coupled_terms(q, qd, m, loads, want_c):
             for k in range(3):
                 f[3 + i] += m.mb6[3] * gb[k, i] * grav[k]
         _tmatvec_add(jb, f, 1.0, tau)
-    eta = _matvec(j, qd)
-    ws = make_workspace(n, qs.shape[0])
-    nsteps = m.h.shape[0]
-    for k in range(nsteps):
-        rod_step(m.h[k], m.xi0s[k], m.bs[k], qs, qsd, off, g, j, jd, eta, jdq, want_c, ws)
-        if k < nsteps - 1:
-            w = m.wq[k]
-            mass6 = mbar
-            lo = 9
-        else:
-            w = 1.0
-            mass6 = tip6
-            lo = 18
-        if mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0:
-            pass
-        else:
-            _add_body(mass6, j, jd, eta, jdq, w, want_c, m_out, c_out, cqd)
-        for i in range(6):
-            f[i] = loads[lo + i]
-        for i in range(3):
-            for kk in range(3):
-                f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
-        _tmatvec_add(j, f, w, tau)
+    ws = make_workspace(n, m.bs.shape[3])
+    g = np.eye(4)
+    j = np.zeros((6, n))
+    jd = np.zeros((6, n))
+    for rod in range(m.rod_steps.shape[0] - 1):
+        g, j, jd, jdq = rod_start(gb, jb, jbd, qd, m.g_att[rod])
+        eta = _matvec(j, qd)
+        for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
+            c0 = off + m.step_col[k]
+            c1 = c0 + m.step_nc[k]
+            rod_step(
+                m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, jd, eta, jdq, want_c, ws
+            )
+            w = m.step_w[k]
+            if w == 0.0:
+                continue
+            mass6 = m.step_mass[k]
+            if mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0:
+                pass
+            else:
+                _add_body(mass6, j, jd, eta, jdq, w, want_c, m_out, c_out, cqd)
+            lo = m.step_load[k]
+            if lo == LOAD_GRAVITY:
+                for i in range(6):
+                    f[i] = 0.0
+                for i in range(3):
+                    for kk in range(3):
+                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk])
+            else:
+                for i in range(6):
+                    f[i] = loads[lo + i]
+                for i in range(3):
+                    for kk in range(3):
+                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
+            _tmatvec_add(j, f, w, tau)
     return m_out, c_out, cqd, tau, g, j, jd
 
 
 @njit(cache=True)
-def chain_poses(q, floating, g_fixed, g_att, h, xi0s, bs):
-    """Poses after every Magnus step (n_steps, 4, 4), the rod base pose and the drone pose."""
+def rod_start(gb, jb, jbd, qd, g_att):
+    """Pose, Jacobian, Jacobian rate and ``J_dot qdot`` of a rod base ``O_a`` from the drone's:
+    ``J_a = Ad(g_a^b)^-1 J_b^b``."""
+    ra = g_att[:3, :3].copy()
+    pa = g_att[:3, 3].copy()
+    j = jb.copy()
+    jd = jbd.copy()
+    adinv_apply(ra, pa, j)
+    adinv_apply(ra, pa, jd)
+    return _matmul(gb, g_att), j, jd, _matvec(jd, qd)
+
+
+@njit(cache=True)
+def chain_poses(q, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
+    """Poses after every Magnus step (n_steps, 4, 4) of one chain, the rod base pose and the
+    drone pose (``cols``, ``ncs``: strain block of every step, as in :class:`ModelArrays`)."""
     off = 6 if floating else 0
-    qs = q[off:]
-    zero = np.zeros(qs.shape[0])
     gb, _, _ = base_state(q, np.zeros(q.shape[0]), floating, g_fixed, q.shape[0])
     g = _matmul(gb, g_att)
     g0 = g.copy()
     out = np.empty((h.shape[0], 4, 4))
     for k in range(h.shape[0]):
-        omega, _, _, _ = magnus_step(h[k], xi0s[k], bs[k], qs, zero)
+        c0 = off + cols[k]
+        qs = q[c0 : c0 + ncs[k]]
+        omega, _, _, _ = magnus_step(h[k], xi0s[k], bs[k], qs, np.zeros(qs.shape[0]))
         r, p = expmap_rp(omega)
         e = np.eye(4)
         e[:3, :3] = r
@@ -382,17 +429,38 @@ def chain_poses(q, floating, g_fixed, g_att, h, xi0s, bs):
 
 
 @njit(cache=True)
-def chain_jacobian(q, qd, floating, g_fixed, g_att, h, xi0s, bs):
+def chain_jacobian(q, qd, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
     """Pose, Jacobian and Jacobian rate at the end of an arbitrary chain of Magnus steps."""
     off = 6 if floating else 0
-    qs = q[off:]
-    qsd = qd[off:]
     _, _, _, g, j, jd, jdq = chain_start(q, qd, floating, g_fixed, g_att)
     eta = _matvec(j, qd)
-    ws = make_workspace(q.shape[0], qs.shape[0])
+    ws = make_workspace(q.shape[0], bs.shape[3])
     for k in range(h.shape[0]):
-        rod_step(h[k], xi0s[k], bs[k], qs, qsd, off, g, j, jd, eta, jdq, True, ws)
+        c0 = off + cols[k]
+        c1 = c0 + ncs[k]
+        rod_step(h[k], xi0s[k], bs[k], q[c0:c1], qd[c0:c1], c0, g, j, jd, eta, jdq, True, ws)
     return g, j, jd
+
+
+@njit(cache=True)
+def chain_frames(q, qd, m, rod):
+    """Pose (n_k, 4, 4) and twist ``J qdot`` (n_k, 6) after every step of rod ``rod``."""
+    off = 6 if m.floating else 0
+    n = q.shape[0]
+    gb, jb, jbd = base_state(q, qd, m.floating, m.g_fixed, n)
+    g, j, jd, jdq = rod_start(gb, jb, jbd, qd, m.g_att[rod])
+    eta = _matvec(j, qd)
+    ws = make_workspace(n, m.bs.shape[3])
+    lo, hi = m.rod_steps[rod], m.rod_steps[rod + 1]
+    poses = np.empty((hi - lo, 4, 4))
+    twists = np.empty((hi - lo, 6))
+    for k in range(lo, hi):
+        c0 = off + m.step_col[k]
+        c1 = c0 + m.step_nc[k]
+        rod_step(m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, jd, eta, jdq, False, ws)
+        poses[k - lo] = g
+        twists[k - lo] = eta
+    return poses, twists
 
 
 @njit(cache=True)
@@ -428,20 +496,30 @@ def cholesky_solve(a, b):
 
 
 @njit(cache=True)
-def tendon_matrix(qs, m):
-    """``B_s(q) = int B_q^T B_a ds`` (n_s x n_a), ``B_a = -[d~ t; t]`` (paper eq. (13))."""
+def tendon_lengths_and_matrix(qs, m):
+    """Tendon path lengths ``l_i = int_0^{end_i} |k x d_i + u + d_i'| ds`` and
+    ``B_s(q) = int B_q^T B_a ds = -dl/dq_s`` (n_s x n_a), ``B_a = -[d~ t; t]`` (paper eq. (13)),
+    on the same Gauss points; each tendon integrates where it runs (``m.tendon_on``)."""
     ng = m.bg.shape[0]
     ns = qs.shape[0]
     na = m.tendon_d.shape[1]
+    lengths = np.zeros(na)
     out = np.zeros((ns, na))
     col = np.empty(6)
+    xi = np.empty(6)
     for gi in range(ng):
         b = m.bg[gi]
-        xi = _matvec(b, qs)
+        c0 = m.g_col[gi]
+        nc = m.g_nc[gi]
         for r in range(6):
-            xi[r] += m.xi0g[gi, r]
+            acc = 0.0
+            for c in range(nc):
+                acc += b[r, c] * qs[c0 + c]
+            xi[r] = acc + m.xi0g[gi, r]
         k0, k1, k2 = xi[0], xi[1], xi[2]
         for i in range(na):
+            if m.tendon_on[gi, i] == 0.0:
+                continue
             d0, d1, d2 = m.tendon_d[gi, i, 0], m.tendon_d[gi, i, 1], m.tendon_d[gi, i, 2]
             v0 = k1 * d2 - k2 * d1 + xi[3] + m.tendon_dd[gi, i, 0]
             v1 = k2 * d0 - k0 * d2 + xi[4] + m.tendon_dd[gi, i, 1]
@@ -455,12 +533,19 @@ def tendon_matrix(qs, m):
             col[4] = -t1
             col[5] = -t2
             wq = m.wq[gi]
-            for c in range(ns):
+            lengths[i] += wq * nv
+            for c in range(nc):
                 acc = 0.0
                 for r in range(6):
                     acc += b[r, c] * col[r]
-                out[c, i] += wq * acc
-    return out
+                out[c0 + c, i] += wq * acc
+    return lengths, out
+
+
+@njit(cache=True)
+def tendon_matrix(qs, m):
+    """``B_s(q)`` (n_s x n_a) of :func:`tendon_lengths_and_matrix`."""
+    return tendon_lengths_and_matrix(qs, m)[1]
 
 
 @njit(cache=True)

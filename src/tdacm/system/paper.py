@@ -36,8 +36,8 @@ def paper_system(
     tip_mass: float = 0.01,
     attachment_offset: float = 0.1,
     basis: StrainBasis | None = None,
-    n_gauss: int = 5,
-    magnus_order: int = 2,
+    n_gauss: int | None = None,
+    magnus_order: int | None = None,
     fixed_base_pose=None,
     loads: Loads | None = None,
 ) -> TDACM:
@@ -46,11 +46,15 @@ def paper_system(
 
     ``fixed_base_pose`` (4x4) replaces the drone by a clamp at that pose (the paper's ground tests
     A and B; ``n = 2``).  Values missing from the paper: :data:`PAPER_DEFAULTS_NOT_IN_PAPER`.
-    The paper uses a second-order Magnus expansion (the default here); with the order-0 basis
-    both orders are exact.  Five Gauss points integrate ``M``, ``C`` and ``tau_ext`` of this
-    system to 1e-14 relative to a 32-point rule (measured at ``q_s = [0.3, 0.4]``); richer bases
-    need more points (pass ``n_gauss``).
+    The paper uses a second-order Magnus expansion (the default for the paper's basis); with the
+    order-0 basis both orders are exact.  Five Gauss points integrate ``M``, ``C`` and
+    ``tau_ext`` of this system to 1e-14 relative to a 32-point rule (measured at
+    ``q_s = [0.3, 0.4]``).  With another ``basis`` the defaults are those of :class:`Rod`
+    (Magnus order 4 and :func:`~tdacm.rod.default_gauss_points`), the accurate choice.
     """
+    if basis is None:
+        n_gauss = 5 if n_gauss is None else n_gauss
+        magnus_order = 2 if magnus_order is None else magnus_order
     rod = Rod(
         length=length,
         diameter=diameter,
@@ -75,3 +79,43 @@ def paper_system(
     else:
         base = FixedBase(pose=fixed_base_pose)
     return TDACM(rod, tendons, base, default_attachment(attachment_offset), loads)
+
+
+def dual_paper_system(
+    *,
+    separation: float = 0.3,
+    attachment_offset: float = 0.1,
+    basis: StrainBasis | None = None,
+    n_gauss: int | None = None,
+    magnus_order: int | None = None,
+    fixed_base_pose=None,
+    loads: Loads | None = None,
+    **rod_and_drone,
+) -> TDACM:
+    """Two of the paper's TD-CRs under one quadrotor (the paper's future-work "dual TD-CR
+    configuration"): identical rods, each with its own four tendons, hanging ``attachment_offset``
+    below the drone at ``+-separation/2`` along the body x axis (the rod base frames are those
+    of :func:`~tdacm.system.default_attachment`, shifted).
+
+    ``q = [phi, theta, psi, x, y, z, q_s of rod 0 (2), q_s of rod 1 (2)]`` (``n = 10``),
+    ``u = [4 thrusts, 4 tensions of rod 0, 4 tensions of rod 1]``.  Other keyword arguments
+    are those of :func:`paper_system` (material, drone, tendon radius...).
+    """
+    one = paper_system(
+        basis=basis,
+        n_gauss=n_gauss,
+        magnus_order=magnus_order,
+        attachment_offset=attachment_offset,
+        fixed_base_pose=fixed_base_pose,
+        **rod_and_drone,
+    )
+    separation = float(separation)
+    atts = []
+    for sign in (1.0, -1.0):
+        g = default_attachment(attachment_offset)
+        g[0, 3] = sign * separation / 2
+        atts.append(g)
+    tendons = Tendons.parallel(
+        radius=float(one.tendons.offsets[0, 1]), count=4, max_tension=one.tendons.max_tension
+    )
+    return TDACM([one.rod, one.rod], [tendons, tendons], one.base, atts, loads)

@@ -1,16 +1,26 @@
 """3-D replay of a run folder (``tdacm replay RUN_DIR``): the drone, the rod's backbone, the tip
-camera's optical axis and the target, animated with matplotlib and written to GIF or MP4.
+camera's frustum, the target, the box and the ground, animated with matplotlib and written to
+GIF or MP4.
 
-GIF uses Pillow (always available with matplotlib); MP4 uses OpenCV's video writer (the
-``opencv-python-headless`` wheel ships its FFmpeg backend), so nothing is downloaded.
+Playback is real time by default (``speed = 1``): the frame count and the frame rate are chosen
+so that the animation lasts ``duration / speed``; when ``max_frames`` or an explicit ``fps``
+makes that impossible, the title states the actual speed. Views: ``"follow"`` (centred on the arm
+in x and y, from the ground to above the drone) or ``"scene"`` (fixed, the whole motion and the
+target).
+
+GIF uses Pillow; MP4 uses :func:`tdacm.viz.video.write_video` (H.264 through imageio-ffmpeg,
+else OpenCV), so nothing is downloaded.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
+
+from ._scene import RunDirError
+
+VIEWS = ("follow", "scene")
 
 
 def _drone_arms(g_b, arm):
@@ -20,59 +30,134 @@ def _drone_arms(g_b, arm):
     return [(pts[0], pts[1]), (pts[2], pts[3])]
 
 
+def _frustum(cam_pose, camera, depth=0.35):
+    """Segments of a camera's viewing pyramid (apex at the camera, base at ``depth``)."""
+    w, h = camera.width, camera.height
+    corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
+    rays = np.column_stack(((corners[:, 0] - camera.cx) / camera.fx,
+                            (corners[:, 1] - camera.cy) / camera.fy, np.ones(4)))  # fmt: skip
+    base = (cam_pose[:3, :3] @ (depth * rays).T).T + cam_pose[:3, 3]
+    apex = cam_pose[:3, 3]
+    segs = [(apex, b) for b in base] + [(base[i], base[(i + 1) % 4]) for i in range(4)]
+    return segs
+
+
+def _box_edges(centre_xy, size):
+    x0, y0 = centre_xy[0] - size / 2, centre_xy[1] - size / 2
+    c = np.array([[x0 + dx * size, y0 + dy * size, dz * size] for dz in (0, 1)
+                  for dx, dy in ((0, 0), (1, 0), (1, 1), (0, 1))])  # fmt: skip
+    idx = [(i, (i + 1) % 4) for i in range(4)]
+    return [(c[a + o], c[b + o]) for o in (0, 4) for a, b in idx] + [
+        (c[i], c[i + 4]) for i in range(4)
+    ]
+
+
 def replay_frames(
-    system, q_series, target_points=None, tip_mount=None, stride=1, size=(640, 520), title=""
+    system,
+    q_series,
+    target_points=None,
+    tip_mount=None,
+    stride=1,
+    size=(640, 520),
+    title="",
+    times=None,
+    scene=None,
+    view="scene",
+    camera=None,
+    captions=None,
+    progress=None,
 ):
-    """RGB frames (list of HxWx3 uint8) of the arm moving along ``q_series``."""
+    """RGB frames (list of HxWx3 uint8) of the arm moving along ``q_series[::stride]``.
+
+    ``scene`` (a :class:`~tdacm.vision.SceneConfig`) adds the box and the ground; ``camera``
+    (default C_L) the tip camera's frustum; ``times`` the simulated time per row of
+    ``q_series`` (shown); ``captions`` one extra string per row (e.g. the mode);
+    ``progress(done, total)`` is called per frame."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: F401  (registers 3d)
+    from matplotlib.lines import Line2D
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    qs = np.asarray(q_series)[::stride]
+    if view not in VIEWS:
+        raise ValueError(f"view must be one of {VIEWS}, got {view!r}")
+    if camera is None:
+        from ..vision import LOCAL_CAMERA as camera
+    idx = np.arange(len(q_series))[::stride]
+    qs = np.asarray(q_series)[idx]
     bbs = np.array([system.backbone(q, 21) for q in qs])
     bases = np.array([system.base_pose(q) for q in qs])
     pts = bbs[:, :, :3, 3].reshape(-1, 3)
-    allp = np.vstack(
-        [pts, bases[:, :3, 3]] + ([target_points] if target_points is not None else [])
-    )
+    extra = [target_points] if target_points is not None else []
+    allp = np.vstack([pts, bases[:, :3, 3], *extra])
     lo, hi = allp.min(0), allp.max(0)
+    lo[2] = min(lo[2], 0.0)
     centre, half = 0.5 * (lo + hi), 0.5 * max(np.max(hi - lo), 1.0) + 0.2
     arm = getattr(system.base, "arm_length", 0.0) if system.floating else 0.0
     fig = plt.figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
     ax = fig.add_subplot(projection="3d")
+    handles = [
+        Line2D([], [], color="k", lw=2, label="drone"),
+        Line2D([], [], color="C1", lw=3, label="rod"),
+        Line2D([], [], color="C2", lw=1, label="C_L frustum"),
+        Line2D([], [], color="C3", lw=2, label="target"),
+    ]
+    if scene is not None:
+        handles.append(Line2D([], [], color="saddlebrown", lw=1, label="box"))
     frames = []
-    for bb, gb in zip(bbs, bases, strict=True):
+    for j, (bb, gb) in enumerate(zip(bbs, bases, strict=True)):
         ax.cla()
-        ax.set_xlim(centre[0] - half, centre[0] + half)
-        ax.set_ylim(centre[1] - half, centre[1] + half)
-        ax.set_zlim(centre[2] - half, centre[2] + half)
+        if view == "follow":  # centred on the arm in x, y; from the ground to above the drone
+            top = max(gb[2, 3], bb[0, 2, 3]) + 0.4
+            h = max(1.0, 0.5 * top)
+            c = np.array([*(0.5 * (bb[0, :2, 3] + bb[-1, :2, 3])), h])
+        else:
+            c, h = centre, half
+        ax.set_xlim(c[0] - h, c[0] + h)
+        ax.set_ylim(c[1] - h, c[1] + h)
+        zlo = -0.05 if view == "follow" else min(c[2] - h, -0.05)
+        ax.set_zlim(zlo, zlo + 2 * h)
+        ax.set_box_aspect((1, 1, 1))
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_zlabel("z (m)")
-        ax.plot(*bb[:, :3, 3].T, color="C1", lw=3, label="rod")
+        if scene is not None:
+            gx = (c[0] - h, c[0] + h)
+            gy = (c[1] - h, c[1] + h)
+            ground = [[(gx[0], gy[0], 0), (gx[1], gy[0], 0), (gx[1], gy[1], 0), (gx[0], gy[1], 0)]]
+            ax.add_collection3d(Poly3DCollection(ground, color=(0.75, 0.78, 0.75, 0.5)))
+            for a, b in _box_edges(scene.box_xy, scene.box_size):
+                ax.plot(*np.array([a, b]).T, color="saddlebrown", lw=1)
+        ax.plot(*bb[:, :3, 3].T, color="C1", lw=3)
         if system.floating:
             for a, b in _drone_arms(gb, arm):
                 ax.plot(*np.array([a, b]).T, color="k", lw=2)
         ax.plot(*np.array([gb[:3, 3], bb[0, :3, 3]]).T, color="k", lw=1)
         if tip_mount is not None:
             cam = bb[-1] @ tip_mount
-            axis = np.array([cam[:3, 3], cam[:3, 3] + 0.4 * cam[:3, 2]])
-            ax.plot(*axis.T, color="C2", lw=1, ls="--", label="C_L axis")
+            for a, b in _frustum(cam, camera):
+                ax.plot(*np.array([a, b]).T, color="C2", lw=0.9)
         if target_points is not None:
             poly = np.vstack([target_points, target_points[:1]])
-            ax.plot(*poly.T, color="C3", lw=2, label="target")
-        ax.set_title(title)
+            ax.plot(*poly.T, color="C3", lw=2)
+        ax.legend(handles=handles, loc="upper left", fontsize=7)
+        line = title
+        if times is not None:
+            line += f"\nt = {float(np.asarray(times)[idx[j]]):.2f} s"
+            if captions is not None:
+                line += f"   {captions[idx[j]]}"
+        ax.set_title(line, fontsize=9)
         fig.canvas.draw()
-        img = np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
-        frames.append(img)
+        frames.append(np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy())
+        if progress is not None:
+            progress(j + 1, len(bbs))
     plt.close(fig)
     return frames
 
 
 def write_animation(frames, path, fps=20) -> Path:
-    """Write frames to ``.gif`` (Pillow) or ``.mp4`` (OpenCV)."""
+    """Write frames to ``.gif`` (Pillow) or ``.mp4`` (H.264, else OpenCV)."""
     path = Path(path)
     if not frames:
         raise ValueError("no frames to write")
@@ -80,52 +165,58 @@ def write_animation(frames, path, fps=20) -> Path:
         from PIL import Image
 
         imgs = [Image.fromarray(f) for f in frames]
-        imgs[0].save(path, save_all=True, append_images=imgs[1:], duration=int(1000 / fps), loop=0)
+        imgs[0].save(
+            path, save_all=True, append_images=imgs[1:], duration=int(round(1000 / fps)), loop=0
+        )
     elif path.suffix.lower() == ".mp4":
-        import cv2
+        from .video import write_video
 
-        h, w = frames[0].shape[:2]
-        vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
-        for f in frames:
-            vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
-        vw.release()
+        write_video(path, frames, fps)
     else:
         raise ValueError(f"animation path must end in .gif or .mp4, got {path}")
     return path
 
 
-def replay_run(run_dir, out=None, fps=20, max_frames=60) -> Path:
-    """Animate a ``tdacm run`` folder (``timeseries.npz`` + ``summary.json``)."""
-    from ..loop import build_scene
-    from ..sim.scenario import load_scenario
+def playback_plan(duration: float, n_steps: int, fps=None, max_frames=None, speed=1.0):
+    """``(stride, fps, actual_speed)`` for ``n_steps`` logged steps over ``duration`` s: real
+    time times ``speed`` unless ``max_frames``/``fps`` forbid it (then the actual speed)."""
+    duration = max(float(duration), 1e-9)
+    want_fps = 20.0 if fps is None else float(fps)
+    frames = int(np.ceil(duration / speed * want_fps)) + 1
+    if max_frames is not None:
+        frames = min(frames, int(max_frames))
+    frames = max(1, min(frames, n_steps))
+    stride = max(1, int(np.ceil(n_steps / frames)))
+    shown = len(range(0, n_steps, stride))
+    if fps is None:  # choose the rate that keeps the requested speed
+        fps = max(1.0, min(50.0, shown * speed / duration))
+    actual = duration / max(shown / float(fps), 1e-9)
+    return stride, float(fps), actual
 
+
+def replay_run(
+    run_dir, out=None, fps=None, max_frames=200, speed=1.0, view="follow", progress=None
+) -> Path:
+    """Animate a ``tdacm run`` folder (``timeseries.npz``, ``summary.json``, ``scenario.toml``)."""
+    from ._scene import geometry, load_run
+
+    arrays, summary, scenario = load_run(run_dir)
     run_dir = Path(run_dir)
-    npz = run_dir / "timeseries.npz"
-    if not npz.is_file():
-        raise FileNotFoundError(f"{npz} not found: is {run_dir} a `tdacm run` output folder?")
-    data = np.load(npz)
-    summary = json.loads((run_dir / "summary.json").read_text())
-    world = build_scene(load_scenario(summary["scenario"]))
-    q = data["q"]
-    t = data["t"]
-    stride = max(1, int(np.ceil(len(q) / max_frames)))
-    target = world.scene.target_points_world()
+    g = geometry(scenario)
+    q = np.asarray(arrays["q"])
+    t = np.asarray(arrays["t"])
+    if len(t) == 0:
+        raise RunDirError(f"{run_dir} holds no time steps")
+    duration = float(t[-1] - t[0]) if len(t) > 1 else float(scenario["dt"])
+    stride, fps, actual = playback_plan(duration, len(t), fps, max_frames, speed)
+    captions = None
+    if "mode" in arrays:
+        captions = ["recovery" if int(m) == 1 else "IBVS" for m in arrays["mode"]]
+    title = f"{summary.get('scenario', scenario.name)}  (playback {actual:.2g}x real time)"
     frames = replay_frames(
-        world.robot.system, q, target, world.robot.tip_mount, stride, title=summary["scenario"]
-    )
-    # stamp the simulated time on every frame
-    import cv2
-
-    for f, ti in zip(frames, t[::stride], strict=False):
-        cv2.putText(
-            f,
-            f"t = {ti:.2f} s",
-            (10, 24),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.6,
-            (0, 0, 0),
-            1,
-            cv2.LINE_AA,
-        )
+        g.system, q, g.scene.target_points_world(), g.tip_mount, stride, title=title,
+        times=t, scene=g.scene, view=view, camera=g.local_camera, captions=captions,
+        progress=progress,
+    )  # fmt: skip
     out = Path(out) if out is not None else run_dir / "replay.gif"
     return write_animation(frames, out, fps)

@@ -86,8 +86,19 @@ def view_matrix(camera_pose: np.ndarray) -> np.ndarray:
     return np.linalg.inv(camera_pose @ np.diag([1.0, -1.0, -1.0, 1.0]))
 
 
+def _flush_c_stdio() -> None:
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+
+
 class _quiet_stdout:
-    """Silence the process's stdout (file descriptor 1, also C-level writes) for a while."""
+    """Send the process's stdout (file descriptor 1, also C-level writes such as the EGL
+    plugin's ``ven = Mesa/X.org`` and ``Destroy EGL OpenGL window.``) to stderr for a while, so
+    that stdout carries only the program's own output (``tdacm run ... | python -m json.tool``)."""
 
     def __enter__(self):
         import sys
@@ -95,18 +106,16 @@ class _quiet_stdout:
         sys.stdout.flush()
         try:
             self._saved = os.dup(1)
+            os.dup2(2, 1)
         except OSError:
             self._saved = None
-            return self
-        self._null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(self._null, 1)
         return self
 
     def __exit__(self, *exc):
         if self._saved is not None:
+            _flush_c_stdio()  # C's stdout buffer (a pipe is block-buffered) goes to stderr too
             os.dup2(self._saved, 1)
             os.close(self._saved)
-            os.close(self._null)
 
 
 def _quat(r: np.ndarray) -> list:
@@ -182,7 +191,8 @@ class PyBulletRenderer(Renderer):
         self.arm = arm
         self.light = tuple(C.array("light", light, (3,)))
         self._tmp = tempfile.mkdtemp(prefix="tdacm_vision_")
-        self._cid = p.connect(p.DIRECT)
+        with _quiet_stdout():
+            self._cid = p.connect(p.DIRECT)
         self._plugin = None
         self.backend = "tiny"
         if backend in ("egl", "auto") and PyBulletRenderer._egl_owner is not None:
@@ -366,6 +376,10 @@ class PyBulletRenderer(Renderer):
         view = list(view_matrix(g).T.ravel())
         if self.backend == "tiny":
             return self._render_tile(camera, view, 0, 0, camera.width, camera.height, depth)
+        with _quiet_stdout():  # the EGL plugin prints "ven = Mesa/X.org" from C on stdout
+            return self._render_egl(camera, view, depth)
+
+    def _render_egl(self, camera, view, depth):
         # EGL: its framebuffer is 1024 x 768; larger images come back resampled (measured
         # offsets of 0.3-0.5 px), so they are rendered in tiles that fit and stitched.
         rgb = np.empty((camera.height, camera.width, 3), np.uint8)
@@ -419,11 +433,12 @@ class PyBulletRenderer(Renderer):
         p = self._p
         if getattr(self, "_cid", None) is not None:
             try:
-                if self._plugin is not None:
-                    p.unloadPlugin(self._plugin, physicsClientId=self._cid)
-                    PyBulletRenderer._egl_owner = None
-                    self._plugin = None
-                p.disconnect(physicsClientId=self._cid)
+                with _quiet_stdout():
+                    if self._plugin is not None:
+                        p.unloadPlugin(self._plugin, physicsClientId=self._cid)
+                        PyBulletRenderer._egl_owner = None
+                        self._plugin = None
+                    p.disconnect(physicsClientId=self._cid)
             except p.error:
                 pass
             self._cid = None

@@ -1,0 +1,47 @@
+"""State estimation: proprioceptive sensors and an EKF on the controller's model (issue 10).
+
+* :mod:`.sensors`: drone pose, IMU and tendon-encoder models (seeded, with latency/dropout);
+* :mod:`.ekf`: :class:`Estimator` (``reset``, ``step(t, u_applied, measurements) ->
+  StateEstimate``);
+* :mod:`.inversion`: strains from measured tendon lengths (least squares);
+* :mod:`.block`: :class:`FilterBlock`, the filter as the closed loop's estimation block
+  (``estimation.source = "estimated"``, assembled by :func:`tdacm.loop.build.build_loop`).
+"""
+
+from .block import FilterBlock
+from .ekf import Estimator, EstimatorConfig, StateEstimate, euler_from_rotation
+from .inversion import InversionResult, strains_from_tendon_lengths
+from .sensors import (
+    DronePoseSensor,
+    EncoderConfig,
+    EncoderMeasurement,
+    Imu,
+    ImuConfig,
+    ImuMeasurement,
+    PoseMeasurement,
+    PoseSensorConfig,
+    SensorSuite,
+    SensorSuiteConfig,
+    TendonEncoders,
+)
+
+__all__ = [
+    "DronePoseSensor",
+    "EncoderConfig",
+    "EncoderMeasurement",
+    "Estimator",
+    "FilterBlock",
+    "EstimatorConfig",
+    "Imu",
+    "ImuConfig",
+    "ImuMeasurement",
+    "InversionResult",
+    "PoseMeasurement",
+    "PoseSensorConfig",
+    "SensorSuite",
+    "SensorSuiteConfig",
+    "StateEstimate",
+    "TendonEncoders",
+    "euler_from_rotation",
+    "strains_from_tendon_lengths",
+]

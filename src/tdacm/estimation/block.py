@@ -1,0 +1,88 @@
+"""The estimator as the closed loop's estimation block (``estimation.source = "estimated"``).
+
+:class:`FilterBlock` adapts :class:`~tdacm.estimation.ekf.Estimator` to the loop's protocol
+(:class:`tdacm.loop.protocols.Estimator`): ``reset(t)`` starts the filter from an initial
+guess, ``step(readings, u_applied, dt)`` fuses the proprioceptive measurements of
+``readings.other`` (drone pose, IMU, encoders) with the input applied over the last period.
+It never sees the plant: the initial guess comes either from one reading of the sensors at the
+start (``initial_guess = "measured"``: drone pose from the pose sensor, strains from the
+tendon lengths by least squares) or from the scenario's nominal initial configuration
+(``"true"``: what a take-off procedure would know), plus the configured initial errors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .ekf import Estimator
+from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
+
+#: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
+_KNOWN = (PoseMeasurement, ImuMeasurement, EncoderMeasurement)
+
+
+class FilterBlock:
+    """Loop adapter of an :class:`Estimator` (module docstring).
+
+    Parameters
+    ----------
+    estimator:
+        The filter.
+    initial_measurements:
+        ``f(t) -> list`` of measurements for the initial guess (``None``: use ``nominal_q``).
+    nominal_q:
+        Prior configuration (the scenario's ``initial.q``); also the fallback for coordinates
+        no sensor measures.
+    strain_error, position_error:
+        Offsets added to the guess's strains and drone position (convergence studies).
+    """
+
+    def __init__(
+        self,
+        estimator: Estimator,
+        initial_measurements=None,
+        nominal_q=None,
+        strain_error: float = 0.0,
+        position_error: float = 0.0,
+    ):
+        self.filter = estimator
+        self.initial_measurements = initial_measurements
+        n = estimator.n
+        self.nominal_q = np.zeros(n) if nominal_q is None else np.asarray(nominal_q, float)
+        self.strain_error = float(strain_error)
+        self.position_error = float(position_error)
+
+        self.prior = None  # the filter's state before the start-up update (tests, logs)
+
+    def initial_guess(self, t: float) -> np.ndarray:
+        """The nominal configuration plus the configured errors (no start-up reading)."""
+        f = self.filter
+        q = self.nominal_q.copy()
+        q[f.n - f.n_s :] += self.strain_error
+        if f.floating:
+            q[3:6] += self.position_error
+        return q
+
+    def reset(self, t: float = 0.0):
+        """Start the filter at the guess (plus the configured errors); with a start-up reading,
+        fuse it at once, so that the blocks initialized from this estimate (the servo's first
+        reference, the controller) start from a measured state, as on a robot that reads its
+        sensors before engaging the controller."""
+        f = self.filter
+        if self.initial_measurements is None:
+            return f.reset(self.initial_guess(t), t0=t)
+        meas = self.initial_measurements(t)
+        q = f.initial_guess(meas, self.nominal_q)
+        q[f.n - f.n_s :] += self.strain_error
+        if f.floating:
+            q[3:6] += self.position_error
+        self.prior = f.reset(q, t0=t)
+        return f.step(t, None, meas)
+
+    def step(self, readings, u_applied, dt: float):
+        meas = [m for m in readings.other.values() if isinstance(m, _KNOWN)]
+        return self.filter.step(readings.t, u_applied, meas)
+
+    @property
+    def timings(self):
+        return self.filter.timings

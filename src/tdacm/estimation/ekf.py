@@ -1,0 +1,493 @@
+"""Extended Kalman filter of the TD-ACM state from drone pose, IMU and tendon encoders.
+
+State (floating base, ``n`` coordinates)::
+
+    x = [q (n), qd (n), a_d (n), b_g (3), b_a (3)]
+
+``q, qd`` as in the model (``q = [phi, theta, psi, x, y, z, q_s]``), ``a_d`` a disturbance
+acceleration on every coordinate (random walk: the controller's model is 10 % off and the
+disturbances are unknown), ``b_g, b_a`` the gyro and accelerometer biases (random walks). A fixed
+base has ``x = [q, qd, a_d]`` and only the encoders.
+
+Process model (continuous, input ``u`` held over the period; the controller's perturbed model,
+:mod:`tdacm.estimation.kernels`)::
+
+    q' = qd,  qd' = f_hat(q, qd, u) + a_d + w_a,  a_d' = w_d,  b' = w_b
+
+with white ``w_a`` (``accel_noise_*``), ``w_d`` (``disturbance_walk_*``), ``w_b`` (the IMU's
+bias walks). The mean is propagated with RK4 (``rk4_steps`` per period); the covariance with
+``Phi = expm(A dt)`` (3rd-order series) of the Jacobian ``A`` (``df_hat/d[q, qd]`` by forward
+differences of the numba model) and Van Loan's discretization of the noise.
+
+Measurements (``docs/estimation.md`` has the Jacobians):
+
+* pose: ``p = q[3:6]``; attitude residual ``log(R_hat^T R_meas)`` (body frame) with
+  ``H = T(phi, theta)`` on the Euler angles (``R(e + de) ~ R(e) exp([T de]x)``);
+* IMU: ``gyro = T(phi, theta) Phi_dot + b_g``, ``accel = R^T (f_hat + a_d - g)[3:6] + b_a``
+  evaluated with the input applied over the period ending at the sample;
+* encoders: ``dl = l(q_s) - l(q_ref)``, ``H = dl/dq_s = -B_s^T``.
+
+Latency: the filter keeps its last ``max_delay`` seconds of ticks (prior, input, transition,
+measurements). A late measurement is attached to the tick of its capture time and the filter
+re-runs from there (updates at each tick, mean re-propagated with RK4, covariance with the
+stored ``Phi`` and ``Q``: the linearization is not redone, an O(correction) approximation).
+Missing measurements (dropouts, slower sensors) simply mean predict-only ticks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..control.model import EstimatedModel
+from ..lie.euler import euler_rate_matrix, rot_zyx
+from . import kernels as EK
+from .estimate import StateEstimate
+from .inversion import strains_from_tendon_lengths
+from .sensors import (
+    EncoderMeasurement,
+    ImuMeasurement,
+    PoseMeasurement,
+    SensorSuiteConfig,
+)
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Filter tuning (scenario section ``[estimation]``, same names). Units: rad, m, rad/m for
+    the strains; noise densities per sqrt(Hz). See ``docs/estimation.md`` for the reasons."""
+
+    rk4_steps: int = 1
+    accel_noise_angular: float = 0.3  # rad/s^2/sqrt(Hz), drone Euler angles
+    accel_noise_linear: float = 0.005  # m/s^2/sqrt(Hz)
+    accel_noise_strain: float = 0.2  # rad/m/s^2/sqrt(Hz) (covers the downwash of test C)
+    disturbance_walk_angular: float = 1.0  # rad/s^3/sqrt(Hz)
+    disturbance_walk_linear: float = 0.02  # m/s^3/sqrt(Hz)
+    disturbance_walk_strain: float = 0.3  # rad/m/s^3/sqrt(Hz)
+    accel_model_error: float = 0.03  # m/s^2, added in quadrature to the accelerometer's noise
+    model_error_fraction: float = 0.1  # relative error of the predicted acceleration
+    initial_attitude_std: float = 0.02  # rad
+    initial_position_std: float = 0.02  # m
+    initial_strain_std: float = 0.3  # rad/m
+    initial_velocity_std: float = 0.1  # rad/s, m/s, rad/m/s
+    initial_disturbance_angular_std: float = 2.0  # rad/s^2
+    initial_disturbance_linear_std: float = 1.5  # m/s^2 (10 % of g: the model's gravity error)
+    initial_disturbance_strain_std: float = 5.0  # rad/m/s^2
+    max_delay: float = 0.2  # s of history kept for late measurements
+
+    def __post_init__(self):
+        if int(self.rk4_steps) != self.rk4_steps or self.rk4_steps < 1:
+            raise ValueError(
+                f"estimation.rk4_steps must be an integer >= 1, got {self.rk4_steps!r}"
+            )
+        for f in fields(self):
+            if f.name == "rk4_steps":
+                continue
+            v = getattr(self, f.name)
+            if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"estimation.{f.name} must be a finite number >= 0, got {v!r}")
+        for name in ("initial_attitude_std", "initial_position_std", "initial_strain_std",
+                     "initial_velocity_std"):  # fmt: skip
+            if getattr(self, name) <= 0:
+                raise ValueError(f"estimation.{name} must be positive")
+
+    @classmethod
+    def from_section(cls, section: dict) -> EstimatorConfig:
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in section.items() if k in names})
+
+
+class _Tick:
+    __slots__ = ("t", "u", "x_prior", "p_prior", "phi", "qn", "jac", "meas", "x_post", "p_post")
+
+    def __init__(self, t, u, x_prior, p_prior, phi, qn, jac):
+        self.t = t
+        self.u = u
+        self.x_prior = x_prior
+        self.p_prior = p_prior
+        self.phi = phi
+        self.qn = qn
+        self.jac = jac
+        self.meas = []
+        self.x_post = x_prior
+        self.p_post = p_prior
+
+
+def _so3_log(r):
+    c = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
+    th = math.acos(c)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    if th < 1e-6:
+        return 0.5 * v
+    if math.pi - th < 1e-6:  # not reached for sensor residuals; keep a valid answer
+        w = np.sqrt(np.maximum((np.diag(r) + 1.0) / 2.0, 0.0)) * th
+        return w
+    return th / (2.0 * math.sin(th)) * v
+
+
+def euler_from_rotation(r) -> np.ndarray:
+    """ZYX Euler angles ``[phi, theta, psi]`` of ``R = Rz(psi) Ry(theta) Rx(phi)``."""
+    r = np.asarray(r, float)
+    return np.array(
+        [
+            math.atan2(r[2, 1], r[2, 2]),
+            -math.asin(max(-1.0, min(1.0, r[2, 0]))),
+            math.atan2(r[1, 0], r[0, 0]),
+        ]
+    )
+
+
+class Estimator:
+    """EKF on the controller's perturbed model (see module docstring).
+
+    Parameters
+    ----------
+    model:
+        The controller's :class:`~tdacm.control.model.EstimatedModel` (its private
+        gravity-only copy and its perturbation draws are used; the plant is never touched).
+    sensors:
+        The sensor specifications the filter assumes (noise levels for ``R``; datasheet values).
+    config:
+        :class:`EstimatorConfig`.
+    q_ref:
+        Strains at which the encoders were zeroed (default straight).
+    """
+
+    def __init__(
+        self,
+        model: EstimatedModel,
+        sensors: SensorSuiteConfig | None = None,
+        config: EstimatorConfig | None = None,
+        q_ref=None,
+    ):
+        if not isinstance(model, EstimatedModel):
+            raise ValueError(f"model must be an EstimatedModel, got {model!r}")
+        self.model = model
+        self.sensors = SensorSuiteConfig() if sensors is None else sensors
+        self.config = EstimatorConfig() if config is None else config
+        sysm = model.system  # private, gravity-only copy (no disturbances)
+        self.system = sysm
+        self._m = sysm.model_arrays
+        self._loads = sysm.loads.packed().copy()
+        self._gravity = sysm.loads.gravity.copy()
+        self._s_m = np.ascontiguousarray(model._s_m)
+        self._s_d = np.ascontiguousarray(model._s_d)
+        self._k_scale = 1.0 + model.d_k
+        self._g_scale = 1.0 + model.d_g
+        n = sysm.n
+        self.n, self.n_s, self.n_a = n, sysm.n_s, sysm.n_a
+        self.floating = sysm.floating
+        self.nx = 3 * n + (6 if self.floating else 0)
+        self._skip = np.zeros(n, dtype=np.bool_)
+        if self.floating:
+            self._skip[3:6] = True  # the dynamics do not depend on the drone's position
+        self.q_ref = np.zeros(self.n_s) if q_ref is None else np.asarray(q_ref, float)
+        self._l_ref = EK.tendon_lengths_and_jacobian(self.q_ref, self._m)[0]
+        self._qc = self._continuous_noise()
+        self._hist: list[_Tick] = []
+        self.dropped_late = 0  # measurements older than the kept history
+        self.timings: list[float] = []  # wall time of each step (s)
+
+    # ------------------------------------------------------------------ set-up
+    def _blocks(self, a, b, c, d=None, e=None):
+        """A vector over the state from per-block values (q, qd, a_d[, b_g, b_a])."""
+        out = np.concatenate([a, b, c] + ([d, e] if self.floating else []))
+        return out
+
+    def _per_coord(self, ang, lin, strain):
+        if self.floating:
+            return np.array([ang] * 3 + [lin] * 3 + [strain] * self.n_s, float)
+        return np.full(self.n_s, float(strain))
+
+    def _continuous_noise(self):
+        c, n = self.config, self.n
+        wa = self._per_coord(c.accel_noise_angular, c.accel_noise_linear, c.accel_noise_strain)
+        wd = self._per_coord(
+            c.disturbance_walk_angular, c.disturbance_walk_linear, c.disturbance_walk_strain
+        )
+        imu = self.sensors.imu
+        # a small floor keeps Q_c positive on the bias states (numerical conditioning)
+        bg = np.full(3, max(imu.gyro_bias_walk, 1e-5))
+        ba = np.full(3, max(imu.accel_bias_walk, 1e-4))
+        return np.diag(self._blocks(np.zeros(n), wa**2, wd**2, bg**2, ba**2))
+
+    def default_covariance(self) -> np.ndarray:
+        """``P0`` from the config's initial standard deviations and the IMU's bias specs."""
+        c = self.config
+        q_std = self._per_coord(
+            c.initial_attitude_std, c.initial_position_std, c.initial_strain_std
+        )
+        qd_std = np.full(self.n, c.initial_velocity_std)
+        ad_std = self._per_coord(
+            c.initial_disturbance_angular_std,
+            c.initial_disturbance_linear_std,
+            c.initial_disturbance_strain_std,
+        )
+        imu = self.sensors.imu
+        bg = np.full(3, max(imu.gyro_bias, 1e-4))
+        ba = np.full(3, max(imu.accel_bias, 1e-3))
+        return np.diag(self._blocks(q_std, qd_std, ad_std, bg, ba) ** 2)
+
+    def initial_guess(self, measurements, fallback_q=None) -> np.ndarray:
+        """``q`` from one set of measurements: drone pose from the pose sensor, strains from
+        the encoders by least squares (:func:`strains_from_tendon_lengths`); coordinates
+        without a measurement come from ``fallback_q`` (default zeros)."""
+        q = np.zeros(self.n) if fallback_q is None else np.asarray(fallback_q, float).copy()
+        for m in measurements:
+            if isinstance(m, PoseMeasurement) and self.floating:
+                q[:3] = euler_from_rotation(m.rotation)
+                q[3:6] = m.position
+            elif isinstance(m, EncoderMeasurement):
+                res = strains_from_tendon_lengths(self.system, m.delta_length, self.q_ref)
+                q[self.n - self.n_s :] = res.q_s
+        return q
+
+    def reset(self, q0, P0=None, t0: float = 0.0, qd0=None) -> StateEstimate:
+        """Start at ``(q0, qd0)`` (``qd0`` default zeros, disturbances and biases zero) with
+        covariance ``P0`` (full ``nx x nx``, or ``2n x 2n`` for ``[q, qd]`` only; default
+        :meth:`default_covariance`)."""
+        n = self.n
+        q0 = np.asarray(q0, float)
+        qd0 = np.zeros(n) if qd0 is None else np.asarray(qd0, float)
+        if q0.shape != (n,) or qd0.shape != (n,):
+            raise ValueError(f"q0 and qd0 must have {n} entries, got {q0.shape}, {qd0.shape}")
+        p = self.default_covariance()
+        if P0 is not None:
+            P0 = np.asarray(P0, float)
+            if P0.shape == (2 * n, 2 * n):
+                p[: 2 * n, : 2 * n] = P0
+            elif P0.shape == (self.nx, self.nx):
+                p = P0.copy()
+            else:
+                raise ValueError(f"P0 must be {2 * n}x{2 * n} or {self.nx}x{self.nx}")
+        x = np.zeros(self.nx)
+        x[:n], x[n : 2 * n] = q0, qd0
+        self._hist = [_Tick(float(t0), None, x, p, None, None, None)]
+        self.dropped_late = 0
+        self.timings = []
+        return self.estimate
+
+    def warm_up(self) -> None:
+        """Run every kernel once (numba compiles or loads them), leaving no state behind."""
+        n = self.n
+        q = np.zeros(n)
+        if self.floating:
+            q[5] = 1.0
+        hist, dropped, timings = self._hist, self.dropped_late, self.timings
+        self.reset(q)
+        u = np.zeros(self.system.n_u)
+        meas = [EncoderMeasurement(0.0, np.zeros(self.n_a))]
+        if self.floating:
+            meas += [PoseMeasurement(0.0, q[3:6], np.eye(3)),
+                     ImuMeasurement(0.02, np.zeros(3), np.array([0.0, 0.0, 9.81]))]  # fmt: skip
+        self.step(0.0, None, meas[:2])
+        self.step(0.02, u, meas[2:])
+        self._hist, self.dropped_late, self.timings = hist, dropped, timings
+
+    # ------------------------------------------------------------------ outputs
+    @property
+    def estimate(self) -> StateEstimate:
+        tk = self._hist[-1]
+        n = self.n
+        return StateEstimate(
+            tk.t,
+            tk.x_post[:n].copy(),
+            tk.x_post[n : 2 * n].copy(),
+            tk.p_post[: 2 * n, : 2 * n].copy(),
+        )
+
+    @property
+    def x(self) -> np.ndarray:
+        """The full filter state ``[q, qd, a_d(, b_g, b_a)]``."""
+        return self._hist[-1].x_post.copy()
+
+    @property
+    def P_full(self) -> np.ndarray:
+        return self._hist[-1].p_post.copy()
+
+    # ------------------------------------------------------------------ process model
+    def _qdd(self, x, u):
+        n = self.n
+        a, ok = EK.model_qdd(
+            x[:n], x[n : 2 * n], u, x[2 * n : 3 * n], self._m, self._loads,
+            self._s_m, self._s_d, self._k_scale, self._g_scale,
+        )  # fmt: skip
+        if not ok:
+            raise FloatingPointError("estimator: the model's mass matrix is not positive definite")
+        return a
+
+    def _predict(self, prev: _Tick, t: float, u) -> _Tick:
+        n, nx = self.n, self.nx
+        dt = t - prev.t
+        x = prev.x_post
+        q, qd, ad = x[:n], x[n : 2 * n], x[2 * n : 3 * n]
+        args = (self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale)
+        a0, jac, ok = EK.linearize(q, qd, u, ad, *args, self._skip)
+        q1, qd1, ok2 = EK.propagate_mean(q, qd, u, ad, dt, self.config.rk4_steps, *args)
+        if not (ok and ok2):
+            raise FloatingPointError("estimator: the model's mass matrix is not positive definite")
+        a = np.zeros((nx, nx))
+        a[:n, n : 2 * n] = np.eye(n)
+        a[n : 2 * n, : 2 * n] = jac
+        a[n : 2 * n, 2 * n : 3 * n] = np.eye(n)
+        phi = EK.transition(a, dt)
+        qn = EK.discrete_noise(a, self._qc, dt)
+        # relative model error: the perturbed M, C, D, K are off by up to ~10 %, so the
+        # predicted acceleration (f_hat + a_d; a_d holds the slow bias, e.g. the gravity
+        # error at hover) is, over this period, off by ~ fraction * |f_hat + a_d|
+        # (systematic within the period: a fully correlated position/velocity increment)
+        rel = self.config.model_error_fraction * np.abs(a0)
+        g = np.concatenate([0.5 * dt * dt * rel, dt * rel])
+        idx = np.arange(2 * n)
+        sub = np.zeros((2 * n, 2 * n))
+        sub[idx[:n], idx[:n]] = g[:n] ** 2
+        sub[idx[n:], idx[n:]] = g[n:] ** 2
+        sub[:n, n:] = sub[n:, :n] = np.diag(g[:n] * g[n:])
+        qn[: 2 * n, : 2 * n] += sub
+        xp = x.copy()
+        xp[:n], xp[n : 2 * n] = q1, qd1
+        pp = phi @ prev.p_post @ phi.T + qn
+        return _Tick(t, u, xp, 0.5 * (pp + pp.T), phi, qn, jac)
+
+    def _repropagate(self, prev: _Tick, tk: _Tick) -> None:
+        """Prior of ``tk`` from the (changed) posterior of ``prev`` with the stored Phi, Q."""
+        n = self.n
+        x = prev.x_post
+        args = (self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale)
+        q1, qd1, ok = EK.propagate_mean(
+            x[:n], x[n : 2 * n], tk.u, x[2 * n : 3 * n], tk.t - prev.t, self.config.rk4_steps, *args
+        )
+        if not ok:
+            raise FloatingPointError("estimator: the model's mass matrix is not positive definite")
+        xp = x.copy()
+        xp[:n], xp[n : 2 * n] = q1, qd1
+        pp = tk.phi @ prev.p_post @ tk.phi.T + tk.qn
+        tk.x_prior, tk.p_prior = xp, 0.5 * (pp + pp.T)
+
+    # ------------------------------------------------------------------ updates
+    def _update_tick(self, tk: _Tick, late=None) -> None:
+        """Fuse the tick's measurements into its prior (``late is None``) or only the
+        ``late`` ones into its current posterior (the others are in it already)."""
+        if late is None:
+            x, p, todo = tk.x_prior, tk.p_prior, tk.meas
+        else:
+            x, p, todo = tk.x_post, tk.p_post, late
+        order = {EncoderMeasurement: 0, PoseMeasurement: 1, ImuMeasurement: 2}
+        for meas in sorted(todo, key=lambda m: order[type(m)]):
+            res = self._measurement(x, meas, tk)
+            if res is not None:
+                x, p, _ = EK.kalman_update(x, p, *res)
+        tk.x_post, tk.p_post = x, p
+
+    def _measurement(self, x, meas, tk: _Tick):
+        n, nx = self.n, self.nx
+        sc = self.sensors
+        if isinstance(meas, EncoderMeasurement):
+            qs = x[n - self.n_s : n]
+            lengths, dl_dq = EK.tendon_lengths_and_jacobian(qs, self._m)
+            h = np.zeros((self.n_a, nx))
+            h[:, n - self.n_s : n] = dl_dq
+            r = np.asarray(meas.delta_length, float) - (lengths - self._l_ref)
+            var = sc.encoders.variance + sc.encoders.bias**2
+            return r, h, np.eye(self.n_a) * max(var, 1e-16)
+        if not self.floating:
+            return None
+        if isinstance(meas, PoseMeasurement):
+            rot = rot_zyx(x[0], x[1], x[2])
+            r = np.concatenate([meas.position - x[3:6], _so3_log(rot.T @ meas.rotation)])
+            h = np.zeros((6, nx))
+            h[0:3, 3:6] = np.eye(3)
+            h[3:6, 0:3] = euler_rate_matrix(x[0], x[1])
+            pc = sc.pose
+            rr = np.diag([pc.position_noise**2] * 3 + [pc.attitude_noise**2] * 3)
+            return r, h, rr + np.eye(6) * 1e-14
+        if isinstance(meas, ImuMeasurement):
+            ic = sc.imu
+            ib = 3 * n
+            q, qd = x[:n], x[n : 2 * n]
+            h = np.zeros((6, nx))
+            w_hat = EK.body_rate(q, qd) + x[ib : ib + 3]
+            h[0:3, n : n + 3] = euler_rate_matrix(q[0], q[1])
+            h[0:3, ib : ib + 3] = np.eye(3)
+            eps = 1e-7
+            for j in range(2):
+                qq = q.copy()
+                qq[j] += eps
+                h[0:3, j] = (EK.body_rate(qq, qd) - EK.body_rate(q, qd)) / eps
+            rows = [0, 1, 2]
+            r_list = [meas.gyro - w_hat]
+            rr = [ic.gyro_noise**2] * 3
+            if tk.u is not None and tk.jac is not None:
+                qdd = self._qdd(x, tk.u)
+                f_hat = EK.specific_force(q, qdd, self._gravity) + x[ib + 3 : ib + 6]
+                rot = rot_zyx(q[0], q[1], q[2])
+                h[3:6, : 2 * n] = rot.T @ tk.jac[3:6, :]
+                h[3:6, 2 * n + 3 : 2 * n + 6] = rot.T
+                h[3:6, ib + 3 : ib + 6] = np.eye(3)
+                f0 = EK.specific_force(q, qdd, self._gravity)
+                for j in range(3):
+                    qq = q.copy()
+                    qq[j] += eps
+                    h[3:6, j] += (EK.specific_force(qq, qdd, self._gravity) - f0) / eps
+                rows += [3, 4, 5]
+                r_list.append(meas.accel - f_hat)
+                rr += [ic.accel_noise**2 + self.config.accel_model_error**2] * 3
+            return np.concatenate(r_list), h[rows], np.diag(rr) + np.eye(len(rows)) * 1e-14
+        raise ValueError(f"unknown measurement {meas!r}")
+
+    # ------------------------------------------------------------------ step
+    def step(self, t: float, u_applied, measurements=()) -> StateEstimate:
+        """Advance to time ``t`` with the input ``u_applied`` held since the previous step
+        (``None`` at the reset time: update only) and fuse ``measurements`` (any mix of pose,
+        IMU and encoder measurements, possibly captured earlier than ``t``)."""
+        w0 = time.perf_counter()
+        if not self._hist:
+            raise RuntimeError("call reset() before step()")
+        t = float(t)
+        last = self._hist[-1]
+        new_tick = t > last.t + 1e-9
+        if not new_tick and t < last.t - 1e-9:
+            raise ValueError(f"time went backwards: {t} < {last.t}")
+        # a measurement belongs to the tick nearest its capture time (half a period either side)
+        if new_tick:
+            tol = 0.5 * (t - last.t)
+        elif len(self._hist) > 1:
+            tol = 0.5 * (last.t - self._hist[-2].t)
+        else:
+            tol = 1e-6
+        current, earliest, late = [], len(self._hist), {}
+        for m in measurements:
+            if new_tick and m.t > last.t + tol:
+                current.append(m)
+                continue
+            j = int(np.argmin([abs(tk.t - m.t) for tk in self._hist]))
+            if abs(self._hist[j].t - m.t) > tol + 1e-9:
+                self.dropped_late += 1  # older than the kept history
+                continue
+            self._hist[j].meas.append(m)
+            late.setdefault(j, []).append(m)
+            earliest = min(earliest, j)
+        if earliest < len(self._hist):
+            # the late ones on top of the posterior of their tick (sequential updates), then
+            # the later ticks re-run from their re-propagated priors with all their updates
+            self._update_tick(self._hist[earliest], late[earliest])
+            for i in range(earliest + 1, len(self._hist)):
+                self._repropagate(self._hist[i - 1], self._hist[i])
+                self._update_tick(self._hist[i])
+        if new_tick:
+            u = np.asarray(u_applied, float)
+            if u.shape != (self.system.n_u,):
+                raise ValueError(f"u_applied must have {self.system.n_u} entries, got {u.shape}")
+            tk = self._predict(last, t, u)
+            tk.meas = current
+            self._update_tick(tk)
+            self._hist.append(tk)
+            while len(self._hist) > 1 and self._hist[1].t < t - self.config.max_delay - 1e-9:
+                self._hist.pop(0)
+        if not np.all(np.isfinite(self._hist[-1].x_post)):
+            raise FloatingPointError("estimator diverged (non-finite state)")
+        self.timings.append(time.perf_counter() - w0)
+        return self.estimate
