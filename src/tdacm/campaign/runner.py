@@ -45,6 +45,12 @@ ROW_FIELDS = (
     "estimation_source",
     "strain_estimation_rms",
     "drone_position_estimation_rms",
+    "final_rmse_true",
+    "final_camera_position_error_m",
+    "final_camera_rotation_error_deg",
+    "final_drone_position_error_m",
+    "final_target_estimate_error_deg",
+    "final_target_estimate_sigma_deg",
 )
 
 

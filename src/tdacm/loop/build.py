@@ -30,7 +30,29 @@ from .plant import Disturbances, Plant
 from .protocols import ControllerContext
 from .safety import SafetyMonitor
 from .sensors import AnalyticFrontEnd, CameraSensor, RenderedFrontEnd, Sensors
-from .servo import RecoveryParams, ShapingParams, VisualServo
+from .servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
+
+#: What ``controller.profile = "paper"`` sets (the paper's literal choices, docs/control.md
+#: "Profiles"): gravity lumped into Delta_hat, the approximate compensation p_V = R p_L on the
+#: measured points, the plain law v = -lambda J_img^-1 e (no floor, no command shaping, rates
+#: held at zero on a missed frame), the bare 5 % safety rule.
+PAPER_PROFILE = {
+    "model": {"gravity_feedforward": False},
+    "ibvs": {"compensation": "approx", "features": "measured", "floor": 0.0},
+    "safety": {"min_increase": 0.0, "grace": 0.0},
+}
+
+
+def apply_profile(scenario: Scenario) -> Scenario:
+    """The scenario with its ``controller.profile`` applied (unchanged for "default")."""
+    if scenario.data["controller"]["profile"] != "paper":
+        return scenario
+    import copy
+
+    d = copy.deepcopy(scenario.data)
+    for sec, kv in PAPER_PROFILE.items():
+        d[sec].update(kv)
+    return Scenario(d, scenario.source + " (profile paper)")
 
 
 @dataclass
@@ -116,8 +138,10 @@ def build_loop(
     """The closed loop of ``scenario`` (module docstring). ``controller``, ``servo`` and
     ``estimator`` replace the scenario's blocks (objects implementing the protocols of
     :mod:`tdacm.loop.protocols`)."""
+    scenario = apply_profile(scenario)
     d = scenario.data
     seed = int(d["seed"] if seed is None else seed)
+    paper = d["controller"]["profile"] == "paper"
     world = build_scene(scenario)
     robot, s = world.robot, world.robot.system
     cams = d["cameras"]
@@ -153,7 +177,17 @@ def build_loop(
     )
     ib, rc = d["ibvs"], d["recovery"]
     if servo is None:
-        servo = VisualServo(
+        if paper:  # the plain law: no limits, no ramp, no filter
+            shaping = ShapingParams(np.inf, np.inf, np.inf, 0.0, 0.0)
+        else:
+            shaping = ShapingParams(
+                ib["max_joint_rate"],
+                ib["max_drone_speed"],
+                ib["max_vertical_speed"],
+                ib["soft_start"],
+                ib["rate_filter"],
+            )
+        args = (
             s,
             ctl_camera,
             robot.global_camera,
@@ -162,18 +196,30 @@ def build_loop(
             robot.drone_mount,
             desired_pts,
             desired_z,
+        )
+        kwargs = dict(
             gain=ib["gain"],
             mode=ib["mode"],
             compensation=ib["compensation"],
-            shaping=ShapingParams(
-                ib["max_joint_rate"],
-                ib["max_drone_speed"],
-                ib["max_vertical_speed"],
-                ib["soft_start"],
-                ib["rate_filter"],
-            ),
+            shaping=shaping,
             recovery=RecoveryParams(rc["max_speed"], rc["margin_px"], rc["confirm"], rc["lose"]),
         )
+        if ib["features"] == "predicted":
+            robust = RobustParams(
+                ib["floor"],
+                ib["solver"],
+                ib["filter_pixel_sigma"],
+                ib["filter_window"],
+                ib["filter_smoothing"],
+                ib["accel_feedforward"],
+                ib["reference_leak"],
+                rc["lost_timeout"],
+            )
+            servo = RobustServo(*args, robust=robust, **kwargs)
+        else:
+            servo = VisualServo(*args, **kwargs)
+            servo.ibvs.floor = ib["floor"]
+            servo.ibvs.solver = ib["solver"]
     m = d["model"]
     model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
     if controller is None:
@@ -202,13 +248,32 @@ def build_loop(
         d["dt"],
         estimator=estimator,
         safety=SafetyMonitor(**d["safety"]),
-        log=RunLog(servo.desired_points, frame_composer),
+        log=RunLog(servo.desired_points, frame_composer, _truth(s, local, world)),
         name=scenario.name,
     )
     loop.world = world
     loop.seed = seed
     warm_up(s, world.q0)
     return loop
+
+
+def _truth(system, local: CameraSensor, world: Scene):
+    """``q -> (true points of the target in the servo camera, true target pose)`` for the
+    logger (C_V for a floating base, C_L for a fixed one)."""
+    from ..vision.virtual import _virtual_pose
+
+    g_t = world.scene.target_pose
+    obj = world.target.feature_points
+
+    def truth(q):
+        g = local.pose(q)
+        if system.floating:
+            g = _virtual_pose(system.base_pose(q), g)
+        r = np.linalg.solve(g, g_t)
+        pc = obj @ r[:3, :3].T + r[:3, 3]
+        return pc[:, :2] / pc[:, 2:3], g_t
+
+    return truth
 
 
 def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model):

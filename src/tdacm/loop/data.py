@@ -111,6 +111,8 @@ class ServoCommand:
     event: str | None = None  # e.g. "ibvs engaged", "recovery planned"
     plan: dict | None = None  # the recovery plan, when one was made this period
     failure: str | None = None  # set when the servo cannot go on (the run ends)
+    rmse_measured: float = float("nan")  # RMSE of this period's measured points (if any)
+    target_pose: np.ndarray | None = None  # the servo's estimate of the target (world)
 
 
 @dataclass(frozen=True)

@@ -286,3 +286,212 @@ class VisualServo:
             mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features, error, points,
             rmse, event=event, plan=plan_info,
         )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RobustParams:
+    """The robust servo's options (scenario section ``[ibvs]``, docs/control.md)."""
+
+    floor: float = 0.05  # singular-value floor of the J_img solve
+    solver: str = "floor"  # "floor" | "damped"
+    pixel_sigma: float = 1.0  # px, corner noise assumed by the target filter
+    window: int = 250  # frames fused by the target filter
+    smoothing: float = 1.0  # s, smoothing of the estimate used by the prediction
+    accel_feedforward: bool = True  # qdd_d = d(qd_d)/dt of the filtered rate command
+    reference_leak: float = 4.0  # 1/s, pull of q_d toward q_hat (anti wind-up)
+    lost_timeout: float = 1.0  # s without a fused frame before the target counts as lost
+
+
+class RobustServo(VisualServo):
+    """Visual servo on features predicted from a world-frame estimate of the static target
+    (docs/control.md, "Robust servo"; the servo protocol of :mod:`tdacm.loop.protocols`).
+
+    Per period:
+
+    1. a C_L view (possibly ``k`` periods late) is fused into the
+       :class:`~tdacm.vision.TargetFilter` with the C_L pose of its *capture* time, computed
+       from the state estimate of that period (latency compensation);
+    2. the four feature points are predicted in the virtual camera C_V at the current
+       estimated pose from the (smoothed) target estimate - defined through missed frames;
+    3. the paper's advanced features and interaction matrix, with the well-conditioned solve
+       (:func:`~tdacm.vision.ibvs.robust_solve`, singular values floored at ``floor``), give
+       the twist; joint rates and shaping as :class:`VisualServo`, plus the acceleration
+       feed-forward of the filtered rate and a leak of ``q_d`` toward ``q_hat``;
+    4. the target is lost only if nothing was fused for ``lost_timeout`` s or the predicted
+       points leave C_L's image for ``recovery.lose`` periods; a recovery that finds no
+       target in C_G holds and retries for ``lost_timeout`` s before giving up.
+    """
+
+    def __init__(self, *args, robust: RobustParams | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        from ..vision.servo import PredictiveServo
+
+        self.robust = r = robust or RobustParams()
+        self.ibvs.floor = r.floor
+        self.ibvs.solver = r.solver
+        self.predictor = PredictiveServo(
+            self.local_camera,
+            self.target,
+            self.desired_points,
+            self.desired_depths,
+            gain=self.ibvs.gain,
+            mode=self.ibvs.mode,
+            floor=r.floor,
+            solver=r.solver,
+            pixel_sigma=r.pixel_sigma,
+            window=r.window,
+            smoothing=r.smoothing,
+        )
+        self.predictor.controller = self.ibvs
+        # feed-forward and leak are for the flying base, whose position lags the reference
+        # through the attitude loop (measured on paper-in-fov); a held rod tracks directly
+        self._flying = bool(self.system.floating)
+        self._leak = self._cmd if self._flying else np.zeros(0, int)
+
+    def reset(self, q0, first_view: LocalView | None = None) -> None:
+        super().reset(q0, first_view)
+        if hasattr(self, "predictor"):
+            self.predictor.filter.reset()
+            self.predictor.target_pose = None
+        self._poses = {}  # capture time -> C_L pose (from the estimate of that period)
+        self._last_fused = -np.inf
+        self._last_seen = None
+        self._cg_missed = None
+
+    def servo_camera_pose(self, q) -> np.ndarray:
+        """World pose of the servo camera: C_V for a floating base, C_L for a fixed one."""
+        g_c = self.local_camera_pose(q)
+        if not self.system.floating:
+            return g_c
+        from ..vision.virtual import _virtual_pose
+
+        return _virtual_pose(self.system.base_pose(q), g_c)
+
+    def _fuse(self, t: float, view: LocalView, q) -> None:
+        key = round(t, 9)
+        self._poses[key] = self.local_camera_pose(q)
+        if view.found and view.t_capture > self._last_fused:
+            tc = round(view.t_capture, 9)
+            pose = self._poses.get(tc)
+            if pose is None:  # capture before the first period we saw: nearest stored
+                pose = self._poses[min(self._poses, key=lambda k: abs(k - tc))]
+            self._last_fused = view.t_capture
+            if self.predictor.filter.update(view.pixels, pose):
+                self._last_seen = view.t_capture
+            for k in [k for k in self._poses if k < tc]:
+                del self._poses[k]
+        if len(self._poses) > 64:  # no view for a long time: keep the recent poses only
+            for k in sorted(self._poses)[:-64]:
+                del self._poses[k]
+
+    def step(
+        self,
+        t: float,
+        dt: float,
+        view: LocalView,
+        gview: GlobalView | None,
+        est: StateEstimate,
+        twist: np.ndarray | None = None,
+    ) -> ServoCommand:
+        s, n = self.system, self.n
+        q = est.q
+        r = self.robust
+        self._fuse(t, view, q)
+        self.predictor.predict(dt)
+        g_c = self.local_camera_pose(q)
+        ps = self.predictor.step(self.servo_camera_pose(q), g_c)
+        # what was measured, in C_V (logged only)
+        rmse_meas = float("nan")
+        if view.found:
+            try:
+                rmse_meas = self.observe(view, q)[4]
+            except ValueError:
+                pass
+        prev = self.switch.mode
+        if prev == ModeSwitch.IBVS:
+            ok = (
+                ps.valid
+                and self._last_seen is not None
+                and t - self._last_seen <= r.lost_timeout
+                and ps.pixels_local is not None
+                and bool(np.all(self.local_camera.pixels_in_image(ps.pixels_local, 0.0)))
+            )
+            mode = self.switch.update(ps.pixels_local if ok else None)
+        else:
+            mode = self.switch.update(view.pixels if view.found else None)
+        event = None
+        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
+            self.ibvs_start = t
+            self.traj = None
+            event = "ibvs engaged"
+        elif prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
+            event = "target lost"
+        out_twist = np.zeros(6)
+        qdd_d = np.zeros(n)
+        points, features, error = ps.points, ps.features, ps.error
+        rmse = normalized_rmse(points, self.desired_points) if ps.valid else float("nan")
+        plan_info = None
+        failure = None
+        request = False
+        if mode == ModeSwitch.IBVS and (ps.valid or twist is not None):
+            out_twist = np.asarray(ps.twist if twist is None else twist, float)
+            qd_prev = self.qd_d.copy()
+            self.shape(self.joint_rates(q, out_twist), t, dt)
+            if r.accel_feedforward and self._flying:
+                # the low-level loop follows the deceleration instead of lagging into an
+                # overshoot (paper: qdd_d = 0)
+                qdd_d = (self.qd_d - qd_prev) / dt
+            if r.reference_leak > 0:
+                # q_d is only an integrated rate; the vision loop closes on the actual pose,
+                # so pull q_d toward q_hat (no wind-up while the plant lags)
+                c = self._leak
+                self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
+        elif mode == ModeSwitch.RECOVERY:
+            if self.traj is None:
+                if gview is None or not gview.found:
+                    # no usable C_G frame: hold, ask for one, give up only after a while
+                    self.qd_d = np.zeros(n)
+                    request = True
+                    if gview is not None:
+                        self._cg_missed = t if self._cg_missed is None else self._cg_missed
+                        if t - self._cg_missed >= r.lost_timeout:
+                            failure = "recovery: target not seen by C_G"
+                    return ServoCommand(
+                        mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features,
+                        error, points, rmse, request_global=request, event=event,
+                        failure=failure, rmse_measured=rmse_meas,
+                        target_pose=self.predictor.target_pose,
+                    )  # fmt: skip
+                self._cg_missed = None
+                try:
+                    plan, self.traj = self.plan(q, t, gview)
+                except ValueError as exc:
+                    return ServoCommand(
+                        mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
+                        points, rmse, failure=f"recovery planning failed: {exc}",
+                    )  # fmt: skip
+                plan_info = {
+                    "t": t,
+                    "q_s_d": plan.q_s.tolist(),
+                    "point_local": plan.point_local.tolist(),
+                    "cost": plan.cost,
+                    "success": plan.success,
+                    "duration": self.traj.duration,
+                }
+                event = "recovery planned"
+                self.q_d = np.array(q, float)
+                if s.floating:
+                    self.q_d[:2] = 0.0
+            qs_d, qsd_d, qsdd_d = self.traj(t)
+            ns = s.n_s
+            self.q_d[n - ns :] = qs_d
+            self.qd_d = np.zeros(n)
+            self.qd_d[n - ns :] = qsd_d
+            qdd_d[n - ns :] = qsdd_d
+        else:  # IBVS before the first frame was fused: hold
+            self.qd_d = np.zeros(n)
+        return ServoCommand(
+            mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features, error, points,
+            rmse, event=event, plan=plan_info, rmse_measured=rmse_meas,
+            target_pose=self.predictor.target_pose,
+        )  # fmt: skip

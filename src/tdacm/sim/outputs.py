@@ -29,6 +29,9 @@ Q_NAMES = ["phi", "theta", "psi", "x", "y", "z", "q_s1", "q_s2"]
 SCALAR_SERIES = (
     "rmse",
     "rmse_raw",
+    "rmse_measured",
+    "rmse_true",
+    "target_error_deg",
     "mode",
     "V",
     "detected_local",

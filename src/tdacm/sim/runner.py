@@ -149,8 +149,38 @@ class Simulation:
             "thrust_saturated_steps": int(np.sum(a["thrust_saturated"])),
             "final_q": a["q"][-1].tolist() if a["q"].size else None,
             "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
+            "profile": self.scenario.data["controller"]["profile"],
+            "final_rmse_true": _last_finite(a.get("rmse_true")),
+            "final_rmse_measured": _last_finite(a.get("rmse_measured")),
+            **_target_merit(loop),
             **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
+
+
+def _last_finite(x):
+    if x is None:
+        return None
+    x = np.asarray(x, float)
+    f = np.isfinite(x)
+    return float(x[f][-1]) if f.any() else None
+
+
+def _target_merit(loop: ClosedLoop) -> dict:
+    """Final error of the robust servo's target estimate and its own 1-sigma (worst
+    rotation direction), when the servo has one."""
+    pred = getattr(loop.servo, "predictor", None)
+    if pred is None or not pred.filter.initialized:
+        return {}
+    g_t = loop.world.scene.target_pose
+    e = np.linalg.solve(g_t, pred.filter.pose)
+    ang = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(e[:3, :3]) - 1), -1, 1))))
+    sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(pred.filter.P[:3, :3]).max())))
+    return {
+        "final_target_estimate_error_m": float(np.linalg.norm(e[:3, 3])),
+        "final_target_estimate_error_deg": ang,
+        "final_target_estimate_sigma_deg": sig,
+        "target_filter_rejected": int(pred.filter.rejected),
+    }
 
 
 #: Estimation errors are summarized after this time (the filter's convergence, issue 10).

@@ -46,6 +46,9 @@ SCHEMA = {
     "desired": {"q": ("vec", None)},
     "model": {"perturbation": (float, 0.1), "gravity_feedforward": (bool, True)},
     "controller": {
+        # "default": the robust servo (target filter, predicted features, floored solve,
+        # shaping); "paper": the paper's literal choices (docs/control.md, "Profiles")
+        "profile": (str, "default"),
         "class": (str, ""),  # "package.module:ClassName" of a user controller ("": adaptive)
         "pretension": (float, 0.5),
         "max_tilt": (float, 0.35),
@@ -61,12 +64,24 @@ SCHEMA = {
         "max_vertical_speed": (float, 1.0),  # m/s
         "soft_start": (float, 1.0),
         "rate_filter": (float, 0.15),  # s, time constant of the joint-rate command filter
+        "accel_feedforward": (bool, True),  # qdd_d from the filtered rate command
+        "reference_leak": (float, 4.0),  # 1/s, pull of q_d toward q (anti wind-up)
+        # robust servo (docs/control.md, "Robust servo")
+        "features": (str, "predicted"),  # "predicted" (target filter) | "measured"
+        "floor": (float, 0.05),  # singular-value floor of the J_img solve (0: plain inverse)
+        "solver": (str, "floor"),  # "floor" | "damped"
+        "filter_pixel_sigma": (float, 1.0),  # px, corner noise assumed by the target filter
+        "filter_window": (int, 250),  # frames fused by the target filter (sliding window)
+        "filter_smoothing": (float, 1.0),  # s, smoothing of the estimate used for prediction
     },
     "recovery": {
         "max_speed": (float, 0.3),
         "margin_px": (float, 20.0),
         "confirm": (int, 2),
         "lose": (int, 5),
+        # predicted features: recovery only if no detection for this long (s) or the
+        # predicted points leave C_L's image for `lose` frames
+        "lost_timeout": (float, 1.0),
     },
     "scene": {
         "target": (str, "aruco"),  # "aruco" | "apriltag"
@@ -301,6 +316,22 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: scene.target must be 'aruco' or 'apriltag'")
     if d["ibvs"]["mode"] not in ("current", "desired", "mean"):
         raise ScenarioError(f"{source}: ibvs.mode must be current, desired or mean")
+    if d["controller"]["profile"] not in ("default", "paper"):
+        raise ScenarioError(f"{source}: controller.profile must be 'default' or 'paper'")
+    if d["ibvs"]["features"] not in ("predicted", "measured"):
+        raise ScenarioError(f"{source}: ibvs.features must be 'predicted' or 'measured'")
+    if d["ibvs"]["solver"] not in ("floor", "damped"):
+        raise ScenarioError(f"{source}: ibvs.solver must be 'floor' or 'damped'")
+    if d["ibvs"]["floor"] < 0:
+        raise ScenarioError(f"{source}: ibvs.floor must be >= 0")
+    if d["ibvs"]["filter_pixel_sigma"] <= 0:
+        raise ScenarioError(f"{source}: ibvs.filter_pixel_sigma must be positive")
+    if d["ibvs"]["filter_smoothing"] < 0:
+        raise ScenarioError(f"{source}: ibvs.filter_smoothing must be >= 0")
+    if d["ibvs"]["filter_window"] < 1:
+        raise ScenarioError(f"{source}: ibvs.filter_window must be >= 1")
+    if d["recovery"]["lost_timeout"] <= 0:
+        raise ScenarioError(f"{source}: recovery.lost_timeout must be positive")
     if d["ibvs"]["compensation"] not in ("exact", "rotation", "approx"):
         raise ScenarioError(f"{source}: ibvs.compensation must be exact, rotation or approx")
     if d["cameras"]["global_backend"] not in ("auto", "egl", "tiny"):

@@ -34,7 +34,8 @@ from .mounts import (
 )
 from .render import PlanarRenderer, PyBulletRenderer, Renderer
 from .scene import ArmStyle, SceneConfig
-from .servo import LocalCameraServo, ServoStep
+from .servo import LocalCameraServo, PredictedStep, PredictiveServo, ServoStep
+from .target_filter import TargetEstimate, TargetFilter
 from .targets import PAPER_MARKER, PAPER_PATTERN, AprilTagPattern, ArucoMarker, FiducialTarget
 from .tip import camera_joint_rates, camera_to_tip_twist, commanded_coordinates, tip_joint_rates
 from .virtual import (
@@ -59,6 +60,10 @@ __all__ = [
     "FiducialTarget",
     "IBVSController",
     "LocalCameraServo",
+    "PredictedStep",
+    "PredictiveServo",
+    "TargetEstimate",
+    "TargetFilter",
     "PinholeCamera",
     "PlanarRenderer",
     "PyBulletRenderer",

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .camera import PinholeCamera
 from .detect import Detection, TargetDetector
@@ -111,3 +112,134 @@ class LocalCameraServo:
         e = self.controller.error(xy)
         v = self.controller.twist(xy, z)
         return ServoStep(det, xy, z, f, e, v)
+
+
+@dataclass(frozen=True)
+class PredictedStep:
+    """One step of :class:`PredictiveServo` (``twist`` is ``None`` before the first frame).
+
+    ``points``/``depths``: the target's feature points predicted in the servo camera (C_V)
+    from the world-frame estimate; ``pixels_local``: the same points predicted in the real
+    camera C_L (pixels), for the field-of-view test of the mode switch."""
+
+    points: np.ndarray | None = None
+    depths: np.ndarray | None = None
+    features: np.ndarray | None = None
+    error: np.ndarray | None = None
+    twist: np.ndarray | None = None
+    pixels_local: np.ndarray | None = None
+
+    @property
+    def valid(self) -> bool:
+        return self.twist is not None
+
+
+class PredictiveServo:
+    """Advanced-feature IBVS on features predicted from a world-frame target estimate.
+
+    The detections of C_L update a :class:`~.target_filter.TargetFilter` (static target,
+    corner pixels as measurements, each associated with the camera pose at its capture
+    time); every control period the four feature points are predicted at the *current*
+    pose of the servo camera (C_V for a flying base, C_L for a held one) and the paper's
+    advanced features, their interaction matrix and the well-conditioned solve
+    (:func:`~.ibvs.robust_solve`, singular-value ``floor``) give the twist.
+    See docs/control.md, "Robust servo".
+
+    Parameters
+    ----------
+    camera, target, desired_points, desired_depths, gain, mode:
+        As :class:`LocalCameraServo`.
+    floor, solver:
+        Singular-value floor of the IBVS solve (:class:`~.ibvs.IBVSController`).
+    pixel_sigma, window:
+        Noise model of the filter (:class:`~.target_filter.TargetFilter`).
+    smoothing:
+        Time constant (s) of a first-order filter on the target estimate used for the
+        prediction (0: none). The target is static, so this adds no lag to the camera's
+        motion (which enters through the exact camera pose); it only spreads the estimate's
+        corrections - large along the weakly observable directions while few frames are
+        fused - over time, so that they do not kick the TD-ACM.
+    track:
+        Tracking window of the detector.
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        target: FiducialTarget,
+        desired_points,
+        desired_depths,
+        gain: float = 1.0,
+        mode: str = "mean",
+        floor: float = 0.05,
+        solver: str = "floor",
+        pixel_sigma: float = 1.0,
+        window: int = 250,
+        smoothing: float = 1.0,
+        track: bool = True,
+    ):
+        from .target_filter import TargetFilter
+
+        self.camera = camera
+        self.target = target
+        self.detector = TargetDetector(target, track=track)
+        self.controller = IBVSController(
+            desired_points, desired_depths, gain=gain, mode=mode, floor=floor, solver=solver
+        )
+        self.filter = TargetFilter(
+            camera, target.feature_points, pixel_sigma=pixel_sigma, window=window
+        )
+        if not np.isfinite(smoothing) or smoothing < 0:
+            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
+        self.smoothing = float(smoothing)
+        self.target_pose = None  # smoothed estimate used by the prediction
+
+    def measure(self, detection: Detection, camera_pose) -> bool:
+        """Fuse a detection captured with C_L at ``camera_pose`` (4x4, world, at the capture
+        time); False if not found or gated out."""
+        if detection is None or not detection.found:
+            return False
+        return self.filter.update(detection.points, camera_pose)
+
+    def predict(self, dt: float) -> None:
+        """Advance the smoothed target pose toward the filter's estimate by one period."""
+        self.filter.predict(dt)
+        est = self.filter.pose
+        if est is None:  # not seen yet, or the filter restarted: keep the last estimate
+            return
+        if self.target_pose is None or self.smoothing == 0:
+            self.target_pose = est.copy()
+            return
+        a = min(1.0, dt / self.smoothing)
+        d = np.linalg.solve(self.target_pose, est)  # g_s^-1 g_T
+        rv = Rotation.from_matrix(d[:3, :3]).as_rotvec()
+        step = np.eye(4)
+        step[:3, :3] = Rotation.from_rotvec(a * rv).as_matrix()
+        step[:3, 3] = a * d[:3, 3]
+        self.target_pose = self.target_pose @ step
+
+    def _points_in(self, camera_pose):
+        g = np.linalg.solve(np.asarray(camera_pose, float), self.target_pose)
+        obj = self.filter.object_points
+        r = obj @ g[:3, :3].T + g[:3, 3]
+        return r[:, :2] / r[:, 2:3], r[:, 2].copy()
+
+    def step(self, servo_pose, camera_pose=None) -> PredictedStep:
+        """Twist of the servo camera at ``servo_pose`` (4x4 world pose of C_V, or of C_L
+        for a held base); ``camera_pose`` (C_L) adds the predicted C_L pixels."""
+        if self.target_pose is None:
+            if self.filter.pose is None:
+                return PredictedStep()
+            self.target_pose = self.filter.pose.copy()
+        pred = self._points_in(servo_pose)
+        xy, z = pred
+        if np.any(z <= 0):
+            return PredictedStep()
+        pix = None
+        if camera_pose is not None:
+            xl, zl = self._points_in(camera_pose)
+            pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
+        f = advanced_features(xy)
+        e = self.controller.error(xy)
+        v = self.controller.twist(xy, z)
+        return PredictedStep(xy, z, f, e, v, pix)
