@@ -53,6 +53,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ..lie.se3 import expmap
 from . import _checks as C
@@ -84,6 +85,49 @@ def _hats(x):
     out[:, 1, 0], out[:, 1, 2] = x[:, 2], -x[:, 0]
     out[:, 2, 0], out[:, 2, 1] = -x[:, 1], x[:, 0]
     return out
+
+
+@njit(cache=True)
+def _normal_equations(rt, pt, rc, pc, z, obj, wx, wy):
+    """Gauss-Newton normal equations of the window: information ``sum h^T W h`` (6x6),
+    gradient ``sum h^T W res`` and cost ``sum res^T W res``, with the residuals and Jacobians
+    of :meth:`TargetFilter._residuals` (``h = dpi/dr R_C^T R_T [-X_k^, I]``), accumulated frame
+    by frame without the ``(N, 4, 2, 6)`` arrays; ``ok`` is False if a point is behind a
+    camera."""
+    info = np.zeros((6, 6))
+    grad = np.zeros(6)
+    cost = 0.0
+    xw = obj @ rt.T
+    for k in range(4):
+        for j in range(3):
+            xw[k, j] += pt[j]
+    dr = np.empty((3, 6))
+    hx = np.empty(6)
+    hy = np.empty(6)
+    for f in range(rc.shape[0]):
+        a = rc[f] @ rt
+        for k in range(4):
+            r = rc[f] @ (xw[k] - pc[f])
+            if r[2] <= 1e-6:
+                return info, grad, cost, False
+            iz = 1.0 / r[2]
+            px, py = r[0] * iz, r[1] * iz
+            ex, ey = z[f, k, 0] - px, z[f, k, 1] - py
+            cost += wx * ex * ex + wy * ey * ey
+            x0, x1, x2 = obj[k, 0], obj[k, 1], obj[k, 2]
+            for i in range(3):  # dr = [-A X_k^, A]
+                dr[i, 0] = -(a[i, 1] * x2 - a[i, 2] * x1)
+                dr[i, 1] = -(a[i, 2] * x0 - a[i, 0] * x2)
+                dr[i, 2] = -(a[i, 0] * x1 - a[i, 1] * x0)
+                dr[i, 3], dr[i, 4], dr[i, 5] = a[i, 0], a[i, 1], a[i, 2]
+            for c in range(6):
+                hx[c] = iz * dr[0, c] - px * iz * dr[2, c]
+                hy[c] = iz * dr[1, c] - py * iz * dr[2, c]
+                grad[c] += wx * hx[c] * ex + wy * hy[c] * ey
+            for c in range(6):
+                for d in range(6):
+                    info[c, d] += wx * hx[c] * hx[d] + wy * hy[c] * hy[d]
+    return info, grad, cost, True
 
 
 class TargetFilter:
@@ -218,15 +262,14 @@ class TargetFilter:
         target falls behind a camera)."""
         w = self._rinv
         for it in range(iterations + 1):
-            res, h = self._residuals(pose, rc, pc, z)
-            if res is None:
+            info, g, cost, ok = _normal_equations(
+                np.ascontiguousarray(pose[:3, :3]), pose[:3, 3].copy(), rc, pc, z,
+                self.object_points, w[0], w[1],
+            )  # fmt: skip
+            if not ok:
                 return None
-            hw = h * w[None, None, :, None]
-            info = np.einsum("nkia,nkib->ab", hw, h)
-            cost = float(np.sum(res * res * w))
             if it == iterations:
                 return pose, info, cost
-            g = np.einsum("nkia,nki->a", hw, res)
             try:
                 dx = np.linalg.solve(info, g)
             except np.linalg.LinAlgError:
