@@ -204,6 +204,46 @@ class VisualServo:
         traj = CubicTrajectory.with_speed(q_s_now, plan.q_s, t, self.recovery.max_speed)
         return plan, traj
 
+    def missed_snapshot(self, t: float, gview: GlobalView | None) -> str | None:
+        """Recovery needs a C_G snapshot and has none this period: the failure message, or
+        ``None`` to hold and ask again (C_G not read this period)."""
+        return "recovery: target not seen by C_G" if gview is not None else None
+
+    def recover(self, t: float, q, gview: GlobalView | None, qdd_d) -> tuple[str, object]:
+        """The recovery branch (paper, "Dual-Camera Visual Servoing"): plan from one C_G
+        snapshot, then follow the cubic trajectory of the rod while the drone holds its pose.
+        Returns ``("hold", failure or None)`` when no snapshot is available (``qd_d`` zeroed),
+        ``("failed", message)`` when planning fails, else ``("ok", plan_info or None)`` with
+        ``q_d``, ``qd_d`` and ``qdd_d`` (in place) set from the trajectory."""
+        s, n = self.system, self.n
+        plan_info = None
+        if self.traj is None:
+            if gview is None or not gview.found:
+                self.qd_d = np.zeros(n)
+                return "hold", self.missed_snapshot(t, gview)
+            try:
+                plan, self.traj = self.plan(q, t, gview)
+            except ValueError as exc:
+                return "failed", f"recovery planning failed: {exc}"
+            plan_info = {
+                "t": t,
+                "q_s_d": plan.q_s.tolist(),
+                "point_local": plan.point_local.tolist(),
+                "cost": plan.cost,
+                "success": plan.success,
+                "duration": self.traj.duration,
+            }
+            self.q_d = np.array(q, float)
+            if s.floating:
+                self.q_d[:2] = 0.0
+        qs_d, qsd_d, qsdd_d = self.traj(t)
+        ns = s.n_s
+        self.q_d[n - ns :] = qs_d
+        self.qd_d = np.zeros(n)
+        self.qd_d[n - ns :] = qsd_d
+        qdd_d[n - ns :] = qsdd_d
+        return "ok", plan_info
+
     # ------------------------------------------------------------------ the step
     def step(
         self,
@@ -216,7 +256,7 @@ class VisualServo:
     ) -> ServoCommand:
         """One servo period. ``twist`` (optional) replaces the IBVS twist (an external
         command, e.g. a learning agent's action); shaping and the mapping still apply."""
-        s, n = self.system, self.n
+        n = self.n
         q = est.q
         prev = self.switch.mode
         mode = self.switch.update(view.pixels if view.found else None)
@@ -243,43 +283,20 @@ class VisualServo:
             # qdd_d = 0: IBVS gives rates only (qdd_r = -beta edot)
             self.shape(rates, t, dt)
         elif mode == ModeSwitch.RECOVERY:
-            if self.traj is None:
-                if gview is None or not gview.found:
-                    # no C_G frame this period: hold, and ask for one
-                    self.qd_d = np.zeros(n)
-                    failure = None
-                    if gview is not None:  # C_G was read and does not see the target
-                        failure = "recovery: target not seen by C_G"
-                    return ServoCommand(
-                        mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist,
-                        features, error, points, rmse, request_global=True, event=event,
-                        failure=failure,
-                    )  # fmt: skip
-                try:
-                    plan, self.traj = self.plan(q, t, gview)
-                except ValueError as exc:
-                    return ServoCommand(
-                        mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
-                        points, rmse, failure=f"recovery planning failed: {exc}",
-                    )  # fmt: skip
-                plan_info = {
-                    "t": t,
-                    "q_s_d": plan.q_s.tolist(),
-                    "point_local": plan.point_local.tolist(),
-                    "cost": plan.cost,
-                    "success": plan.success,
-                    "duration": self.traj.duration,
-                }
-                event = "recovery planned"
-                self.q_d = np.array(q, float)
-                if s.floating:
-                    self.q_d[:2] = 0.0
-            qs_d, qsd_d, qsdd_d = self.traj(t)
-            ns = s.n_s
-            self.q_d[n - ns :] = qs_d
-            self.qd_d = np.zeros(n)
-            self.qd_d[n - ns :] = qsd_d
-            qdd_d[n - ns :] = qsdd_d
+            status, info = self.recover(t, q, gview, qdd_d)
+            if status == "hold":
+                return ServoCommand(
+                    mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist,
+                    features, error, points, rmse, request_global=True, event=event,
+                    failure=info,
+                )  # fmt: skip
+            if status == "failed":
+                return ServoCommand(
+                    mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
+                    points, rmse, failure=info,
+                )  # fmt: skip
+            if info is not None:
+                plan_info, event = info, "recovery planned"
         else:  # IBVS mode but the target is not seen this frame: hold
             self.qd_d = np.zeros(n)
         return ServoCommand(
@@ -358,6 +375,20 @@ class RobustServo(VisualServo):
         self._last_seen = None
         self._cg_missed = None
 
+    def missed_snapshot(self, t: float, gview: GlobalView | None) -> str | None:
+        """C_G missed the target: hold and retry for ``lost_timeout`` s before giving up."""
+        if gview is None:
+            return None
+        self._cg_missed = t if self._cg_missed is None else self._cg_missed
+        if t - self._cg_missed >= self.robust.lost_timeout:
+            return "recovery: target not seen by C_G"
+        return None
+
+    def recover(self, t: float, q, gview: GlobalView | None, qdd_d) -> tuple[str, object]:
+        if self.traj is None and gview is not None and gview.found:
+            self._cg_missed = None
+        return super().recover(t, q, gview, qdd_d)
+
     def servo_camera_pose(self, q) -> np.ndarray:
         """World pose of the servo camera: C_V for a floating base, C_L for a fixed one."""
         g_c = self.local_camera_pose(q)
@@ -393,7 +424,7 @@ class RobustServo(VisualServo):
         est: StateEstimate,
         twist: np.ndarray | None = None,
     ) -> ServoCommand:
-        s, n = self.system, self.n
+        n = self.n
         q = est.q
         r = self.robust
         self._fuse(t, view, q)
@@ -431,8 +462,6 @@ class RobustServo(VisualServo):
         points, features, error = ps.points, ps.features, ps.error
         rmse = normalized_rmse(points, self.desired_points) if ps.valid else float("nan")
         plan_info = None
-        failure = None
-        request = False
         if mode == ModeSwitch.IBVS and (ps.valid or twist is not None):
             out_twist = np.asarray(ps.twist if twist is None else twist, float)
             qd_prev = self.qd_d.copy()
@@ -447,47 +476,21 @@ class RobustServo(VisualServo):
                 c = self._leak
                 self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
         elif mode == ModeSwitch.RECOVERY:
-            if self.traj is None:
-                if gview is None or not gview.found:
-                    # no usable C_G frame: hold, ask for one, give up only after a while
-                    self.qd_d = np.zeros(n)
-                    request = True
-                    if gview is not None:
-                        self._cg_missed = t if self._cg_missed is None else self._cg_missed
-                        if t - self._cg_missed >= r.lost_timeout:
-                            failure = "recovery: target not seen by C_G"
-                    return ServoCommand(
-                        mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features,
-                        error, points, rmse, request_global=request, event=event,
-                        failure=failure, rmse_measured=rmse_meas,
-                        target_pose=self.predictor.target_pose,
-                    )  # fmt: skip
-                self._cg_missed = None
-                try:
-                    plan, self.traj = self.plan(q, t, gview)
-                except ValueError as exc:
-                    return ServoCommand(
-                        mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
-                        points, rmse, failure=f"recovery planning failed: {exc}",
-                    )  # fmt: skip
-                plan_info = {
-                    "t": t,
-                    "q_s_d": plan.q_s.tolist(),
-                    "point_local": plan.point_local.tolist(),
-                    "cost": plan.cost,
-                    "success": plan.success,
-                    "duration": self.traj.duration,
-                }
-                event = "recovery planned"
-                self.q_d = np.array(q, float)
-                if s.floating:
-                    self.q_d[:2] = 0.0
-            qs_d, qsd_d, qsdd_d = self.traj(t)
-            ns = s.n_s
-            self.q_d[n - ns :] = qs_d
-            self.qd_d = np.zeros(n)
-            self.qd_d[n - ns :] = qsd_d
-            qdd_d[n - ns :] = qsdd_d
+            status, info = self.recover(t, q, gview, qdd_d)
+            if status == "hold":
+                return ServoCommand(
+                    mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features,
+                    error, points, rmse, request_global=True, event=event,
+                    failure=info, rmse_measured=rmse_meas,
+                    target_pose=self.predictor.target_pose,
+                )  # fmt: skip
+            if status == "failed":
+                return ServoCommand(
+                    mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
+                    points, rmse, failure=info,
+                )  # fmt: skip
+            if info is not None:
+                plan_info, event = info, "recovery planned"
         else:  # IBVS before the first frame was fused: hold
             self.qd_d = np.zeros(n)
         return ServoCommand(
