@@ -230,6 +230,7 @@ def test_spec_samples_nested_robot_keys_and_fixes_text_keys():
         '"safety.enabled" = { kind = "fixed", value = false }\n'
     )
     spec = parse_spec(text, "t", sc.data)
+    assert parse_spec(text, "t").distributions == spec.distributions  # the first pass agrees
     o = sample_overrides(spec, sc.data, 5)
     assert 0.9 <= o["robot"]["rod"]["length"] <= 1.1
     assert o["ibvs"]["mode"] in ("mean", "current") and o["safety"]["enabled"] is False

@@ -168,6 +168,11 @@ def parse_spec(
                 text_value = True
             elif not isinstance(base, int | float):
                 _err(source, f"{where}: {key} = {base!r} cannot be sampled")
+        if scenario_defaults is None and isinstance(d, dict):
+            # first pass, the scenario not read yet: a string/boolean value marks a text key
+            vals = [d.get("value")] if d.get("kind") == "fixed" else d.get("values") or []
+            text_value = bool(vals) and all(isinstance(v, bool | str) for v in vals)
+            base = vals[0] if text_value else None
         if not isinstance(d, dict) or d.get("kind") not in KINDS:
             _err(source, f"{where} must be a table with kind = one of {sorted(KINDS)}, got {d!r}")
         kind = d["kind"]
