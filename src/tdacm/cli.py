@@ -28,34 +28,26 @@ def _note(msg: str) -> None:
 
 
 # ------------------------------------------------------------------ argument types
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {v}")
-    return v
+def _number_type(kind, ok, what: str):
+    """An argparse type: ``kind(text)`` that ``ok`` accepts, else the message ``must be <what>``."""
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        if not ok(v):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text}")
+        return v
+
+    return parse
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {v}")
-    return v
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text}")
-    return v
+_positive_int = _number_type(int, lambda v: v >= 1, "a positive integer")
+_nonneg_int = _number_type(int, lambda v: v >= 0, "a non-negative integer")
+_positive_float = _number_type(
+    float, lambda v: math.isfinite(v) and v > 0, "a finite positive number"
+)
 
 
 # ------------------------------------------------------------------ helpers
@@ -392,7 +384,9 @@ def main(argv=None) -> int:
         _note("interrupted (Ctrl-C)")
         return 130
     except SystemError as exc:  # Ctrl-C inside a numba kernel
-        if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+        from .loop.closed_loop import caused_by_interrupt
+
+        if caused_by_interrupt(exc):
             _note("interrupted (Ctrl-C)")
             return 130
         raise

@@ -212,9 +212,9 @@ class ClosedLoop:
                     terminated, reason = st.reason is not None, st.reason
                     break
         except (KeyboardInterrupt, SystemError) as exc:
-            # Ctrl-C inside a numba kernel arrives as a SystemError caused by the interrupt
-            cause = exc.__cause__ or exc.__context__
-            if isinstance(exc, SystemError) and not isinstance(cause, KeyboardInterrupt):
+            # Ctrl-C inside a numba kernel arrives as a SystemError (possibly several nested)
+            # caused by the interrupt
+            if isinstance(exc, SystemError) and not caused_by_interrupt(exc):
                 raise
             interrupted, terminated, reason = True, True, "interrupted (Ctrl-C)"
         finally:
@@ -234,6 +234,17 @@ class ClosedLoop:
 
     def close(self) -> None:
         self.sensors.close()
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """True if a ``KeyboardInterrupt`` is anywhere in the exception's cause/context chain."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _hold(est: StateEstimate) -> ActuatorCommand:

@@ -204,6 +204,17 @@ class VisualServo:
         traj = CubicTrajectory.with_speed(q_s_now, plan.q_s, t, self.recovery.max_speed)
         return plan, traj
 
+    def transition(self, prev: str, mode: str, t: float) -> str | None:
+        """The event of a mode change: IBVS engaging (its ramp restarts; ``q_d`` continues from
+        the recovery reference, a continuous error) or the target lost."""
+        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
+            self.ibvs_start = t
+            self.traj = None
+            return "ibvs engaged"
+        if prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
+            return "target lost"
+        return None
+
     def missed_snapshot(self, t: float, gview: GlobalView | None) -> str | None:
         """Recovery needs a C_G snapshot and has none this period: the failure message, or
         ``None`` to hold and ask again (C_G not read this period)."""
@@ -260,14 +271,7 @@ class VisualServo:
         q = est.q
         prev = self.switch.mode
         mode = self.switch.update(view.pixels if view.found else None)
-        event = None
-        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
-            # q_d continues from the recovery reference (continuous error)
-            self.ibvs_start = t
-            self.traj = None
-            event = "ibvs engaged"
-        elif prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
-            event = "target lost"
+        event = self.transition(prev, mode, t)
         out_twist = np.zeros(6)
         qdd_d = np.zeros(n)
         points = features = error = None
@@ -450,13 +454,7 @@ class RobustServo(VisualServo):
             mode = self.switch.update(ps.pixels_local if ok else None)
         else:
             mode = self.switch.update(view.pixels if view.found else None)
-        event = None
-        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
-            self.ibvs_start = t
-            self.traj = None
-            event = "ibvs engaged"
-        elif prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
-            event = "target lost"
+        event = self.transition(prev, mode, t)
         out_twist = np.zeros(6)
         qdd_d = np.zeros(n)
         points, features, error = ps.points, ps.features, ps.error

@@ -221,15 +221,9 @@ def chain_start(q, qd, floating, g_fixed, g_att):
     Returns ``g_b, J_b^b, J_dot_b^b, g_a, J_a, J_dot_a, J_dot_a qdot`` with
     ``J_a = Ad(g_a^b)^-1 J_b^b``.
     """
-    n = q.shape[0]
-    gb, jb, jbd = base_state(q, qd, floating, g_fixed, n)
-    ra = g_att[:3, :3].copy()
-    pa = g_att[:3, 3].copy()
-    j = jb.copy()
-    jd = jbd.copy()
-    adinv_apply(ra, pa, j)
-    adinv_apply(ra, pa, jd)
-    return gb, jb, jbd, _matmul(gb, g_att), j, jd, _matvec(jd, qd)
+    gb, jb, jbd = base_state(q, qd, floating, g_fixed, q.shape[0])
+    g, j, jd, jdq = rod_start(gb, jb, jbd, qd, g_att)
+    return gb, jb, jbd, g, j, jd, jdq
 
 
 @njit(cache=True)
