@@ -120,3 +120,18 @@ def test_euler_rate_matrix():
         euler_rate_matrix(*(a + eps * rates)[:2]) - euler_rate_matrix(*(a - eps * rates)[:2])
     ) / (2 * eps)
     assert np.allclose(euler_rate_matrix_dot(phi, theta, *rates[:2]), tdot_fd, atol=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 0.3, 2.0, np.pi - 1e-3, np.pi - 1e-8])
+def test_so3_log_inverts_the_exponential(angle):
+    """``log(exp(w~)) = w`` from 0 to pi (at pi up to the sign of the axis)."""
+    rng = np.random.default_rng(int(1e6 * angle) % 2**31)
+    for _ in range(20):
+        axis = rng.normal(size=3)
+        w = angle * axis / np.linalg.norm(axis)
+        r = expm(se3.skew(w))
+        got = se3.so3_log(r)
+        if np.pi - angle < 1e-6:
+            got = got if got @ w > 0 else -got
+        np.testing.assert_allclose(got, w, atol=1e-7 if np.pi - angle < 1e-6 else 1e-12)
+        np.testing.assert_allclose(expm(se3.skew(got)), r, atol=1e-12)

@@ -43,7 +43,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..control.model import EstimatedModel
-from ..lie.euler import euler_rate_matrix, rot_zyx
+from ..lie.euler import euler_from_rotation, euler_rate_matrix, rot_zyx
+from ..lie.se3 import so3_log
 from . import kernels as EK
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
@@ -114,30 +115,6 @@ class _Tick:
         self.meas = []
         self.x_post = x_prior
         self.p_post = p_prior
-
-
-def _so3_log(r):
-    c = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
-    th = math.acos(c)
-    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if th < 1e-6:
-        return 0.5 * v
-    if math.pi - th < 1e-6:  # not reached for sensor residuals; keep a valid answer
-        w = np.sqrt(np.maximum((np.diag(r) + 1.0) / 2.0, 0.0)) * th
-        return w
-    return th / (2.0 * math.sin(th)) * v
-
-
-def euler_from_rotation(r) -> np.ndarray:
-    """ZYX Euler angles ``[phi, theta, psi]`` of ``R = Rz(psi) Ry(theta) Rx(phi)``."""
-    r = np.asarray(r, float)
-    return np.array(
-        [
-            math.atan2(r[2, 1], r[2, 2]),
-            -math.asin(max(-1.0, min(1.0, r[2, 0]))),
-            math.atan2(r[1, 0], r[0, 0]),
-        ]
-    )
 
 
 class Estimator:
@@ -397,7 +374,9 @@ class Estimator:
             return None
         if isinstance(meas, PoseMeasurement):
             rot = rot_zyx(x[0], x[1], x[2])
-            r = np.concatenate([meas.position - x[3:6], _so3_log(rot.T @ meas.rotation)])
+            r = np.concatenate(
+                [meas.position - x[3:6], so3_log(np.ascontiguousarray(rot.T @ meas.rotation))]
+            )
             h = np.zeros((6, nx))
             h[0:3, 3:6] = np.eye(3)
             h[3:6, 0:3] = euler_rate_matrix(x[0], x[1])

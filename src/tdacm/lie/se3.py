@@ -205,6 +205,31 @@ def _exp_coefficients(th):
 
 
 @njit(cache=True)
+def so3_log(r):
+    """Rotation vector ``w`` with ``exp(w~) = R`` (``|w| <= pi``): ``th/(2 sin th) vee(R - R^T)``,
+    its first-order form near ``th = 0`` and, near ``th = pi`` (where that quotient loses its
+    digits), the axis from the symmetric part with the sign of the antisymmetric one."""
+    c = 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    # atan2(sin, cos): arccos(c) would lose half the digits near 0 and near pi
+    th = np.arctan2(0.5 * np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]), c)
+    if th < 1e-6:
+        return 0.5 * v
+    if np.pi - th < 1e-4:  # sym(R) - cos(th) I = (1 - cos th) a a^T; sign from vee(R - R^T)
+        b = 0.5 * (r + r.T) - c * np.eye(3)
+        k = 0
+        for i in range(1, 3):
+            if b[i, i] > b[k, k]:
+                k = i
+        a = b[:, k] / np.sqrt(b[k, k])
+        a = a / np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        if a[0] * v[0] + a[1] * v[1] + a[2] * v[2] < 0.0:
+            a = -a
+        return th * a
+    return th / (2.0 * np.sin(th)) * v
+
+
+@njit(cache=True)
 def expmap(xi):
     """Exponential ``exp(xi^)`` of a twist, as a 4x4 homogeneous transform."""
     th = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])

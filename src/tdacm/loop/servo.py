@@ -149,8 +149,14 @@ class VisualServo:
 
     # ------------------------------------------------------------------ pieces
     def local_camera_pose(self, q) -> np.ndarray:
-        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`)."""
-        return self.system.tip_pose(q) @ self.tip_mount
+        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`). The last
+        configuration's pose is kept: a period asks for it up to four times (fusion,
+        prediction, C_V, the logged measurement) and the tip recursion is the costly part."""
+        key = np.asarray(q, float).tobytes()
+        cached = getattr(self, "_pose_cache", None)
+        if cached is None or cached[0] != key:
+            cached = self._pose_cache = (key, self.system.tip_pose(q) @ self.tip_mount)
+        return cached[1].copy()
 
     def to_virtual(self, view: LocalView, q):
         """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""
@@ -402,16 +408,28 @@ class RobustServo(VisualServo):
 
         return _virtual_pose(self.system.base_pose(q), g_c)
 
-    def _fuse(self, t: float, view: LocalView, q) -> None:
+    def camera_pose_covariance(self, q, P) -> np.ndarray | None:
+        """Covariance (6 x 6, ``[w; v]`` in C_L) of the C_L pose computed from an estimate
+        with covariance ``P`` (``[q, qd]``): ``J_C P_qq J_C^T`` with ``J_C = Ad(g_{C_L}^L)^-1
+        J_L^L(q)`` (eq. (10)); ``None`` for the true state."""
+        if P is None:
+            return None
+        n = self.n
+        j = np.linalg.solve(self._ad_mount, self.system.tip_jacobian(q))
+        c = j @ np.asarray(P)[:n, :n] @ j.T
+        return 0.5 * (c + c.T)
+
+    def _fuse(self, t: float, view: LocalView, est: StateEstimate) -> None:
         key = round(t, 9)
-        self._poses[key] = self.local_camera_pose(q)
+        q = est.q
+        self._poses[key] = (self.local_camera_pose(q), self.camera_pose_covariance(q, est.P))
         if view.found and view.t_capture > self._last_fused:
             tc = round(view.t_capture, 9)
             pose = self._poses.get(tc)
             if pose is None:  # capture before the first period we saw: nearest stored
                 pose = self._poses[min(self._poses, key=lambda k: abs(k - tc))]
             self._last_fused = view.t_capture
-            if self.predictor.filter.update(view.pixels, pose):
+            if self.predictor.filter.update(view.pixels, *pose):
                 self._last_seen = view.t_capture
             for k in [k for k in self._poses if k < tc]:
                 del self._poses[k]
@@ -431,7 +449,7 @@ class RobustServo(VisualServo):
         n = self.n
         q = est.q
         r = self.robust
-        self._fuse(t, view, q)
+        self._fuse(t, view, est)
         self.predictor.predict(dt)
         g_c = self.local_camera_pose(q)
         ps = self.predictor.step(self.servo_camera_pose(q), g_c)

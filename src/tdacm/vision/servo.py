@@ -18,8 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..lie.se3 import expmap, so3_log
 from .camera import PinholeCamera
 from .detect import Detection, TargetDetector
 from .features import advanced_features, estimate_depths
@@ -194,12 +194,13 @@ class PredictiveServo:
         self.smoothing = float(smoothing)
         self.target_pose = None  # smoothed estimate used by the prediction
 
-    def measure(self, detection: Detection, camera_pose) -> bool:
+    def measure(self, detection: Detection, camera_pose, camera_cov=None) -> bool:
         """Fuse a detection captured with C_L at ``camera_pose`` (4x4, world, at the capture
-        time); False if not found or gated out."""
+        time; ``camera_cov``: its 6 x 6 error covariance if it comes from an estimate,
+        :meth:`~.target_filter.TargetFilter.update`); False if not found or gated out."""
         if detection is None or not detection.found:
             return False
-        return self.filter.update(detection.points, camera_pose)
+        return self.filter.update(detection.points, camera_pose, camera_cov)
 
     def predict(self, dt: float) -> None:
         """Advance the smoothed target pose toward the filter's estimate by one period."""
@@ -212,9 +213,8 @@ class PredictiveServo:
             return
         a = min(1.0, dt / self.smoothing)
         d = np.linalg.solve(self.target_pose, est)  # g_s^-1 g_T
-        rv = Rotation.from_matrix(d[:3, :3]).as_rotvec()
-        step = np.eye(4)
-        step[:3, :3] = Rotation.from_rotvec(a * rv).as_matrix()
+        w = a * so3_log(np.ascontiguousarray(d[:3, :3]))
+        step = expmap(np.array([w[0], w[1], w[2], 0.0, 0.0, 0.0]))  # rotation by a * log(R)
         step[:3, 3] = a * d[:3, 3]
         self.target_pose = self.target_pose @ step
 
