@@ -296,3 +296,22 @@ class _FakeDetection:
     def __init__(self, points):
         self.points = points
         self.found = True
+
+
+def test_information_is_the_inverse_of_the_converged_covariance():
+    """``information`` of a set of camera poses = ``P^-1`` of the filter that fused noise-free
+    frames from them (the Cramer-Rao bound the filter attains); a wider baseline gives more
+    information on the tilt than the same number of frames from one pose."""
+    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    poses = [_camera(1.5, lateral=(0.004 * k - 0.1, 0.002 * k)) for k in range(50)]
+    for g in poses:
+        assert f.update(_pixels(g), g)
+    info = f.information(np.eye(4), poses)
+    np.testing.assert_allclose(info @ f.P, np.eye(6), atol=1e-6)
+    one_pose = f.information(np.eye(4), [poses[25]] * 50)
+    wide = f.information(
+        np.eye(4), [_camera(1.5, lateral=(0.4 * (k % 2) - 0.2, 0)) for k in range(50)]
+    )
+    assert np.linalg.inv(wide)[1, 1] < 0.5 * np.linalg.inv(one_pose)[1, 1]
+    with pytest.raises(ValueError, match="camera_covs"):
+        f.information(np.eye(4), poses, [None])

@@ -315,6 +315,32 @@ class TargetFilter:
         """Nothing to propagate: the target is static (the window does the forgetting)."""
 
     # ------------------------------------------------------------------ model
+    def information(self, target_pose, camera_poses, camera_covs=None) -> np.ndarray:
+        """Fisher information (6 x 6, ``[w; v]`` in the target frame) on ``g_T`` of one frame
+        from each of ``camera_poses`` (4x4, world) with this filter's pixel noise (and the
+        optional camera-pose covariances): ``sum_j H_j^T R_j^-1 H_j`` at ``target_pose``. Its
+        inverse is the Cramer-Rao bound of any unbiased estimate from those frames (the
+        filter's ``P`` reaches it once the window has converged); used to tell what a camera
+        trajectory can reveal about the target (docs/campaigns.md)."""
+        g_t = C.transform("target_pose", target_pose)
+        poses = [C.transform("camera_poses", g) for g in camera_poses]
+        covs = [None] * len(poses) if camera_covs is None else list(camera_covs)
+        if len(covs) != len(poses):
+            raise ValueError("camera_covs must have one entry per camera pose")
+        rc = np.array([g[:3, :3].T for g in poses])
+        pc = np.array([g[:3, 3] for g in poses])
+        z = np.empty((len(poses), 4, 2))
+        for j, g in enumerate(poses):  # noise-free measurements: the residuals vanish
+            r = np.linalg.solve(g, g_t)
+            x = self.object_points @ r[:3, :3].T + r[:3, 3]
+            z[j] = x[:, :2] / x[:, 2:3]
+        w = np.array([self._frame_weight(g_t, g, c) for g, c in zip(poses, covs, strict=True)])
+        rt = np.ascontiguousarray(g_t[:3, :3])
+        info, _, _, ok = _normal_equations(rt, g_t[:3, 3].copy(), rc, pc, z, self.object_points, w)
+        if not ok:
+            raise ValueError("a target point is behind one of the cameras")
+        return info
+
     def points_in(self, camera_pose):
         """Predicted normalized points ``(4, 2)`` and depths ``(4,)`` of the estimated target
         in a camera at ``camera_pose`` (4x4, world); ``None`` before the first frame."""
