@@ -1,5 +1,7 @@
 """Integrators for stiff strain bases, in numba: a linearly implicit Rosenbrock-W method
-(:func:`rosw_run`) and the implicit Radau IIA method (:func:`radau_run`).
+(:func:`rosw_run`) and the implicit Radau IIA method on the mass-matrix form (:func:`radau_run`,
+the default for stiff bases: its Newton matrix uses the current stage mass matrices and the
+constant ``K``, ``D``, so it needs no Jacobian and never inverts ``M``; see its docstring).
 
 Torsion, elongation and shear modes of a thin rod vibrate at 10^3-10^6 rad/s, far above the
 motion of interest (a few rad/s), so explicit RK4 must take steps of microseconds.  These modes
