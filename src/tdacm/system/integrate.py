@@ -184,22 +184,11 @@ def _radau(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
     msg_bad = "stopped: the Newton iteration failed down to 1 ns steps (or a singular matrix)"
 
     def run(q, qd, uk, span, h):
-        return ST.radau_run(
-            q,
-            qd,
-            uk,
-            span,
-            record_dt,
-            h,
-            dt,
-            rt,
-            at,
-            100.0 * at,
-            nw["newton_tol"],
-            nw["max_iter"],
-            m,
-            loads,
-        )
+        args = (rt, at, 100.0 * at, nw["newton_tol"], nw["max_iter"], m, loads)
+        try:
+            return ST.radau_run(q, qd, uk, span, record_dt, h, dt, *args)
+        except np.linalg.LinAlgError:  # a singular stage matrix (LAPACK raises)
+            return np.zeros(1), q[None].copy(), qd[None].copy(), False, None
 
     if not callable(u):
         uc = system._u(u)

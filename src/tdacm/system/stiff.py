@@ -416,12 +416,13 @@ def radau_run(
     ``Vdot = (A^-1 / h) Zv``, so the second-order system needs a 3n (not 6n) dimensional
     iteration.  The residual is ``R_i = M(Q_i) Vdot_i - G(Q_i, V_i) + K Q_i + D V_i``.  Its
     Newton matrix keeps the exact constant ``K`` and ``D`` and the mass matrices ``M(Q_i)`` of
-    the current iterate (they come with the residual; the system is solved afresh every iteration:
-    measured on the 18-DoF rod, ``M0^-1 M(Q_i)`` departs from the identity by 8e4-1.4e6 within a
-    10 ms step, because the near-null inertia directions of torsion turn with the bending, so
-    any stale ``M`` diverges); it neglects ``dG/dq``, ``dG/dqdot`` and ``(dM/dq) Vdot``
-    (gravity, Coriolis, the change of ``M``), which costs a contraction of about 0.1 per
-    iteration instead of n extra evaluations.
+    the current iterate (they come with the residual; the 3n x 3n system is solved afresh by
+    LAPACK every iteration: measured on the 18-DoF rod, ``M0^-1 M(Q_i)`` departs from the
+    identity by 8e4-1.4e6 within a 10 ms step, because the near-null inertia directions of
+    torsion turn with the bending, so any stale ``M`` diverges).  It neglects ``dG/dq``,
+    ``dG/dqdot`` and ``(dM/dq) Vdot`` (gravity, Coriolis, the change of ``M``): a measured
+    contraction of 0.13 per iteration, against 0.004 with the exact tangents, which would cost
+    3n more evaluations per iteration.
 
     ``rtol > 0``: adaptive steps (first ``h0``, at most ``h_max``) with the embedded error
     estimate of RADAU5 (Hairer and Wanner, Solving ODEs II, IV.8), weighted RMS norm with
@@ -615,10 +616,12 @@ def radau_run(
                 for r in range(n):
                     cq[r] += ev[r]
                     cv[r] += ae[r] - a0[r]
-            if err > 1.0:
+            if not err <= 1.0:  # also a non-finite estimate
                 stats[1] += 1
-                h *= max(0.1, 0.9 * err**-0.25)
+                h *= max(0.1, 0.9 * err**-0.25) if np.isfinite(err) else 0.1
                 have_prev = False
+                if h < 1e-9:
+                    return ts[:rec], qs[:rec], qds[:rec], False, stats
                 continue
         # accepted: dense output at the record times inside (t, t + h]
         t_new = t + h
