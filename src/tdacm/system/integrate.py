@@ -7,14 +7,18 @@
   :data:`ROSENBROCK_DT`) or, with ``rtol`` given, adaptive steps of at most ``dt`` with
   embedded error control.
 * ``method="radau"``: the 3-stage Radau IIA method (order 5, L-stable) of
-  :func:`tdacm.system.stiff.radau_run`, fixed step ``dt`` (default :data:`RADAU_DT`), simplified
-  Newton iterations with a reused finite-difference Jacobian.
+  :func:`tdacm.system.stiff.radau_run`, applied to the mass-matrix form ``M(q) qdd = F`` (no
+  ``M^-1``), velocities eliminated (a 3n-dimensional stage system), Newton matrix from the
+  current stage mass matrices and the constant ``K``, ``D``; fixed step ``dt`` (default
+  :data:`RADAU_DT`, 10 ms) with dense output at ``record_dt``, or, with ``rtol`` given,
+  adaptive steps of at most ``dt`` (embedded RADAU5 error estimate; slow on the stiff rods,
+  see ``docs/model.md``).
 * ``method="adaptive"``: scipy's ``solve_ivp`` (DOP853 by default) with error control, for
   accuracy studies.
 * ``method="auto"`` (the default): RK4 unless the model is stiff (:func:`is_stiff`: a basis
   with torsion, elongation or shear and an RK4 step :meth:`TDACM.suggested_dt` below
-  :data:`STIFF_DT`, 1 ms), then ``"radau"`` (measured 4-6x faster than ``"rosenbrock"`` at the
-  same accuracy on the 18-DoF rod of ``tdacm bench``).  The
+  :data:`STIFF_DT`, 1 ms), then ``"radau"`` (see ``docs/benchmarks.md``: more than 20x faster
+  than ``"rosenbrock"`` at the same accuracy rule on the 18-DoF rod of ``tdacm bench``).  The
   paper system (``suggested_dt`` = 10 ms) integrates with RK4 exactly as before.
 
 Inputs are either a constant vector ``u`` or a callable ``u(t, q, qd) -> u`` (held constant over
@@ -38,14 +42,9 @@ STIFF_DT = 1e-3
 ROSENBROCK_DT = 2.5e-3
 #: Default fixed step of ``method="radau"`` (s) and its Newton settings.
 RADAU_DT = 1e-2
-RADAU_NEWTON = {
-    "tol_q": 1e-7,
-    "tol_v": 1e-3,
-    "max_iter": 10,
-    "slow_iter": 6,
-    "full_v": False,
-    "stall_ok": 20.0,
-}
+#: Newton settings of ``method="radau"``: stop when ``theta / (1 - theta) |dZ| <= 1`` with the
+#: weights ``newton_tol (1 + |q|)``; at most ``max_iter`` iterations before the step is halved.
+RADAU_NEWTON = {"newton_tol": 1e-6, "max_iter": 8}
 
 
 @dataclass
@@ -86,13 +85,15 @@ def simulate(
 ) -> SimulationResult:
     """Integrate the TD-ACM from ``(q0, qd0)`` for ``duration`` seconds.
 
-    ``method``: ``"auto"`` (default), ``"rk4"``, ``"rosenbrock"`` or ``"adaptive"`` (module
-    docstring).  ``dt`` is the RK4 step (default :meth:`TDACM.suggested_dt`), the Rosenbrock
-    step (default :data:`ROSENBROCK_DT`; the largest step when ``rtol`` is given); ignored by
+    ``method``: ``"auto"`` (default), ``"rk4"``, ``"rosenbrock"``, ``"radau"`` or
+    ``"adaptive"`` (module docstring).  ``dt`` is the RK4 step (default
+    :meth:`TDACM.suggested_dt`), the Rosenbrock step (default :data:`ROSENBROCK_DT`) or the
+    Radau step (default :data:`RADAU_DT`) - the largest step when ``rtol`` is given; ignored by
     the adaptive method except as the output spacing when ``record_dt`` is None.  States are
-    recorded every ``record_dt`` (default ``dt``).  ``rtol``/``atol``: tolerances of the
-    adaptive method (default 1e-8 / 1e-10) and, if given, of the Rosenbrock method (``atol``
-    for the positions; the velocities use ``atol * 100``).
+    recorded every ``record_dt`` (default ``dt``; any spacing for Radau, which interpolates).
+    ``rtol``/``atol``: tolerances of the adaptive method (default 1e-8 / 1e-10) and, if given,
+    of the Rosenbrock and Radau methods (``atol`` for the positions; the velocities use
+    ``atol * 100``).
     """
     q0 = system._q(q0, "q0")
     qd0 = np.zeros(system.n) if qd0 is None else system._q(qd0, "qd0")
@@ -124,7 +125,7 @@ def simulate(
             return SimulationResult(t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, msg)
         return _rk4_callable(system, q0, qd0, u, dt, nsteps, every, progress)
     if method == "radau":
-        return _radau(system, q0, qd0, u, duration, dt, every)
+        return _radau(system, q0, qd0, u, duration, dt, record_dt, rtol, atol)
     if method == "rosenbrock":
         return _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol)
     rtol = 1e-8 if rtol is None else rtol
@@ -171,32 +172,42 @@ def _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
     return SimulationResult(np.array(ts), np.array(qs), np.array(qds), u_arr, ok, msg)
 
 
-def _radau(system, q0, qd0, u, duration, dt, every):
+def _radau(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
     """Radau IIA at constant input (one numba call) or with ``u(t, q, qd)`` held over every
-    recording interval."""
+    ``record_dt`` interval (a zero-order hold at the recording rate; each interval restarts
+    the iteration from a fresh acceleration)."""
     m, loads = system.model_arrays, system.loads.packed()
     nw = RADAU_NEWTON
-    args = tuple(nw[k] for k in ("tol_q", "tol_v", "max_iter", "slow_iter", "full_v", "stall_ok"))
-    nsteps = int(round(duration / dt))
-    msg_bad = "stopped: the Newton iteration failed (or a singular mass matrix)"
+    adaptive = rtol is not None
+    rt = V.positive("rtol", rtol) if adaptive else 0.0
+    at = (1e-6 if atol is None else V.positive("atol", atol)) if adaptive else 0.0
+    msg_bad = "stopped: the Newton iteration failed down to 1 ns steps (or a singular matrix)"
+
+    def run(q, qd, uk, span, h):
+        args = (rt, at, 100.0 * at, nw["newton_tol"], nw["max_iter"], m, loads)
+        try:
+            return ST.radau_run(q, qd, uk, span, record_dt, h, dt, *args)
+        except np.linalg.LinAlgError:  # a singular stage matrix (LAPACK raises)
+            return np.zeros(1), q[None].copy(), qd[None].copy(), False, None
+
     if not callable(u):
         uc = system._u(u)
-        qs, qds, ok, _ = ST.radau_run(q0, qd0, uc, dt, nsteps, every, m, loads, *args)
-        t = np.arange(qs.shape[0]) * dt * every
+        t, qs, qds, ok, _ = run(q0, qd0, uc, duration, dt)
         return SimulationResult(
             t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, "" if ok else msg_bad
         )
+    nrec = int(np.floor(duration / record_dt + 1e-9))
     q, qd = q0.copy(), qd0.copy()
     ts, qs, qds, us = [0.0], [q.copy()], [qd.copy()], []
     ok = True
-    for k in range(nsteps // every):
-        uk = system._u(u(k * every * dt, q, qd))
+    for k in range(nrec):
+        uk = system._u(u(k * record_dt, q, qd))
         us.append(uk)
-        qq, qqd, ok, _ = ST.radau_run(q, qd, uk, dt, every, every, m, loads, *args)
+        _, qq, qqd, ok, _ = run(q, qd, uk, record_dt, min(dt, record_dt))
         if not ok:
             break
         q, qd = qq[-1], qqd[-1]
-        ts.append((k + 1) * every * dt)
+        ts.append((k + 1) * record_dt)
         qs.append(q.copy())
         qds.append(qd.copy())
     u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]

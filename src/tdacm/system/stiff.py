@@ -1,5 +1,7 @@
 """Integrators for stiff strain bases, in numba: a linearly implicit Rosenbrock-W method
-(:func:`rosw_run`) and the implicit Radau IIA method (:func:`radau_run`).
+(:func:`rosw_run`) and the implicit Radau IIA method on the mass-matrix form (:func:`radau_run`,
+the default for stiff bases: its Newton matrix uses the current stage mass matrices and the
+constant ``K``, ``D``, so it needs no Jacobian and never inverts ``M``; see its docstring).
 
 Torsion, elongation and shear modes of a thin rod vibrate at 10^3-10^6 rad/s, far above the
 motion of interest (a few rad/s), so explicit RK4 must take steps of microseconds.  These modes
@@ -292,239 +294,361 @@ def _radau_tableau():
 
 
 RADAU_C, RADAU_A = _radau_tableau()
+RADAU_AINV = np.linalg.inv(RADAU_A)
+#: The real eigenvalue of ``A^-1`` (3.6378; the matrix ``E1`` of the error estimate).
+RADAU_GAMMA = float(np.linalg.eigvals(RADAU_AINV).real.max())
+#: Embedded error estimate of Hairer and Wanner (RADAU5): ``e = E1^-1 (f(y0) + sum d_i Z_i / h)``.
+RADAU_D = np.array(
+    [-(13.0 + 7.0 * np.sqrt(6.0)) / 3.0, (-13.0 + 7.0 * np.sqrt(6.0)) / 3.0, -1.0 / 3.0]
+)
 
 
 @njit(cache=True)
-def _f(y, u, m, loads, n):
-    out = np.empty(2 * n)
-    qdd, ok = K.forward_dynamics(y[:n], y[n:], u, m, loads)
-    out[:n] = y[n:]
-    out[n:] = qdd
-    return out, ok
-
-
-@njit(cache=True)
-def state_jacobian(y, u, m, loads, n, full_v):
-    """Jacobian of ``y' = f(y) = [qd; qdd(q, qd)]`` (2n x 2n).
-
-    The ``[I]`` block is exact; ``d qdd / dq`` by forward differences, skipping the drone
-    position (``qdd`` does not depend on it: uniform gravity, no ground); ``d qdd / dqd`` by
-    forward differences when ``full_v``, else ``-M^-1 D`` (the damping part; the Coriolis part is
-    left to the Newton iteration).  Costs ``n - 2`` (``2 n - 2`` with ``full_v``) evaluations.
-    """
-    nn = 2 * n
-    jac = np.zeros((nn, nn))
-    f0, mm, ok = dynamics_and_mass(y[:n], y[n:], u, m, loads)
-    if not ok:
-        return jac, False
+def _lu_solve_into(lu, piv, b, y):
+    """``y = A^-1 b`` from :func:`_lu` (real or complex), no allocation."""
+    n = b.shape[0]
     for i in range(n):
-        jac[i, n + i] = 1.0
-    for i in range(nn):
-        if m.floating and 3 <= i < 6:
-            continue
-        if i >= n and not full_v:
-            break
-        e = 1e-7 * max(1.0, abs(y[i]))
-        yp = y.copy()
-        yp[i] += e
-        fp, ok = K.forward_dynamics(yp[:n], yp[n:], u, m, loads)
-        if not ok:
-            return jac, False
-        for r in range(n):
-            jac[n + r, i] = (fp[r] - f0[r]) / e
-    if not full_v:
-        col = np.empty(n)
-        for c in range(n):
-            for r in range(n):
-                col[r] = -m.damping[r, c]
-            x, ok = K.cholesky_solve(mm, col)
-            for r in range(n):
-                jac[n + r, n + c] = x[r]
-    return jac, True
+        s = b[piv[i]]
+        for p in range(i):
+            s -= lu[i, p] * y[p]
+        y[i] = s
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for p in range(i + 1, n):
+            s -= lu[i, p] * y[p]
+        y[i] = s / lu[i, i]
 
 
 @njit(cache=True)
-def _radau_matrix(jac, h, a):
-    """``I - h (A kron J)`` (3N x 3N) of the simplified Newton iteration."""
-    nn = jac.shape[0]
-    g = np.zeros((3 * nn, 3 * nn))
+def mass_and_forces(q, qd, u, m, loads, tendons):
+    """``M(q)`` and ``G = B(q) u + tau_ext - C qdot`` (all forces but ``-K q - D qdot``).
+    ``tendons`` False skips the tendon part of ``B u`` (all tensions zero)."""
+    mm, _, cqd, tau, _, _, _ = K.coupled_terms(q, qd, m, loads, False)
+    g = tau - cqd
+    if tendons:
+        g += K._matvec(K.input_matrix(q, m), u)
+    elif m.floating:
+        # motor part of B(q) u only (paper eq. (15)): Euler-rate map for the torque rows
+        r = K.rot_zyx(q[0], q[1], q[2])
+        t = K.euler_rate_matrix(q[0], q[1])
+        for i in range(3):
+            a0 = 0.0
+            a1 = 0.0
+            for c in range(4):
+                for k in range(3):
+                    a0 += t[k, i] * m.gamma[k, c] * u[c]
+                    a1 += r[i, k] * m.gamma[3 + k, c] * u[c]
+            g[i] += a0
+            g[3 + i] += a1
+    return mm, g
+
+
+@njit(cache=True)
+def _lagrange(s, c):
+    """Values at ``s`` of the Lagrange polynomials on the nodes ``0, c_1, c_2, c_3`` that vanish
+    at 0 (the collocation polynomial of a step, in units of the step)."""
+    out = np.empty(3)
+    for j in range(3):
+        lj = s / c[j]
+        for p in range(3):
+            if p != j:
+                lj *= (s - c[p]) / (c[j] - c[p])
+        out[j] = lj
+    return out
+
+
+@njit(cache=True)
+def _stage_matrix(ms, ainv, ainv2, h, kk, dm, out):
+    """Newton matrix of the stage residuals in ``Zq``: block ``(i, j)`` is
+    ``M_i (A^-2)_ij / h^2 + D (A^-1)_ij / h + delta_ij K`` (3n x 3n, into ``out``)."""
+    n = kk.shape[0]
     for i in range(3):
         for j in range(3):
-            hij = h * a[i, j]
-            for r in range(nn):
-                for c in range(nn):
-                    g[i * nn + r, j * nn + c] = -hij * jac[r, c]
-    for r in range(3 * nn):
-        g[r, r] += 1.0
-    return g
+            fm = ainv2[i, j] / (h * h)
+            fd = ainv[i, j] / h
+            for r in range(n):
+                for c in range(n):
+                    x = ms[i, r, c] * fm + dm[r, c] * fd
+                    if i == j:
+                        x += kk[r, c]
+                    out[i * n + r, j * n + c] = x
+
+
+@njit(cache=True)
+def _lu_inplace(lu, piv):
+    """LU factorization with partial pivoting of ``lu`` in place; False if singular."""
+    n = lu.shape[0]
+    for k in range(n):
+        piv[k] = k
+    for k in range(n):
+        p = k
+        big = abs(lu[k, k])
+        for i in range(k + 1, n):
+            if abs(lu[i, k]) > big:
+                big = abs(lu[i, k])
+                p = i
+        if big == 0.0 or not np.isfinite(big):
+            return False
+        if p != k:
+            for c in range(n):
+                lu[k, c], lu[p, c] = lu[p, c], lu[k, c]
+            piv[k], piv[p] = piv[p], piv[k]
+        inv = 1.0 / lu[k, k]
+        for i in range(k + 1, n):
+            f = lu[i, k] * inv
+            lu[i, k] = f
+            if f != 0.0:
+                for c in range(k + 1, n):
+                    lu[i, c] -= f * lu[k, c]
+    return True
 
 
 @njit(cache=True)
 def radau_run(
-    q0, qd0, u, h, nsteps, every, m, loads, tol_q, tol_v, max_iter, slow_iter, full_v, stall_ok
+    q0, qd0, u, duration, record_dt, h0, h_max, rtol, atol_q, atol_v, newton_tol, max_iter, m, loads
 ):
-    """Integrate ``nsteps`` fixed steps ``h`` of the 3-stage Radau IIA method (order 5, L-stable,
-    stiffly accurate) at constant input ``u``; keep every ``every``-th state.
+    """Integrate ``duration`` s at constant input ``u`` with the 3-stage Radau IIA method
+    (order 5, stage order 3, L-stable, stiffly accurate) applied to the mass-matrix form
+    ``M(q) qdd = G(q, qdot) - K q - D qdot`` of paper eq. (9), never inverting ``M``.
 
-    The stage equations are solved by simplified Newton iterations with a forward-difference
-    Jacobian that is *reused* across steps (recomputed only when an iteration converges slowly
-    or fails: more than ``slow_iter`` iterations); the stage values start from the previous step's collocation polynomial.  An
-    iteration has converged when the weighted RMS norm of its update, weights
-    ``tol_q (1 + |q_i|)`` and ``tol_v (1 + |qd_i|)``, is below 1 (the velocities of the stiff
-    modes carry the round-off of ``M^-1``, whose condition number reaches 1e8-1e10 with torsion:
-    their updates stagnate near 1e-4, hence a looser ``tol_v``); an iteration that stalls
-    (contraction above 0.9) with a norm below ``stall_ok`` has reached that floor and is
-    accepted too.  ``full_v``: see :func:`state_jacobian`.  A step whose iteration fails even
-    with a fresh Jacobian is split in two (recursively, down to ``h / 64``).
+    The unknowns are the stage position increments ``Zq`` (3 x n); the stage velocities and
+    accelerations follow from the collocation conditions, ``V = qd0 + Zv = (A^-1 / h) Zq`` and
+    ``Vdot = (A^-1 / h) Zv``, so the second-order system needs a 3n (not 6n) dimensional
+    iteration.  The residual is ``R_i = M(Q_i) Vdot_i - G(Q_i, V_i) + K Q_i + D V_i``.  Its
+    Newton matrix keeps the exact constant ``K`` and ``D`` and the mass matrices ``M(Q_i)`` of
+    the current iterate (they come with the residual; the 3n x 3n system is solved afresh by
+    LAPACK every iteration: measured on the 18-DoF rod, ``M0^-1 M(Q_i)`` departs from the
+    identity by 8e4-1.4e6 within a 10 ms step, because the near-null inertia directions of
+    torsion turn with the bending, so any stale ``M`` diverges).  It neglects ``dG/dq``,
+    ``dG/dqdot`` and ``(dM/dq) Vdot`` (gravity, Coriolis, the change of ``M``): a measured
+    contraction of 0.13 per iteration, against 0.004 with the exact tangents, which would cost
+    3n more evaluations per iteration.
 
-    Returns ``(qs, qds, ok, stats)`` with ``stats = [f evaluations, Jacobians, LU
-    factorizations, Newton iterations, split steps]``.
+    ``rtol > 0``: adaptive steps (first ``h0``, at most ``h_max``) with the embedded error
+    estimate of RADAU5 (Hairer and Wanner, Solving ODEs II, IV.8), weighted RMS norm with
+    ``atol_q + rtol |q|`` and ``atol_v + rtol |qd|`` below 1.  ``rtol <= 0``: steps ``h0``
+    (halved, then grown back, where the Newton iteration fails).  States every ``record_dt``
+    from the collocation polynomial (dense output of order 3).  The iteration stops when
+    ``theta / (1 - theta) |dZ| <= 1``, weights ``newton_tol (1 + |q|)`` (Hairer's criterion).
+
+    Returns ``(t, qs, qds, ok, stats)``, ``stats = [accepted steps, rejected steps, Newton
+    failures, evaluations, Newton iterations]``.
     """
     n = q0.shape[0]
-    nn = 2 * n
+    n3 = 3 * n
     c = RADAU_C
-    a = RADAU_A
-    nrec = nsteps // every + 1
+    ainv = RADAU_AINV
+    ainv2 = ainv @ ainv
+    gam = RADAU_GAMMA
+    dd = RADAU_D
+    nt = 4 if m.floating else 0
+    tendons = False
+    for i in range(nt, u.shape[0]):
+        if u[i] != 0.0:
+            tendons = True
+    nrec = int(np.floor(duration / record_dt + 1e-9)) + 1
+    ts = np.empty(nrec)
     qs = np.empty((nrec, n))
     qds = np.empty((nrec, n))
-    qs[0] = q0
-    qds[0] = qd0
-    y = np.empty(nn)
-    y[:n] = q0
-    y[n:] = qd0
     stats = np.zeros(5, dtype=np.int64)
-    f0, ok = _f(y, u, m, loads, n)
-    stats[0] += 1
+    q = q0.copy()
+    v = qd0.copy()
+    ts[0] = 0.0
+    qs[0] = q
+    qds[0] = v
+    kk = m.stiffness
+    dm = m.damping
+    m0, g0 = mass_and_forces(q, v, u, m, loads, tendons)
+    stats[3] += 1
+    a0, ok = K.cholesky_solve(m0, g0 - K._matvec(kk, q) - K._matvec(dm, v))
     if not ok:
-        return qs[:1], qds[:1], False, stats
-    jac, ok = state_jacobian(y, u, m, loads, n, full_v)
-    stats[0] += (nn if full_v else n) - (2 if m.floating else -1)
-    stats[1] += 1
-    hj = h
-    lu, piv, ok = _lu(_radau_matrix(jac, hj, a))
-    stats[2] += 1
-    z = np.zeros((3, nn))  # stage increments of the last step (for the extrapolation)
+        return ts[:1], qs[:1], qds[:1], False, stats
+    zq = np.zeros((3, n))
+    zv = np.zeros((3, n))
+    zq_old = np.zeros((3, n))
+    vv = np.empty((3, n))
+    acc = np.empty((3, n))
+    ms = np.empty((3, n, n))
+    res = np.empty(n3)
+    big = np.empty((n3, n3))
+    e1 = np.empty((n, n))
+    piv1 = np.empty(n, dtype=np.int64)
+    scal = np.empty(n)
+    cq = np.empty(n)
+    cv = np.empty(n)
+    rhs = np.empty(n)
+    eq = np.empty(n)
+    ev = np.empty(n)
+    qi = np.empty(n)
+    adaptive = rtol > 0.0
+    h = min(h0, h_max)
+    h_old = h
     have_prev = False
-    fresh = True
+    eta = 1.0
+    t = 0.0
     rec = 1
-    k = 0
-    sub = 1  # current number of substeps per step (after failures)
-    while k < nsteps:
-        hs = h / sub
-        done_sub = 0
-        while done_sub < sub:
-            if hs != hj:
-                lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
-                stats[2] += 1
-                hj = hs
-                have_prev = False
-            # initial stage values: previous collocation polynomial, or h c_i f(y0)
-            zz = np.empty((3, nn))
-            if have_prev:
-                for i in range(3):
-                    s = 1.0 + c[i]
-                    # Lagrange basis through nodes 0, c1, c2, c3 (value 0 at node 0)
-                    for r in range(nn):
-                        acc = 0.0
-                        for j in range(3):
-                            lj = s / c[j]
-                            for p in range(3):
-                                if p != j:
-                                    lj *= (s - c[p]) / (c[j] - c[p])
-                            acc += lj * z[j, r]
-                        zz[i, r] = acc - z[2, r]
-            else:
-                for i in range(3):
-                    for r in range(nn):
-                        zz[i, r] = hs * c[i] * f0[r]
-            converged = False
-            theta_bad = False
-            old = 0.0
-            fs = np.empty((3, nn))
-            for it in range(max_iter):
-                ok_all = True
-                for i in range(3):
-                    fi, oki = _f(y + zz[i], u, m, loads, n)
-                    stats[0] += 1
-                    if not oki:
-                        ok_all = False
-                        break
-                    fs[i] = fi
-                if not ok_all:
-                    break
-                rhs = np.empty(3 * nn)
-                for i in range(3):
-                    for r in range(nn):
-                        acc = -zz[i, r]
-                        for j in range(3):
-                            acc += hs * a[i, j] * fs[j, r]
-                        rhs[i * nn + r] = acc
-                dz = _lu_solve(lu, piv, rhs)
+    while rec < nrec:
+        left = duration - t
+        if left <= 1e-12 * record_dt:
+            break
+        if left < 1.0001 * h:
+            h = left
+        # starting values: the previous collocation polynomial, extrapolated
+        if have_prev:
+            ratio = h / h_old
+            for i in range(3):
+                lg = _lagrange(1.0 + c[i] * ratio, c)
+                for r in range(n):
+                    zq[i, r] = (
+                        lg[0] * zq_old[0, r] + lg[1] * zq_old[1, r] + lg[2] * zq_old[2, r]
+                    ) - zq_old[2, r]
+        else:
+            for i in range(3):
+                for r in range(n):
+                    zq[i, r] = c[i] * h * v[r] + 0.5 * (c[i] * h) ** 2 * a0[r]
+        for r in range(n):
+            scal[r] = newton_tol * (1.0 + abs(q[r]))
+        converged = False
+        old = 0.0
+        eta = max(eta, 1e-16) ** 0.8
+        for it in range(max_iter):
+            for i in range(3):
+                for r in range(n):
+                    vv[i, r] = (
+                        ainv[i, 0] * zq[0, r] + ainv[i, 1] * zq[1, r] + ainv[i, 2] * zq[2, r]
+                    ) / h
+            for i in range(3):
+                for r in range(n):
+                    acc[i, r] = (
+                        ainv[i, 0] * (vv[0, r] - v[r])
+                        + ainv[i, 1] * (vv[1, r] - v[r])
+                        + ainv[i, 2] * (vv[2, r] - v[r])
+                    ) / h
+            fin = True
+            for i in range(3):
+                for r in range(n):
+                    qi[r] = q[r] + zq[i, r]
+                mi, gi = mass_and_forces(qi, vv[i], u, m, loads, tendons)
                 stats[3] += 1
-                nrm = 0.0
-                for i in range(3):
-                    for r in range(nn):
-                        zz[i, r] += dz[i * nn + r]
-                        w = (tol_q if r < n else tol_v) * (1.0 + abs(y[r]))
-                        nrm += (dz[i * nn + r] / w) ** 2
-                nrm = np.sqrt(nrm / (3 * nn))
-                if not np.isfinite(nrm):
-                    break
-                if it > 0:
-                    theta = nrm / old
-                    if theta > 0.9:
-                        # stagnation at the round-off floor of M^-1 is convergence
-                        converged = nrm <= stall_ok
-                        theta_bad = not converged
-                        break
-                if nrm <= 1.0:
-                    converged = True
-                    break
-                old = nrm
-            if converged:
-                for r in range(nn):
-                    y[r] += zz[2, r]
-                for i in range(3):
-                    for r in range(nn):
-                        z[i, r] = zz[i, r]
-                f0 = fs[2].copy()  # f at the last iterate (a starting guess only)
-                have_prev = True
-                done_sub += 1
-                # a slow iteration: refresh the Jacobian for the next step
-                if it >= slow_iter and not fresh:
-                    jac, okj = state_jacobian(y, u, m, loads, n, full_v)
-                    stats[0] += (nn if full_v else n) - (2 if m.floating else -1)
-                    stats[1] += 1
-                    lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
-                    stats[2] += 1
-                    fresh = True
-                else:
-                    fresh = False
-                continue
-            # failure: fresh Jacobian first, then split the step
-            if not fresh:
-                jac, okj = state_jacobian(y, u, m, loads, n, full_v)
-                stats[0] += (nn if full_v else n) - (2 if m.floating else -1)
-                stats[1] += 1
-                if not okj:
-                    return qs[:rec], qds[:rec], False, stats
-                lu, piv, ok = _lu(_radau_matrix(jac, hs, a))
-                stats[2] += 1
-                fresh = True
-                have_prev = False
-                continue
-            if sub >= 64 or theta_bad and sub >= 64:
-                return qs[:rec], qds[:rec], False, stats
-            sub *= 2
-            done_sub *= 2
-            hs = h / sub
+                ms[i] = mi
+                for r in range(n):
+                    s = -gi[r]
+                    for cc in range(n):
+                        s += mi[r, cc] * acc[i, cc] + kk[r, cc] * qi[cc] + dm[r, cc] * vv[i, cc]
+                    res[i * n + r] = -s
+                    if not np.isfinite(s):
+                        fin = False
+            if not fin:
+                break
+            _stage_matrix(ms, ainv, ainv2, h, kk, dm, big)
+            # LAPACK (blocked, vectorized) is twice as fast as a hand-written LU at 3n = 54-72
+            dz = np.linalg.solve(big, res)
             stats[4] += 1
-            fresh = False  # the Jacobian is still fresh; force the LU update only
+            nrm = 0.0
+            for i in range(3):
+                for r in range(n):
+                    d = dz[i * n + r]
+                    zq[i, r] += d
+                    nrm += (d / scal[r]) ** 2
+            nrm = np.sqrt(nrm / n3)
+            if not np.isfinite(nrm):
+                break
+            if it > 0:
+                theta = nrm / old
+                if theta >= 0.99:
+                    break
+                eta = theta / (1.0 - theta)
+            if eta * nrm <= 1.0:
+                converged = True
+                break
+            old = nrm
+        if not converged:
+            stats[2] += 1
+            h *= 0.5
             have_prev = False
-        sub = max(1, sub // 2) if sub > 1 else 1
-        k += 1
-        if k % every == 0:
-            qs[rec] = y[:n]
-            qds[rec] = y[n:]
+            eta = 1.0
+            if h < 1e-9:
+                return ts[:rec], qs[:rec], qds[:rec], False, stats
+            continue
+        for i in range(3):
+            for r in range(n):
+                vv[i, r] = (
+                    ainv[i, 0] * zq[0, r] + ainv[i, 1] * zq[1, r] + ainv[i, 2] * zq[2, r]
+                ) / h
+                zv[i, r] = vv[i, r] - v[r]
+        err = 0.0
+        if adaptive:
+            # e = E1^-1 (f(y0) + diag(I, M) (sum d_i Z_i) / h), E1 = (gam / h) diag(I, M) - J,
+            # J = [[0, I], [-K, -D]], M of the last stage; eliminating e_v = (gam / h) e_q - c_q
+            # leaves ((gam / h)^2 M + (gam / h) D + K) e_q = M (c_v + (gam / h) c_q) + D c_q
+            fr = gam / h
+            for r in range(n):
+                cq[r] = v[r] + (dd[0] * zq[0, r] + dd[1] * zq[1, r] + dd[2] * zq[2, r]) / h
+                cv[r] = a0[r] + (dd[0] * zv[0, r] + dd[1] * zv[1, r] + dd[2] * zv[2, r]) / h
+            for r in range(n):
+                for cc in range(n):
+                    e1[r, cc] = fr * fr * ms[2, r, cc] + fr * dm[r, cc] + kk[r, cc]
+            if not _lu_inplace(e1, piv1):
+                return ts[:rec], qs[:rec], qds[:rec], False, stats
+            for p in range(2):
+                for r in range(n):
+                    s = 0.0
+                    for cc in range(n):
+                        s += ms[2, r, cc] * (cv[cc] + fr * cq[cc]) + dm[r, cc] * cq[cc]
+                    rhs[r] = s
+                _lu_solve_into(e1, piv1, rhs, eq)
+                err = 0.0
+                for r in range(n):
+                    ev[r] = fr * eq[r] - cq[r]
+                    q1 = q[r] + zq[2, r]
+                    sq = atol_q + rtol * max(abs(q[r]), abs(q1))
+                    sv = atol_v + rtol * max(abs(v[r]), abs(vv[2, r]))
+                    err += (eq[r] / sq) ** 2 + (ev[r] / sv) ** 2
+                err = np.sqrt(err / (2 * n))
+                if err <= 1.0 or p == 1:
+                    break
+                # Hairer's second estimate on a would-be rejection: f at y0 + e (the true
+                # dynamics of the stiff components) in place of f(y0), filtered again
+                ae, oke = K.forward_dynamics(q + eq, v + ev, u, m, loads)
+                stats[3] += 1
+                if not oke:
+                    break
+                for r in range(n):
+                    cq[r] += ev[r]
+                    cv[r] += ae[r] - a0[r]
+            if not err <= 1.0:  # also a non-finite estimate
+                stats[1] += 1
+                h *= max(0.1, 0.9 * err**-0.25) if np.isfinite(err) else 0.1
+                have_prev = False
+                if h < 1e-9:
+                    return ts[:rec], qs[:rec], qds[:rec], False, stats
+                continue
+        # accepted: dense output at the record times inside (t, t + h]
+        t_new = t + h
+        while rec < nrec and rec * record_dt <= t_new + 1e-9 * record_dt:
+            lg = _lagrange((rec * record_dt - t) / h, c)
+            for r in range(n):
+                qs[rec, r] = q[r] + lg[0] * zq[0, r] + lg[1] * zq[1, r] + lg[2] * zq[2, r]
+                qds[rec, r] = v[r] + lg[0] * zv[0, r] + lg[1] * zv[1, r] + lg[2] * zv[2, r]
+            ts[rec] = rec * record_dt
             rec += 1
-    return qs, qds, True, stats
+        # the next step starts from the last stage (stiffly accurate): a0 = Vdot_3
+        for r in range(n):
+            a0[r] = (ainv[2, 0] * zv[0, r] + ainv[2, 1] * zv[1, r] + ainv[2, 2] * zv[2, r]) / h
+            q[r] += zq[2, r]
+            v[r] = vv[2, r]
+        zq_old[:, :] = zq
+        have_prev = True
+        h_old = h
+        t = t_new
+        stats[0] += 1
+        if adaptive:
+            fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err**-0.25))
+            h = min(h_max, h * fac)
+        else:
+            h = min(h0, 2.0 * h)
+    for k in range(rec, nrec):
+        ts[k] = k * record_dt
+        qs[k] = q
+        qds[k] = v
+    return ts, qs, qds, True, stats
