@@ -658,16 +658,24 @@ class TDACM:
         k = self._m.stiffness[off:, off:]
         return np.sqrt(np.clip(eigh(k, m, eigvals_only=True), 0.0, None))
 
-    def suggested_dt(self, safety: float = 1.0) -> float:
-        """A stable, accurate RK4 step: ``min(10 ms, safety * 1.5 / w_max)``.
+    def suggested_dt(self, safety: float = 1.0, q=None) -> float:
+        """A stable, accurate RK4 step: ``min(10 ms, safety * 1.5 / w_max)``, ``w_max`` the
+        highest rod frequency linearized at ``q`` (default: straight; a sequence of
+        configurations takes the highest over them).
 
         RK4's stability limit on the imaginary axis is ``2.83 / w``; 1.5 keeps the fastest rod
         mode accurate to ~1 %.  The 10 ms cap (half the paper's control period) bounds the error
         of the slow drone-rod motion: for the paper system (``w_max = 3.3 rad/s``) 5 s of bent,
         swinging, tendon-loaded motion at 10 ms stay within 1e-6 m of the tip position of an
         adaptive DOP853 reference at rtol 1e-11 (2e-5 m at 20 ms).
+
+        Bending can raise the highest mode a lot in rich bases (measured: a clamped
+        ``StrainBasis.full(0)`` rod, 9,900 rad/s straight, 26,600 rad/s bent; RK4 at the
+        straight-rod step failed on the first step there): pass the configurations the run
+        will visit, or use ``simulate(method="auto")``, which integrates such bases with Radau.
         """
-        w = float(self.natural_frequencies().max())
+        qs = [None] if q is None else ([q] if np.ndim(q) == 1 else list(q))
+        w = max(float(self.natural_frequencies(qi).max()) for qi in qs)
         return min(1e-2, safety * 1.5 / w) if w > 0 else 1e-2
 
     # ------------------------------------------------------------------ statics
