@@ -52,7 +52,7 @@ SCHEMA = {
         "class": (str, ""),  # "package.module:ClassName" of a user controller ("": adaptive)
         "pretension": (float, 0.5),
         "max_tilt": (float, 0.35),
-        "attitude_filter": (float, 0.1),
+        "attitude_filter": (float, 0.05),
         "max_tilt_rate": (float, 1.5),
     },
     "ibvs": {
