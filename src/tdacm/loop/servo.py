@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
-from ..lie.se3 import Ad
+from ..lie.se3 import Ad, Ad_inv
 from ..vision.features import advanced_features
 from ..vision.ibvs import IBVSController
 from ..vision.tip import rates_from_jacobian
@@ -122,6 +122,8 @@ class VisualServo:
             lim[5] = self.shaping.max_vertical_speed
         self._lim = lim
         self._ad_mount = Ad(np.ascontiguousarray(self.tip_mount))
+        self._ad_mount_inv = Ad_inv(np.ascontiguousarray(self.tip_mount))
+        self._pose_cache = None  # (q bytes, C_L pose) of the last configuration asked for
         self.switch = ModeSwitch(
             local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
         )
@@ -153,7 +155,7 @@ class VisualServo:
         configuration's pose is kept: a period asks for it up to four times (fusion,
         prediction, C_V, the logged measurement) and the tip recursion is the costly part."""
         key = np.asarray(q, float).tobytes()
-        cached = getattr(self, "_pose_cache", None)
+        cached = self._pose_cache
         if cached is None or cached[0] != key:
             cached = self._pose_cache = (key, self.system.tip_pose(q) @ self.tip_mount)
         return cached[1].copy()
@@ -261,6 +263,26 @@ class VisualServo:
         qdd_d[n - ns :] = qsdd_d
         return "ok", plan_info
 
+    def recovery_branch(self, t, q, gview, mode, qdd_d, twist, features, error, points, rmse,
+                        event, **extra):  # fmt: skip
+        """The recovery part of a period, shared by both servos: ``(command, plan, event)``
+        with ``command`` the :class:`ServoCommand` that ends the period when the recovery holds
+        (C_G requested; ``extra`` fields added) or failed, else ``None``."""
+        status, info = self.recover(t, q, gview, qdd_d)
+        if status == "hold":
+            return ServoCommand(
+                mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, twist, features, error,
+                points, rmse, request_global=True, event=event, failure=info, **extra,
+            ), None, event  # fmt: skip
+        if status == "failed":
+            return ServoCommand(
+                mode, self.q_d.copy(), np.zeros(self.n), qdd_d, twist, features, error,
+                points, rmse, failure=info,
+            ), None, event  # fmt: skip
+        if info is not None:
+            return None, info, "recovery planned"
+        return None, None, event
+
     # ------------------------------------------------------------------ the step
     def step(
         self,
@@ -293,20 +315,11 @@ class VisualServo:
             # qdd_d = 0: IBVS gives rates only (qdd_r = -beta edot)
             self.shape(rates, t, dt)
         elif mode == ModeSwitch.RECOVERY:
-            status, info = self.recover(t, q, gview, qdd_d)
-            if status == "hold":
-                return ServoCommand(
-                    mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist,
-                    features, error, points, rmse, request_global=True, event=event,
-                    failure=info,
-                )  # fmt: skip
-            if status == "failed":
-                return ServoCommand(
-                    mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
-                    points, rmse, failure=info,
-                )  # fmt: skip
-            if info is not None:
-                plan_info, event = info, "recovery planned"
+            ended, plan_info, event = self.recovery_branch(
+                t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event
+            )
+            if ended is not None:
+                return ended
         else:  # IBVS mode but the target is not seen this frame: hold
             self.qd_d = np.zeros(n)
         return ServoCommand(
@@ -415,7 +428,7 @@ class RobustServo(VisualServo):
         if P is None:
             return None
         n = self.n
-        j = np.linalg.solve(self._ad_mount, self.system.tip_jacobian(q))
+        j = self._ad_mount_inv @ self.system.tip_jacobian(q)
         c = j @ np.asarray(P)[:n, :n] @ j.T
         return 0.5 * (c + c.T)
 
@@ -492,21 +505,12 @@ class RobustServo(VisualServo):
                 c = self._leak
                 self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
         elif mode == ModeSwitch.RECOVERY:
-            status, info = self.recover(t, q, gview, qdd_d)
-            if status == "hold":
-                return ServoCommand(
-                    mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features,
-                    error, points, rmse, request_global=True, event=event,
-                    failure=info, rmse_measured=rmse_meas,
-                    target_pose=self.predictor.target_pose,
-                )  # fmt: skip
-            if status == "failed":
-                return ServoCommand(
-                    mode, self.q_d.copy(), np.zeros(n), qdd_d, out_twist, features, error,
-                    points, rmse, failure=info,
-                )  # fmt: skip
-            if info is not None:
-                plan_info, event = info, "recovery planned"
+            ended, plan_info, event = self.recovery_branch(
+                t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event,
+                rmse_measured=rmse_meas, target_pose=self.predictor.target_pose,
+            )  # fmt: skip
+            if ended is not None:
+                return ended
         else:  # IBVS before the first frame was fused: hold
             self.qd_d = np.zeros(n)
         return ServoCommand(

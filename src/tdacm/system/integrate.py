@@ -151,25 +151,44 @@ def _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
         )
         msg = "" if ok else "stopped: singular mass or iteration matrix, or step size underflow"
         return SimulationResult(t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, msg)
+    h = [dt]  # the adaptive step carries over from one interval to the next
+
+    def advance(q, qd, uk):
+        _, qq, qqd, ok, _, _, h[0] = ST.rosw_run(
+            q, qd, uk, record_dt, record_dt, h[0] if adaptive else dt, dt, rt, at, 100.0 * at,
+            m, loads,
+        )  # fmt: skip
+        return (qq[-1], qqd[-1]) if ok else None
+
+    res, failed = _held_input_run(system, u, q0, qd0, duration, record_dt, advance)
+    msg = ""
+    if failed is not None:
+        msg = f"stopped at t = {failed * record_dt:.4f} s: singular matrix or step underflow"
+    return SimulationResult(*res, failed is None, msg)
+
+
+def _held_input_run(system, u, q0, qd0, duration, record_dt, advance):
+    """A stiff integrator with ``u(t, q, qd)`` held over every ``record_dt`` interval (a
+    zero-order hold at the recording rate): ``advance(q, qd, u_k)`` integrates one interval
+    and returns the end state, or ``None`` if it failed. Returns the arrays ``(t, q, qd, u)``
+    up to the failure and the index of the failed interval (``None``: completed)."""
     nrec = int(np.floor(duration / record_dt + 1e-9))
     q, qd = q0.copy(), qd0.copy()
     ts, qs, qds, us = [0.0], [q.copy()], [qd.copy()], []
-    ok, msg, h = True, "", dt
+    failed = None
     for k in range(nrec):
         uk = system._u(u(k * record_dt, q, qd))
         us.append(uk)
-        _, qq, qqd, ok, _, _, h = ST.rosw_run(
-            q, qd, uk, record_dt, record_dt, h if adaptive else dt, dt, rt, at, 100.0 * at, m, loads
-        )
-        if not ok:
-            msg = f"stopped at t = {k * record_dt:.4f} s: singular matrix or step underflow"
+        end = advance(q, qd, uk)
+        if end is None:
+            failed = k
             break
-        q, qd = qq[-1], qqd[-1]
+        q, qd = end
         ts.append((k + 1) * record_dt)
         qs.append(q.copy())
         qds.append(qd.copy())
     u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]
-    return SimulationResult(np.array(ts), np.array(qs), np.array(qds), u_arr, ok, msg)
+    return (np.array(ts), np.array(qs), np.array(qds), u_arr), failed
 
 
 def _radau(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
@@ -196,24 +215,13 @@ def _radau(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):
         return SimulationResult(
             t, qs, qds, np.tile(uc, (qs.shape[0], 1)), ok, "" if ok else msg_bad
         )
-    nrec = int(np.floor(duration / record_dt + 1e-9))
-    q, qd = q0.copy(), qd0.copy()
-    ts, qs, qds, us = [0.0], [q.copy()], [qd.copy()], []
-    ok = True
-    for k in range(nrec):
-        uk = system._u(u(k * record_dt, q, qd))
-        us.append(uk)
+
+    def advance(q, qd, uk):
         _, qq, qqd, ok, _ = run(q, qd, uk, record_dt, min(dt, record_dt))
-        if not ok:
-            break
-        q, qd = qq[-1], qqd[-1]
-        ts.append((k + 1) * record_dt)
-        qs.append(q.copy())
-        qds.append(qd.copy())
-    u_arr = np.array((us + [us[-1]]) if us else [np.zeros(system.n_u)])[: len(ts)]
-    return SimulationResult(
-        np.array(ts), np.array(qs), np.array(qds), u_arr, ok, "" if ok else msg_bad
-    )
+        return (qq[-1], qqd[-1]) if ok else None
+
+    res, failed = _held_input_run(system, u, q0, qd0, duration, record_dt, advance)
+    return SimulationResult(*res, failed is None, "" if failed is None else msg_bad)
 
 
 def _rk4_callable(system, q0, qd0, ufun, dt, nsteps, every, progress):

@@ -110,18 +110,9 @@ def _lu(a):
 
 @njit(cache=True)
 def _lu_solve(lu, piv, b):
-    n = b.shape[0]
-    y = np.empty(n)
-    for i in range(n):
-        s = b[piv[i]]
-        for p in range(i):
-            s -= lu[i, p] * y[p]
-        y[i] = s
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for p in range(i + 1, n):
-            s -= lu[i, p] * y[p]
-        y[i] = s / lu[i, i]
+    """``A^-1 b`` from :func:`_lu` (real), in a new array (:func:`_lu_solve_into`)."""
+    y = np.empty(b.shape[0])
+    _lu_solve_into(lu, piv, b, y)
     return y
 
 

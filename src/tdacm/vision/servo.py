@@ -24,6 +24,7 @@ from .camera import PinholeCamera
 from .detect import Detection, TargetDetector
 from .features import advanced_features, estimate_depths
 from .ibvs import IBVSController
+from .target_filter import TargetFilter, target_in_camera
 from .targets import FiducialTarget
 from .virtual import virtual_camera_points
 
@@ -88,8 +89,7 @@ class LocalCameraServo:
     ):
         """Desired normalized points and depths of ``target`` (at ``target_pose``) seen from
         ``camera_pose`` - the paper's reference snapshot, computed analytically."""
-        g = np.linalg.solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
-        pc = target.feature_points @ g[:3, :3].T + g[:3, 3]
+        pc = target_in_camera(target.feature_points, camera_pose, target_pose)
         if np.any(pc[:, 2] <= 0):
             raise ValueError("the target is behind the camera in the reference pose")
         return pc[:, :2] / pc[:, 2:3], pc[:, 2]
@@ -178,8 +178,6 @@ class PredictiveServo:
         smoothing: float = 1.0,
         track: bool = True,
     ):
-        from .target_filter import TargetFilter
-
         self.camera = camera
         self.target = target
         self.detector = TargetDetector(target, track=track)
@@ -219,10 +217,7 @@ class PredictiveServo:
         self.target_pose = self.target_pose @ step
 
     def _points_in(self, camera_pose):
-        g = np.linalg.solve(np.asarray(camera_pose, float), self.target_pose)
-        obj = self.filter.object_points
-        r = obj @ g[:3, :3].T + g[:3, 3]
-        return r[:, :2] / r[:, 2:3], r[:, 2].copy()
+        return self.filter.points_in(camera_pose, self.target_pose)
 
     def step(self, servo_pose, camera_pose=None) -> PredictedStep:
         """Twist of the servo camera at ``servo_pose`` (4x4 world pose of C_V, or of C_L

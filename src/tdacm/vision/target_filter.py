@@ -85,6 +85,13 @@ def _hat(w):
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
+def target_in_camera(object_points, camera_pose, target_pose) -> np.ndarray:
+    """Camera coordinates ``r = g_C^-1 g_T X_k`` (k, 3) of a target's points ``X_k`` (its
+    frame) for world poses ``camera_pose`` ``g_C`` and ``target_pose`` ``g_T`` (4x4)."""
+    g = np.linalg.solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
+    return object_points @ g[:3, :3].T + g[:3, 3]
+
+
 @njit(cache=True)
 def _target_points(rt, pt, obj):
     """World coordinates ``(4, 3)`` of the target's points at ``(R_T, p_T)``."""
@@ -241,12 +248,11 @@ class TargetFilter:
         self.gate = C.positive("gate", gate)
         self.young = int(young)
         self.reset_after = C.positive_int("reset_after", reset_after)
+        f = np.array([camera.fx, camera.fy]) / self.pixel_sigma
+        self._rinv = f * f  # 1 / sigma_normalized^2 for x, y
+        self._w_pixel = np.diag(np.tile(self._rinv, 4))  # weight of a frame with an exact pose
+        self._r_pixel = np.diag(np.tile(1.0 / self._rinv, 4))  # its covariance
         self.reset()
-
-    @property
-    def _rinv(self):
-        f = np.array([self.camera.fx, self.camera.fy]) / self.pixel_sigma
-        return f * f  # 1 / sigma_normalized^2 for x, y
 
     def pose_noise(self, points_camera, camera_cov) -> np.ndarray:
         """Covariance (8 x 8, normalized coordinates, rows ``x_1, y_1, ..., y_4``) that an
@@ -269,10 +275,6 @@ class TargetFilter:
             g[2 * k : 2 * k + 2, :3] = dpi @ _hat(r[k])
             g[2 * k : 2 * k + 2, 3:] = -dpi
         return g @ np.asarray(camera_cov, float) @ g.T
-
-    def _pixel_noise(self) -> np.ndarray:
-        """Diagonal 8 x 8 covariance of the corner noise in normalized coordinates."""
-        return np.diag(np.tile(1.0 / self._rinv, 4))
 
     @property
     def sigma(self) -> float:
@@ -331,8 +333,7 @@ class TargetFilter:
         pc = np.array([g[:3, 3] for g in poses])
         z = np.empty((len(poses), 4, 2))
         for j, g in enumerate(poses):  # noise-free measurements: the residuals vanish
-            r = np.linalg.solve(g, g_t)
-            x = self.object_points @ r[:3, :3].T + r[:3, 3]
+            x = target_in_camera(self.object_points, g, g_t)
             z[j] = x[:, :2] / x[:, 2:3]
         w = np.array([self._frame_weight(g_t, g, c) for g, c in zip(poses, covs, strict=True)])
         rt = np.ascontiguousarray(g_t[:3, :3])
@@ -341,13 +342,14 @@ class TargetFilter:
             raise ValueError("a target point is behind one of the cameras")
         return info
 
-    def points_in(self, camera_pose):
-        """Predicted normalized points ``(4, 2)`` and depths ``(4,)`` of the estimated target
-        in a camera at ``camera_pose`` (4x4, world); ``None`` before the first frame."""
-        if self.pose is None:
+    def points_in(self, camera_pose, target_pose=None):
+        """Predicted normalized points ``(4, 2)`` and depths ``(4,)`` of the target at
+        ``target_pose`` (default: the estimate) in a camera at ``camera_pose`` (4x4, world);
+        ``None`` before the first frame."""
+        target_pose = self.pose if target_pose is None else target_pose
+        if target_pose is None:
             return None
-        g = np.linalg.solve(np.asarray(camera_pose, float), self.pose)
-        r = self.object_points @ g[:3, :3].T + g[:3, 3]
+        r = target_in_camera(self.object_points, camera_pose, target_pose)
         return r[:, :2] / r[:, 2:3], r[:, 2].copy()
 
     def _gauss_newton(self, pose, rc, pc, z, iterations, weights):
@@ -411,7 +413,7 @@ class TargetFilter:
             return self._reject(pixels, camera_pose, camera_cov)
         scale = (self.sigma / self.pixel_sigma) ** 2
         extra = self._camera_noise(self.pose, g_c, camera_cov)
-        s = h8 @ self.P @ h8.T + scale * self._pixel_noise() + extra
+        s = h8 @ self.P @ h8.T + scale * self._r_pixel + extra
         if float(nu @ np.linalg.solve(s, nu)) > self.gate:
             return self._reject(pixels, camera_pose, camera_cov)
         self._bad = 0
@@ -441,16 +443,15 @@ class TargetFilter:
         """:meth:`pose_noise` of a frame at the target estimate ``target_pose`` (0 if exact)."""
         if camera_cov is None:
             return 0.0
-        g = np.linalg.solve(g_c, target_pose)
-        return self.pose_noise(self.object_points @ g[:3, :3].T + g[:3, 3], camera_cov)
+        return self.pose_noise(target_in_camera(self.object_points, g_c, target_pose), camera_cov)
 
     def _frame_weight(self, target_pose, g_c, camera_cov, extra=None):
         """8 x 8 weight (inverse covariance) of a frame: the pixel noise's for an exact pose."""
         if camera_cov is None:
-            return np.diag(np.tile(self._rinv, 4))
+            return self._w_pixel
         if extra is None:
             extra = self._camera_noise(target_pose, g_c, camera_cov)
-        w = np.linalg.inv(self._pixel_noise() + extra)
+        w = np.linalg.inv(self._r_pixel + extra)
         return 0.5 * (w + w.T)
 
     def _append(self, g_c, xy, weight):
