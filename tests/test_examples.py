@@ -27,4 +27,7 @@ def test_target_information_bounds(capsys):
     assert np.all(wide < 0.7 * flown)
     assert abs(summary["final_target_estimate_sigma_deg"] / flown.max() - 1) < 0.15
     assert 0.85 < within < 0.97
+    # the level prior (0.5 deg) informs the tilt: 1/sqrt(1/0.49^2 + 1/0.5^2) = 0.35 deg
+    prior = np.array(bounds["flown + level prior 0.5 deg"])
+    np.testing.assert_allclose(prior, 1 / np.sqrt(1 / flown**2 + 1 / 0.5**2), rtol=0.02)
     assert "Cramer-Rao" in capsys.readouterr().out

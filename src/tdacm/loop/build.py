@@ -81,6 +81,7 @@ def build_scene(scenario: Scenario) -> Scene:
         box_size=sc["box_size"],
         box_xy=tuple(sc["box_xy"]),
         target_yaw_deg=sc["target_yaw_deg"],
+        target_tilt_deg=tuple(sc["target_tilt_deg"]),
     )
     n = robot.system.n
     q0 = np.asarray(d["initial"]["q"], float)
@@ -214,6 +215,7 @@ def build_loop(
                 ib["accel_feedforward"],
                 ib["reference_leak"],
                 rc["lost_timeout"],
+                ib["target_level_prior_deg"],
             )
             servo = RobustServo(*args, robust=robust, **kwargs)
         else:

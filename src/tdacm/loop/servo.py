@@ -340,6 +340,7 @@ class RobustParams:
     accel_feedforward: bool = True  # qdd_d = d(qd_d)/dt of the filtered rate command
     reference_leak: float = 4.0  # 1/s, pull of q_d toward q_hat (anti wind-up)
     lost_timeout: float = 1.0  # s without a fused frame before the target counts as lost
+    level_prior_deg: float = 0.0  # deg, prior that the target lies level (0: none)
 
 
 class RobustServo(VisualServo):
@@ -381,6 +382,7 @@ class RobustServo(VisualServo):
             pixel_sigma=r.pixel_sigma,
             window=r.window,
             smoothing=r.smoothing,
+            level_prior=np.radians(r.level_prior_deg),
         )
         self.predictor.controller = self.ibvs
         # feed-forward and leak are for the flying base, whose position lags the reference

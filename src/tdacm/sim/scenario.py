@@ -73,6 +73,8 @@ SCHEMA = {
         "filter_pixel_sigma": (float, 1.0),  # px, corner noise assumed by the target filter
         "filter_window": (int, 250),  # frames fused by the target filter (sliding window)
         "filter_smoothing": (float, 1.0),  # s, smoothing of the estimate used for prediction
+        # deg, the target filter's prior that the target lies level, facing up (0: none)
+        "target_level_prior_deg": (float, 0.5),
     },
     "recovery": {
         "max_speed": (float, 0.3),
@@ -88,6 +90,7 @@ SCHEMA = {
         "box_size": (float, 0.4),
         "box_xy": ("vec:2", [0.0, 0.0]),
         "target_yaw_deg": (float, 0.0),
+        "target_tilt_deg": ("vec:2", [0.0, 0.0]),  # deg, about world x, y (the truth)
     },
     "cameras": {  # the cameras' intrinsics and mounts are in [robot.cameras.*]
         "local_renderer": (str, "planar"),  # "planar" (image + detector) | "analytic"
@@ -328,6 +331,10 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: ibvs.filter_pixel_sigma must be positive")
     if d["ibvs"]["filter_smoothing"] < 0:
         raise ScenarioError(f"{source}: ibvs.filter_smoothing must be >= 0")
+    if not d["ibvs"]["target_level_prior_deg"] >= 0:
+        raise ScenarioError(f"{source}: ibvs.target_level_prior_deg must be >= 0")
+    if any(abs(v) > 30.0 for v in d["scene"]["target_tilt_deg"]):
+        raise ScenarioError(f"{source}: scene.target_tilt_deg must lie within +-30 deg")
     if d["ibvs"]["filter_window"] < 1:
         raise ScenarioError(f"{source}: ibvs.filter_window must be >= 1")
     if d["recovery"]["lost_timeout"] <= 0:

@@ -42,6 +42,10 @@ class SceneConfig:
         Position of the box centre on the ground (m).
     target_yaw_deg:
         Rotation of the target about the world z axis (deg).
+    target_tilt_deg:
+        Tilt of the target board about the world x and y axes (deg), applied after the yaw:
+        a board that does not lie exactly level (the servo's level prior is a belief, this
+        is the truth; default level).
     target_lift:
         Height of the target above the box top (m): the board's thickness, which keeps the
         target from z-fighting with the box top in 16-bit depth buffers (EGL).
@@ -55,6 +59,7 @@ class SceneConfig:
     box_size: float = 0.4
     box_xy: tuple = (0.0, 0.0)
     target_yaw_deg: float = 0.0
+    target_tilt_deg: tuple = (0.0, 0.0)
     target_lift: float = 0.005
     ground_size: float = 30.0
     ground_rgba: tuple = (0.45, 0.47, 0.45, 1.0)
@@ -66,6 +71,9 @@ class SceneConfig:
         C.positive("box_size", self.box_size)
         C.array("box_xy", self.box_xy, (2,))
         C.finite_scalar("target_yaw_deg", self.target_yaw_deg)
+        tilt = C.array("target_tilt_deg", self.target_tilt_deg, (2,))
+        if np.any(np.abs(tilt) > 30.0):
+            raise ValueError(f"target_tilt_deg must lie within +-30 deg, got {tilt!r}")
         C.nonnegative("target_lift", self.target_lift)
         C.positive("ground_size", self.ground_size)
         for name in ("ground_rgba", "box_rgba"):
@@ -91,6 +99,12 @@ class SceneConfig:
         rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0, 0, 1.0]])
         g = np.eye(4)
         g[:3, :3] = rz @ R_DOWN_CAMERA_IN_BODY
+        tx, ty = np.radians(np.asarray(self.target_tilt_deg, float))
+        if tx or ty:  # about world x, then y (the board's centre stays put)
+            cx, sx, cy, sy = np.cos(tx), np.sin(tx), np.cos(ty), np.sin(ty)
+            rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+            ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+            g[:3, :3] = ry @ rx @ g[:3, :3]
         g[:2, 3] = self.box_xy
         g[2, 3] = self.box_size + self.target_lift
         return g

@@ -161,6 +161,9 @@ class PredictiveServo:
         fused - over time, so that they do not kick the TD-ACM.
     track:
         Tracking window of the detector.
+    level_prior:
+        Standard deviation (rad) of the filter's prior that the target lies level (facing
+        up); 0 disables it (:class:`~.target_filter.TargetFilter`).
     """
 
     def __init__(
@@ -177,6 +180,7 @@ class PredictiveServo:
         window: int = 250,
         smoothing: float = 1.0,
         track: bool = True,
+        level_prior: float = 0.0,
     ):
         self.camera = camera
         self.target = target
@@ -185,7 +189,11 @@ class PredictiveServo:
             desired_points, desired_depths, gain=gain, mode=mode, floor=floor, solver=solver
         )
         self.filter = TargetFilter(
-            camera, target.feature_points, pixel_sigma=pixel_sigma, window=window
+            camera,
+            target.feature_points,
+            pixel_sigma=pixel_sigma,
+            window=window,
+            level_prior=level_prior,
         )
         if not np.isfinite(smoothing) or smoothing < 0:
             raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")

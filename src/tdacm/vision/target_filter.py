@@ -51,7 +51,16 @@ and measured: linearized at the first frames' poor tilt it stayed 1-15 degrees o
   image shift and keeps the shape (perspective) information that determines the tilt;
   frames with an exact pose keep the diagonal fast path;
 * the window forgets: a slow bias (camera-pose or intrinsics errors) is followed with a lag
-  of about ``window`` frames.
+  of about ``window`` frames;
+* known target plane (optional, ``level_prior > 0``): a target on a level surface has its
+  normal along gravity. With ``n0`` the nominal normal of the target's z axis in the world
+  (``level_normal``, default straight down: the target faces up) and ``m = R_T^T n0`` (the
+  nominal normal in the target frame, ``e_z`` when level), the prior residual is
+  ``e_p = -m_xy`` with ``d m_xy / d delta = [m^]_xy`` on the rotation (``m <- exp(-w^) m``),
+  weighted by ``1 / level_prior^2`` (rad). It informs exactly the two weak directions (the
+  target's tilt) and leaves the yaw and the position to the images. It enters the cost, the
+  Gauss-Newton step and ``P``; the self-calibrated noise scale multiplies the frames'
+  information only.
 """
 
 from __future__ import annotations
@@ -62,7 +71,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ..lie.se3 import expmap
+from ..lie.se3 import expmap, skew
 from . import _checks as C
 from .camera import PinholeCamera
 
@@ -223,6 +232,13 @@ class TargetFilter:
         Every ``recheck`` fused frames, both PnP solutions of the latest frame are refined
         on the window and adopted if their cost is lower (escapes the wrong branch of the
         ambiguity once the camera has moved enough to tell them apart; 0 disables).
+    level_prior:
+        Standard deviation (rad) of the prior that the target's z axis is along
+        ``level_normal`` (world), i.e. that it lies on a level surface (module docstring);
+        0 (default) disables it.
+    level_normal:
+        The nominal direction of the target's z axis in the world (default ``[0, 0, -1]``:
+        the target faces up, its z axis into the surface).
     """
 
     def __init__(
@@ -237,8 +253,15 @@ class TargetFilter:
         decisive: float = 25.0,
         reset_after: int = 5,
         recheck: int = 10,
+        level_prior: float = 0.0,
+        level_normal=(0.0, 0.0, -1.0),
     ):
         self.camera = camera
+        self.level_prior = C.nonnegative("level_prior", level_prior)
+        n0 = C.array("level_normal", level_normal, (3,))
+        if np.linalg.norm(n0) < 1e-9:
+            raise ValueError("level_normal must be a non-zero vector")
+        self.level_normal = n0 / np.linalg.norm(n0)
         self.recheck = int(recheck)
         self.decisive = C.positive("decisive", decisive)
         self.object_points = C.array("object_points", object_points, (4, 3))
@@ -317,7 +340,9 @@ class TargetFilter:
         """Nothing to propagate: the target is static (the window does the forgetting)."""
 
     # ------------------------------------------------------------------ model
-    def information(self, target_pose, camera_poses, camera_covs=None) -> np.ndarray:
+    def information(
+        self, target_pose, camera_poses, camera_covs=None, with_prior: bool = False
+    ) -> np.ndarray:
         """Fisher information (6 x 6, ``[w; v]`` in the target frame) on ``g_T`` of one frame
         from each of ``camera_poses`` (4x4, world) with this filter's pixel noise (and the
         optional camera-pose covariances): ``sum_j H_j^T R_j^-1 H_j`` at ``target_pose``. Its
@@ -340,7 +365,32 @@ class TargetFilter:
         info, _, _, ok = _normal_equations(rt, g_t[:3, 3].copy(), rc, pc, z, self.object_points, w)
         if not ok:
             raise ValueError("a target point is behind one of the cameras")
-        return info
+        prior = self._prior_terms(g_t) if with_prior else None
+        return info if prior is None else info + prior[0]
+
+    def _prior_terms(self, pose):
+        """``(information, gradient, cost)`` of the level prior at the target pose ``pose``
+        (module docstring), or ``None`` without a prior."""
+        if self.level_prior <= 0.0:
+            return None
+        m = pose[:3, :3].T @ self.level_normal
+        h = np.zeros((2, 6))
+        h[:, :3] = skew(m)[:2]
+        e = -m[:2]
+        w = 1.0 / self.level_prior**2
+        return w * (h.T @ h), w * (h.T @ e), w * float(e @ e)
+
+    def _covariance(self, pose, info) -> np.ndarray:
+        """``P`` from the total information of a solve at ``pose``: the frames' part scaled
+        by the self-calibrated noise (``(pixel_sigma / sigma)^2``), the prior's not."""
+        prior = self._prior_terms(pose)
+        if prior is None:
+            p = np.linalg.inv(info)
+            p = 0.5 * (p + p.T)
+            return p * (self.sigma / self.pixel_sigma) ** 2
+        k = (self.pixel_sigma / self.sigma) ** 2
+        p = np.linalg.inv((info - prior[0]) * k + prior[0])
+        return 0.5 * (p + p.T)
 
     def points_in(self, camera_pose, target_pose=None):
         """Predicted normalized points ``(4, 2)`` and depths ``(4,)`` of the target at
@@ -354,13 +404,16 @@ class TargetFilter:
 
     def _gauss_newton(self, pose, rc, pc, z, iterations, weights):
         """``iterations`` GN steps on the frames ``rc, pc, z`` with their ``weights``
-        (N, 8, 8); returns ``(pose, information, cost)`` (``None`` if the target falls behind
-        a camera)."""
+        (N, 8, 8); returns ``(pose, information, cost)`` (with the level prior's terms, if
+        any; ``None`` if the target falls behind a camera)."""
         for it in range(iterations + 1):
             rt, pt = np.ascontiguousarray(pose[:3, :3]), pose[:3, 3].copy()
             info, g, cost, ok = _normal_equations(rt, pt, rc, pc, z, self.object_points, weights)
             if not ok:
                 return None
+            prior = self._prior_terms(pose)
+            if prior is not None:
+                info, g, cost = info + prior[0], g + prior[1], cost + prior[2]
             if it == iterations:
                 return pose, info, cost
             try:
@@ -435,8 +488,7 @@ class TargetFilter:
             if r is not None and r[2] < cur[2] - 1.0:
                 cur = r
                 self.pose = r[0]
-                self.P = np.linalg.inv(r[1]) * (self.sigma / self.pixel_sigma) ** 2
-                self.P = 0.5 * (self.P + self.P.T)
+                self.P = self._covariance(r[0], r[1])
                 self.switches += 1
 
     def _camera_noise(self, target_pose, g_c, camera_cov):
@@ -506,11 +558,11 @@ class TargetFilter:
             else:
                 self._hyp = [r[0] for r in results]
         self.pose, info = best[0], best[1]
-        self.P = np.linalg.inv(info)
-        self.P = 0.5 * (self.P + self.P.T)
         self.updates += 1
         n = self._count
-        if n >= 10:  # cost / dof = (sigma_true / pixel_sigma)^2
-            self.sigma_hat = self.pixel_sigma * float(np.sqrt(best[2] / (8 * n - 6)))
-        self.P *= (self.sigma / self.pixel_sigma) ** 2
+        if n >= 10:  # cost / dof = (sigma_true / pixel_sigma)^2, the frames' cost only
+            prior = self._prior_terms(best[0])
+            cost = best[2] - (prior[2] if prior is not None else 0.0)
+            self.sigma_hat = self.pixel_sigma * float(np.sqrt(max(cost, 0.0) / (8 * n - 6)))
+        self.P = self._covariance(best[0], info)
         return True
