@@ -486,11 +486,29 @@ class TDACM:
 
     def tip_pose(self, q, rod: int = 0) -> np.ndarray:
         """Tip pose ``g_L`` (the end of the dynamics grid) of rod ``rod``."""
-        return self.tip_kinematics(q, np.zeros(self.n), rod)[0]
+        return self._tip_static(q, rod)[0].copy()
 
     def tip_jacobian(self, q, rod: int = 0) -> np.ndarray:
         """``J_L^L(q)`` (6 x n), eq. (10)."""
-        return self.tip_kinematics(q, np.zeros(self.n), rod)[1]
+        return self._tip_static(q, rod)[1].copy()
+
+    def _tip_static(self, q, rod: int):
+        """``(g_L, J_L^L)`` at ``q``, kept for the last few configurations: a control period
+        asks for the tip pose of the same ``q`` several times (the camera sensor, the servo,
+        the logger's truth) and for the Jacobian at the servo's ``q``; the recursion is the
+        costly part. The entries belong to the current model arrays (rebuilt models miss)."""
+        q = self._q(q)
+        key = (rod, q.tobytes())
+        cache = self.__dict__.get("_tip_cache")
+        if cache is None or cache[0] is not self._m:
+            cache = self._tip_cache = (self._m, {})
+        hit = cache[1].get(key)
+        if hit is None:
+            g, j, _ = self.tip_kinematics(q, np.zeros(self.n), rod)
+            if len(cache[1]) >= 4:
+                cache[1].clear()
+            hit = cache[1][key] = (g, j)
+        return hit
 
     def tip_jacobian_dot(self, q, qd, rod: int = 0) -> np.ndarray:
         """Time derivative of ``J_L^L`` along ``qdot``."""

@@ -169,17 +169,31 @@ def _normal_equations(rt, pt, rc, pc, z, obj, w):
         if not _frame_residuals(rc[f], pc[f], rt, xw, obj, z[f], a, h, e):
             return info, grad, cost, False
         wf = w[f]
+        diagonal = True  # the weight of a frame with an exact camera pose
         for i in range(8):
-            acc = 0.0
             for m in range(8):
-                acc += wf[i, m] * e[m]
-            we[i] = acc
-            cost += e[i] * acc
-            for c in range(6):
+                if m != i and wf[i, m] != 0.0:
+                    diagonal = False
+        if diagonal:
+            # the same sums without the exact zeros of the full products (8x fewer flops)
+            for i in range(8):
+                acc = wf[i, i] * e[i]
+                we[i] = acc
+                cost += e[i] * acc
+                for c in range(6):
+                    wh[i, c] = wf[i, i] * h[i, c]
+        else:
+            for i in range(8):
                 acc = 0.0
                 for m in range(8):
-                    acc += wf[i, m] * h[m, c]
-                wh[i, c] = acc
+                    acc += wf[i, m] * e[m]
+                we[i] = acc
+                cost += e[i] * acc
+                for c in range(6):
+                    acc = 0.0
+                    for m in range(8):
+                        acc += wf[i, m] * h[m, c]
+                    wh[i, c] = acc
         for c in range(6):
             acc = 0.0
             for i in range(8):
