@@ -134,9 +134,11 @@ class IBVSController:
         self.order = order
         self.interaction_desired = feature_interaction_matrix(self.desired_points, desired_depths)
 
-    def error(self, points) -> np.ndarray:
-        """Feature error ``p* - p*_d`` (angles wrapped)."""
-        e = advanced_features(points) - self.desired
+    def error(self, points, features=None) -> np.ndarray:
+        """Feature error ``p* - p*_d`` (angles wrapped); ``features``: the points' advanced
+        features if the caller has them already (not recomputed)."""
+        f = advanced_features(points) if features is None else features
+        e = f - self.desired
         e[:3] = wrap_angle(e[:3])
         return e
 
@@ -149,11 +151,12 @@ class IBVSController:
             return cur
         return 0.5 * (cur + self.interaction_desired)
 
-    def twist(self, points, depths=None) -> np.ndarray:
+    def twist(self, points, depths=None, error=None) -> np.ndarray:
         """Camera twist (paper eq. (39)) for the current normalized points ``(4, 2)``.
 
-        ``depths`` may be omitted in ``"desired"`` mode."""
-        e = self.error(points)
+        ``depths`` may be omitted in ``"desired"`` mode; ``error``: :meth:`error` of the
+        points if the caller has it already (not recomputed)."""
+        e = self.error(points) if error is None else error
         if depths is None:
             if self.mode != "desired":
                 raise ValueError("depths are required unless mode == 'desired'")

@@ -109,8 +109,8 @@ class LocalCameraServo:
             # "exact" returns z^{C_V}; the other methods the ratio z^{C_V} / z^{C_L}
             z = zv if self.compensation == "exact" else zv * z
         f = advanced_features(xy)
-        e = self.controller.error(xy)
-        v = self.controller.twist(xy, z)
+        e = self.controller.error(xy, features=f)  # the features once, not three times
+        v = self.controller.twist(xy, z, error=e)
         return ServoStep(det, xy, z, f, e, v)
 
 
@@ -235,6 +235,6 @@ class PredictiveServo:
             xl, zl = self._points_in(camera_pose)
             pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
         f = advanced_features(xy)
-        e = self.controller.error(xy)
-        v = self.controller.twist(xy, z)
+        e = self.controller.error(xy, features=f)  # the features once, not three times
+        v = self.controller.twist(xy, z, error=e)
         return PredictedStep(xy, z, f, e, v, pix)
