@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._linalg import solve as _solve
 from ..lie.se3 import expmap, so3_log
 from .camera import PinholeCamera
 from .detect import Detection, TargetDetector
@@ -210,7 +211,7 @@ class PredictiveServo:
             self.target_pose = est.copy()
             return
         a = min(1.0, dt / self.smoothing)
-        d = np.linalg.solve(self.target_pose, est)  # g_s^-1 g_T
+        d = _solve(self.target_pose, est)  # g_s^-1 g_T
         w = a * so3_log(np.ascontiguousarray(d[:3, :3]))
         step = expmap(np.array([w[0], w[1], w[2], 0.0, 0.0, 0.0]))  # rotation by a * log(R)
         step[:3, 3] = a * d[:3, 3]

@@ -62,6 +62,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from .._linalg import solve as _solve
 from ..lie.se3 import expmap
 from . import _checks as C
 from .camera import PinholeCamera
@@ -88,7 +89,7 @@ def _hat(w):
 def target_in_camera(object_points, camera_pose, target_pose) -> np.ndarray:
     """Camera coordinates ``r = g_C^-1 g_T X_k`` (k, 3) of a target's points ``X_k`` (its
     frame) for world poses ``camera_pose`` ``g_C`` and ``target_pose`` ``g_T`` (4x4)."""
-    g = np.linalg.solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
+    g = _solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
     return object_points @ g[:3, :3].T + g[:3, 3]
 
 
@@ -378,7 +379,7 @@ class TargetFilter:
             if it == iterations:
                 return pose, info, cost
             try:
-                dx = np.linalg.solve(info, g)
+                dx = _solve(info, g)
             except np.linalg.LinAlgError:
                 return pose, info, cost
             pose = pose @ expmap(dx)
@@ -428,7 +429,7 @@ class TargetFilter:
         scale = (self.sigma / self.pixel_sigma) ** 2
         extra = self._camera_noise(self.pose, g_c, camera_cov)
         s = h8 @ self.P @ h8.T + scale * self._r_pixel + extra
-        if float(nu @ np.linalg.solve(s, nu)) > self.gate:
+        if float(nu @ _solve(s, nu)) > self.gate:
             return self._reject(pixels, camera_pose, camera_cov)
         self._bad = 0
         self._append(g_c, xy, self._frame_weight(self.pose, g_c, camera_cov, extra))
@@ -510,10 +511,7 @@ class TargetFilter:
             # keep the other PnP branch until the data decide: a log-likelihood margin of
             # `decisive` (cost difference), `young` frames at most, or the branches merged
             other = results[1] if len(results) > 1 else None
-            merged = (
-                other is None
-                or np.linalg.norm(np.linalg.solve(best[0], other[0]) - np.eye(4)) < 1e-4
-            )
+            merged = other is None or np.linalg.norm(_solve(best[0], other[0]) - np.eye(4)) < 1e-4
             done = other is None or other[2] - best[2] > self.decisive
             if merged or done or self.updates + 1 >= self.young:
                 self._hyp = []
