@@ -431,8 +431,13 @@ class TDACM:
     def base_pose(self, q) -> np.ndarray:
         """Drone pose ``g_b`` (eq. (1)); the clamp pose for a fixed base."""
         q = self._q(q)
-        g, _, _ = K.base_state(q, np.zeros(self.n), self.floating, self._m.g_fixed, self.n)
-        return g
+        # asked for four times a control period at the same q (servo, controller, logger)
+        key = q.tobytes()
+        cache = self.__dict__.get("_base_cache")
+        if cache is None or cache[0] is not self._m or cache[1] != key:
+            g, _, _ = K.base_state(q, np.zeros(self.n), self.floating, self._m.g_fixed, self.n)
+            cache = self._base_cache = (self._m, key, g)
+        return cache[2].copy()
 
     def _rod_chain(self, rod):
         m, lo, hi = self._m, self._rod_steps[rod], self._rod_steps[rod + 1]
