@@ -49,6 +49,12 @@ def robust_solve(interaction, error, floor: float, solver: str = "floor") -> np.
     damped (``"damped"``) at ``floor`` (module docstring). ``floor = 0``: the plain solve."""
     jac = C.array("interaction", interaction, (6, 6))
     e = C.array("error", error, (6,))
+    return _robust_solve(jac, e, floor, solver)
+
+
+def _robust_solve(jac: np.ndarray, e: np.ndarray, floor: float, solver: str) -> np.ndarray:
+    """:func:`robust_solve` on a checked ``(6, 6)`` matrix and ``(6,)`` error (the IBVS
+    controller's own arrays, every period)."""
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     floor = float(floor)
@@ -161,7 +167,8 @@ class IBVSController:
             if self.mode != "desired":
                 raise ValueError("depths are required unless mode == 'desired'")
             depths = self.desired_depths
-        v = -self.gain * robust_solve(self.interaction(points, depths), e, self.floor, self.solver)
+        jac = self.interaction(points, depths)  # (6, 6), from the features kernel
+        v = -self.gain * _robust_solve(jac, e, self.floor, self.solver)
         if self.order == "linear_first":
             return np.concatenate((v[3:], v[:3]))
         return v
