@@ -150,11 +150,11 @@ def _frame_residuals(rcf, pcf, rt, xw, obj, zf, a, h, e):
 
 
 @njit(cache=True)
-def _normal_equations(rt, pt, rc, pc, z, obj, w, diag):
+def _normal_equations(rt, pt, rc, pc, z, obj, w):
     """Gauss-Newton normal equations of the window: information ``sum h_j^T W_j h_j`` (6x6),
     gradient ``sum h_j^T W_j e_j`` and cost ``sum e_j^T W_j e_j`` over the frames ``j``, with
     ``W_j = w[j]`` (8 x 8: the inverse of the frame's measurement covariance, diagonal for an
-    exact camera pose, flagged by ``diag[j]``: its zeros are skipped). Allocation-free per frame (measured: 5.7x faster than the
+    exact camera pose). Allocation-free per frame (measured: 5.7x faster than the
     matrix-product form, same sums to 1e-16); ``ok`` is False if a point is behind a
     camera."""
     info = np.zeros((6, 6))
@@ -170,9 +170,13 @@ def _normal_equations(rt, pt, rc, pc, z, obj, w, diag):
         if not _frame_residuals(rc[f], pc[f], rt, xw, obj, z[f], a, h, e):
             return info, grad, cost, False
         wf = w[f]
-        if diag[f]:
-            # a diagonal weight (exact camera pose): the same sums without the exact zeros of
-            # the full products (8x fewer flops)
+        diagonal = True  # the weight of a frame with an exact camera pose
+        for i in range(8):
+            for m in range(8):
+                if m != i and wf[i, m] != 0.0:
+                    diagonal = False
+        if diagonal:
+            # the same sums without the exact zeros of the full products (8x fewer flops)
             for i in range(8):
                 acc = wf[i, i] * e[i]
                 we[i] = acc
@@ -311,7 +315,6 @@ class TargetFilter:
         self._pc = np.empty((n, 3))  # p_C of each frame
         self._z = np.empty((n, 4, 2))  # normalized points
         self._w = np.empty((n, 8, 8))  # weight (inverse covariance) of each frame
-        self._diag = np.zeros(n, np.bool_)  # its weight is the (diagonal) pixel weight
         self._count = 0  # frames in the window
         self._next = 0  # slot of the next frame
 
@@ -349,10 +352,7 @@ class TargetFilter:
             z[j] = x[:, :2] / x[:, 2:3]
         w = np.array([self._frame_weight(g_t, g, c) for g, c in zip(poses, covs, strict=True)])
         rt = np.ascontiguousarray(g_t[:3, :3])
-        diag = np.array([c is None for c in covs], np.bool_)  # pixel weight: exact pose
-        info, _, _, ok = _normal_equations(
-            rt, g_t[:3, 3].copy(), rc, pc, z, self.object_points, w, diag
-        )
+        info, _, _, ok = _normal_equations(rt, g_t[:3, 3].copy(), rc, pc, z, self.object_points, w)
         if not ok:
             raise ValueError("a target point is behind one of the cameras")
         return info
@@ -367,15 +367,13 @@ class TargetFilter:
         r = target_in_camera(self.object_points, camera_pose, target_pose)
         return r[:, :2] / r[:, 2:3], r[:, 2].copy()
 
-    def _gauss_newton(self, pose, rc, pc, z, iterations, weights, diag):
+    def _gauss_newton(self, pose, rc, pc, z, iterations, weights):
         """``iterations`` GN steps on the frames ``rc, pc, z`` with their ``weights``
-        (N, 8, 8; ``diag``: which are diagonal); returns ``(pose, information, cost)`` (``None`` if the target falls behind
+        (N, 8, 8); returns ``(pose, information, cost)`` (``None`` if the target falls behind
         a camera)."""
         for it in range(iterations + 1):
             rt, pt = np.ascontiguousarray(pose[:3, :3]), pose[:3, 3].copy()
-            info, g, cost, ok = _normal_equations(
-                rt, pt, rc, pc, z, self.object_points, weights, diag
-            )
+            info, g, cost, ok = _normal_equations(rt, pt, rc, pc, z, self.object_points, weights)
             if not ok:
                 return None
             if it == iterations:
@@ -443,12 +441,12 @@ class TargetFilter:
     def _rescue(self, xy, g_c) -> None:
         """Escape the wrong branch of the planar ambiguity: refine both PnP solutions of the
         latest frame on the whole window and adopt one whose cost is lower."""
-        rc, pc, z, w, d = self._frames()
-        cur = self._gauss_newton(self.pose, rc, pc, z, 0, w, d)
+        rc, pc, z, w = self._frames()
+        cur = self._gauss_newton(self.pose, rc, pc, z, 0, w)
         if cur is None:
             return
         for pose in self._pnp_hypotheses(xy, g_c):
-            r = self._gauss_newton(pose, rc, pc, z, 4, w, d)
+            r = self._gauss_newton(pose, rc, pc, z, 4, w)
             if r is not None and r[2] < cur[2] - 1.0:
                 cur = r
                 self.pose = r[0]
@@ -478,7 +476,6 @@ class TargetFilter:
         self._pc[k] = g_c[:3, 3]
         self._z[k] = xy
         self._w[k] = weight
-        self._diag[k] = weight is self._w_pixel  # diagonal (the full products give the same)
         self._next = (k + 1) % self.window
         self._count = min(self._count + 1, self.window)
 
@@ -493,17 +490,16 @@ class TargetFilter:
         return False
 
     def _frames(self):
-        """Views of the window: ``R_C^T``, ``p_C``, points, weights and diagonal-weight flags
-        of its frames."""
+        """Views of the window: ``R_C^T``, ``p_C``, points and weights of its frames."""
         n = self._count
-        return self._rc[:n], self._pc[:n], self._z[:n], self._w[:n], self._diag[:n]
+        return self._rc[:n], self._pc[:n], self._z[:n], self._w[:n]
 
     def _refine(self) -> bool:
-        rc, pc, z, w, d = self._frames()
+        rc, pc, z, w = self._frames()
         young = len(self._hyp) > 1
         cands = self._hyp if self._hyp else [self.pose]
         n_it = max(self.iterations, 3) if self.updates < 3 else self.iterations
-        results = [r for r in (self._gauss_newton(p, rc, pc, z, n_it, w, d) for p in cands) if r]
+        results = [r for r in (self._gauss_newton(p, rc, pc, z, n_it, w) for p in cands) if r]
         if not results:
             rejected = self.rejected
             self.reset()
