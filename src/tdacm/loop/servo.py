@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
-from ..lie.se3 import Ad, Ad_inv
+from ..lie.se3 import adjoint_pair
 from ..vision.features import advanced_features
 from ..vision.ibvs import IBVSController
 from ..vision.tip import rates_from_jacobian
@@ -124,8 +124,7 @@ class VisualServo:
             lim[3:5] = self.shaping.max_drone_speed
             lim[5] = self.shaping.max_vertical_speed
         self._lim = lim
-        self._ad_mount = Ad(np.ascontiguousarray(self.tip_mount))
-        self._ad_mount_inv = Ad_inv(np.ascontiguousarray(self.tip_mount))
+        self._ad_mount, self._ad_mount_inv = adjoint_pair(self.tip_mount)
         self._pose_cache = None  # (q bytes, C_L pose) of the last configuration asked for
         self.switch = ModeSwitch(
             local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
