@@ -6,6 +6,8 @@ what to fix instead of a NaN three integration steps later.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -60,11 +62,19 @@ def array(name: str, value, shape: tuple, *, allow_nan: bool = False) -> np.ndar
         raise ValueError(
             f"{name} must be a numeric array of shape {shape}, got {value!r}"
         ) from None
-    if a.ndim != len(shape) or any(s != -1 and s != d for s, d in zip(shape, a.shape, strict=True)):
-        raise ValueError(f"{name} must have shape {shape}, got shape {a.shape}")
-    bad = np.isinf(a) if allow_nan else ~np.isfinite(a)
-    if np.any(bad):
-        raise ValueError(f"{name} must be finite, got {a!r}")
+    got = a.shape
+    if len(got) != len(shape):
+        raise ValueError(f"{name} must have shape {shape}, got shape {got}")
+    for s, d in zip(shape, got, strict=True):
+        if s != -1 and s != d:
+            raise ValueError(f"{name} must have shape {shape}, got shape {got}")
+    # called every control period on small arrays: a finite sum proves every entry finite
+    # (an inf or NaN entry makes the sum inf or NaN), so the element-wise test runs only
+    # when the sum is not finite (a bad entry, an overflow, or an allowed NaN)
+    if not math.isfinite(a.sum()):
+        bad = np.isinf(a) if allow_nan else ~np.isfinite(a)
+        if bad.any():
+            raise ValueError(f"{name} must be finite, got {a!r}")
     return a
 
 
@@ -76,10 +86,25 @@ def points(name: str, value, dim: int) -> np.ndarray:
     return array(name, a, (-1, dim))
 
 
+# np.allclose(x, y, atol=a) is |x - y| <= a + 1e-5 |y|; the bounds are precomputed because
+# transforms are checked every control period (np.allclose costs ~20 us a call)
+_EYE3 = np.eye(3)
+_ORTHO_TOL = 1e-6 + 1e-5 * _EYE3
+
+
+def _proper_rotation(r: np.ndarray) -> bool:
+    """``r^T r`` within 1e-6 of the identity (as ``np.allclose``) and ``det r >= 0``."""
+    if not (np.abs(r.T @ r - _EYE3) <= _ORTHO_TOL).all():
+        return False
+    # an orthonormal matrix has det +-1: the triple product gives its sign without LAPACK
+    (a, b, c), (d, e, f), (g, h, i) = r.tolist()
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0.0
+
+
 def rotation(name: str, value) -> np.ndarray:
     """A 3x3 rotation matrix."""
     r = array(name, value, (3, 3))
-    if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0.0:
+    if not _proper_rotation(r):
         raise ValueError(f"{name} must be a rotation matrix")
     return r
 
@@ -88,8 +113,11 @@ def transform(name: str, value) -> np.ndarray:
     """A 4x4 homogeneous transform with an orthonormal rotation block."""
     g = array(name, value, (4, 4))
     r = g[:3, :3]
-    if not np.allclose(g[3], [0, 0, 0, 1], atol=1e-9):
+    w0, w1, w2, w3 = g[3].tolist()
+    if not (
+        abs(w0) <= 1e-9 and abs(w1) <= 1e-9 and abs(w2) <= 1e-9 and abs(w3 - 1.0) <= 1e-9 + 1e-5
+    ):
         raise ValueError(f"{name} must have last row [0, 0, 0, 1], got {g[3]!r}")
-    if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+    if not _proper_rotation(r):
         raise ValueError(f"{name} must have a proper rotation block, got {r!r}")
     return g

@@ -135,3 +135,12 @@ def test_so3_log_inverts_the_exponential(angle):
             got = got if got @ w > 0 else -got
         np.testing.assert_allclose(got, w, atol=1e-7 if np.pi - angle < 1e-6 else 1e-12)
         np.testing.assert_allclose(expm(se3.skew(got)), r, atol=1e-12)
+
+
+def test_adjoint_pair_matches_the_kernels():
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        g = se3.expmap(rng.standard_normal(6))
+        ad, ad_inv = se3.adjoint_pair(g)
+        np.testing.assert_allclose(ad, se3.Ad(g), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(ad_inv, se3.Ad_inv(g), rtol=0, atol=1e-15)

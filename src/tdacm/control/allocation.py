@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .._linalg import solve as _solve
+
 
 @njit(cache=True)
 def _solve_free(h, c, x, w, out):
@@ -172,6 +174,6 @@ def allocate_thrusts(gamma, torque_body, thrust: float, max_thrust: float) -> Th
     """Motor thrusts for a body torque and a total thrust through ``Gamma`` (rows 0, 1, 2, 5),
     clipped to ``[0, max_thrust]``; ``saturated`` tells whether clipping was needed."""
     g4 = np.asarray(gamma, float)[[0, 1, 2, 5]]
-    req = np.linalg.solve(g4, np.concatenate((np.asarray(torque_body, float), [thrust])))
+    req = _solve(g4, np.concatenate((np.asarray(torque_body, float), [thrust])))
     f = np.clip(req, 0.0, max_thrust)
     return ThrustAllocation(f, req, bool(np.any(np.abs(f - req) > 1e-9)))

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._linalg import solve as _solve
 from ..lie.euler import euler_rate_matrix
 from ..system.tdacm import TDACM
 from .adaptive import AdaptiveController, AdaptiveGains
@@ -194,7 +195,7 @@ class TDACMController:
             qd_ref[:2] = self._att_rate
             out = self.law.law(q, qd, q_ref, qd_ref, qdd_ref, terms)
             t_mat = euler_rate_matrix(q[0], q[1])
-            torque_b = np.linalg.solve(t_mat.T, out.tau[:3])
+            torque_b = _solve(t_mat.T, out.tau[:3])
             r_b = sysm.base_pose(q)[:3, :3]
             thrust_total = max(0.0, float(out.tau[3:6] @ r_b[:, 2]))
             ta = allocate_thrusts(sysm.base.gamma, torque_b, thrust_total, sysm.base.max_thrust)

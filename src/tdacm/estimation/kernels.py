@@ -33,7 +33,7 @@ def model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale):
     """Accelerations of the perturbed model plus the disturbance acceleration ``ad``;
     ``ok`` False when ``M_hat`` is not positive definite."""
     n = q.shape[0]
-    mm, cc, _, tau, _, _, _ = coupled_terms(q, qd, m, loads, True)
+    mm, cc, _, tau, _, _, _ = coupled_terms(q, qd, m, loads, bool(1))
     bu = input_matrix(q, m) @ u
     kq = m.stiffness @ q
     sqd = s_m * qd

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._linalg import solve as _solve
 from ..control import EstimatedModel
 from ..sim.robot import Robot, build_robot
 from ..sim.scenario import Scenario, ScenarioError
@@ -271,7 +272,7 @@ def _truth(system, local: CameraSensor, world: Scene):
         g = local.pose(q)
         if system.floating:
             g = _virtual_pose(system.base_pose(q), g)
-        r = np.linalg.solve(g, g_t)
+        r = _solve(g, g_t)
         pc = obj @ r[:3, :3].T + r[:3, 3]
         return pc[:, :2] / pc[:, 2:3], g_t
 

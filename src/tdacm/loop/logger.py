@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._linalg import solve as _solve
 from ..sim.outputs import LOG_KEYS
 from .data import (
     ActuatorCommand,
@@ -71,7 +72,7 @@ class RunLog:
             pts, g_t = self.truth(plant.q)
             rt = normalized_rmse(pts, self.desired_points)
             if cmd.target_pose is not None:
-                d = np.linalg.solve(g_t, cmd.target_pose)[:3, :3]
+                d = _solve(g_t, cmd.target_pose)[:3, :3]
                 te = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(d) - 1), -1, 1))))
         r["rmse_true"].append(rt)
         r["target_error_deg"].append(te)

@@ -8,8 +8,9 @@ the depths of the four points come from the known target geometry (planar PnP,
 
 from __future__ import annotations
 
+from ..vision import _checks as C
 from ..vision.camera import PinholeCamera
-from ..vision.features import estimate_depths
+from ..vision.features import _check_points, _estimate_depths
 from .data import CameraMeasurement, GlobalView, LocalView
 
 
@@ -20,7 +21,7 @@ class Perception:
         self.local_camera = local_camera
         self.global_camera = global_camera
         self.target = target
-        self._object = target.feature_points
+        self._object = C.array("target.feature_points", target.feature_points, (4, 3))
 
     def reset(self) -> None:
         pass
@@ -30,7 +31,8 @@ class Perception:
         if not det.found:
             return LocalView(m.t_capture)
         xy = self.local_camera.normalize(det.points)
-        return LocalView(m.t_capture, True, det.points, xy, estimate_depths(xy, self._object))
+        z = _estimate_depths(_check_points(xy), self._object)
+        return LocalView(m.t_capture, True, det.points, xy, z)
 
     def global_(self, m: CameraMeasurement | None) -> GlobalView | None:
         if m is None:

@@ -49,8 +49,11 @@ class AnalyticFrontEnd:
         corners = {}
         for i, pw in zip(self._ids, self._corners_w, strict=True):
             pc = points_in_camera(pw, pose)
-            if np.all(cam.in_fov(pc)):
-                corners[i] = cam.project(pc)
+            # cam.in_fov(pc), with the projection kept for the detection
+            pix = cam.project(pc)
+            z = pc[:, 2]
+            if np.all((z >= cam.near) & (z <= cam.far) & cam.pixels_in_image(pix)):
+                corners[i] = pix
         if len(corners) < len(self._ids):
             return Detection(False, None, tuple(corners), corners)
         points = cam.project(points_in_camera(self._features_w, pose))

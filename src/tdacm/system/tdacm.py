@@ -431,8 +431,13 @@ class TDACM:
     def base_pose(self, q) -> np.ndarray:
         """Drone pose ``g_b`` (eq. (1)); the clamp pose for a fixed base."""
         q = self._q(q)
-        g, _, _ = K.base_state(q, np.zeros(self.n), self.floating, self._m.g_fixed, self.n)
-        return g
+        # asked for four times a control period at the same q (servo, controller, logger)
+        key = q.tobytes()
+        cache = self.__dict__.get("_base_cache")
+        if cache is None or cache[0] is not self._m or cache[1] != key:
+            g, _, _ = K.base_state(q, np.zeros(self.n), self.floating, self._m.g_fixed, self.n)
+            cache = self._base_cache = (self._m, key, g)
+        return cache[2].copy()
 
     def _rod_chain(self, rod):
         m, lo, hi = self._m, self._rod_steps[rod], self._rod_steps[rod + 1]
@@ -486,11 +491,29 @@ class TDACM:
 
     def tip_pose(self, q, rod: int = 0) -> np.ndarray:
         """Tip pose ``g_L`` (the end of the dynamics grid) of rod ``rod``."""
-        return self.tip_kinematics(q, np.zeros(self.n), rod)[0]
+        return self._tip_static(q, rod)[0].copy()
 
     def tip_jacobian(self, q, rod: int = 0) -> np.ndarray:
         """``J_L^L(q)`` (6 x n), eq. (10)."""
-        return self.tip_kinematics(q, np.zeros(self.n), rod)[1]
+        return self._tip_static(q, rod)[1].copy()
+
+    def _tip_static(self, q, rod: int):
+        """``(g_L, J_L^L)`` at ``q``, kept for the last few configurations: a control period
+        asks for the tip pose of the same ``q`` several times (the camera sensor, the servo,
+        the logger's truth) and for the Jacobian at the servo's ``q``; the recursion is the
+        costly part. The entries belong to the current model arrays (rebuilt models miss)."""
+        q = self._q(q)
+        key = (rod, q.tobytes())
+        cache = self.__dict__.get("_tip_cache")
+        if cache is None or cache[0] is not self._m:
+            cache = self._tip_cache = (self._m, {})
+        hit = cache[1].get(key)
+        if hit is None:
+            g, j, _ = self.tip_kinematics(q, np.zeros(self.n), rod)
+            if len(cache[1]) >= 4:
+                cache[1].clear()
+            hit = cache[1][key] = (g, j)
+        return hit
 
     def tip_jacobian_dot(self, q, qd, rod: int = 0) -> np.ndarray:
         """Time derivative of ``J_L^L`` along ``qdot``."""

@@ -163,6 +163,11 @@ class PinholeCamera:
             )
             out[front] = img.reshape(-1, 2)
             return out
+        if front.all():  # the usual case: no masked copies
+            z = p[:, 2]
+            out[:, 0] = self.fx * p[:, 0] / z + self.cx
+            out[:, 1] = self.fy * p[:, 1] / z + self.cy
+            return out
         z = p[front, 2]
         out[front, 0] = self.fx * p[front, 0] / z + self.cx
         out[front, 1] = self.fy * p[front, 1] / z + self.cy

@@ -350,8 +350,12 @@ def estimate_depths(points, object_points) -> np.ndarray:
     """Depths ``(4,)`` of the four feature points from their normalized image coordinates
     and the known target geometry (``object_points`` ``(4, 3)``, same order, planar), by
     planar PnP (``cv2.solvePnP`` with ``SOLVEPNP_IPPE`` and unit intrinsics)."""
-    p = _check_points(points)
-    obj = C.array("object_points", object_points, (4, 3))
+    return _estimate_depths(_check_points(points), C.array("object_points", object_points, (4, 3)))
+
+
+def _estimate_depths(p: np.ndarray, obj: np.ndarray) -> np.ndarray:
+    """:func:`estimate_depths` on checked points ``(4, 2)`` and object points ``(4, 3)`` (the
+    perception block checks the constant target geometry once, not every period)."""
     ok, rvec, tvec = cv2.solvePnP(
         obj, p.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
     )

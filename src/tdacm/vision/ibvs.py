@@ -49,6 +49,12 @@ def robust_solve(interaction, error, floor: float, solver: str = "floor") -> np.
     damped (``"damped"``) at ``floor`` (module docstring). ``floor = 0``: the plain solve."""
     jac = C.array("interaction", interaction, (6, 6))
     e = C.array("error", error, (6,))
+    return _robust_solve(jac, e, floor, solver)
+
+
+def _robust_solve(jac: np.ndarray, e: np.ndarray, floor: float, solver: str) -> np.ndarray:
+    """:func:`robust_solve` on a checked ``(6, 6)`` matrix and ``(6,)`` error (the IBVS
+    controller's own arrays, every period)."""
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     floor = float(floor)
@@ -134,9 +140,11 @@ class IBVSController:
         self.order = order
         self.interaction_desired = feature_interaction_matrix(self.desired_points, desired_depths)
 
-    def error(self, points) -> np.ndarray:
-        """Feature error ``p* - p*_d`` (angles wrapped)."""
-        e = advanced_features(points) - self.desired
+    def error(self, points, features=None) -> np.ndarray:
+        """Feature error ``p* - p*_d`` (angles wrapped); ``features``: the points' advanced
+        features if the caller has them already (not recomputed)."""
+        f = advanced_features(points) if features is None else features
+        e = f - self.desired
         e[:3] = wrap_angle(e[:3])
         return e
 
@@ -149,16 +157,18 @@ class IBVSController:
             return cur
         return 0.5 * (cur + self.interaction_desired)
 
-    def twist(self, points, depths=None) -> np.ndarray:
+    def twist(self, points, depths=None, error=None) -> np.ndarray:
         """Camera twist (paper eq. (39)) for the current normalized points ``(4, 2)``.
 
-        ``depths`` may be omitted in ``"desired"`` mode."""
-        e = self.error(points)
+        ``depths`` may be omitted in ``"desired"`` mode; ``error``: :meth:`error` of the
+        points if the caller has it already (not recomputed)."""
+        e = self.error(points) if error is None else error
         if depths is None:
             if self.mode != "desired":
                 raise ValueError("depths are required unless mode == 'desired'")
             depths = self.desired_depths
-        v = -self.gain * robust_solve(self.interaction(points, depths), e, self.floor, self.solver)
+        jac = self.interaction(points, depths)  # (6, 6), from the features kernel
+        v = -self.gain * _robust_solve(jac, e, self.floor, self.solver)
         if self.order == "linear_first":
             return np.concatenate((v[3:], v[:3]))
         return v

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._linalg import solve as _solve
 from ..lie.se3 import expmap, so3_log
 from .camera import PinholeCamera
 from .detect import Detection, TargetDetector
@@ -109,8 +110,8 @@ class LocalCameraServo:
             # "exact" returns z^{C_V}; the other methods the ratio z^{C_V} / z^{C_L}
             z = zv if self.compensation == "exact" else zv * z
         f = advanced_features(xy)
-        e = self.controller.error(xy)
-        v = self.controller.twist(xy, z)
+        e = self.controller.error(xy, features=f)  # the features once, not three times
+        v = self.controller.twist(xy, z, error=e)
         return ServoStep(det, xy, z, f, e, v)
 
 
@@ -218,7 +219,7 @@ class PredictiveServo:
             self.target_pose = est.copy()
             return
         a = min(1.0, dt / self.smoothing)
-        d = np.linalg.solve(self.target_pose, est)  # g_s^-1 g_T
+        d = _solve(self.target_pose, est)  # g_s^-1 g_T
         w = a * so3_log(np.ascontiguousarray(d[:3, :3]))
         step = expmap(np.array([w[0], w[1], w[2], 0.0, 0.0, 0.0]))  # rotation by a * log(R)
         step[:3, 3] = a * d[:3, 3]
@@ -243,6 +244,6 @@ class PredictiveServo:
             xl, zl = self._points_in(camera_pose)
             pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
         f = advanced_features(xy)
-        e = self.controller.error(xy)
-        v = self.controller.twist(xy, z)
+        e = self.controller.error(xy, features=f)  # the features once, not three times
+        v = self.controller.twist(xy, z, error=e)
         return PredictedStep(xy, z, f, e, v, pix)

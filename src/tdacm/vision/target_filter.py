@@ -71,6 +71,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from .._linalg import solve as _solve
 from ..lie.se3 import expmap, skew
 from . import _checks as C
 from .camera import PinholeCamera
@@ -97,7 +98,7 @@ def _hat(w):
 def target_in_camera(object_points, camera_pose, target_pose) -> np.ndarray:
     """Camera coordinates ``r = g_C^-1 g_T X_k`` (k, 3) of a target's points ``X_k`` (its
     frame) for world poses ``camera_pose`` ``g_C`` and ``target_pose`` ``g_T`` (4x4)."""
-    g = np.linalg.solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
+    g = _solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
     return object_points @ g[:3, :3].T + g[:3, 3]
 
 
@@ -178,17 +179,31 @@ def _normal_equations(rt, pt, rc, pc, z, obj, w):
         if not _frame_residuals(rc[f], pc[f], rt, xw, obj, z[f], a, h, e):
             return info, grad, cost, False
         wf = w[f]
+        diagonal = True  # the weight of a frame with an exact camera pose
         for i in range(8):
-            acc = 0.0
             for m in range(8):
-                acc += wf[i, m] * e[m]
-            we[i] = acc
-            cost += e[i] * acc
-            for c in range(6):
+                if m != i and wf[i, m] != 0.0:
+                    diagonal = False
+        if diagonal:
+            # the same sums without the exact zeros of the full products (8x fewer flops)
+            for i in range(8):
+                acc = wf[i, i] * e[i]
+                we[i] = acc
+                cost += e[i] * acc
+                for c in range(6):
+                    wh[i, c] = wf[i, i] * h[i, c]
+        else:
+            for i in range(8):
                 acc = 0.0
                 for m in range(8):
-                    acc += wf[i, m] * h[m, c]
-                wh[i, c] = acc
+                    acc += wf[i, m] * e[m]
+                we[i] = acc
+                cost += e[i] * acc
+                for c in range(6):
+                    acc = 0.0
+                    for m in range(8):
+                        acc += wf[i, m] * h[m, c]
+                    wh[i, c] = acc
         for c in range(6):
             acc = 0.0
             for i in range(8):
@@ -417,7 +432,7 @@ class TargetFilter:
             if it == iterations:
                 return pose, info, cost
             try:
-                dx = np.linalg.solve(info, g)
+                dx = _solve(info, g)
             except np.linalg.LinAlgError:
                 return pose, info, cost
             pose = pose @ expmap(dx)
@@ -467,7 +482,7 @@ class TargetFilter:
         scale = (self.sigma / self.pixel_sigma) ** 2
         extra = self._camera_noise(self.pose, g_c, camera_cov)
         s = h8 @ self.P @ h8.T + scale * self._r_pixel + extra
-        if float(nu @ np.linalg.solve(s, nu)) > self.gate:
+        if float(nu @ _solve(s, nu)) > self.gate:
             return self._reject(pixels, camera_pose, camera_cov)
         self._bad = 0
         self._append(g_c, xy, self._frame_weight(self.pose, g_c, camera_cov, extra))
@@ -548,10 +563,7 @@ class TargetFilter:
             # keep the other PnP branch until the data decide: a log-likelihood margin of
             # `decisive` (cost difference), `young` frames at most, or the branches merged
             other = results[1] if len(results) > 1 else None
-            merged = (
-                other is None
-                or np.linalg.norm(np.linalg.solve(best[0], other[0]) - np.eye(4)) < 1e-4
-            )
+            merged = other is None or np.linalg.norm(_solve(best[0], other[0]) - np.eye(4)) < 1e-4
             done = other is None or other[2] - best[2] > self.decisive
             if merged or done or self.updates + 1 >= self.young:
                 self._hyp = []
