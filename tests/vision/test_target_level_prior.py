@@ -137,8 +137,29 @@ def test_scene_target_tilt():
 
 @pytest.mark.parametrize(
     ("section", "key", "value"),
-    [("ibvs", "target_level_prior_deg", -1.0), ("scene", "target_tilt_deg", [45.0, 0.0])],
+    [
+        ("ibvs", "target_level_prior_deg", -1.0),
+        ("ibvs", "target_level_normal", [0.0, 0.0, 0.0]),
+        ("scene", "target_tilt_deg", [45.0, 0.0]),
+    ],
 )
 def test_scenario_keys_are_validated(section, key, value):
     with pytest.raises(ScenarioError, match=f"{section}.{key}"):
         load_scenario("paper-in-fov").with_overrides({section: {key: value}})
+
+
+def test_scenario_normal_reaches_the_filter():
+    """``ibvs.target_level_normal`` and the prior reach the servo's filter (normalized)."""
+    from tdacm.loop.build import build_loop
+
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {
+            "cameras": {"local_renderer": "analytic", "global_every": 0},
+            "ibvs": {"target_level_normal": [0.0, 0.0, -2.0], "target_level_prior_deg": 0.3},
+        }
+    )
+    loop = build_loop(sc, 0)
+    f = loop.servo.predictor.filter
+    np.testing.assert_allclose(f.level_normal, [0.0, 0.0, -1.0])
+    assert f.level_prior == pytest.approx(np.radians(0.3))
+    loop.close()

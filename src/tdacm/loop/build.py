@@ -217,6 +217,7 @@ def build_loop(
                 ib["reference_leak"],
                 rc["lost_timeout"],
                 ib["target_level_prior_deg"],
+                tuple(ib["target_level_normal"]),
             )
             servo = RobustServo(*args, robust=robust, **kwargs)
         else:

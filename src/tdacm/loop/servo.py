@@ -344,6 +344,7 @@ class RobustParams:
     reference_leak: float = 4.0  # 1/s, pull of q_d toward q_hat (anti wind-up)
     lost_timeout: float = 1.0  # s without a fused frame before the target counts as lost
     level_prior_deg: float = 0.0  # deg, prior that the target lies level (0: none)
+    level_normal: tuple = (0.0, 0.0, -1.0)  # its believed z axis in the world (face up)
 
 
 class RobustServo(VisualServo):
@@ -386,6 +387,7 @@ class RobustServo(VisualServo):
             window=r.window,
             smoothing=r.smoothing,
             level_prior=np.radians(r.level_prior_deg),
+            level_normal=r.level_normal,
         )
         self.predictor.controller = self.ibvs
         # feed-forward and leak are for the flying base, whose position lags the reference

@@ -75,6 +75,9 @@ SCHEMA = {
         "filter_smoothing": (float, 1.0),  # s, smoothing of the estimate used for prediction
         # deg, the target filter's prior that the target lies level, facing up (0: none)
         "target_level_prior_deg": (float, 0.5),
+        # the direction the prior believes the target's z axis (into its surface) has in the
+        # world: straight down for a target lying face up; e.g. [1, 0, 0] for a wall facing -x
+        "target_level_normal": ("vec:3", [0.0, 0.0, -1.0]),
     },
     "recovery": {
         "max_speed": (float, 0.3),
@@ -333,6 +336,8 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: ibvs.filter_smoothing must be >= 0")
     if not d["ibvs"]["target_level_prior_deg"] >= 0:
         raise ScenarioError(f"{source}: ibvs.target_level_prior_deg must be >= 0")
+    if sum(v * v for v in d["ibvs"]["target_level_normal"]) < 1e-12:
+        raise ScenarioError(f"{source}: ibvs.target_level_normal must be a non-zero vector")
     if any(abs(v) > 30.0 for v in d["scene"]["target_tilt_deg"]):
         raise ScenarioError(f"{source}: scene.target_tilt_deg must lie within +-30 deg")
     if d["ibvs"]["filter_window"] < 1:

@@ -162,9 +162,10 @@ class PredictiveServo:
         fused - over time, so that they do not kick the TD-ACM.
     track:
         Tracking window of the detector.
-    level_prior:
-        Standard deviation (rad) of the filter's prior that the target lies level (facing
-        up); 0 disables it (:class:`~.target_filter.TargetFilter`).
+    level_prior, level_normal:
+        Standard deviation (rad) of the filter's prior that the target's z axis is along
+        ``level_normal`` (world; default straight down: the target lies level, facing up);
+        0 disables it (:class:`~.target_filter.TargetFilter`).
     """
 
     def __init__(
@@ -182,6 +183,7 @@ class PredictiveServo:
         smoothing: float = 1.0,
         track: bool = True,
         level_prior: float = 0.0,
+        level_normal=(0.0, 0.0, -1.0),
     ):
         self.camera = camera
         self.target = target
@@ -195,6 +197,7 @@ class PredictiveServo:
             pixel_sigma=pixel_sigma,
             window=window,
             level_prior=level_prior,
+            level_normal=level_normal,
         )
         if not np.isfinite(smoothing) or smoothing < 0:
             raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
