@@ -125,7 +125,6 @@ class VisualServo:
             lim[5] = self.shaping.max_vertical_speed
         self._lim = lim
         self._ad_mount, self._ad_mount_inv = adjoint_pair(self.tip_mount)
-        self._pose_cache = None  # (q bytes, C_L pose) of the last configuration asked for
         self.switch = ModeSwitch(
             local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
         )
@@ -153,14 +152,9 @@ class VisualServo:
 
     # ------------------------------------------------------------------ pieces
     def local_camera_pose(self, q) -> np.ndarray:
-        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`). The last
-        configuration's pose is kept: a period asks for it up to four times (fusion,
-        prediction, C_V, the logged measurement) and the tip recursion is the costly part."""
-        key = np.asarray(q, float).tobytes()
-        cached = self._pose_cache
-        if cached is None or cached[0] != key:
-            cached = self._pose_cache = (key, self.system.tip_pose(q) @ self.tip_mount)
-        return cached[1].copy()
+        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`; the system keeps
+        the tip pose of the last configurations, asked for several times a period)."""
+        return self.system.tip_pose(q) @ self.tip_mount
 
     def to_virtual(self, view: LocalView, q):
         """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""

@@ -431,13 +431,26 @@ class TDACM:
     def base_pose(self, q) -> np.ndarray:
         """Drone pose ``g_b`` (eq. (1)); the clamp pose for a fixed base."""
         q = self._q(q)
-        # asked for four times a control period at the same q (servo, controller, logger)
-        key = q.tobytes()
-        cache = self.__dict__.get("_base_cache")
-        if cache is None or cache[0] is not self._m or cache[1] != key:
-            g, _, _ = K.base_state(q, np.zeros(self.n), self.floating, self._m.g_fixed, self.n)
-            cache = self._base_cache = (self._m, key, g)
-        return cache[2].copy()
+
+        def compute():  # asked for four times a control period at the same q
+            return K.base_state(q, np.zeros(self.n), self.floating, self._m.g_fixed, self.n)[0]
+
+        return self._memo("_base_cache", q.tobytes(), compute, 1).copy()
+
+    def _memo(self, slot: str, key, compute, size: int):
+        """``compute()`` kept in ``self.<slot>`` for the last ``size`` keys (the control
+        period asks for the same configuration's kinematics several times); the entries
+        belong to the current model arrays, so a rebuilt model misses."""
+        cache = self.__dict__.get(slot)
+        if cache is None or cache[0] is not self._m:
+            cache = (self._m, {})
+            setattr(self, slot, cache)
+        hit = cache[1].get(key)
+        if hit is None:
+            if len(cache[1]) >= size:
+                cache[1].clear()
+            hit = cache[1][key] = compute()
+        return hit
 
     def _rod_chain(self, rod):
         m, lo, hi = self._m, self._rod_steps[rod], self._rod_steps[rod + 1]
@@ -503,17 +516,11 @@ class TDACM:
         the logger's truth) and for the Jacobian at the servo's ``q``; the recursion is the
         costly part. The entries belong to the current model arrays (rebuilt models miss)."""
         q = self._q(q)
-        key = (rod, q.tobytes())
-        cache = self.__dict__.get("_tip_cache")
-        if cache is None or cache[0] is not self._m:
-            cache = self._tip_cache = (self._m, {})
-        hit = cache[1].get(key)
-        if hit is None:
-            g, j, _ = self.tip_kinematics(q, np.zeros(self.n), rod)
-            if len(cache[1]) >= 4:
-                cache[1].clear()
-            hit = cache[1][key] = (g, j)
-        return hit
+
+        def compute():
+            return self.tip_kinematics(q, np.zeros(self.n), rod)[:2]
+
+        return self._memo("_tip_cache", (rod, q.tobytes()), compute, 4)
 
     def tip_jacobian_dot(self, q, qd, rod: int = 0) -> np.ndarray:
         """Time derivative of ``J_L^L`` along ``qdot``."""

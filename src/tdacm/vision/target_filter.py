@@ -395,10 +395,10 @@ class TargetFilter:
         w = 1.0 / self.level_prior**2
         return w * (h.T @ h), w * (h.T @ e), w * float(e @ e)
 
-    def _covariance(self, pose, info) -> np.ndarray:
-        """``P`` from the total information of a solve at ``pose``: the frames' part scaled
-        by the self-calibrated noise (``(pixel_sigma / sigma)^2``), the prior's not."""
-        prior = self._prior_terms(pose)
+    def _covariance(self, info, prior) -> np.ndarray:
+        """``P`` from the total information of a solve and its level-prior terms ``prior``
+        (:meth:`_prior_terms` at the solution, or ``None``): the frames' part scaled by the
+        self-calibrated noise (``(pixel_sigma / sigma)^2``), the prior's not."""
         if prior is None:
             p = np.linalg.inv(info)
             p = 0.5 * (p + p.T)
@@ -503,7 +503,7 @@ class TargetFilter:
             if r is not None and r[2] < cur[2] - 1.0:
                 cur = r
                 self.pose = r[0]
-                self.P = self._covariance(r[0], r[1])
+                self.P = self._covariance(r[1], self._prior_terms(r[0]))
                 self.switches += 1
 
     def _camera_noise(self, target_pose, g_c, camera_cov):
@@ -572,9 +572,9 @@ class TargetFilter:
         self.pose, info = best[0], best[1]
         self.updates += 1
         n = self._count
+        prior = self._prior_terms(best[0])
         if n >= 10:  # cost / dof = (sigma_true / pixel_sigma)^2, the frames' cost only
-            prior = self._prior_terms(best[0])
             cost = best[2] - (prior[2] if prior is not None else 0.0)
             self.sigma_hat = self.pixel_sigma * float(np.sqrt(max(cost, 0.0) / (8 * n - 6)))
-        self.P = self._covariance(best[0], info)
+        self.P = self._covariance(info, prior)
         return True
