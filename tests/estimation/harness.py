@@ -14,6 +14,7 @@ import numpy as np
 from tdacm import paper_system
 from tdacm.control import EstimatedModel, TDACMController, default_gains
 from tdacm.estimation import Estimator, EstimatorConfig, SensorSuite, SensorSuiteConfig
+from tdacm.estimation.camera import TargetViewMeasurement
 from tdacm.system import kernels as K
 
 Q0 = np.array([0.0, 0.0, 0.17453292519943295, -0.5, 0.5, 5.0, -0.3, -0.4])
@@ -51,14 +52,18 @@ def run(
     drop=None,
     level=0.1,
     q0=Q0,
+    camera=None,
 ):
-    """One seeded run. ``drop(t) -> set of sensor names`` withholds those sensors' output."""
+    """One seeded run. ``drop(t) -> set of sensor names`` withholds those sensors' output.
+    ``camera = (TargetCamera, target_pose, pixel_sigma_normalized)`` also feeds the filter the
+    tip camera's view of a static target (exact projection plus seeded noise, every period)."""
     s = paper_system()
     n = s.n
     model = EstimatedModel(s, level, seed)
     ctl = TDACMController(s, EstimatedModel(s, level, seed), default_gains(s, q0))
     suite = SensorSuite(s, sensors, seed)
-    est = Estimator(model, suite.config, config)
+    est = Estimator(model, suite.config, config, camera=None if camera is None else camera[0])
+    view_rng = np.random.default_rng([seed, 77])
     q, qd = np.asarray(q0, float).copy(), np.zeros(n)
     loads = s.loads.packed().copy()
     meas = suite.sample(0.0, q, qd, np.zeros(n))
@@ -74,6 +79,8 @@ def run(
         if k > 0:
             qdd, _ = K.forward_dynamics(q, qd, u_prev, s.model_arrays, loads)
             meas = suite.sample(t, q, qd, qdd)
+            if camera is not None:
+                meas.append(target_view(s, q, *camera, view_rng, t))
             if drop is not None:
                 gone = drop(t)
                 meas = [m for m in meas if _name(m) not in gone]
@@ -102,10 +109,31 @@ def run(
     )
 
 
+def target_view(system, q, cam, target_pose, sigma, rng, t):
+    """C_L's view of the target at the true ``q``: normalized points plus N(0, sigma^2)."""
+    g_c = system.tip_pose(q) @ cam.tip_mount
+    pw = cam.object_points @ target_pose[:3, :3].T + target_pose[:3, 3]
+    c = (pw - g_c[:3, 3]) @ g_c[:3, :3]
+    z = c[:, :2] / c[:, 2:]
+    return TargetViewMeasurement(t, z + rng.normal(0.0, sigma, z.shape))
+
+
+def target_below(system, q, cam, depth=1.5):
+    """A level target (z axis down, its face up) ``depth`` m along C_L's axis at ``q``."""
+    g_c = system.tip_pose(q) @ cam.tip_mount
+    g = np.eye(4)
+    g[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    g[:3, 3] = g_c[:3, 3] + depth * g_c[:3, 2]
+    return g
+
+
 def _name(m):
-    return {"PoseMeasurement": "pose", "ImuMeasurement": "imu", "EncoderMeasurement": "encoders"}[
-        type(m).__name__
-    ]
+    return {
+        "PoseMeasurement": "pose",
+        "ImuMeasurement": "imu",
+        "EncoderMeasurement": "encoders",
+        "TargetViewMeasurement": "camera",
+    }[type(m).__name__]
 
 
 def nees(r: Run):

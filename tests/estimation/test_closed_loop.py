@@ -46,6 +46,22 @@ def test_short_closed_loop_on_estimates(tmp_path):
     assert np.all(np.isfinite(sd)) and sd.shape == (len(a["t"]), 16)
 
 
+def test_the_filter_fuses_the_tip_camera_unless_told_not_to():
+    # estimation.fuse_local_camera (default on): each C_L detection of the static target is a
+    # measurement of the filter (tdacm.estimation.camera), which then holds the target pose
+    on = build_loop(scenario(), seed=2)
+    on.run(0.5)
+    f = on.estimator.filter
+    assert f.camera is not None and f.nx == 3 * f.n + 12
+    assert f.views_fused >= 20 and f.views_rejected == 0
+    g_t = on.world.scene.target_pose
+    err = f.target_pose()[:3, 3] - g_t[:3, 3]
+    assert np.linalg.norm(err) < 0.02, err  # within 2 cm after 0.5 s (3 mm drone pose noise)
+    off = build_loop(scenario(fuse_local_camera=False), seed=2)
+    off.run(0.1)
+    assert off.estimator.filter.camera is None and off.estimator.filter.nx == 3 * f.n + 6
+
+
 def test_controller_and_servo_receive_the_estimate():
     loop = build_loop(scenario(), seed=3)
     seen = []

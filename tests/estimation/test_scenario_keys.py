@@ -37,6 +37,16 @@ def test_overrides_are_applied():
         ({"sensors": {"encoder_resolution": -1e-5}}, "sensors.encoder_resolution"),
         ({"sensors": {"gyro_bias": "big"}}, "sensors.gyro_bias"),
         ({"sensors": {"pixel_noise": -1.0}}, "sensors.pixel_noise"),
+        ({"estimation": {"camera_pixel_sigma": 0.0}}, "estimation.camera_pixel_sigma"),
+        (
+            {"estimation": {"target_initial_position_std": -1.0}},
+            "estimation.target_initial_position_std",
+        ),
+        (
+            {"estimation": {"target_initial_attitude_std": 0.0}},
+            "estimation.target_initial_attitude_std",
+        ),
+        ({"estimation": {"fuse_local_camera": 1}}, "estimation.fuse_local_camera"),
     ],
 )
 def test_invalid_values_name_the_key(data, key):

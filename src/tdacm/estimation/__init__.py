@@ -4,11 +4,13 @@
 * :mod:`.ekf`: :class:`Estimator` (``reset``, ``step(t, u_applied, measurements) ->
   StateEstimate``);
 * :mod:`.inversion`: strains from measured tendon lengths (least squares);
+* :mod:`.camera`: the tip camera's view of the static target as a filter measurement;
 * :mod:`.block`: :class:`FilterBlock`, the filter as the closed loop's estimation block
   (``estimation.source = "estimated"``, assembled by :func:`tdacm.loop.build.build_loop`).
 """
 
 from .block import FilterBlock
+from .camera import TargetCamera, TargetViewMeasurement
 from .ekf import Estimator, EstimatorConfig, StateEstimate, euler_from_rotation
 from .inversion import InversionResult, strains_from_tendon_lengths
 from .sensors import (
@@ -41,6 +43,8 @@ __all__ = [
     "SensorSuite",
     "SensorSuiteConfig",
     "StateEstimate",
+    "TargetCamera",
+    "TargetViewMeasurement",
     "TendonEncoders",
     "euler_from_rotation",
     "strains_from_tendon_lengths",

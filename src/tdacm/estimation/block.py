@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .camera import TargetViewMeasurement
 from .ekf import Estimator
 from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
@@ -35,6 +36,11 @@ class FilterBlock:
         no sensor measures.
     strain_error, position_error:
         Offsets added to the guess's strains and drone position (convergence studies).
+    normalize:
+        ``pixels (k, 2) -> normalized (k, 2)`` with the controller's model of C_L; given (and
+        the filter has a :class:`~tdacm.estimation.camera.TargetCamera`), each new C_L
+        detection of ``readings.local`` is fused as a
+        :class:`~tdacm.estimation.camera.TargetViewMeasurement` at its capture time.
     """
 
     def __init__(
@@ -44,6 +50,7 @@ class FilterBlock:
         nominal_q=None,
         strain_error: float = 0.0,
         position_error: float = 0.0,
+        normalize=None,
     ):
         self.filter = estimator
         self.initial_measurements = initial_measurements
@@ -53,6 +60,8 @@ class FilterBlock:
         self.position_error = float(position_error)
 
         self.prior = None  # the filter's state before the start-up update (tests, logs)
+        self.normalize = normalize if estimator.camera is not None else None
+        self._last_view = -np.inf
 
     def initial_guess(self, t: float) -> np.ndarray:
         """The nominal configuration plus the configured errors (no start-up reading)."""
@@ -69,6 +78,7 @@ class FilterBlock:
         reference, the controller) start from a measured state, as on a robot that reads its
         sensors before engaging the controller."""
         f = self.filter
+        self._last_view = -np.inf
         if self.initial_measurements is None:
             return f.reset(self.initial_guess(t), t0=t)
         meas = self.initial_measurements(t)
@@ -81,6 +91,11 @@ class FilterBlock:
 
     def step(self, readings, u_applied, dt: float):
         meas = [m for m in readings.other.values() if isinstance(m, _KNOWN)]
+        local = readings.local
+        if self.normalize is not None and local.found and local.t_capture > self._last_view:
+            self._last_view = local.t_capture
+            pts = self.normalize(local.detection.points)
+            meas.append(TargetViewMeasurement(local.t_capture, pts))
         return self.filter.step(readings.t, u_applied, meas)
 
     @property

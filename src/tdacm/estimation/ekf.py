@@ -25,7 +25,10 @@ Measurements (``docs/estimation.md`` has the Jacobians):
   ``H = T(phi, theta)`` on the Euler angles (``R(e + de) ~ R(e) exp([T de]x)``);
 * IMU: ``gyro = T(phi, theta) Phi_dot + b_g``, ``accel = R^T (f_hat + a_d - g)[3:6] + b_a``
   evaluated with the input applied over the period ending at the sample;
-* encoders: ``dl = l(q_s) - l(q_ref)``, ``H = dl/dq_s = -B_s^T``.
+* encoders: ``dl = l(q_s) - l(q_ref)``, ``H = dl/dq_s = -B_s^T``;
+* with a :class:`~tdacm.estimation.camera.TargetCamera`: the tip camera's view of the static
+  target, six more states ``[p_T, theta]`` (the target pose) at the end of ``x``
+  (:mod:`tdacm.estimation.camera` has the model and the Jacobians).
 
 Latency: the filter keeps its last ``max_delay`` seconds of ticks (prior, input, transition,
 measurements). A late measurement is attached to the tick of its capture time and the filter
@@ -44,8 +47,15 @@ import numpy as np
 
 from ..control.model import EstimatedModel
 from ..lie.euler import euler_from_rotation, euler_rate_matrix, rot_zyx
-from ..lie.se3 import so3_log
+from ..lie.se3 import adjoint_pair, so3_log
 from . import kernels as EK
+from .camera import (
+    TargetCamera,
+    TargetViewMeasurement,
+    so3_exp_and_left_jacobian,
+    target_pose_from_view,
+    view_model,
+)
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
 from .sensors import (
@@ -131,6 +141,10 @@ class Estimator:
         :class:`EstimatorConfig`.
     q_ref:
         Strains at which the encoders were zeroed (default straight).
+    camera:
+        A :class:`~tdacm.estimation.camera.TargetCamera` to fuse the tip camera's view of the
+        static target (six more states: the target pose); ``None`` (default): proprioceptive
+        sensors only.
     """
 
     def __init__(
@@ -139,6 +153,7 @@ class Estimator:
         sensors: SensorSuiteConfig | None = None,
         config: EstimatorConfig | None = None,
         q_ref=None,
+        camera: TargetCamera | None = None,
     ):
         if not isinstance(model, EstimatedModel):
             raise ValueError(f"model must be an EstimatedModel, got {model!r}")
@@ -158,6 +173,19 @@ class Estimator:
         self.n, self.n_s, self.n_a = n, sysm.n_s, sysm.n_a
         self.floating = sysm.floating
         self.nx = 3 * n + (6 if self.floating else 0)
+        if camera is not None and not isinstance(camera, TargetCamera):
+            raise ValueError(f"camera must be a TargetCamera or None, got {camera!r}")
+        self.camera = camera
+        self.i_target = self.nx  # index of [p_T, theta] in the state (with a camera)
+        if camera is not None:
+            self.nx += 6
+            self._ad_mount_inv = adjoint_pair(camera.tip_mount)[1]
+            self._r_view = np.diag(np.tile(camera.sigma**2, camera.object_points.shape[0]))
+        self._anchor = None  # R_A of the target (set at its first detection)
+        self._view_ok_t = -np.inf  # capture time of the last fused view
+        self.views_fused = 0  # target views fused / gated out (re-runs of late ticks count)
+        self.views_rejected = 0
+        self.target_restarts = 0
         self._skip = np.zeros(n, dtype=np.bool_)
         if self.floating:
             self._skip[3:6] = True  # the dynamics do not depend on the drone's position
@@ -169,10 +197,12 @@ class Estimator:
         self.timings: list[float] = []  # wall time of each step (s)
 
     # ------------------------------------------------------------------ set-up
-    def _blocks(self, a, b, c, d=None, e=None):
-        """A vector over the state from per-block values (q, qd, a_d[, b_g, b_a])."""
-        out = np.concatenate([a, b, c] + ([d, e] if self.floating else []))
-        return out
+    def _blocks(self, a, b, c, d=None, e=None, target=None):
+        """A vector over the state from per-block values (q, qd, a_d[, b_g, b_a][, target])."""
+        parts = [a, b, c] + ([d, e] if self.floating else [])
+        if self.camera is not None:
+            parts.append(np.zeros(6) if target is None else target)
+        return np.concatenate(parts)
 
     def _per_coord(self, ang, lin, strain):
         if self.floating:
@@ -206,7 +236,13 @@ class Estimator:
         imu = self.sensors.imu
         bg = np.full(3, max(imu.gyro_bias, 1e-4))
         ba = np.full(3, max(imu.accel_bias, 1e-3))
-        return np.diag(self._blocks(q_std, qd_std, ad_std, bg, ba) ** 2)
+        return np.diag(self._blocks(q_std, qd_std, ad_std, bg, ba, self._target_std()) ** 2)
+
+    def _target_std(self):
+        cam = self.camera
+        if cam is None:
+            return None
+        return np.array([cam.initial_position_std] * 3 + [cam.initial_attitude_std] * 3)
 
     def initial_guess(self, measurements, fallback_q=None) -> np.ndarray:
         """``q`` from one set of measurements: drone pose from the pose sensor, strains from
@@ -245,6 +281,9 @@ class Estimator:
         self._hist = [_Tick(float(t0), None, x, p, None, None, None)]
         self.dropped_late = 0
         self.timings = []
+        self._anchor = None
+        self._view_ok_t = -np.inf
+        self.views_fused = self.views_rejected = self.target_restarts = 0
         return self.estimate
 
     def warm_up(self) -> None:
@@ -260,9 +299,15 @@ class Estimator:
         if self.floating:
             meas += [PoseMeasurement(0.0, q[3:6], np.eye(3)),
                      ImuMeasurement(0.02, np.zeros(3), np.array([0.0, 0.0, 9.81]))]  # fmt: skip
+        if self.camera is not None:  # a target 1 m in front of C_L
+            obj = self.camera.object_points
+            z = obj[:, :2] / (obj[:, 2:] + 1.0)
+            meas.append(TargetViewMeasurement(0.02, z))
         self.step(0.0, None, meas[:2])
         self.step(0.02, u, meas[2:])
         self._hist, self.dropped_late, self.timings = hist, dropped, timings
+        self._anchor, self._view_ok_t = None, -np.inf
+        self.views_fused = self.views_rejected = self.target_restarts = 0
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -352,12 +397,105 @@ class Estimator:
             x, p, todo = tk.x_prior, tk.p_prior, tk.meas
         else:
             x, p, todo = tk.x_post, tk.p_post, late
-        order = {EncoderMeasurement: 0, PoseMeasurement: 1, ImuMeasurement: 2}
+        order = {EncoderMeasurement: 0, PoseMeasurement: 1, ImuMeasurement: 2,
+                 TargetViewMeasurement: 3}  # fmt: skip
         for meas in sorted(todo, key=lambda m: order[type(m)]):
+            if isinstance(meas, TargetViewMeasurement):
+                x, p = self._view_update(x, p, meas)
+                continue
             res = self._measurement(x, meas, tk)
             if res is not None:
                 x, p, _ = EK.kalman_update(x, p, *res)
         tk.x_post, tk.p_post = x, p
+
+    # ------------------------------------------------------------------ the tip camera
+    def camera_pose(self, q) -> np.ndarray:
+        """World pose of C_L at ``q`` in the filter's model: ``g_L(q) g_{C_L}^L``."""
+        return self.system.tip_pose(q) @ self.camera.tip_mount
+
+    def target_pose(self, x=None) -> np.ndarray | None:
+        """The filter's target pose (4x4, world) from state ``x`` (default: the latest);
+        ``None`` before the target was first seen."""
+        if self._anchor is None:
+            return None
+        x = self._hist[-1].x_post if x is None else x
+        i = self.i_target
+        g = np.eye(4)
+        g[:3, :3] = (
+            so3_exp_and_left_jacobian(np.ascontiguousarray(x[i + 3 : i + 6]))[0] @ self._anchor
+        )
+        g[:3, 3] = x[i : i + 3]
+        return g
+
+    def view_prediction(self, x):
+        """Predicted normalized points (2k,) of the target at state ``x`` and the Jacobian
+        (2k x nx) of :mod:`~tdacm.estimation.camera`; ``None`` if a point is behind C_L."""
+        n, i = self.n, self.i_target
+        q = x[:n]
+        g_c = self.camera_pose(q)
+        rot, jl = so3_exp_and_left_jacobian(np.ascontiguousarray(x[i + 3 : i + 6]))
+        z, h_cam, h_tgt, ok = view_model(
+            np.ascontiguousarray(g_c[:3, :3]), g_c[:3, 3].copy(), rot @ self._anchor,
+            np.ascontiguousarray(x[i : i + 3]), jl, self.camera.object_points,
+        )  # fmt: skip
+        if not ok:
+            return None
+        h = np.zeros((z.size, self.nx))
+        h[:, :n] = h_cam @ (self._ad_mount_inv @ self.system.tip_jacobian(q))
+        h[:, i : i + 6] = h_tgt
+        return z, h
+
+    def _set_target(self, g_t, x, p):
+        """(Re)start the target states at pose ``g_t`` with the wide prior, uncorrelated
+        with the rest, in ``x, p`` and in every kept tick (before the first view nothing
+        touched these states, so this is exact; a restart forgets the old target)."""
+        i = self.i_target
+        self._anchor = np.ascontiguousarray(g_t[:3, :3])
+        p0 = np.diag(self._target_std() ** 2)
+
+        def put(xx, pp):
+            xx = xx.copy()
+            xx[i : i + 3], xx[i + 3 : i + 6] = g_t[:3, 3], 0.0
+            pp = pp.copy()
+            pp[i : i + 6, :] = 0.0
+            pp[:, i : i + 6] = 0.0
+            pp[i : i + 6, i : i + 6] = p0
+            return xx, pp
+
+        for tk in self._hist:
+            tk.x_prior, tk.p_prior = put(tk.x_prior, tk.p_prior)
+            tk.x_post, tk.p_post = put(tk.x_post, tk.p_post)
+        return put(x, p)
+
+    def _view_update(self, x, p, meas: TargetViewMeasurement):
+        """Fuse one detection of the target (gated; module :mod:`~tdacm.estimation.camera`)."""
+        cam = self.camera
+        if cam is None:
+            return x, p
+        pts = np.asarray(meas.points, float)
+        if self._anchor is None or meas.t - self._view_ok_t > cam.reinit_after:
+            # first view, or every view gated out for a while: (re)start from this one
+            g_t = target_pose_from_view(
+                pts, cam.object_points, self.camera_pose(x[: self.n]), cam.level_normal
+            )
+            if g_t is None:
+                return x, p
+            restart = self._anchor is not None
+            x, p = self._set_target(g_t, x, p)
+            self._view_ok_t = meas.t
+            if restart:
+                self.target_restarts += 1
+        pred = self.view_prediction(x)
+        if pred is None:
+            self.views_rejected += 1
+            return x, p
+        x1, p1, nis = EK.kalman_update(x, p, pts.ravel() - pred[0], pred[1], self._r_view)
+        if nis > cam.gate:
+            self.views_rejected += 1
+            return x, p
+        self.views_fused += 1
+        self._view_ok_t = max(self._view_ok_t, meas.t)
+        return x1, p1
 
     def _measurement(self, x, meas, tk: _Tick):
         n, nx = self.n, self.nx

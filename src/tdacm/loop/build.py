@@ -242,7 +242,10 @@ def build_loop(
         np.random.default_rng(seed),
     )
     if estimator is None and d["estimation"]["source"] == "estimated":
-        estimator = estimation_block(d, s, seed, plant, sensors, world.q0, model)
+        estimator = estimation_block(
+            d, s, seed, plant, sensors, world.q0, model, robot.tip_mount, world.target,
+            ctl_camera,
+        )  # fmt: skip
     loop = ClosedLoop(
         plant,
         sensors,
@@ -280,12 +283,18 @@ def _truth(system, local: CameraSensor, world: Scene):
     return truth
 
 
-def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model):
+def estimation_block(
+    d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model,
+    tip_mount=None, target=None, camera=None,
+):  # fmt: skip
     """``estimation.source = "estimated"``: the proprioceptive sensors (drone pose, IMU,
     tendon encoders; ``[sensors]``, seeded by ``[seed, 11..13]``) join ``sensors.other`` and
     the EKF (``[estimation]``) runs on the controller's perturbed ``model``. The initial guess
     (``initial_guess = "measured"``) comes from one start-up reading of an independent copy of
-    the sensors (no latency, no dropout: taken before the run starts)."""
+    the sensors (no latency, no dropout: taken before the run starts). With
+    ``estimation.fuse_local_camera`` (and ``tip_mount``, ``target``, ``camera``: C_L's mount,
+    the target and the controller's model of C_L) the filter also fuses C_L's detections of
+    the static target (:mod:`tdacm.estimation.camera`)."""
     from dataclasses import replace
 
     from ..estimation import (
@@ -295,6 +304,7 @@ def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors,
         SensorSuite,
         SensorSuiteConfig,
     )
+    from ..estimation.camera import TargetCamera
 
     est = d["estimation"]
     cfg = SensorSuiteConfig.from_section(d["sensors"])
@@ -315,11 +325,23 @@ def estimation_block(d: dict, system, seed: int, plant: Plant, sensors: Sensors,
             st = plant.state  # a sensor reading (sensors read the plant; nothing else does)
             return first.sample(st.t, st.q, st.qd, None)
 
-    filt = Estimator(model, cfg, EstimatorConfig.from_section(est))
+    view = None
+    if est["fuse_local_camera"] and tip_mount is not None and target is not None:
+        sigma = est["camera_pixel_sigma"]
+        view = TargetCamera(
+            tip_mount,
+            target.feature_points,
+            np.array([sigma / camera.fx, sigma / camera.fy]),
+            np.asarray(d["ibvs"]["target_level_normal"], float),
+            est["target_initial_position_std"],
+            est["target_initial_attitude_std"],
+        )
+    filt = Estimator(model, cfg, EstimatorConfig.from_section(est), camera=view)
     filt.warm_up()
     return FilterBlock(
-        filt, init, q_nominal, est["initial_strain_error"], est["initial_position_error"]
-    )
+        filt, init, q_nominal, est["initial_strain_error"], est["initial_position_error"],
+        camera.normalize if view is not None else None,
+    )  # fmt: skip
 
 
 def warm_up(system, q) -> None:

@@ -166,6 +166,11 @@ SCHEMA = {
         "initial_disturbance_linear_std": (float, 1.5),
         "initial_disturbance_strain_std": (float, 5.0),
         "max_delay": (float, 0.2),  # s of filter history kept for late measurements
+        # the tip camera's view of the static target fused in the filter (target pose states)
+        "fuse_local_camera": (bool, True),
+        "camera_pixel_sigma": (float, 1.0),  # px, corner noise the filter assumes
+        "target_initial_position_std": (float, 0.05),  # m, prior at the target's first view
+        "target_initial_attitude_std": (float, 0.05),  # rad
     },
     "expect": {
         "initial_in_local_fov": (bool, None),
@@ -363,6 +368,9 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: estimation.source must be 'true' or 'estimated'")
     if est["initial_guess"] not in ("measured", "true"):
         raise ScenarioError(f"{source}: estimation.initial_guess must be 'measured' or 'true'")
+    for key in ("camera_pixel_sigma", "target_initial_position_std", "target_initial_attitude_std"):
+        if est[key] <= 0:
+            raise ScenarioError(f"{source}: estimation.{key} must be positive, got {est[key]!r}")
     try:  # the messages name the key (sensors.<key>, estimation.<key>)
         SensorModel(**{k: d["sensors"][k] for k in SensorModel.__dataclass_fields__})
         SensorSuiteConfig.from_section(d["sensors"])
