@@ -36,11 +36,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from numba import njit
 
+from ..lie.se3 import skew
 from ..vision import _checks as C
+from ..vision.target_filter import planar_pnp_poses
 
 #: chi-square 99.9 % quantiles for 2k degrees of freedom (k = 1..8 points)
 _CHI2_999 = {2: 13.82, 4: 18.47, 6: 22.46, 8: 26.12, 10: 29.59, 12: 32.91, 14: 36.12, 16: 39.25}
@@ -102,19 +103,11 @@ class TargetCamera:
 
 
 @njit(cache=True)
-def _skew(w):
-    s = np.zeros((3, 3))
-    s[0, 1], s[0, 2], s[1, 2] = -w[2], w[1], -w[0]
-    s[1, 0], s[2, 0], s[2, 1] = w[2], -w[1], w[0]
-    return s
-
-
-@njit(cache=True)
 def so3_exp_and_left_jacobian(theta):
     """``exp([theta]x)`` and the left Jacobian ``J_l(theta)`` of SO(3)
     (``exp([theta + d]x) = exp([J_l d]x) exp([theta]x)`` to first order); series near 0."""
     th2 = theta[0] ** 2 + theta[1] ** 2 + theta[2] ** 2
-    k = _skew(theta)
+    k = skew(theta)
     k2 = k @ k
     if th2 < 1e-8:
         a = 1.0 - th2 / 6.0
@@ -151,12 +144,12 @@ def view_model(rc, pc, rt, pt, jl, obj):
         dpi[0, 0], dpi[0, 2] = 1.0 / c[2], -x / c[2]
         dpi[1, 1], dpi[1, 2] = 1.0 / c[2], -y / c[2]
         dc_dxi = np.zeros((3, 6))
-        dc_dxi[:, :3] = _skew(c)
+        dc_dxi[:, :3] = skew(c)
         for j in range(3):
             dc_dxi[j, 3 + j] = -1.0
         dc_dt = np.zeros((3, 6))
         dc_dt[:, :3] = rct
-        dc_dt[:, 3:] = -(rct @ _skew(rx)) @ jl
+        dc_dt[:, 3:] = -(rct @ skew(rx)) @ jl
         h_cam[2 * i : 2 * i + 2] = dpi @ dc_dxi
         h_tgt[2 * i : 2 * i + 2] = dpi @ dc_dt
     return z, h_cam, h_tgt, True
@@ -166,20 +159,7 @@ def target_pose_from_view(points, object_points, camera_pose, level_normal) -> n
     """World pose (4x4) of the target from one detection (planar PnP, ``SOLVEPNP_IPPE``) seen
     from ``camera_pose``: of the two solutions of the planar ambiguity, the one whose z axis
     is closest to ``level_normal``; ``None`` if PnP fails or puts a point behind the camera."""
-    obj = np.asarray(object_points, float)
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-        obj, np.asarray(points, float).reshape(-1, 1, 2), np.eye(3), None,
-        flags=cv2.SOLVEPNP_IPPE,
-    )  # fmt: skip
-    best, score = None, -np.inf
-    for rv, tv in zip(rvecs if ok else (), tvecs if ok else (), strict=True):
-        g = np.eye(4)
-        g[:3, :3] = cv2.Rodrigues(rv)[0]
-        g[:3, 3] = np.ravel(tv)
-        if not np.all((obj @ g[:3, :3].T + g[:3, 3])[:, 2] > 0):
-            continue
-        gw = camera_pose @ g
-        s = float(gw[:3, 2] @ level_normal)
-        if s > score:
-            best, score = gw, s
-    return best
+    poses = planar_pnp_poses(object_points, points, camera_pose)
+    if not poses:
+        return None
+    return max(poses, key=lambda g: float(g[:3, 2] @ level_normal))

@@ -91,6 +91,25 @@ class TargetEstimate:
     rejected: int
 
 
+def planar_pnp_poses(object_points, xy, camera_pose) -> list:
+    """World poses (4x4) of a planar target from one view: both solutions of planar PnP
+    (``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)`` on normalized points ``xy``, the two-fold
+    ambiguity of a small planar target) that put every point in front of the camera,
+    composed with ``camera_pose``."""
+    obj = np.asarray(object_points, float)
+    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+        obj, np.asarray(xy, float).reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
+    )
+    out = []
+    for rv, tv in zip(rvecs if ok else (), tvecs if ok else (), strict=True):
+        g = np.eye(4)
+        g[:3, :3] = cv2.Rodrigues(rv)[0]
+        g[:3, 3] = np.ravel(tv)
+        if np.all((obj @ g[:3, :3].T + g[:3, 3])[:, 2] > 0):
+            out.append(camera_pose @ g)
+    return out
+
+
 def _hat(w):
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
@@ -439,17 +458,7 @@ class TargetFilter:
         return None  # pragma: no cover
 
     def _pnp_hypotheses(self, xy, g_c):
-        ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-            self.object_points, xy.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
-        )
-        out = []
-        for rv, tv in zip(rvecs if ok else (), tvecs if ok else (), strict=True):
-            g = np.eye(4)
-            g[:3, :3] = cv2.Rodrigues(rv)[0]
-            g[:3, 3] = np.ravel(tv)
-            if np.all((self.object_points @ g[:3, :3].T + g[:3, 3])[:, 2] > 0):
-                out.append(g_c @ g)
-        return out
+        return planar_pnp_poses(self.object_points, xy, g_c)
 
     # ------------------------------------------------------------------ filter
     def update(self, pixels, camera_pose, camera_cov=None) -> bool:
