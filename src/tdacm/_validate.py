@@ -86,6 +86,15 @@ def points(name: str, value, dim: int) -> np.ndarray:
     return array(name, a, (-1, dim))
 
 
+def unit_vector(name: str, value, dim: int = 3) -> np.ndarray:
+    """A non-zero ``(dim,)`` direction, returned normalized."""
+    v = array(name, value, (dim,))
+    norm = float(np.linalg.norm(v))
+    if norm < 1e-9:
+        raise ValueError(f"{name} must be a non-zero vector")
+    return v / norm
+
+
 # np.allclose(x, y, atol=a) is |x - y| <= a + 1e-5 |y|; the bounds are precomputed because
 # transforms are checked every control period (np.allclose costs ~20 us a call)
 _EYE3 = np.eye(3)

@@ -8,12 +8,7 @@ import pytest
 from tdacm import paper_system
 from tdacm.control import EstimatedModel
 from tdacm.estimation import Estimator
-from tdacm.estimation.camera import (
-    TargetCamera,
-    TargetViewMeasurement,
-    so3_exp_and_left_jacobian,
-    target_pose_from_view,
-)
+from tdacm.estimation.camera import TargetCamera, TargetViewMeasurement, target_pose_from_view
 from tdacm.lie.se3 import expmap
 from tdacm.vision import PAPER_MARKER
 from tdacm.vision.mounts import tip_camera_mount
@@ -33,21 +28,6 @@ def _rot(w):
     xi = np.zeros(6)
     xi[:3] = w
     return expmap(xi)[:3, :3]
-
-
-def test_so3_exp_and_left_jacobian_against_finite_differences():
-    rng = np.random.default_rng(0)
-    for theta in (np.zeros(3), 1e-5 * rng.normal(size=3), 0.3 * rng.normal(size=3)):
-        rot, jl = so3_exp_and_left_jacobian(theta)
-        np.testing.assert_allclose(rot, _rot(theta), atol=1e-13)
-        eps = 1e-6
-        for j in range(3):
-            d = np.zeros(3)
-            d[j] = eps
-            # exp(theta + d) = exp(J_l d) exp(theta): the rotation vector of the left increment
-            inc = so3_exp_and_left_jacobian(theta + d)[0] @ rot.T
-            w = np.array([inc[2, 1] - inc[1, 2], inc[0, 2] - inc[2, 0], inc[1, 0] - inc[0, 1]])
-            np.testing.assert_allclose(w / (2 * eps), jl[:, j], atol=1e-6)
 
 
 def _estimator(camera=None):

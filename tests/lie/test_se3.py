@@ -144,3 +144,18 @@ def test_adjoint_pair_matches_the_kernels():
         ad, ad_inv = se3.adjoint_pair(g)
         np.testing.assert_allclose(ad, se3.Ad(g), rtol=0, atol=1e-15)
         np.testing.assert_allclose(ad_inv, se3.Ad_inv(g), rtol=0, atol=1e-15)
+
+
+def test_so3_exp_and_left_jacobian_against_finite_differences():
+    rng = np.random.default_rng(0)
+    for theta in (np.zeros(3), 1e-5 * rng.normal(size=3), 0.3 * rng.normal(size=3)):
+        rot, jl = se3.so3_exp_and_left_jacobian(theta)
+        np.testing.assert_allclose(rot, se3.expmap(np.r_[theta, 0.0, 0.0, 0.0])[:3, :3], atol=1e-13)
+        eps = 1e-6
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = eps
+            # exp(theta + d) = exp(J_l d) exp(theta): the rotation vector of the left increment
+            inc = se3.so3_exp_and_left_jacobian(theta + d)[0] @ rot.T
+            w = np.array([inc[2, 1] - inc[1, 2], inc[0, 2] - inc[2, 0], inc[1, 0] - inc[0, 1]])
+            np.testing.assert_allclose(w / (2 * eps), jl[:, j], atol=1e-6)

@@ -33,18 +33,15 @@ Model (the same geometry as the servo's target filter, :mod:`tdacm.vision.target
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from scipy.special import chdtri
 
 from ..lie.se3 import skew
 from ..vision import _checks as C
 from ..vision.target_filter import planar_pnp_poses
-
-#: chi-square 99.9 % quantiles for 2k degrees of freedom (k = 1..8 points)
-_CHI2_999 = {2: 13.82, 4: 18.47, 6: 22.46, 8: 26.12, 10: 29.59, 12: 32.91, 14: 36.12, 16: 39.25}
 
 
 @dataclass(frozen=True)
@@ -78,49 +75,22 @@ class TargetCamera:
 
     def __post_init__(self):
         object.__setattr__(self, "tip_mount", C.transform("tip_mount", self.tip_mount))
-        obj = np.ascontiguousarray(np.asarray(self.object_points, float))
-        if obj.ndim != 2 or obj.shape[1] != 3 or obj.shape[0] < 4 or obj.shape[0] > 8:
+        obj = np.ascontiguousarray(C.array("object_points", self.object_points, (-1, 3)))
+        if not 4 <= obj.shape[0] <= 8:
             raise ValueError(f"object_points must be (k, 3) with 4 <= k <= 8, got {obj.shape}")
-        if not np.all(np.isfinite(obj)):
-            raise ValueError("object_points must be finite")
         object.__setattr__(self, "object_points", obj)
         sig = C.array("sigma", self.sigma, (2,))
         if np.any(sig <= 0):
             raise ValueError(f"sigma must be positive, got {sig}")
         object.__setattr__(self, "sigma", sig)
-        n0 = C.array("level_normal", self.level_normal, (3,))
-        if np.linalg.norm(n0) < 1e-9:
-            raise ValueError("level_normal must be a non-zero vector")
-        object.__setattr__(self, "level_normal", n0 / np.linalg.norm(n0))
+        object.__setattr__(self, "level_normal", C.unit_vector("level_normal", self.level_normal))
         for name in ("initial_position_std", "initial_attitude_std", "reinit_after"):
-            v = getattr(self, name)
-            if not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
+            C.positive(name, getattr(self, name))
 
     @property
     def gate(self) -> float:
-        return _CHI2_999[2 * self.object_points.shape[0]]
-
-
-@njit(cache=True)
-def so3_exp_and_left_jacobian(theta):
-    """``exp([theta]x)`` and the left Jacobian ``J_l(theta)`` of SO(3)
-    (``exp([theta + d]x) = exp([J_l d]x) exp([theta]x)`` to first order); series near 0."""
-    th2 = theta[0] ** 2 + theta[1] ** 2 + theta[2] ** 2
-    k = skew(theta)
-    k2 = k @ k
-    if th2 < 1e-8:
-        a = 1.0 - th2 / 6.0
-        b = 0.5 - th2 / 24.0
-        c = 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = math.sqrt(th2)
-        a = math.sin(th) / th
-        b = (1.0 - math.cos(th)) / th2
-        c = (th - math.sin(th)) / (th2 * th)
-    rot = np.eye(3) + a * k + b * k2
-    jl = np.eye(3) + b * k + c * k2
-    return rot, jl
+        """Chi-square 99.9 % quantile for the view's ``2k`` degrees of freedom."""
+        return float(chdtri(2 * self.object_points.shape[0], 1e-3))
 
 
 @njit(cache=True)

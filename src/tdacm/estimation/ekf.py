@@ -47,15 +47,9 @@ import numpy as np
 
 from ..control.model import EstimatedModel
 from ..lie.euler import euler_from_rotation, euler_rate_matrix, rot_zyx
-from ..lie.se3 import adjoint_pair, so3_log
+from ..lie.se3 import adjoint_pair, so3_exp_and_left_jacobian, so3_log
 from . import kernels as EK
-from .camera import (
-    TargetCamera,
-    TargetViewMeasurement,
-    so3_exp_and_left_jacobian,
-    target_pose_from_view,
-    view_model,
-)
+from .camera import TargetCamera, TargetViewMeasurement, target_pose_from_view, view_model
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
 from .sensors import (
@@ -292,7 +286,8 @@ class Estimator:
         q = np.zeros(n)
         if self.floating:
             q[5] = 1.0
-        hist, dropped, timings = self._hist, self.dropped_late, self.timings
+        kept = (self._hist, self.dropped_late, self.timings, self._anchor, self._view_ok_t,
+                self.views_fused, self.views_rejected, self.target_restarts)  # fmt: skip
         self.reset(q)
         u = np.zeros(self.system.n_u)
         meas = [EncoderMeasurement(0.0, np.zeros(self.n_a))]
@@ -305,9 +300,8 @@ class Estimator:
             meas.append(TargetViewMeasurement(0.02, z))
         self.step(0.0, None, meas[:2])
         self.step(0.02, u, meas[2:])
-        self._hist, self.dropped_late, self.timings = hist, dropped, timings
-        self._anchor, self._view_ok_t = None, -np.inf
-        self.views_fused = self.views_rejected = self.target_restarts = 0
+        (self._hist, self.dropped_late, self.timings, self._anchor, self._view_ok_t,
+         self.views_fused, self.views_rejected, self.target_restarts) = kept  # fmt: skip
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -471,7 +465,7 @@ class Estimator:
         """Fuse one detection of the target (gated; module :mod:`~tdacm.estimation.camera`)."""
         cam = self.camera
         if cam is None:
-            return x, p
+            raise ValueError("a TargetViewMeasurement needs an Estimator built with a camera")
         pts = np.asarray(meas.points, float)
         if self._anchor is None or meas.t - self._view_ok_t > cam.reinit_after:
             # first view, or every view gated out for a while: (re)start from this one

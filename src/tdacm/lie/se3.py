@@ -225,6 +225,20 @@ def _exp_coefficients(th):
 
 
 @njit(cache=True)
+def so3_exp_and_left_jacobian(w):
+    """``exp([w]x)`` and the left Jacobian ``J_l(w) = I + c1 [w]x + c2 [w]x^2`` of SO(3)
+    (``exp([w + d]x) = exp([J_l d]x) exp([w]x)`` to first order), with the coefficients of
+    :func:`_exp_coefficients` (``exp = I + (1 - c2 th^2) [w]x + c1 [w]x^2``)."""
+    th = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    c1, c2 = _exp_coefficients(th)
+    k = skew(w)
+    k2 = k @ k
+    rot = np.eye(3) + (1.0 - c2 * th * th) * k + c1 * k2
+    jl = np.eye(3) + c1 * k + c2 * k2
+    return rot, jl
+
+
+@njit(cache=True)
 def so3_log(r):
     """Rotation vector ``w`` with ``exp(w~) = R`` (``|w| <= pi``): ``th/(2 sin th) vee(R - R^T)``,
     its first-order form near ``th = 0`` and, near ``th = pi`` (where that quotient loses its

@@ -285,16 +285,16 @@ def _truth(system, local: CameraSensor, world: Scene):
 
 def estimation_block(
     d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model,
-    tip_mount=None, target=None, camera=None,
+    tip_mount, target, camera,
 ):  # fmt: skip
     """``estimation.source = "estimated"``: the proprioceptive sensors (drone pose, IMU,
     tendon encoders; ``[sensors]``, seeded by ``[seed, 11..13]``) join ``sensors.other`` and
     the EKF (``[estimation]``) runs on the controller's perturbed ``model``. The initial guess
     (``initial_guess = "measured"``) comes from one start-up reading of an independent copy of
     the sensors (no latency, no dropout: taken before the run starts). With
-    ``estimation.fuse_local_camera`` (and ``tip_mount``, ``target``, ``camera``: C_L's mount,
-    the target and the controller's model of C_L) the filter also fuses C_L's detections of
-    the static target (:mod:`tdacm.estimation.camera`)."""
+    ``estimation.fuse_local_camera`` the filter also fuses C_L's detections of the static
+    target (:mod:`tdacm.estimation.camera`): ``tip_mount``, ``target`` and ``camera`` are
+    C_L's mount, the target and the controller's model of C_L."""
     from dataclasses import replace
 
     from ..estimation import (
@@ -326,7 +326,7 @@ def estimation_block(
             return first.sample(st.t, st.q, st.qd, None)
 
     view = None
-    if est["fuse_local_camera"] and tip_mount is not None and target is not None:
+    if est["fuse_local_camera"]:
         sigma = est["camera_pixel_sigma"]
         view = TargetCamera(
             tip_mount,

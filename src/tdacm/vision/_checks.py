@@ -10,4 +10,5 @@ from .._validate import (  # noqa: F401  (re-exported)
     positive_int,
     rotation,
     transform,
+    unit_vector,
 )

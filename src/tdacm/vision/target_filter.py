@@ -292,10 +292,7 @@ class TargetFilter:
     ):
         self.camera = camera
         self.level_prior = C.nonnegative("level_prior", level_prior)
-        n0 = C.array("level_normal", level_normal, (3,))
-        if np.linalg.norm(n0) < 1e-9:
-            raise ValueError("level_normal must be a non-zero vector")
-        self.level_normal = n0 / np.linalg.norm(n0)
+        self.level_normal = C.unit_vector("level_normal", level_normal)
         self.recheck = int(recheck)
         self.decisive = C.positive("decisive", decisive)
         self.object_points = C.array("object_points", object_points, (4, 3))
