@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 from pathlib import Path
 
@@ -52,29 +51,25 @@ _positive_float = _number_type(
 
 # ------------------------------------------------------------------ helpers
 def numba_cache_is_cold() -> bool:
-    """True when the closed loop's numba kernels are not cached yet (first use in this
-    checkout or cache folder): they will compile, which takes tens of seconds."""
-    from importlib.util import find_spec
+    """:func:`tdacm.loop.precompile.numba_cache_is_cold` (imported on use: the CLI starts
+    without the loop's modules)."""
+    from .loop.precompile import numba_cache_is_cold as cold
 
-    spec = find_spec("tdacm.system.kernels")
-    if spec is None or spec.origin is None:
-        return False
-    src = Path(spec.origin)
-    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
-    for kernel in ("rk4_run", "forward_dynamics"):
-        pattern = f"kernels.{kernel}-*.nbi"  # numba's index file of a cached function
-        if cache_dir:  # numba mirrors the source folder's path under NUMBA_CACHE_DIR
-            found = Path(cache_dir).is_dir() and any(Path(cache_dir).rglob(pattern))
-        else:
-            found = any((src.parent / "__pycache__").glob(pattern))
-        if not found:
-            return True
-    return False
+    return cold()
 
 
-def _compile_notice() -> None:
+def _compile_notice(parallel: bool = False) -> None:
+    """One line when the kernels will compile; with ``parallel``, half of them compile in a
+    second process meanwhile (:mod:`tdacm.loop.precompile`)."""
     if numba_cache_is_cold():
-        _note("tdacm: compiling the numba kernels on first use (30-60 s, cached afterwards)")
+        from .loop.precompile import start
+
+        two = parallel and start()
+        _note(
+            "tdacm: compiling the numba kernels on first use ("
+            + ("about 40 s, in two processes" if two else "30-60 s")
+            + ", cached afterwards)"
+        )
 
 
 def _progress(desc: str, unit: str = "frame"):
@@ -124,7 +119,7 @@ def _cmd_info(args) -> int:
 def _cmd_demo(args) -> int:
     from .demo import run_demo
 
-    _compile_notice()
+    _compile_notice()  # one process: the demo's kernels would not split evenly (measured)
     summary = run_demo(args.out, duration=args.duration)
     out = Path(args.out).resolve()
     print(json.dumps(summary, indent=2))
@@ -151,18 +146,25 @@ def _cmd_run(args) -> int:
     out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
     if out.exists() and not out.is_dir():
         return _err(f"--out {out} is a file, not a folder")
+    if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
+        return _err(f"--rerun must name a .rrd file, got {args.rerun}")
     try:
         sc = load_scenario(args.scenario, args.config)
         check_run(sc, args.duration, args.seed, flags=True)
-        check_with_system(sc)
     except ScenarioError as exc:
         return _err(str(exc))
-    if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
-        return _err(f"--rerun must name a .rrd file, got {args.rerun}")
+    # before the checks that build the robot: building it is the first compilation
+    _compile_notice(parallel=True)
+    try:
+        check_with_system(sc)
+    except ScenarioError as exc:
+        from .loop.precompile import stop
+
+        stop()
+        return _err(str(exc))
     removed = clear_run_outputs(out, keep=())
     if removed:
         _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
-    _compile_notice()
     try:
         _, summary = run_scenario(
             sc,

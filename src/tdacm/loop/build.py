@@ -349,13 +349,15 @@ def warm_up(system, q) -> None:
     loading from the on-disk cache) happens before the run, not inside its first step."""
     from ..control.allocation import box_least_squares
     from ..system.kernels import rk4_run
+    from .precompile import wait
 
     q = np.asarray(q, float)
     qd = np.zeros(system.n)
     system.terms(q, qd)
     system.tip_kinematics(q, qd)
-    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
     box_least_squares(np.eye(3), np.ones(3), 0.0, 1.0)
+    wait()  # rk4_run may be compiling in a second process (cold cache only)
+    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 
 #: The ``[sensors]`` keys of the camera imperfection model.

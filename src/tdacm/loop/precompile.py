@@ -1,0 +1,142 @@
+"""Compile half of the closed loop's numba kernels in a second process on a cold cache.
+
+Why: a first run in a fresh environment spends most of its time compiling numba kernels
+(docs/benchmarks.md, section 6: about 56 s of a 61 s ``tdacm run paper-in-fov --duration 1``).
+Numba compiles one kernel at a time and holds the GIL while doing it, so a second thread does
+not help. A second *process* does. Every kernel compiled with ``cache=True`` is written to
+numba's on-disk cache, and the main process then loads it from there instead of compiling it.
+
+The split follows the order in which the main process needs the kernels:
+
+* the main process builds the loop. Building the robot, its gains, the scene and the
+  reference view compiles the model's ``coupled_terms`` and its callees, ``input_matrix``,
+  ``chain_jacobian``, the corner refinement and the image features (about 30 s);
+* meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
+  compiles what the loop needs only from :func:`~tdacm.loop.build.warm_up` on: the plant's
+  ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's normal
+  equations and the SE(3)/SO(3) maps (about 35 s, its own rod callees included), while the
+  main process also compiles the tension allocation;
+* :func:`wait` (called by ``warm_up``) waits for the second process before the first of
+  those kernels is called, so they load from the cache.
+
+Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 61 s in one
+process, 43 s with the second one (docs/benchmarks.md, section 6).
+
+The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
+machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod
+callees compiled twice would make the run slower. Anything that goes wrong in the second
+process (it is killed, it fails) costs nothing but time: the main process then compiles what
+is missing itself. The signatures compiled here must be those of the loop's calls (the same
+argument types), or the cache entries would not be used. ``tests/loop/test_precompile.py``
+checks that the entry point runs and compiles no signature the loop does not use.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+_child: subprocess.Popen | None = None
+_started_at = 0.0
+
+#: Longest wait (s) for the second process before the main one compiles on its own.
+WAIT_LIMIT = 300.0
+
+
+def numba_cache_is_cold() -> bool:
+    """True when the closed loop's numba kernels are not cached yet (first use in this
+    checkout or cache folder): they will compile, which takes tens of seconds."""
+    from importlib.util import find_spec
+
+    spec = find_spec("tdacm.system.kernels")
+    if spec is None or spec.origin is None:
+        return False
+    src = Path(spec.origin)
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    for kernel in ("rk4_run", "forward_dynamics"):
+        pattern = f"kernels.{kernel}-*.nbi"  # numba's index file of a cached function
+        if cache_dir:  # numba mirrors the source folder's path under NUMBA_CACHE_DIR
+            found = Path(cache_dir).is_dir() and any(Path(cache_dir).rglob(pattern))
+        else:
+            found = any((src.parent / "__pycache__").glob(pattern))
+        if not found:
+            return True
+    return False
+
+
+def start() -> bool:
+    """Start the second compiling process if the cache is cold and there are >= 2 cores;
+    True if it was started (at most one per process)."""
+    global _child, _started_at
+    if _child is not None or (os.cpu_count() or 1) < 2 or not numba_cache_is_cold():
+        return False
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return False
+    if os.environ.get("TDACM_PARALLEL_COMPILE", "1") == "0":  # the user's opt-out
+        return False
+    _child = subprocess.Popen(
+        [sys.executable, "-m", "tdacm.loop.precompile"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    _started_at = time.perf_counter()
+    return True
+
+
+def wait() -> None:
+    """Wait for the second process, if one was started (no-op otherwise)."""
+    global _child
+    if _child is None:
+        return
+    try:
+        _child.wait(timeout=max(1.0, WAIT_LIMIT - (time.perf_counter() - _started_at)))
+    except subprocess.TimeoutExpired:
+        _child.kill()
+        _child.wait()
+    _child = None
+
+
+def stop() -> None:
+    """Kill the second process, if one was started (the run will not happen)."""
+    global _child
+    if _child is not None:
+        _child.kill()
+        _child.wait()
+        _child = None
+
+
+def compile_second_half() -> None:
+    """Call once each kernel that the loop first needs in ``warm_up`` and in its first
+    periods, with the argument types of the loop's own calls (module docstring)."""
+    from .. import paper_system
+    from ..lie.se3 import expmap, so3_log
+    from ..system.kernels import rk4_run
+    from ..vision.target_filter import _normal_equations
+
+    system = paper_system()
+    q = np.zeros(system.n)
+    if system.floating:
+        q[5] = 1.0
+    qd = np.zeros(system.n)
+    # Plant.advance and warm_up: (q, qd, u, h, substeps, substeps, model arrays, loads)
+    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
+    system.backbone(q)
+    # the target filter's window: C-contiguous frames, one target 1 m in front of a camera
+    rc = np.tile(np.eye(3), (2, 1, 1))
+    pc = np.zeros((2, 3))
+    obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
+    z = np.tile(obj[:, :2], (2, 1, 1))
+    w = np.tile(np.eye(8), (2, 1, 1))
+    _normal_equations(np.eye(3), np.array([0.0, 0.0, 1.0]), rc, pc, z, obj, w)
+    expmap(np.zeros(6))
+    so3_log(np.eye(3))
+
+
+if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start()
+    compile_second_half()

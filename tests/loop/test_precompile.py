@@ -1,0 +1,116 @@
+"""The second compiling process of a cold first run (tdacm.loop.precompile)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from tdacm.loop import precompile
+from tdacm.sim import load_scenario
+
+
+class FakeChild:
+    """Stands in for the subprocess: records what the module does with it."""
+
+    started: list = []
+
+    def __init__(self, args, **kwargs):
+        self.args = args
+        self.killed = self.waited = False
+        FakeChild.started.append(self)
+
+    def wait(self, timeout=None):
+        self.waited = True
+        return 0
+
+    def kill(self):
+        self.killed = True
+
+
+@pytest.fixture
+def fake_child(monkeypatch):
+    FakeChild.started = []
+    monkeypatch.setattr(precompile.subprocess, "Popen", FakeChild)
+    monkeypatch.setattr(precompile, "_child", None)
+    monkeypatch.delenv("NUMBA_DISABLE_JIT", raising=False)
+    return FakeChild
+
+
+def test_started_only_on_a_cold_cache_and_two_cores(monkeypatch, fake_child):
+    monkeypatch.setattr(precompile.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(precompile, "numba_cache_is_cold", lambda: False)
+    assert not precompile.start()
+    monkeypatch.setattr(precompile, "numba_cache_is_cold", lambda: True)
+    monkeypatch.setattr(precompile.os, "cpu_count", lambda: 1)
+    assert not precompile.start()  # one core: both halves would share it
+    monkeypatch.setattr(precompile.os, "cpu_count", lambda: 2)
+    monkeypatch.setenv("TDACM_PARALLEL_COMPILE", "0")
+    assert not precompile.start()  # the user's opt-out
+    monkeypatch.delenv("TDACM_PARALLEL_COMPILE")
+    assert precompile.start()
+    assert not precompile.start()  # at most one per process
+    assert len(fake_child.started) == 1
+    assert fake_child.started[0].args[1:] == ["-m", "tdacm.loop.precompile"]
+    precompile.wait()
+    assert fake_child.started[0].waited and precompile._child is None
+    precompile.wait()  # no child: a no-op
+
+
+def test_stop_kills_the_child(monkeypatch, fake_child):
+    monkeypatch.setattr(precompile.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(precompile, "numba_cache_is_cold", lambda: True)
+    assert precompile.start()
+    precompile.stop()
+    assert fake_child.started[0].killed and precompile._child is None
+
+
+def test_cli_run_kills_the_child_when_the_scenario_is_rejected(
+    monkeypatch, fake_child, tmp_path, capsys
+):
+    from tdacm import cli
+
+    monkeypatch.setattr(precompile.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(precompile, "numba_cache_is_cold", lambda: True)
+    monkeypatch.setattr(cli, "numba_cache_is_cold", lambda: True)
+    bad = tmp_path / "bad.toml"
+    # passes the schema checks, fails the one that builds the robot (RK4 step too long)
+    bad.write_text("dt = 0.04\nsubsteps = 1\n")
+    code = cli.main(["run", "paper-in-fov", "--config", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "in two processes" in err and "RK4 step limit" in err
+    assert fake_child.started and fake_child.started[0].killed
+
+
+def test_second_half_uses_the_loops_signatures():
+    """The second process must compile the signatures the loop calls, or its cache entries
+    would go unused: after a short loop, calling it adds no new signature."""
+    from tdacm.lie.se3 import expmap, so3_log
+    from tdacm.loop.build import build_loop
+    from tdacm.system import kernels as K
+    from tdacm.vision.target_filter import _normal_equations
+
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {"cameras": {"local_renderer": "analytic", "global_every": 0}}
+    )
+    loop = build_loop(sc, 0)
+    loop.run(0.1)
+    loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
+    loop.close()
+    kernels = (K.rk4_run, K.chain_poses, _normal_equations, expmap, so3_log)
+    before = {k.py_func.__name__: list(k.signatures) for k in kernels}
+    assert all(before.values()), before
+    precompile.compile_second_half()
+    after = {k.py_func.__name__: list(k.signatures) for k in kernels}
+    assert after == before
+
+
+def test_entry_point_runs_on_a_warm_cache():
+    # the suite's kernels are cached by now: the entry point loads them and exits 0
+    proc = subprocess.run(
+        [sys.executable, "-m", "tdacm.loop.precompile"], capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
