@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdacm.cli import main, numba_cache_is_cold
+from tdacm.cli import main
 
 ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
 
@@ -172,15 +172,6 @@ def test_replay_and_plot_of_missing_folder(capsys, tmp_path):
 @pytest.mark.parametrize("flag", ["--fps", "--max-frames", "--speed"])
 def test_replay_zero_flags(capsys, tmp_path, flag):
     _rejected(capsys, ["replay", str(tmp_path), flag, "0"], flag)
-
-
-def test_numba_cold_cache_detection(monkeypatch, tmp_path):
-    import tdacm.system.kernels  # noqa: F401  (the session has compiled/loaded them)
-
-    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    assert not numba_cache_is_cold()
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
-    assert numba_cache_is_cold()
 
 
 def test_compile_notice_is_one_stderr_line_when_cold(monkeypatch, capsys, tmp_path):

@@ -114,3 +114,17 @@ def test_entry_point_runs_on_a_warm_cache():
         timeout=300,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+def test_cold_cache_detection_asks_numbas_index(monkeypatch, tmp_path):
+    # the suite's process has the kernels cached (loaded or compiled): warm
+    assert not precompile.numba_cache_is_cold()
+    assert not precompile._index_files_missing()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # the fallback reads it per call
+    assert precompile._index_files_missing()
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    # an empty cache folder, in a fresh process (numba fixes the folder at import)
+    code = "from tdacm.loop.precompile import numba_cache_is_cold as c; print(c())"
+    env = dict(__import__("os").environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.stdout.strip().splitlines()[-1] == "True", out.stderr[-2000:]

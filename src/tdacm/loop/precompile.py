@@ -49,8 +49,28 @@ WAIT_LIMIT = 300.0
 
 
 def numba_cache_is_cold() -> bool:
-    """True when the closed loop's numba kernels are not cached yet (first use in this
-    checkout or cache folder): they will compile, which takes tens of seconds."""
+    """True when the closed loop's numba kernels are not cached yet for this source and this
+    CPU (first use in a checkout or cache folder, or after an edit): they will compile, which
+    takes tens of seconds.
+
+    Asks numba's own cache index of ``rk4_run`` and ``forward_dynamics`` (the folder numba
+    really uses, e.g. a user-wide one when the package folder is read-only; entries for this
+    CPU and the current source only); falls back to looking for the index files if numba's
+    private cache API is not there."""
+    try:
+        from ..system import kernels as K
+
+        for kernel in (K.rk4_run, K.forward_dynamics):
+            index = kernel._cache._cache_file._load_index()  # {} if stale or missing
+            magic = kernel.targetctx.codegen().magic_tuple()
+            if not any(key[1] == magic for key in index):
+                return True
+        return False
+    except Exception:  # pragma: no cover - another numba version's internals
+        return _index_files_missing()
+
+
+def _index_files_missing() -> bool:
     from importlib.util import find_spec
 
     spec = find_spec("tdacm.system.kernels")
