@@ -14,13 +14,14 @@ The split follows the order in which the main process needs the kernels:
 * meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
   compiles what the loop needs only from :func:`~tdacm.loop.build.warm_up` on: the plant's
   ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's normal
-  equations and the SE(3)/SO(3) maps (about 35 s, its own rod callees included), while the
-  main process also compiles the tension allocation;
+  equations and the SE(3)/SO(3) maps (about 30 s; ``rk4_run`` comes last, when the main
+  process has cached the rod callees it shares), while the main process also compiles the
+  tension allocation;
 * :func:`wait` (called by ``warm_up``) waits for the second process before the first of
   those kernels is called, so they load from the cache.
 
-Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 61 s in one
-process, 43 s with the second one (docs/benchmarks.md, section 6).
+Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 62-67 s in one
+process, 42-43 s with the second one (docs/benchmarks.md, section 6).
 
 The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
 machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod
@@ -139,16 +140,10 @@ def compile_second_half() -> None:
     from ..system.kernels import rk4_run
     from ..vision.target_filter import _normal_equations
 
-    system = paper_system()
-    q = np.zeros(system.n)
-    if system.floating:
-        q[5] = 1.0
-    qd = np.zeros(system.n)
-    # Plant.advance and warm_up: (q, qd, u, h, substeps, substeps, model arrays, loads)
-    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
-    system.backbone(q)
-    # the target filter's window: C-contiguous frames, one target 1 m in front of a camera
-    rc = np.tile(np.eye(3), (2, 1, 1))
+    # rk4_run last: by then the main process has cached the rod callees it shares with
+    # coupled_terms (rod_step, ...), which load instead of compiling twice (measured: 18 s
+    # for rk4_run instead of 28 s when it comes first)
+    rc = np.tile(np.eye(3), (2, 1, 1))  # the target filter's window: C-contiguous frames
     pc = np.zeros((2, 3))
     obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
     z = np.tile(obj[:, :2], (2, 1, 1))
@@ -156,6 +151,14 @@ def compile_second_half() -> None:
     _normal_equations(np.eye(3), np.array([0.0, 0.0, 1.0]), rc, pc, z, obj, w)
     expmap(np.zeros(6))
     so3_log(np.eye(3))
+    system = paper_system()
+    q = np.zeros(system.n)
+    if system.floating:
+        q[5] = 1.0
+    qd = np.zeros(system.n)
+    system.backbone(q)
+    # Plant.advance and warm_up: (q, qd, u, h, substeps, substeps, model arrays, loads)
+    rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 
 if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start()
