@@ -128,3 +128,20 @@ def test_cold_cache_detection_asks_numbas_index(monkeypatch, tmp_path):
     env = dict(__import__("os").environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.stdout.strip().splitlines()[-1] == "True", out.stderr[-2000:]
+
+
+def test_cold_start_ab_alternates_and_reports_the_ratio(monkeypatch):
+    import tdacm.loop.bench as lb
+
+    calls = []
+
+    def fake(parallel):
+        calls.append(parallel)
+        proc = subprocess.CompletedProcess([], 0, "", "")
+        return (40.0 if parallel else 60.0) + len(calls), proc, [5.0]
+
+    monkeypatch.setattr(lb, "_cold_run", fake)
+    res = lb.cold_start_ab(2, progress=lambda *a: None)
+    assert calls == [False, True, False, True]
+    assert res["one_process_s"] == [61.0, 63.0] and res["two_processes_s"] == [42.0, 44.0]
+    assert res["ratio_of_medians"] == pytest.approx(62.0 / 43.0)

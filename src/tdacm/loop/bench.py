@@ -4,7 +4,9 @@
   period, C_G only when the servo needs it (``cameras.global_every = 0``);
 * ``analytic``: the same with ``cameras.local_renderer = "analytic"`` (campaigns);
 * ``cold_start``: a first ``tdacm run paper-in-fov --duration 1`` in a fresh numba cache
-  (``NUMBA_CACHE_DIR`` set to an empty folder), wall time of the whole command.
+  (``NUMBA_CACHE_DIR`` set to an empty folder), wall time of the whole command;
+* ``cold_start_ab`` (optional): the same with the kernels compiled in one process and in two
+  (:mod:`tdacm.loop.precompile`), alternating, and the ratio of the medians.
 
 Each loop figure is the median of ``repeats`` runs after one warm-up run (one process, one
 core), reported as wall seconds per simulated second and as the real-time factor.
@@ -55,18 +57,26 @@ def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
     }
 
 
-def time_cold_start() -> dict:
-    """Wall time of ``tdacm run paper-in-fov --duration 1`` with an empty numba cache."""
+def _cold_run(parallel: bool | None) -> tuple[float, subprocess.CompletedProcess, list]:
+    """Wall time of ``tdacm run paper-in-fov --duration 1`` in a fresh, empty numba cache
+    (``parallel``: force the two-process compile on or off; ``None``: the default)."""
+    cmd = [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "1"]
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-        cmd = [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "1",
-               "--out", out]  # fmt: skip
+        if parallel is not None:
+            env["TDACM_PARALLEL_COMPILE"] = "1" if parallel else "0"
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        proc = subprocess.run(cmd + ["--out", out], env=env, capture_output=True, text=True)
         wall = time.perf_counter() - t0
         warm0 = time.perf_counter()
-        subprocess.run(cmd, env=env, capture_output=True, text=True)
+        subprocess.run(cmd + ["--out", out], env=env, capture_output=True, text=True)
         warm = time.perf_counter() - warm0
+    return wall, proc, [warm]
+
+
+def time_cold_start() -> dict:
+    """Wall time of ``tdacm run paper-in-fov --duration 1`` with an empty numba cache."""
+    wall, proc, (warm,) = _cold_run(None)
     return {
         "command": "tdacm run paper-in-fov --duration 1 (empty NUMBA_CACHE_DIR)",
         "cold_wall_s": wall,
@@ -76,8 +86,30 @@ def time_cold_start() -> dict:
     }
 
 
-def loop_bench(repeats: int = 5, cold: bool = True, progress=print) -> dict:
-    """All closed-loop figures (the ``loop`` section of ``bench.json``)."""
+def cold_start_ab(rounds: int = 2, progress=print) -> dict:
+    """The cold first run with the kernels compiled in one process and in two
+    (:mod:`tdacm.loop.precompile`), alternating, ``rounds`` of each: the ratio of the
+    medians is the speed-up, measured in the same minutes."""
+    one, two = [], []
+    for r in range(rounds):
+        for parallel, acc in ((False, one), (True, two)):
+            wall, proc, _ = _cold_run(parallel)
+            if proc.returncode != 0:
+                raise RuntimeError(f"cold run failed: {proc.stderr[-500:]}")
+            acc.append(wall)
+            progress(
+                f"  round {r + 1}: {'two processes' if parallel else 'one process'} {wall:.1f} s"
+            )
+    return {
+        "one_process_s": one,
+        "two_processes_s": two,
+        "ratio_of_medians": float(np.median(one) / np.median(two)),
+    }
+
+
+def loop_bench(repeats: int = 5, cold: bool = True, progress=print, cold_ab: int = 0) -> dict:
+    """All closed-loop figures (the ``loop`` section of ``bench.json``); ``cold_ab`` rounds
+    of :func:`cold_start_ab` (0: none)."""
     res = {}
     for name, ov in LOOP_CASES.items():
         progress(f"closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
@@ -87,13 +119,19 @@ def loop_bench(repeats: int = 5, cold: bool = True, progress=print) -> dict:
         progress("cold first run (empty numba cache)...")
         res["cold_start"] = time_cold_start()
         progress(f"  {res['cold_start']['cold_wall_s']:.1f} s")
+    if cold_ab:
+        progress(f"cold first run, one process against two ({cold_ab} rounds)...")
+        res["cold_start_ab"] = cold_start_ab(cold_ab, progress)
+        progress(f"  {res['cold_start_ab']['ratio_of_medians']:.2f}x")
     res["cpu_count"] = os.cpu_count()
     return res
 
 
-def run_loop_bench(out="out/bench", repeats: int = 5, cold: bool = True, progress=print) -> dict:
+def run_loop_bench(
+    out="out/bench", repeats: int = 5, cold: bool = True, progress=print, cold_ab: int = 0
+) -> dict:
     """:func:`loop_bench`, merged into ``OUT/bench.json`` under ``"loop"``."""
-    res = loop_bench(repeats, cold, progress)
+    res = loop_bench(repeats, cold, progress, cold_ab)
     path = Path(out) / "bench.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     data = json.loads(path.read_text()) if path.is_file() else {}
