@@ -241,6 +241,15 @@ def build_loop(
         Disturbances.from_dict(d["disturbances"]),
         np.random.default_rng(seed),
     )
+    truth = d["estimation"]["controller_truth"]
+    if truth:  # ablation: the controller reads these coordinates from the plant
+        from .ablation import TruthAblation, parse_controller_truth
+
+        try:
+            q_idx, qd_idx = parse_controller_truth(truth, s.n)
+        except ValueError as exc:
+            raise ScenarioError(f"{scenario.source}: {exc}") from None
+        controller = TruthAblation(controller, plant, q_idx, qd_idx)
     if estimator is None and d["estimation"]["source"] == "estimated":
         estimator = estimation_block(
             d, s, seed, plant, sensors, world.q0, model, robot.tip_mount, world.target,

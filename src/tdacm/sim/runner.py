@@ -150,6 +150,8 @@ class Simulation:
             "final_q": a["q"][-1].tolist() if a["q"].size else None,
             "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
             "profile": self.scenario.data["controller"]["profile"],
+            # an ablation (tdacm.loop.ablation): the controller read these from the plant
+            "controller_truth": self.scenario.data["estimation"]["controller_truth"] or None,
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
             **_target_merit(loop),

@@ -171,6 +171,9 @@ SCHEMA = {
         "camera_pixel_sigma": (float, 1.0),  # px, corner noise the filter assumes
         "target_initial_position_std": (float, 0.05),  # m, prior at the target's first view
         "target_initial_attitude_std": (float, 0.05),  # rad
+        # ablation (a diagnostic, off): coordinates the low-level controller reads from the
+        # plant instead of the estimate, e.g. "qd[3:5]" (tdacm.loop.ablation)
+        "controller_truth": (str, ""),
     },
     "expect": {
         "initial_in_local_fov": (bool, None),
@@ -368,6 +371,17 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: estimation.source must be 'true' or 'estimated'")
     if est["initial_guess"] not in ("measured", "true"):
         raise ScenarioError(f"{source}: estimation.initial_guess must be 'measured' or 'true'")
+    try:
+        from ..loop.ablation import parse_controller_truth
+
+        truth = parse_controller_truth(est["controller_truth"])
+    except ValueError as exc:
+        raise ScenarioError(f"{source}: {exc}") from None
+    if any(truth) and est["source"] != "estimated":
+        raise ScenarioError(
+            f"{source}: estimation.controller_truth needs estimation.source = 'estimated' "
+            "(on the true state the controller reads the plant already)"
+        )
     for key in ("camera_pixel_sigma", "target_initial_position_std", "target_initial_attitude_std"):
         if est[key] <= 0:
             raise ScenarioError(f"{source}: estimation.{key} must be positive, got {est[key]!r}")
@@ -474,6 +488,12 @@ def check_with_system(scenario: Scenario, system=None) -> None:
             f"{src}: dt / substeps = {h:.4g} s exceeds the plant's RK4 step limit "
             f"{h_max:.4g} s ({MAX_STEP_FACTOR:g} x suggested_dt()); raise substeps or lower dt"
         )
+    from ..loop.ablation import parse_controller_truth
+
+    try:
+        parse_controller_truth(d["estimation"]["controller_truth"], system.n)
+    except ValueError as exc:
+        raise ScenarioError(f"{src}: {exc}") from None
     robot = world.robot
     g_c = robot.system.tip_pose(world.q_star) @ robot.tip_mount
     pts = world.scene.target_points_world()
