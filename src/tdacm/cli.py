@@ -67,7 +67,7 @@ def _compile_notice(parallel: bool = False) -> None:
         two = parallel and start()
         _note(
             "tdacm: compiling the numba kernels on first use ("
-            + ("about 40 s, in two processes" if two else "30-60 s")
+            + ("40-60 s, in two processes" if two else "30-90 s")
             + ", cached afterwards)"
         )
 
