@@ -175,8 +175,14 @@ def _cmd_run(args) -> int:
             progress=True,
         )
     except ScenarioError as exc:
+        from .loop.precompile import stop
+
+        stop()
         return _err(str(exc))
     except KeyboardInterrupt:
+        from .loop.precompile import stop
+
+        stop()  # a second compiling process, if it is still running (cold cache)
         stored = (out / "timeseries.npz").is_file()
         _note(
             "interrupted (Ctrl-C): "
