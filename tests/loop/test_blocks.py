@@ -312,3 +312,19 @@ def test_analytic_loop_follows_the_rendered_loop_when_noise_is_off():
     b, _ = Simulation(base, duration=1.0).run()
     assert np.max(np.abs(a["q"] - b["q"])) < 2e-3
     assert np.nanmax(np.abs(a["rmse"] - b["rmse"])) < 2e-3
+
+
+def test_summary_window_metrics_match_the_logged_rmse():
+    """late_rmse_1s and within_0.01_last_2s are computed from the logged servo RMSE."""
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {"cameras": {"local_renderer": "analytic", "global_every": 0}}
+    )
+    a, s = Simulation(sc, duration=2.5, seed=0).run()
+    t, r = a["t"], a["rmse"]
+    last1 = r[(t >= t[-1] - 1.0 - 1e-9) & np.isfinite(r)]
+    last2 = r[(t >= t[-1] - 2.0 - 1e-9) & np.isfinite(r)]
+    assert last1.size == 51 and last2.size == 101  # 50 Hz, both ends included
+    assert s["late_rmse_1s"] == pytest.approx(np.sqrt(np.mean(last1**2)), rel=1e-12)
+    assert s["within_0.01_last_2s"] == pytest.approx(np.mean(last2 <= 0.01))
+    assert 0.0 <= s["within_0.01_last_2s"] <= 1.0
+    assert min(last1) <= s["late_rmse_1s"] <= max(last1)

@@ -64,7 +64,12 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
         "final_rmse": _stats(df["final_rmse"]) if n and "final_rmse" in df else None,
         **{
             k: _stats(df[k]) if n and k in df else None
-            for k in ("strain_estimation_rms", "drone_position_estimation_rms")
+            for k in (
+                "late_rmse_1s",
+                "within_0.01_last_2s",
+                "strain_estimation_rms",
+                "drone_position_estimation_rms",
+            )
         },
         "worst_runs": [],
     }
@@ -114,6 +119,8 @@ def _write_markdown(report, out: Path):
     for key in (
         "time_to_0.01",
         "final_rmse",
+        "late_rmse_1s",
+        "within_0.01_last_2s",
         "strain_estimation_rms",
         "drone_position_estimation_rms",
     ):

@@ -33,6 +33,8 @@ ROW_FIELDS = (
     "initial_rmse",
     "final_rmse",
     "min_rmse",
+    "late_rmse_1s",
+    "within_0.01_last_2s",
     "time_to_0.01",
     "time_to_0.001",
     "mode_switch_time",
