@@ -139,9 +139,8 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from .sim import ScenarioError, run_scenario
-    from .sim.outputs import clear_run_outputs
-    from .sim.scenario import check_run, check_with_system, load_scenario
+    from .sim import ScenarioError
+    from .sim.scenario import check_run, load_scenario
 
     out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
     if out.exists() and not out.is_dir():
@@ -155,12 +154,23 @@ def _cmd_run(args) -> int:
         return _err(str(exc))
     # before the checks that build the robot: building it is the first compilation
     _compile_notice(parallel=True)
+    from .loop.precompile import stop
+
+    try:
+        return _run_checked(args, sc, out)
+    finally:
+        stop()  # a second compiling process left running: the run failed before warm_up
+
+
+def _run_checked(args, sc, out: Path) -> int:
+    """The rest of ``tdacm run`` once the scenario passed its schema checks."""
+    from .sim import ScenarioError, run_scenario
+    from .sim.outputs import clear_run_outputs
+    from .sim.scenario import check_with_system
+
     try:
         check_with_system(sc)
     except ScenarioError as exc:
-        from .loop.precompile import stop
-
-        stop()
         return _err(str(exc))
     removed = clear_run_outputs(out, keep=())
     if removed:
@@ -175,14 +185,8 @@ def _cmd_run(args) -> int:
             progress=True,
         )
     except ScenarioError as exc:
-        from .loop.precompile import stop
-
-        stop()
         return _err(str(exc))
     except KeyboardInterrupt:
-        from .loop.precompile import stop
-
-        stop()  # a second compiling process, if it is still running (cold cache)
         stored = (out / "timeseries.npz").is_file()
         _note(
             "interrupted (Ctrl-C): "

@@ -135,10 +135,10 @@ def test_cold_start_ab_alternates_and_reports_the_ratio(monkeypatch):
 
     calls = []
 
-    def fake(parallel):
+    def fake(parallel, warm=False):
         calls.append(parallel)
         proc = subprocess.CompletedProcess([], 0, "", "")
-        return (40.0 if parallel else 60.0) + len(calls), proc, [5.0]
+        return (40.0 if parallel else 60.0) + len(calls), proc, None
 
     monkeypatch.setattr(lb, "_cold_run", fake)
     res = lb.cold_start_ab(2, progress=lambda *a: None)

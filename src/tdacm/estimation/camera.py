@@ -34,6 +34,7 @@ Model (the same geometry as the servo's target filter, :mod:`tdacm.vision.target
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -87,7 +88,7 @@ class TargetCamera:
         for name in ("initial_position_std", "initial_attitude_std", "reinit_after"):
             C.positive(name, getattr(self, name))
 
-    @property
+    @cached_property
     def gate(self) -> float:
         """Chi-square 99.9 % quantile for the view's ``2k`` degrees of freedom."""
         return float(chdtri(2 * self.object_points.shape[0], 1e-3))
@@ -103,6 +104,13 @@ def view_model(rc, pc, rt, pt, jl, obj):
     h_cam = np.zeros((2 * k, 6))
     h_tgt = np.zeros((2 * k, 6))
     rct = rc.T.copy()
+    # per-point scratch, allocated once: the entries not written below stay zero
+    dpi = np.zeros((2, 3))
+    dc_dxi = np.zeros((3, 6))
+    for j in range(3):
+        dc_dxi[j, 3 + j] = -1.0
+    dc_dt = np.zeros((3, 6))
+    dc_dt[:, :3] = rct
     for i in range(k):
         rx = rt @ obj[i]
         c = rct @ (pt + rx - pc)
@@ -110,15 +118,9 @@ def view_model(rc, pc, rt, pt, jl, obj):
             return z, h_cam, h_tgt, False
         x, y = c[0] / c[2], c[1] / c[2]
         z[2 * i], z[2 * i + 1] = x, y
-        dpi = np.zeros((2, 3))
         dpi[0, 0], dpi[0, 2] = 1.0 / c[2], -x / c[2]
         dpi[1, 1], dpi[1, 2] = 1.0 / c[2], -y / c[2]
-        dc_dxi = np.zeros((3, 6))
         dc_dxi[:, :3] = skew(c)
-        for j in range(3):
-            dc_dxi[j, 3 + j] = -1.0
-        dc_dt = np.zeros((3, 6))
-        dc_dt[:, :3] = rct
         dc_dt[:, 3:] = -(rct @ skew(rx)) @ jl
         h_cam[2 * i : 2 * i + 2] = dpi @ dc_dxi
         h_tgt[2 * i : 2 * i + 2] = dpi @ dc_dt

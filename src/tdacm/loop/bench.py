@@ -57,26 +57,27 @@ def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
     }
 
 
-def _cold_run(parallel: bool | None) -> tuple[float, subprocess.CompletedProcess, list]:
-    """Wall time of ``tdacm run paper-in-fov --duration 1`` in a fresh, empty numba cache
-    (``parallel``: force the two-process compile on or off; ``None``: the default)."""
+def _cold_run(parallel: bool | None, warm: bool = False):
+    """``(cold wall s, its CompletedProcess, warm wall s or None)`` of ``tdacm run paper-in-fov
+    --duration 1`` in a fresh, empty numba cache, then (``warm``) once more on that cache.
+    ``parallel`` forces the two-process compile on or off; ``None``: the default."""
     cmd = [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "1"]
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
         if parallel is not None:
             env["TDACM_PARALLEL_COMPILE"] = "1" if parallel else "0"
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd + ["--out", out], env=env, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        warm0 = time.perf_counter()
-        subprocess.run(cmd + ["--out", out], env=env, capture_output=True, text=True)
-        warm = time.perf_counter() - warm0
-    return wall, proc, [warm]
+        walls, proc = [], None
+        for _ in range(2 if warm else 1):
+            t0 = time.perf_counter()
+            p = subprocess.run(cmd + ["--out", out], env=env, capture_output=True, text=True)
+            walls.append(time.perf_counter() - t0)
+            proc = proc or p
+    return walls[0], proc, (walls[1] if warm else None)
 
 
 def time_cold_start() -> dict:
     """Wall time of ``tdacm run paper-in-fov --duration 1`` with an empty numba cache."""
-    wall, proc, (warm,) = _cold_run(None)
+    wall, proc, warm = _cold_run(None, warm=True)
     return {
         "command": "tdacm run paper-in-fov --duration 1 (empty NUMBA_CACHE_DIR)",
         "cold_wall_s": wall,

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import unit_vector
 from .robot import ROBOT_SCHEMA, RobotError, strain_count
 
 
@@ -344,8 +345,10 @@ def validate(d: dict, source: str) -> Scenario:
         raise ScenarioError(f"{source}: ibvs.filter_smoothing must be >= 0")
     if not d["ibvs"]["target_level_prior_deg"] >= 0:
         raise ScenarioError(f"{source}: ibvs.target_level_prior_deg must be >= 0")
-    if sum(v * v for v in d["ibvs"]["target_level_normal"]) < 1e-12:
-        raise ScenarioError(f"{source}: ibvs.target_level_normal must be a non-zero vector")
+    try:
+        unit_vector("ibvs.target_level_normal", d["ibvs"]["target_level_normal"])
+    except ValueError as exc:
+        raise ScenarioError(f"{source}: {exc}") from None
     if any(abs(v) > 30.0 for v in d["scene"]["target_tilt_deg"]):
         raise ScenarioError(f"{source}: scene.target_tilt_deg must lie within +-30 deg")
     if d["ibvs"]["filter_window"] < 1:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..lie.euler import rot_zyx
 from . import _checks as C
 from .mounts import R_DOWN_CAMERA_IN_BODY
 from .targets import PAPER_MARKER, FiducialTarget
@@ -100,11 +101,8 @@ class SceneConfig:
         g = np.eye(4)
         g[:3, :3] = rz @ R_DOWN_CAMERA_IN_BODY
         tx, ty = np.radians(np.asarray(self.target_tilt_deg, float))
-        if tx or ty:  # about world x, then y (the board's centre stays put)
-            cx, sx, cy, sy = np.cos(tx), np.sin(tx), np.cos(ty), np.sin(ty)
-            rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
-            ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-            g[:3, :3] = ry @ rx @ g[:3, :3]
+        if tx or ty:  # about world x, then y (the board's centre stays put): Ry(ty) Rx(tx)
+            g[:3, :3] = rot_zyx(tx, ty, 0.0) @ g[:3, :3]
         g[:2, 3] = self.box_xy
         g[2, 3] = self.box_size + self.target_lift
         return g

@@ -110,10 +110,6 @@ def planar_pnp_poses(object_points, xy, camera_pose) -> list:
     return out
 
 
-def _hat(w):
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
 def target_in_camera(object_points, camera_pose, target_pose) -> np.ndarray:
     """Camera coordinates ``r = g_C^-1 g_T X_k`` (k, 3) of a target's points ``X_k`` (its
     frame) for world poses ``camera_pose`` ``g_C`` and ``target_pose`` ``g_T`` (4x4)."""
@@ -326,7 +322,7 @@ class TargetFilter:
         for k in range(4):
             x, y, zk = r[k]
             dpi = np.array([[1.0 / zk, 0.0, -x / zk**2], [0.0, 1.0 / zk, -y / zk**2]])
-            g[2 * k : 2 * k + 2, :3] = dpi @ _hat(r[k])
+            g[2 * k : 2 * k + 2, :3] = dpi @ skew(r[k])
             g[2 * k : 2 * k + 2, 3:] = -dpi
         return g @ np.asarray(camera_cov, float) @ g.T
 
