@@ -471,7 +471,8 @@ class RobustServo(VisualServo):
         rmse_meas = float("nan")
         if view.found:
             try:
-                rmse_meas = self.observe(view, q)[4]
+                # the RMSE only: the features and the error of the measured view are not used
+                rmse_meas = normalized_rmse(self.to_virtual(view, q)[0], self.desired_points)
             except ValueError:
                 pass
         prev = self.switch.mode
