@@ -27,3 +27,22 @@ def test_solve_other_inputs_go_to_numpy():
     assert np.array_equal(solve(a, [2, 4]), np.linalg.solve(a, [2, 4]))
     with pytest.raises(np.linalg.LinAlgError):
         solve(np.ones((2, 3)), np.ones(2))
+
+
+def test_solve_small_matches_lapack_and_flags_singular():
+    """The numba LU solve (target filter, stiff integrators) against LAPACK's, and a zero
+    pivot reported instead of raised."""
+    from tdacm._linalg import solve_small
+
+    rng = np.random.default_rng(2)
+    for n in (2, 6, 9):
+        a = rng.standard_normal((n, n)) + n * np.eye(n)
+        b = rng.standard_normal(n)
+        x, ok = solve_small(a, b)
+        assert ok
+        np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-12, atol=1e-14)
+    a = np.ones((3, 3))
+    x, ok = solve_small(a, np.ones(3))
+    assert not ok and not x.any()
+    with np.testing.assert_raises(np.linalg.LinAlgError):
+        np.linalg.solve(a, np.ones(3))  # what LAPACK does with the same matrix

@@ -5,11 +5,17 @@
 gufunc under the same error state, so the results are bit-identical and a singular matrix
 still raises ``LinAlgError("Singular matrix")``. Anything but a float64 square matrix and a
 float64 ``(M,)`` or ``(M, K)`` right-hand side goes to ``np.linalg.solve`` unchanged.
+
+For jitted code: :func:`lu_factor` / :func:`lu_solve` (LU with partial pivoting, numba; the
+stiff integrators' Newton systems and the target filter's Gauss-Newton steps), and
+:func:`solve_small`, the same as a ``(x, ok)`` solve that flags a singular matrix instead of
+raising (LAPACK's ``dgesv`` fails on an exactly zero pivot; so does this).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 try:  # numpy's private gufuncs (numpy >= 2); np.linalg.solve is the fallback
     from numpy.linalg import _umath_linalg as _ul
@@ -41,3 +47,65 @@ def solve(a, b) -> np.ndarray:
         call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
     ):
         return (_SOLVE1 if b.ndim == 1 else _SOLVE)(a, b, signature="dd->d")
+
+
+@njit(cache=True)
+def lu_factor(a):
+    """LU factorization with partial pivoting of a copy of ``a``: ``(lu, piv, ok)``."""
+    n = a.shape[0]
+    lu = a.copy()
+    piv = np.arange(n)
+    for k in range(n):
+        p = k
+        big = abs(lu[k, k])
+        for i in range(k + 1, n):
+            if abs(lu[i, k]) > big:
+                big = abs(lu[i, k])
+                p = i
+        if big == 0.0 or not np.isfinite(big):
+            return lu, piv, False
+        if p != k:
+            for c in range(n):
+                lu[k, c], lu[p, c] = lu[p, c], lu[k, c]
+            piv[k], piv[p] = piv[p], piv[k]
+        for i in range(k + 1, n):
+            lu[i, k] /= lu[k, k]
+            f = lu[i, k]
+            if f != 0.0:
+                for c in range(k + 1, n):
+                    lu[i, c] -= f * lu[k, c]
+    return lu, piv, True
+
+
+@njit(cache=True)
+def lu_solve(lu, piv, b):
+    """``A^-1 b`` from :func:`lu_factor` (real), in a new array (:func:`lu_solve_into`)."""
+    y = np.empty(b.shape[0])
+    lu_solve_into(lu, piv, b, y)
+    return y
+
+
+@njit(cache=True)
+def lu_solve_into(lu, piv, b, y):
+    """``y = A^-1 b`` from :func:`lu_factor` (real or complex), no allocation."""
+    n = b.shape[0]
+    for i in range(n):
+        s = b[piv[i]]
+        for p in range(i):
+            s -= lu[i, p] * y[p]
+        y[i] = s
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for p in range(i + 1, n):
+            s -= lu[i, p] * y[p]
+        y[i] = s / lu[i, i]
+
+
+@njit(cache=True)
+def solve_small(a, b):
+    """``(a^-1 b, ok)`` for a small dense ``a`` by :func:`lu_factor`; ``ok`` is False (and
+    ``x`` zero) when a pivot is zero or not finite."""
+    lu, piv, ok = lu_factor(a)
+    if not ok:
+        return np.zeros(b.shape[0]), False
+    return lu_solve(lu, piv, b), True

@@ -90,7 +90,9 @@ def test_second_half_uses_the_loops_signatures():
     from tdacm.lie.se3 import expmap, so3_log
     from tdacm.loop.build import build_loop
     from tdacm.system import kernels as K
-    from tdacm.vision.target_filter import _normal_equations
+    from tdacm.vision.ibvs import _twist_kernel
+    from tdacm.vision.target_filter import _gauss_newton_kernel, _is_diagonal, _normal_equations
+    from tdacm.vision.tip import _pinv_apply
 
     sc = load_scenario("paper-in-fov").with_overrides(
         {"cameras": {"local_renderer": "analytic", "global_every": 0}}
@@ -99,7 +101,10 @@ def test_second_half_uses_the_loops_signatures():
     loop.run(0.1)
     loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
     loop.close()
-    kernels = (K.rk4_run, K.chain_poses, _normal_equations, expmap, so3_log)
+    kernels = (
+        K.rk4_run, K.chain_poses, _normal_equations, _gauss_newton_kernel, _is_diagonal,
+        _twist_kernel, _pinv_apply, expmap, so3_log,
+    )  # fmt: skip
     before = {k.py_func.__name__: list(k.signatures) for k in kernels}
     assert all(before.values()), before
     precompile.compile_second_half()

@@ -130,3 +130,29 @@ def test_law_and_modes():
         c.twist(xy)
     with pytest.raises(ValueError, match="interaction"):
         ibvs_twist(e, np.eye(5))
+
+
+@pytest.mark.parametrize("mode", ["current", "desired", "mean"])
+@pytest.mark.parametrize("solver", ["floor", "damped"])
+def test_twist_kernel_matches_the_step_by_step_law(mode, solver):
+    """``features_error_twist`` (one numba call per period) = features, wrapped error and
+    ``-lambda J^+ e`` computed step by step with numpy's SVD (:func:`robust_solve`)."""
+    from tdacm.vision.features import advanced_features, feature_interaction_matrix
+    from tdacm.vision.ibvs import robust_solve
+
+    rng = np.random.default_rng(4)
+    d = np.array([[-0.1, -0.1], [-0.1, 0.1], [0.1, 0.1], [0.1, -0.1]])
+    c = IBVSController(d, 1.5, gain=0.8, mode=mode, floor=0.05, solver=solver)
+    for _ in range(5):
+        p = d @ np.array([[0.0, -1.0], [1.0, 0.0]]).T * 0.9 + 0.02 * rng.standard_normal((4, 2))
+        z = rng.uniform(1.2, 2.0, 4)
+        f, e, v = c.features_error_twist(p, z)
+        f_ref = advanced_features(p)
+        e_ref = c.error(p, features=f_ref)
+        jac = {"current": feature_interaction_matrix(p, z), "desired": c.interaction_desired}
+        jac["mean"] = 0.5 * (jac["current"] + c.interaction_desired)
+        v_ref = -0.8 * robust_solve(jac[mode], e_ref, 0.05, solver)
+        np.testing.assert_allclose(f, f_ref, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(e, e_ref, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(v, v_ref, rtol=1e-11, atol=1e-13)
+        np.testing.assert_allclose(v, c.twist(p, z, error=e_ref), rtol=1e-11, atol=1e-13)

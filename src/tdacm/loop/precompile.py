@@ -13,8 +13,9 @@ The split follows the order in which the main process needs the kernels:
   ``chain_jacobian``, the corner refinement and the image features (about 30 s);
 * meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
   compiles what the loop needs only from :func:`~tdacm.loop.build.warm_up` on: the plant's
-  ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's normal
-  equations and the SE(3)/SO(3) maps (about 30 s; ``rk4_run`` comes last, when the main
+  ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's
+  Gauss-Newton kernel, the servo's twist and joint-rate kernels and the SE(3)/SO(3) maps
+  (about 30 s; ``rk4_run`` comes last, when the main
   process has cached the rod callees it shares), while the main process also compiles the
   tension allocation;
 * :func:`wait` (called by ``warm_up``) waits for the second process before the first of
@@ -138,7 +139,9 @@ def compile_second_half() -> None:
     from .. import paper_system
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
-    from ..vision.target_filter import _normal_equations
+    from ..vision.ibvs import _twist_kernel
+    from ..vision.target_filter import _gauss_newton_kernel, _is_diagonal
+    from ..vision.tip import _pinv_apply
 
     # rk4_run last: by then the main process has cached the rod callees it shares with
     # coupled_terms (rod_step, ...), which load instead of compiling twice (measured: 18 s
@@ -148,7 +151,15 @@ def compile_second_half() -> None:
     obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
     z = np.tile(obj[:, :2], (2, 1, 1))
     w = np.tile(np.eye(8), (2, 1, 1))
-    _normal_equations(np.eye(3), np.array([0.0, 0.0, 1.0]), rc, pc, z, obj, w)
+    diag = np.array([_is_diagonal(w[0]), _is_diagonal(w[1])])
+    normal = np.array([0.0, 0.0, -1.0])
+    pose = np.eye(4)
+    pose[2, 3] = 1.0
+    _gauss_newton_kernel(pose, rc, pc, z, obj, w, diag, 2, normal, 1.0)
+    # the servo's twist (mode "mean", floor solve) and joint rates
+    xy, depths = np.ascontiguousarray(obj[:, :2]), np.ones(4)
+    _twist_kernel(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)
+    _pinv_apply(np.eye(6), np.zeros(6), 1e-8)
     expmap(np.zeros(6))
     so3_log(np.eye(3))
     system = paper_system()

@@ -34,6 +34,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._linalg import lu_factor as _lu
+from .._linalg import lu_solve as _lu_solve
+from .._linalg import lu_solve_into as _lu_solve_into
 from . import kernels as K
 
 
@@ -78,42 +81,6 @@ def dynamics_and_mass(q, qd, u, m, loads):
     rhs -= K._matvec(m.damping, qd) + K._matvec(m.stiffness, q)
     qdd, ok = K.cholesky_solve(mm, rhs)
     return qdd, mm, ok
-
-
-@njit(cache=True)
-def _lu(a):
-    """LU factorization with partial pivoting of a copy of ``a``: ``(lu, piv, ok)``."""
-    n = a.shape[0]
-    lu = a.copy()
-    piv = np.arange(n)
-    for k in range(n):
-        p = k
-        big = abs(lu[k, k])
-        for i in range(k + 1, n):
-            if abs(lu[i, k]) > big:
-                big = abs(lu[i, k])
-                p = i
-        if big == 0.0 or not np.isfinite(big):
-            return lu, piv, False
-        if p != k:
-            for c in range(n):
-                lu[k, c], lu[p, c] = lu[p, c], lu[k, c]
-            piv[k], piv[p] = piv[p], piv[k]
-        for i in range(k + 1, n):
-            lu[i, k] /= lu[k, k]
-            f = lu[i, k]
-            if f != 0.0:
-                for c in range(k + 1, n):
-                    lu[i, c] -= f * lu[k, c]
-    return lu, piv, True
-
-
-@njit(cache=True)
-def _lu_solve(lu, piv, b):
-    """``A^-1 b`` from :func:`_lu` (real), in a new array (:func:`_lu_solve_into`)."""
-    y = np.empty(b.shape[0])
-    _lu_solve_into(lu, piv, b, y)
-    return y
 
 
 @njit(cache=True)
@@ -292,22 +259,6 @@ RADAU_GAMMA = float(np.linalg.eigvals(RADAU_AINV).real.max())
 RADAU_D = np.array(
     [-(13.0 + 7.0 * np.sqrt(6.0)) / 3.0, (-13.0 + 7.0 * np.sqrt(6.0)) / 3.0, -1.0 / 3.0]
 )
-
-
-@njit(cache=True)
-def _lu_solve_into(lu, piv, b, y):
-    """``y = A^-1 b`` from :func:`_lu` (real or complex), no allocation."""
-    n = b.shape[0]
-    for i in range(n):
-        s = b[piv[i]]
-        for p in range(i):
-            s -= lu[i, p] * y[p]
-        y[i] = s
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for p in range(i + 1, n):
-            s -= lu[i, p] * y[p]
-        y[i] = s / lu[i, i]
 
 
 @njit(cache=True)

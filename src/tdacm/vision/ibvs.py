@@ -36,9 +36,18 @@ ones are driven more slowly.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from . import _checks as C
-from .features import advanced_features, feature_interaction_matrix, wrap_angle
+from .features import (
+    _features_kernel,
+    _interaction_kernel,
+    _min_edge2,
+    _wrap,
+    advanced_features,
+    feature_interaction_matrix,
+    wrap_angle,
+)
 
 MODES = ("current", "desired", "mean")
 SOLVERS = ("floor", "damped")
@@ -65,6 +74,39 @@ def _robust_solve(jac: np.ndarray, e: np.ndarray, floor: float, solver: str) -> 
     u, s, vt = np.linalg.svd(jac)
     inv = 1.0 / np.maximum(s, floor) if solver == "floor" else s / (s * s + floor * floor)
     return vt.T @ (inv * (u.T @ e))
+
+
+@njit(cache=True)
+def _twist_kernel(p, z, desired, interaction_desired, mode, gain, floor, damped):
+    """Features, error and twist of the law for checked points ``p`` (4, 2) and positive
+    depths ``z`` (4,) in one call (the servo's every period): ``mode`` 0 / 1 / 2 for
+    ``"current"`` / ``"desired"`` / ``"mean"``, ``floor > 0`` with ``damped`` False / True for
+    the ``"floor"`` / ``"damped"`` solve (:func:`robust_solve`). ``floor = 0`` is left to the
+    caller (the paper's plain solve and its least-squares fallback)."""
+    f = _features_kernel(p)
+    e = f - desired
+    for i in range(3):
+        e[i] = _wrap(e[i])
+    if mode == 1:
+        jac = interaction_desired
+    elif mode == 0:
+        jac = _interaction_kernel(p, z)
+    else:
+        jac = 0.5 * (_interaction_kernel(p, z) + interaction_desired)
+    u, sv, vt = np.linalg.svd(jac)
+    w = np.empty(6)
+    for i in range(6):
+        ue = 0.0
+        for k in range(6):
+            ue += u[k, i] * e[k]
+        w[i] = ue * (sv[i] / (sv[i] * sv[i] + floor * floor) if damped else 1.0 / max(sv[i], floor))
+    v = np.empty(6)
+    for k in range(6):
+        acc = 0.0
+        for i in range(6):
+            acc += vt[i, k] * w[i]
+        v[k] = -gain * acc
+    return f, e, v
 
 
 def ibvs_twist(
@@ -139,6 +181,22 @@ class IBVSController:
         self.mode = mode
         self.order = order
         self.interaction_desired = feature_interaction_matrix(self.desired_points, desired_depths)
+        self._mode_code = MODES.index(mode)
+
+    def features_error_twist(self, points, depths):
+        """``(features, error, twist)`` of checked points ``(4, 2)`` and depths ``(4,)`` (the
+        predictive servo's every period; :func:`_twist_kernel` when ``floor > 0``, angular-first
+        twist)."""
+        if self.floor > 0.0 and self.order == "angular_first":
+            if _min_edge2(points) < 1e-24:
+                raise ValueError("points must be four distinct corners (an edge has zero length)")
+            return _twist_kernel(
+                points, depths, self.desired, self.interaction_desired, self._mode_code,
+                self.gain, self.floor, self.solver == "damped",
+            )  # fmt: skip
+        f = advanced_features(points)
+        e = self.error(points, features=f)
+        return f, e, self.twist(points, depths, error=e)
 
     def error(self, points, features=None) -> np.ndarray:
         """Feature error ``p* - p*_d`` (angles wrapped); ``features``: the points' advanced

@@ -246,7 +246,5 @@ class PredictiveServo:
         if camera_pose is not None:
             xl, zl = self._points_in(camera_pose)
             pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
-        f = advanced_features(xy)
-        e = self.controller.error(xy, features=f)  # the features once, not three times
-        v = self.controller.twist(xy, z, error=e)
+        f, e, v = self.controller.features_error_twist(xy, z)
         return PredictedStep(xy, z, f, e, v, pix)

@@ -23,6 +23,7 @@ The model is only used through its documented API: ``system.n``, ``system.floati
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from tdacm.lie.se3 import Ad
 
@@ -93,10 +94,35 @@ def tip_joint_rates(
 
 def rates_from_jacobian(jac, tip_twist, commanded, rcond: float = 1e-8) -> np.ndarray:
     """``qdot_d[commanded] = (J[:, commanded])^+ v`` (zeros elsewhere), on checked inputs:
-    the per-period core of :func:`tip_joint_rates`."""
+    the per-period core of :func:`tip_joint_rates` (:func:`_pinv_apply`)."""
     qdot = np.zeros(jac.shape[1])
-    qdot[commanded] = np.linalg.pinv(jac[:, commanded], rcond=rcond) @ tip_twist
+    qdot[commanded] = _pinv_apply(
+        np.ascontiguousarray(jac[:, commanded]), np.asarray(tip_twist, float), float(rcond)
+    )
     return qdot
+
+
+@njit(cache=True)
+def _pinv_apply(a, b, rcond):
+    """``pinv(a, rcond) @ b`` as ``np.linalg.pinv`` defines it: the SVD with the singular
+    values below ``rcond`` times the largest dropped."""
+    u, sv, vt = np.linalg.svd(a, full_matrices=False)
+    cut = rcond * sv[0]
+    k = sv.shape[0]
+    w = np.zeros(k)
+    for i in range(k):
+        if sv[i] > cut:
+            acc = 0.0
+            for r in range(a.shape[0]):
+                acc += u[r, i] * b[r]
+            w[i] = acc / sv[i]
+    x = np.zeros(a.shape[1])
+    for c in range(a.shape[1]):
+        acc = 0.0
+        for i in range(k):
+            acc += vt[i, c] * w[i]
+        x[c] = acc
+    return x
 
 
 def camera_joint_rates(
