@@ -102,3 +102,32 @@ def test_lyapunov_non_increasing_with_constant_uncertainty():
     assert v[-1] < 1e-2 * v[0]
     assert np.abs(q).max() < 1e-2
     assert np.allclose(law.delta_hat, -delta, atol=2e-3)
+
+
+def test_law_kernel_matches_the_matrix_form():
+    """``_law_kernel`` (the law's per-period numba core) = the paper's law written with
+    matrix products, for full (non-diagonal) gains and a random state."""
+    from tdacm.control.adaptive import _law_kernel
+
+    rng = np.random.default_rng(9)
+    n = 8
+    x = rng.standard_normal((n, n))
+    m = x @ x.T + n * np.eye(n)
+    c, d = rng.standard_normal((n, n)), np.diag(rng.uniform(0.1, 1.0, n))
+    k = rng.standard_normal(n)
+    q, qd, q_d, qd_d, qdd_d, delta = (rng.standard_normal(n) for _ in range(6))
+    beta = rng.uniform(1.0, 5.0, n)
+    a_d = m * 2.0
+    a_p = a_d * beta[None, :] + np.eye(n)
+    tau, e, edot, s, qd_r, qdd_r, v = _law_kernel(
+        m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta
+    )
+    e_ref, edot_ref = q - q_d, qd - qd_d
+    qd_r_ref, qdd_r_ref = qd_d - beta * e_ref, qdd_d - beta * edot_ref
+    s_ref = edot_ref + beta * e_ref
+    tau_ref = m @ qdd_r_ref + (c + d) @ qd_r_ref + k - a_d @ edot_ref - a_p @ e_ref + delta
+    v_ref = 0.5 * s_ref @ m @ s_ref + 0.5 * e_ref @ ((beta[:, None] * a_d + a_p) @ e_ref)
+    for got, ref in ((e, e_ref), (s, s_ref), (qd_r, qd_r_ref), (qdd_r, qdd_r_ref)):
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(tau, tau_ref, rtol=1e-13, atol=1e-12)
+    assert v == pytest.approx(v_ref, rel=1e-13)

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from .model import EstimatedModel
 
@@ -151,6 +152,37 @@ class AdaptiveOutput:
     V: float  # Lyapunov function without the Delta_tilde term
 
 
+@njit(cache=True)
+def _law_kernel(m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta_hat):
+    """The law (module docstring) on plain arrays: ``e = q - q_d``, ``qdot_r = qdot_d -
+    beta e``, ``s = edot + beta e``, ``tau_a = M qdd_r + (C + D) qdot_r + K - A_d edot - A_p e
+    + Delta_hat`` and ``V`` without the ``Delta_tilde`` term."""
+    n = q.shape[0]
+    e = q - q_d
+    edot = qd - qd_d
+    qd_r = np.empty(n)
+    qdd_r = np.empty(n)
+    s = np.empty(n)
+    for i in range(n):
+        qd_r[i] = qd_d[i] - beta[i] * e[i]
+        qdd_r[i] = qdd_d[i] - beta[i] * edot[i]
+        s[i] = edot[i] + beta[i] * e[i]
+    tau = np.empty(n)
+    v = 0.0
+    for i in range(n):
+        acc = k[i] + delta_hat[i]
+        ms = 0.0
+        ve = 0.0
+        for j in range(n):
+            acc += m[i, j] * qdd_r[j] + (c[i, j] + d[i, j]) * qd_r[j]
+            acc -= a_d[i, j] * edot[j] + a_p[i, j] * e[j]
+            ms += m[i, j] * s[j]
+            ve += (beta[i] * a_d[i, j] + a_p[i, j]) * e[j]
+        tau[i] = acc
+        v += 0.5 * (s[i] * ms + e[i] * ve)
+    return tau, e, edot, s, qd_r, qdd_r, v
+
+
 class AdaptiveController:
     """The adaptive sliding-mode law on an :class:`EstimatedModel`.
 
@@ -171,17 +203,16 @@ class AdaptiveController:
         self.delta_hat = np.zeros(self.n) if delta0 is None else np.asarray(delta0, float).copy()
 
     def law(self, q, qd, q_d, qd_d, qdd_d, terms=None) -> AdaptiveOutput:
+        """``tau_a`` and the sliding variables at ``(q, qdot)`` for the reference ``q_d``,
+        ``qdot_d``, ``qddot_d`` (module docstring; :func:`_law_kernel`)."""
         g = self.gains
         q, qd = np.asarray(q, float), np.asarray(qd, float)
-        e = q - np.asarray(q_d, float)
-        edot = qd - np.asarray(qd_d, float)
-        qd_r = np.asarray(qd_d, float) - g.beta * e
-        qdd_r = np.asarray(qdd_d, float) - g.beta * edot
-        s = edot + g.beta * e
         t = self.model.terms(q, qd) if terms is None else terms
-        tau = t.M @ qdd_r + (t.C + t.D) @ qd_r + t.K - g.A_d @ edot - g.A_p @ e + self.delta_hat
-        v = 0.5 * s @ t.M @ s + 0.5 * e @ ((g.beta[:, None] * g.A_d + g.A_p) @ e)
-        return AdaptiveOutput(tau, e, edot, s, qd_r, qdd_r, float(v))
+        tau, e, edot, s, qd_r, qdd_r, v = _law_kernel(
+            t.M, t.C, t.D, t.K, q, qd, np.asarray(q_d, float), np.asarray(qd_d, float),
+            np.asarray(qdd_d, float), g.beta, g.A_d, g.A_p, self.delta_hat,
+        )  # fmt: skip
+        return AdaptiveOutput(tau, e, edot, s, qd_r, qdd_r, v)
 
     def adapt(self, s, dt: float) -> None:
         """``Delta_hat <- Delta_hat - A_a s dt``."""

@@ -150,17 +150,50 @@ def allocate_tensions(
         raise ValueError(f"B_s must be (n_s, n_a) and tau_s (n_s,), got {b.shape}, {tau.shape}")
     if max_tension <= 0 or pretension < 0 or pretension > max_tension:
         raise ValueError("need 0 <= pretension <= max_tension and max_tension > 0")
-    na = b.shape[1]
-    w = weight * max(float(np.linalg.norm(b, axis=0).max()), 1e-12)
-    a = np.vstack((b, w * np.eye(na)))
-    rhs = np.concatenate((tau, np.full(na, w * pretension)))
-    t = np.clip(box_least_squares(a, rhs, 0.0, max_tension), 0.0, max_tension)
-    resid = float(np.linalg.norm(b @ t - tau))
-    at_max = bool(np.any(t >= max_tension - 1e-9))
-    at_zero = bool(np.any(t <= 1e-9))
+    t, resid, at_max, at_zero = _allocate_tensions_kernel(
+        np.ascontiguousarray(b), np.ascontiguousarray(tau), float(max_tension),
+        float(pretension), float(weight),
+    )  # fmt: skip
     scale = max(1.0, float(np.linalg.norm(tau)))
     saturated = bool((at_max or at_zero) and resid > tol * scale + 1e-9)
     return TendonAllocation(t, resid, saturated, at_max, at_zero)
+
+
+@njit(cache=True)
+def _allocate_tensions_kernel(b, tau, max_tension, pretension, weight):
+    """The bounded least squares of :func:`allocate_tensions` on checked arrays:
+    ``(T, |B_s T - tau_s|, any T at T_max, any T at 0)``."""
+    ns, na = b.shape
+    big = 0.0
+    for j in range(na):
+        col = 0.0
+        for i in range(ns):
+            col += b[i, j] * b[i, j]
+        big = max(big, np.sqrt(col))
+    w = weight * max(big, 1e-12)
+    a = np.zeros((ns + na, na))
+    rhs = np.empty(ns + na)
+    for i in range(ns):
+        rhs[i] = tau[i]
+        for j in range(na):
+            a[i, j] = b[i, j]
+    for j in range(na):
+        a[ns + j, j] = w
+        rhs[ns + j] = w * pretension
+    t = box_least_squares(a, rhs, 0.0, max_tension)
+    at_max = False
+    at_zero = False
+    for j in range(na):
+        t[j] = min(max(t[j], 0.0), max_tension)
+        at_max = at_max or t[j] >= max_tension - 1e-9
+        at_zero = at_zero or t[j] <= 1e-9
+    r2 = 0.0
+    for i in range(ns):
+        acc = -tau[i]
+        for j in range(na):
+            acc += b[i, j] * t[j]
+        r2 += acc * acc
+    return t, np.sqrt(r2), at_max, at_zero
 
 
 @dataclass(frozen=True)

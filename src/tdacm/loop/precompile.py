@@ -137,6 +137,8 @@ def compile_second_half() -> None:
     """Call once each kernel that the loop first needs in ``warm_up`` and in its first
     periods, with the argument types of the loop's own calls (module docstring)."""
     from .. import paper_system
+    from ..control.adaptive import _law_kernel
+    from ..control.allocation import _allocate_tensions_kernel
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
     from ..vision.ibvs import _twist_kernel
@@ -160,6 +162,10 @@ def compile_second_half() -> None:
     xy, depths = np.ascontiguousarray(obj[:, :2]), np.ones(4)
     _twist_kernel(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)
     _pinv_apply(np.eye(6), np.zeros(6), 1e-8)
+    # the low-level controller's law and tension allocation
+    v8, m8 = np.zeros(8), np.eye(8)
+    _law_kernel(m8, m8, m8, v8, v8, v8, v8, v8, v8, np.ones(8), m8, m8, v8)
+    _allocate_tensions_kernel(np.ones((2, 4)), np.zeros(2), 10.0, 0.5, 1e-3)
     expmap(np.zeros(6))
     so3_log(np.eye(3))
     system = paper_system()
