@@ -69,6 +69,7 @@ class RenderedFrontEnd:
         self.camera = camera
         self._renderer = renderer  # a renderer, or a callable that makes one on first use
         self.detector = TargetDetector(target, track=track)
+        self._win_cam = None  # (window, camera, the camera of that window)
 
     @property
     def renderer(self):
@@ -85,6 +86,17 @@ class RenderedFrontEnd:
             r.set_arm(system.base_pose(q), system.backbone(q, 21))
         return r.render(self.camera if camera is None else camera, pose)
 
+    def _window_camera(self, win) -> PinholeCamera:
+        """The camera whose image is the window ``(x0, y0, x1, y1)`` of this one (same
+        focal lengths, shifted principal point), kept while the window stays the same (the
+        tracking window moves in steps of whole pixels, often not at all)."""
+        cam = self.camera
+        if self._win_cam is None or self._win_cam[0] != win or self._win_cam[1] is not cam:
+            x0, y0, x1, y1 = win
+            crop = replace(cam, width=x1 - x0, height=y1 - y0, cx=cam.cx - x0, cy=cam.cy - y0)
+            self._win_cam = (win, cam, crop)
+        return self._win_cam[2]
+
     def detect_at(self, pose, system, q, need_image: bool) -> tuple:
         """``(detection, image)``. While the detector tracks the target and no full image is
         needed, only its tracking window is rendered (a camera with the window's size and
@@ -93,9 +105,9 @@ class RenderedFrontEnd:
         cam = self.camera
         win = None if need_image else self.detector.tracking_window((cam.height, cam.width))
         if win is not None and not getattr(self.renderer, "draws_arm", False):
-            x0, y0, x1, y1 = win
-            crop_cam = replace(cam, width=x1 - x0, height=y1 - y0, cx=cam.cx - x0, cy=cam.cy - y0)
-            det = self.detector.detect_in_window(self.render(pose, camera=crop_cam), win)
+            det = self.detector.detect_in_window(
+                self.render(pose, camera=self._window_camera(win)), win
+            )
             if det.found:
                 return det, None
         image = self.render(pose, system, q)
