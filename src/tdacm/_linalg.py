@@ -51,10 +51,21 @@ def solve(a, b) -> np.ndarray:
 
 @njit(cache=True)
 def lu_factor(a):
-    """LU factorization with partial pivoting of a copy of ``a``: ``(lu, piv, ok)``."""
-    n = a.shape[0]
+    """LU factorization with partial pivoting of a copy of ``a``: ``(lu, piv, ok)``
+    (:func:`lu_inplace`)."""
     lu = a.copy()
-    piv = np.arange(n)
+    piv = np.empty(a.shape[0], np.int64)
+    ok = lu_inplace(lu, piv)
+    return lu, piv, ok
+
+
+@njit(cache=True)
+def lu_inplace(lu, piv):
+    """LU factorization with partial pivoting of ``lu`` (real or complex) in place, the row
+    permutation in ``piv``; False if a pivot is zero or not finite (singular)."""
+    n = lu.shape[0]
+    for k in range(n):
+        piv[k] = k
     for k in range(n):
         p = k
         big = abs(lu[k, k])
@@ -63,18 +74,19 @@ def lu_factor(a):
                 big = abs(lu[i, k])
                 p = i
         if big == 0.0 or not np.isfinite(big):
-            return lu, piv, False
+            return False
         if p != k:
             for c in range(n):
                 lu[k, c], lu[p, c] = lu[p, c], lu[k, c]
             piv[k], piv[p] = piv[p], piv[k]
+        inv = 1.0 / lu[k, k]
         for i in range(k + 1, n):
-            lu[i, k] /= lu[k, k]
-            f = lu[i, k]
+            f = lu[i, k] * inv
+            lu[i, k] = f
             if f != 0.0:
                 for c in range(k + 1, n):
                     lu[i, c] -= f * lu[k, c]
-    return lu, piv, True
+    return True
 
 
 @njit(cache=True)

@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit
 
 from .._linalg import lu_factor as _lu
+from .._linalg import lu_inplace as _lu_inplace
 from .._linalg import lu_solve as _lu_solve
 from .._linalg import lu_solve_into as _lu_solve_into
 from . import kernels as K
@@ -314,35 +315,6 @@ def _stage_matrix(ms, ainv, ainv2, h, kk, dm, out):
                     if i == j:
                         x += kk[r, c]
                     out[i * n + r, j * n + c] = x
-
-
-@njit(cache=True)
-def _lu_inplace(lu, piv):
-    """LU factorization with partial pivoting of ``lu`` in place; False if singular."""
-    n = lu.shape[0]
-    for k in range(n):
-        piv[k] = k
-    for k in range(n):
-        p = k
-        big = abs(lu[k, k])
-        for i in range(k + 1, n):
-            if abs(lu[i, k]) > big:
-                big = abs(lu[i, k])
-                p = i
-        if big == 0.0 or not np.isfinite(big):
-            return False
-        if p != k:
-            for c in range(n):
-                lu[k, c], lu[p, c] = lu[p, c], lu[k, c]
-            piv[k], piv[p] = piv[p], piv[k]
-        inv = 1.0 / lu[k, k]
-        for i in range(k + 1, n):
-            f = lu[i, k] * inv
-            lu[i, k] = f
-            if f != 0.0:
-                for c in range(k + 1, n):
-                    lu[i, c] -= f * lu[k, c]
-    return True
 
 
 @njit(cache=True)
