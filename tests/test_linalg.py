@@ -46,3 +46,27 @@ def test_solve_small_matches_lapack_and_flags_singular():
     assert not ok and not x.any()
     with np.testing.assert_raises(np.linalg.LinAlgError):
         np.linalg.solve(a, np.ones(3))  # what LAPACK does with the same matrix
+
+
+@pytest.mark.parametrize("shape", [(6, 6), (6, 4), (6, 8)])
+def test_svd_solve_matches_numpy(shape):
+    """``svd_solve`` (the servo's twist, the joint rates) against numpy: the pseudo-inverse
+    (``np.linalg.pinv(a, rcond) @ b``, also rank-deficient: the same singular values cut),
+    and the floored and damped inverses written with numpy's SVD."""
+    from tdacm._linalg import SVD_DAMPED, SVD_FLOOR, SVD_PINV, svd_solve
+
+    rng = np.random.default_rng(7)
+    a = rng.standard_normal(shape)
+    b = rng.standard_normal(6)
+    np.testing.assert_allclose(
+        svd_solve(a, b, SVD_PINV, 1e-8), np.linalg.pinv(a, rcond=1e-8) @ b, rtol=1e-12, atol=1e-13
+    )
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    for kind, inv in ((SVD_FLOOR, 1.0 / np.maximum(s, 0.5)), (SVD_DAMPED, s / (s * s + 0.25))):
+        np.testing.assert_allclose(
+            svd_solve(a, b, kind, 0.5), vt.T @ (inv * (u.T @ b)), rtol=1e-12, atol=1e-13
+        )
+    a[:, 1] = a[:, 0]  # rank-deficient
+    np.testing.assert_allclose(
+        svd_solve(a, b, SVD_PINV, 1e-8), np.linalg.pinv(a, rcond=1e-8) @ b, rtol=1e-10, atol=1e-12
+    )

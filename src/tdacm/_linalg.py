@@ -9,7 +9,9 @@ float64 ``(M,)`` or ``(M, K)`` right-hand side goes to ``np.linalg.solve`` uncha
 For jitted code: :func:`lu_factor` / :func:`lu_solve` (LU with partial pivoting, numba; the
 stiff integrators' Newton systems and the target filter's Gauss-Newton steps), and
 :func:`solve_small`, the same as a ``(x, ok)`` solve that flags a singular matrix instead of
-raising (LAPACK's ``dgesv`` fails on an exactly zero pivot; so does this).
+raising (LAPACK's ``dgesv`` fails on an exactly zero pivot; so does this), and
+:func:`svd_solve`, the SVD solves of the servo (floored or damped small singular values) and
+of the joint rates (the pseudo-inverse).
 """
 
 from __future__ import annotations
@@ -79,9 +81,8 @@ def lu_inplace(lu, piv):
             for c in range(n):
                 lu[k, c], lu[p, c] = lu[p, c], lu[k, c]
             piv[k], piv[p] = piv[p], piv[k]
-        inv = 1.0 / lu[k, k]
         for i in range(k + 1, n):
-            f = lu[i, k] * inv
+            f = lu[i, k] / lu[k, k]
             lu[i, k] = f
             if f != 0.0:
                 for c in range(k + 1, n):
@@ -121,3 +122,38 @@ def solve_small(a, b):
     if not ok:
         return np.zeros(b.shape[0]), False
     return lu_solve(lu, piv, b), True
+
+
+#: ``kind`` of :func:`svd_solve`
+SVD_PINV, SVD_FLOOR, SVD_DAMPED = 0, 1, 2
+
+
+@njit(cache=True)
+def svd_solve(a, b, kind, param):
+    """``V diag(f(sigma)) U^T b`` from the thin SVD ``a = U diag(sigma) V^T``, with ``f`` by
+    ``kind``: :data:`SVD_PINV` the pseudo-inverse, ``1 / sigma`` for ``sigma > param
+    sigma_max`` and 0 below (``np.linalg.pinv(a, rcond=param) @ b``); :data:`SVD_FLOOR`
+    ``1 / max(sigma, param)``; :data:`SVD_DAMPED` ``sigma / (sigma^2 + param^2)``."""
+    u, sv, vt = np.linalg.svd(a, full_matrices=False)
+    k = sv.shape[0]
+    cut = param * sv[0]
+    w = np.zeros(k)
+    for i in range(k):
+        if kind == SVD_PINV and not sv[i] > cut:
+            continue
+        acc = 0.0
+        for r in range(a.shape[0]):
+            acc += u[r, i] * b[r]
+        if kind == SVD_PINV:
+            w[i] = acc / sv[i]
+        elif kind == SVD_FLOOR:
+            w[i] = acc * (1.0 / max(sv[i], param))
+        else:
+            w[i] = acc * (sv[i] / (sv[i] * sv[i] + param * param))
+    x = np.zeros(a.shape[1])
+    for c in range(a.shape[1]):
+        acc = 0.0
+        for i in range(k):
+            acc += vt[i, c] * w[i]
+        x[c] = acc
+    return x

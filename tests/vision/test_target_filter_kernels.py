@@ -6,9 +6,9 @@ import pytest
 
 from tdacm.lie.se3 import expmap
 from tdacm.vision.target_filter import (
+    _diagonal_flags,
     _frame_residuals,
     _gauss_newton_kernel,
-    _is_diagonal,
     _level_prior_into,
     _normal_equations,
     _target_points,
@@ -28,7 +28,7 @@ def test_normal_equations_match_matrix_products(diagonal):
     w = np.tile(np.diag(rng.uniform(1e4, 1e5, 8)), (n, 1, 1))
     if not diagonal:
         w = w + 10.0 * np.ones((8, 8))  # a pose-noise term couples the points
-    diag = np.array([_is_diagonal(wj) for wj in w])
+    diag = _diagonal_flags(w)
     assert diag.all() == diagonal and diag.any() == diagonal
     info, grad, cost, ok = _normal_equations(rt, pt, rc, pc, z, obj, w, diag)
     assert ok

@@ -162,21 +162,3 @@ def test_kinematic_arm_servo_real_system(tilt):
     )
     assert r.converged, r
     np.testing.assert_allclose(r.q[2:], Q_FINAL[2:], atol=1e-4)
-
-
-@pytest.mark.parametrize("shape", [(6, 6), (6, 4), (6, 8)])
-def test_pinv_kernel_matches_numpy(shape):
-    """``_pinv_apply`` (the servo's per-period joint rates) = ``np.linalg.pinv(a, rcond) @ b``,
-    also for a rank-deficient ``a`` (the cut-off drops the same singular values)."""
-    from tdacm.vision.tip import _pinv_apply
-
-    rng = np.random.default_rng(7)
-    a = rng.standard_normal(shape)
-    b = rng.standard_normal(6)
-    np.testing.assert_allclose(
-        _pinv_apply(a, b, 1e-8), np.linalg.pinv(a, rcond=1e-8) @ b, rtol=1e-12, atol=1e-13
-    )
-    a[:, 1] = a[:, 0]  # rank-deficient
-    np.testing.assert_allclose(
-        _pinv_apply(a, b, 1e-8), np.linalg.pinv(a, rcond=1e-8) @ b, rtol=1e-10, atol=1e-12
-    )

@@ -137,13 +137,13 @@ def compile_second_half() -> None:
     """Call once each kernel that the loop first needs in ``warm_up`` and in its first
     periods, with the argument types of the loop's own calls (module docstring)."""
     from .. import paper_system
+    from .._linalg import SVD_PINV, svd_solve
     from ..control.adaptive import _law_kernel
     from ..control.allocation import _allocate_tensions_kernel
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
     from ..vision.ibvs import _twist_kernel
-    from ..vision.target_filter import _gauss_newton_kernel, _is_diagonal
-    from ..vision.tip import _pinv_apply
+    from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 
     # rk4_run last: by then the main process has cached the rod callees it shares with
     # coupled_terms (rod_step, ...), which load instead of compiling twice (measured: 18 s
@@ -153,7 +153,8 @@ def compile_second_half() -> None:
     obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
     z = np.tile(obj[:, :2], (2, 1, 1))
     w = np.tile(np.eye(8), (2, 1, 1))
-    diag = np.array([_is_diagonal(w[0]), _is_diagonal(w[1])])
+    diag = _diagonal_flags(w)
+    _diagonal_flags(w[:1])  # the filter's per-frame call
     normal = np.array([0.0, 0.0, -1.0])
     pose = np.eye(4)
     pose[2, 3] = 1.0
@@ -161,7 +162,7 @@ def compile_second_half() -> None:
     # the servo's twist (mode "mean", floor solve) and joint rates
     xy, depths = np.ascontiguousarray(obj[:, :2]), np.ones(4)
     _twist_kernel(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)
-    _pinv_apply(np.eye(6), np.zeros(6), 1e-8)
+    svd_solve(np.eye(6), np.zeros(6), SVD_PINV, 1e-8)
     # the low-level controller's law and tension allocation
     v8, m8 = np.zeros(8), np.eye(8)
     _law_kernel(m8, m8, m8, v8, v8, v8, v8, v8, v8, np.ones(8), m8, m8, v8)

@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._linalg import SVD_DAMPED, SVD_FLOOR, svd_solve
 from . import _checks as C
 from .features import (
     _features_kernel,
@@ -71,9 +72,7 @@ def _robust_solve(jac: np.ndarray, e: np.ndarray, floor: float, solver: str) -> 
         raise ValueError(f"floor must be >= 0, got {floor!r}")
     if floor == 0.0:
         return _solve(jac, e)
-    u, s, vt = np.linalg.svd(jac)
-    inv = 1.0 / np.maximum(s, floor) if solver == "floor" else s / (s * s + floor * floor)
-    return vt.T @ (inv * (u.T @ e))
+    return svd_solve(jac, e, SVD_FLOOR if solver == "floor" else SVD_DAMPED, floor)
 
 
 @njit(cache=True)
@@ -93,19 +92,10 @@ def _twist_kernel(p, z, desired, interaction_desired, mode, gain, floor, damped)
         jac = _interaction_kernel(p, z)
     else:
         jac = 0.5 * (_interaction_kernel(p, z) + interaction_desired)
-    u, sv, vt = np.linalg.svd(jac)
-    w = np.empty(6)
-    for i in range(6):
-        ue = 0.0
-        for k in range(6):
-            ue += u[k, i] * e[k]
-        w[i] = ue * (sv[i] / (sv[i] * sv[i] + floor * floor) if damped else 1.0 / max(sv[i], floor))
+    x = svd_solve(jac, e, SVD_DAMPED if damped else SVD_FLOOR, floor)
     v = np.empty(6)
     for k in range(6):
-        acc = 0.0
-        for i in range(6):
-            acc += vt[i, k] * w[i]
-        v[k] = -gain * acc
+        v[k] = -gain * x[k]
     return f, e, v
 
 

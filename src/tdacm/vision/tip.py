@@ -23,8 +23,8 @@ The model is only used through its documented API: ``system.n``, ``system.floati
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from tdacm._linalg import SVD_PINV, svd_solve
 from tdacm.lie.se3 import Ad
 
 from . import _checks as C
@@ -94,35 +94,13 @@ def tip_joint_rates(
 
 def rates_from_jacobian(jac, tip_twist, commanded, rcond: float = 1e-8) -> np.ndarray:
     """``qdot_d[commanded] = (J[:, commanded])^+ v`` (zeros elsewhere), on checked inputs:
-    the per-period core of :func:`tip_joint_rates` (:func:`_pinv_apply`)."""
+    the per-period core of :func:`tip_joint_rates` (:func:`~tdacm._linalg.svd_solve`)."""
     qdot = np.zeros(jac.shape[1])
-    qdot[commanded] = _pinv_apply(
-        np.ascontiguousarray(jac[:, commanded]), np.asarray(tip_twist, float), float(rcond)
-    )
+    qdot[commanded] = svd_solve(
+        np.ascontiguousarray(jac[:, commanded]), np.asarray(tip_twist, float), SVD_PINV,
+        float(rcond),
+    )  # fmt: skip
     return qdot
-
-
-@njit(cache=True)
-def _pinv_apply(a, b, rcond):
-    """``pinv(a, rcond) @ b`` as ``np.linalg.pinv`` defines it: the SVD with the singular
-    values below ``rcond`` times the largest dropped."""
-    u, sv, vt = np.linalg.svd(a, full_matrices=False)
-    cut = rcond * sv[0]
-    k = sv.shape[0]
-    w = np.zeros(k)
-    for i in range(k):
-        if sv[i] > cut:
-            acc = 0.0
-            for r in range(a.shape[0]):
-                acc += u[r, i] * b[r]
-            w[i] = acc / sv[i]
-    x = np.zeros(a.shape[1])
-    for c in range(a.shape[1]):
-        acc = 0.0
-        for i in range(k):
-            acc += vt[i, c] * w[i]
-        x[c] = acc
-    return x
 
 
 def camera_joint_rates(
