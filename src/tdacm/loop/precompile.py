@@ -22,7 +22,8 @@ The split follows the order in which the main process needs the kernels:
   those kernels is called, so they load from the cache.
 
 Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 62-67 s in one
-process, 42-43 s with the second one (docs/benchmarks.md, section 6).
+process, 42-43 s with the second one (session 6); 88.5 s against 60.1 s in one bench run of
+session 7, on a slower moment of the machine (docs/benchmarks.md, section 6).
 
 The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
 machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod
