@@ -136,6 +136,17 @@ def test_perception_normalizes_with_the_controllers_camera_and_estimates_depths(
         .found
     )
 
+    # the perception block is the boundary that checks the detection (the servo and its
+    # target filter then take the view's arrays unchecked)
+    bad = det.points.copy()
+    bad[2, 0] = np.nan
+    from tdacm.vision.detect import Detection
+
+    with pytest.raises(ValueError, match="detection.points must be finite"):
+        Perception(r.local_camera, r.global_camera, world.target).local(
+            CameraMeasurement(0.0, Detection(True, bad, det.ids, det.corners))
+        )
+
 
 # ---------------------------------------------------------------------- servo
 def test_servo_ibvs_command_reduces_the_feature_error(world):
@@ -328,3 +339,31 @@ def test_summary_window_metrics_match_the_logged_rmse():
     assert s["within_0.01_last_2s"] == pytest.approx(np.mean(last2 <= 0.01))
     assert 0.0 <= s["within_0.01_last_2s"] <= 1.0
     assert min(last1) <= s["late_rmse_1s"] <= max(last1)
+
+
+def test_logger_derives_its_comparison_columns_after_the_run():
+    """RunLog keeps the raw values per period and computes rmse_raw, rmse_measured, rmse_true
+    and target_error_deg in arrays(): the same as computing them in record()."""
+    from tdacm.loop.servo import normalized_rmse
+
+    sc = (
+        load_scenario("paper-in-fov")
+        .with_overrides(ANALYTIC)
+        .with_overrides({"cameras": {"global_every": 0}, "sensors": {"pixel_noise": 1.0}})
+    )
+    loop = build_loop(sc, seed=3)
+    res = loop.run(0.4)
+    a = res.arrays
+    log = loop.log
+    n = len(a["t"])
+    assert n == 21 and all(len(a[k]) == n for k in ("rmse_raw", "rmse_true", "target_error_deg"))
+    for k in range(n):
+        pts, g_t = log.truth(a["q"][k])
+        assert a["rmse_true"][k] == normalized_rmse(pts, log.desired_points)
+        raw = a["points_local"][k]
+        want = normalized_rmse(raw, log.desired_points) if np.all(np.isfinite(raw)) else np.nan
+        assert a["rmse_raw"][k] == want or (np.isnan(want) and np.isnan(a["rmse_raw"][k]))
+    assert np.isfinite(a["target_error_deg"][-1]) and a["target_error_deg"][-1] < 5.0
+    # idempotent: a second call derives nothing twice
+    again = log.arrays()
+    assert all(np.array_equal(again[k], a[k], equal_nan=True) for k in a if a[k].dtype != object)

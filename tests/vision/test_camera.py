@@ -121,3 +121,17 @@ def test_invalid_points():
         LOCAL_CAMERA.project([[0.0, np.nan, 1.0]])
     with pytest.raises(ValueError, match="camera_pose"):
         LOCAL_CAMERA.project_world([[0.0, 0.0, 1.0]], np.eye(3))
+
+
+def test_checked_forms_match_the_validating_methods():
+    """The per-period callers use the *_checked forms on arrays validated where they entered."""
+    from tdacm.vision.camera import LOCAL_CAMERA as cam
+
+    rng = np.random.default_rng(0)
+    pc = np.column_stack((rng.uniform(-1, 1, (6, 2)), rng.uniform(-0.5, 3, 6)))
+    assert np.array_equal(cam.project(pc), cam.project_checked(pc), equal_nan=True)
+    uv = rng.uniform(-50, 1100, (6, 2))
+    assert np.array_equal(cam.normalize(uv), cam.normalize_checked(uv))
+    assert np.array_equal(cam.pixels_in_image(uv, 3.0), cam.pixels_in_image_checked(uv, 3.0))
+    with pytest.raises(ValueError, match="points_cam"):
+        cam.project(np.full((2, 3), np.inf))

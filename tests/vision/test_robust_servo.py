@@ -315,3 +315,25 @@ def test_information_is_the_inverse_of_the_converged_covariance():
     assert np.linalg.inv(wide)[1, 1] < 0.5 * np.linalg.inv(one_pose)[1, 1]
     with pytest.raises(ValueError, match="camera_covs"):
         f.information(np.eye(4), poses, [None])
+
+
+def test_checked_update_is_the_validating_update():
+    """``update_checked`` (the servo's per-period call) gives the same estimates as ``update``,
+    rejections and the re-initialization included; ``update`` names a bad input."""
+    g_cam = _camera(1.5)
+    pix = _pixels(g_cam)
+    moved = np.eye(4)
+    moved[:3, 3] = [0.3, 0.0, 0.0]
+    rng = np.random.default_rng(5)
+    frames = [pix + rng.normal(0, SIGMA_PX, pix.shape) for _ in range(12)]
+    frames += [_pixels(g_cam @ np.linalg.inv(moved))] * 4  # rejected, then a reset
+    a = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX, reset_after=3)
+    b = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX, reset_after=3)
+    for px in frames:
+        assert a.update(px, g_cam) == b.update_checked(px, g_cam)
+        np.testing.assert_array_equal(a.pose, b.pose)
+        np.testing.assert_array_equal(a.P, b.P)
+    assert a.rejected == b.rejected > 0
+    np.testing.assert_allclose(a.pose[:3, 3], [0.3, 0.0, 0.0], atol=1e-6)
+    with pytest.raises(ValueError, match="camera_pose"):
+        a.update(pix, 2.0 * g_cam)

@@ -140,8 +140,7 @@ class ClosedLoop:
         self._request_global = self.servo.mode == ModeSwitch.RECOVERY
         self.switch_time = None
         self.plan = None
-        self.log.rows = {k: [] for k in self.log.rows}
-        self.log.frames = []
+        self.log.clear()
         return est
 
     def sense(self) -> Sensed:

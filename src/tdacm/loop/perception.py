@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from ..vision import _checks as C
 from ..vision.camera import PinholeCamera
-from ..vision.features import _check_points, _estimate_depths
+from ..vision.features import _estimate_depths
 from .data import CameraMeasurement, GlobalView, LocalView
 
 
@@ -30,9 +30,11 @@ class Perception:
         det = m.detection
         if not det.found:
             return LocalView(m.t_capture)
-        xy = self.local_camera.normalize(det.points)
-        z = _estimate_depths(_check_points(xy), self._object)
-        return LocalView(m.t_capture, True, det.points, xy, z)
+        # checked once here: the servo and its target filter take the view's arrays as they are
+        uv = C.array("detection.points", det.points, (4, 2))
+        xy = self.local_camera.normalize_checked(uv)
+        z = _estimate_depths(xy, self._object)
+        return LocalView(m.t_capture, True, uv, xy, z)
 
     def global_(self, m: CameraMeasurement | None) -> GlobalView | None:
         if m is None:

@@ -50,13 +50,13 @@ class AnalyticFrontEnd:
         for i, pw in zip(self._ids, self._corners_w, strict=True):
             pc = points_in_camera(pw, pose)
             # cam.in_fov(pc), with the projection kept for the detection
-            pix = cam.project(pc)
+            pix = cam.project_checked(pc)
             z = pc[:, 2]
-            if np.all((z >= cam.near) & (z <= cam.far) & cam.pixels_in_image(pix)):
+            if np.all((z >= cam.near) & (z <= cam.far) & cam.pixels_in_image_checked(pix, 0.0)):
                 corners[i] = pix
         if len(corners) < len(self._ids):
             return Detection(False, None, tuple(corners), corners)
-        points = cam.project(points_in_camera(self._features_w, pose))
+        points = cam.project_checked(points_in_camera(self._features_w, pose))
         return Detection(True, points, tuple(corners), corners)
 
 

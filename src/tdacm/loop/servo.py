@@ -443,7 +443,7 @@ class RobustServo(VisualServo):
             if pose is None:  # capture before the first period we saw: nearest stored
                 pose = self._poses[min(self._poses, key=lambda k: abs(k - tc))]
             self._last_fused = view.t_capture
-            if self.predictor.filter.update(view.pixels, *pose):
+            if self.predictor.filter.update_checked(view.pixels, *pose):
                 self._last_seen = view.t_capture
             for k in [k for k in self._poses if k < tc]:
                 del self._poses[k]
@@ -482,7 +482,7 @@ class RobustServo(VisualServo):
                 and self._last_seen is not None
                 and t - self._last_seen <= r.lost_timeout
                 and ps.pixels_local is not None
-                and bool(np.all(self.local_camera.pixels_in_image(ps.pixels_local, 0.0)))
+                and bool(np.all(self.local_camera.pixels_in_image_checked(ps.pixels_local, 0.0)))
             )
             mode = self.switch.update(ps.pixels_local if ok else None)
         else:

@@ -146,7 +146,11 @@ class PinholeCamera:
 
         Points with ``Z <= 0`` (behind the camera) give NaN rows.
         """
-        p = C.points("points_cam", points_cam, 3)
+        return self.project_checked(C.points("points_cam", points_cam, 3))
+
+    def project_checked(self, p: np.ndarray) -> np.ndarray:
+        """:meth:`project` of a checked float ``(N, 3)`` array (the per-period callers pass
+        arrays they computed, validated once where they entered)."""
         out = np.full((p.shape[0], 2), np.nan)
         front = p[:, 2] > 0.0
         if not np.any(front):
@@ -181,7 +185,10 @@ class PinholeCamera:
     def normalize(self, pixels) -> np.ndarray:
         """Normalized coordinates ``(N, 2)`` of pixels ``(N, 2)`` (undistorted if the camera
         has distortion)."""
-        uv = C.points("pixels", pixels, 2)
+        return self.normalize_checked(C.points("pixels", pixels, 2))
+
+    def normalize_checked(self, uv: np.ndarray) -> np.ndarray:
+        """:meth:`normalize` of a checked float ``(N, 2)`` array."""
         if self.has_distortion:
             import cv2
 
@@ -207,7 +214,10 @@ class PinholeCamera:
         uv = C.array(
             "pixels", np.atleast_2d(np.asarray(pixels, dtype=float)), (-1, 2), allow_nan=True
         )
-        m = C.finite_scalar("margin", margin)
+        return self.pixels_in_image_checked(uv, C.finite_scalar("margin", margin))
+
+    def pixels_in_image_checked(self, uv: np.ndarray, m: float) -> np.ndarray:
+        """:meth:`pixels_in_image` of a checked float ``(N, 2)`` array and margin."""
         with np.errstate(invalid="ignore"):
             return (
                 (uv[:, 0] >= m - 0.5)

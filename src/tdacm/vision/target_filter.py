@@ -517,12 +517,19 @@ class TargetFilter:
         optional) is the covariance of that pose's error (:meth:`pose_noise`; from the
         state estimator); ``None`` means the pose is exact. Returns True if fused, False if
         the frame was gated out (or unusable)."""
-        xy = self.camera.normalize(C.array("pixels", pixels, (4, 2)))
+        pixels = C.array("pixels", pixels, (4, 2))
         g_c = C.transform("camera_pose", camera_pose)
         if camera_cov is not None:
             camera_cov = C.array("camera_cov", camera_cov, (6, 6))
-            if not np.any(camera_cov):
-                camera_cov = None
+        return self.update_checked(pixels, g_c, camera_cov)
+
+    def update_checked(self, pixels, g_c, camera_cov=None) -> bool:
+        """:meth:`update` of checked inputs: float ``(4, 2)`` pixels, a rigid 4x4 pose and
+        a float ``(6, 6)`` covariance or ``None`` (the servo's per-period call: its inputs
+        come from the perception block and the model)."""
+        xy = self.camera.normalize_checked(pixels)
+        if camera_cov is not None and not np.any(camera_cov):
+            camera_cov = None
         if self.pose is None:
             hyp = self._pnp_hypotheses(xy, g_c)
             if not hyp:
@@ -537,12 +544,12 @@ class TargetFilter:
         if not _frame_residuals(
             rcf, g_c[:3, 3].copy(), rt, xw, self.object_points, xy, np.empty((3, 3)), h8, nu
         ):
-            return self._reject(pixels, camera_pose, camera_cov)
+            return self._reject(pixels, g_c, camera_cov)
         scale = (self.sigma / self.pixel_sigma) ** 2
         extra = self._camera_noise(self.pose, g_c, camera_cov)
         s = h8 @ self.P @ h8.T + scale * self._r_pixel + extra
         if float(nu @ _solve(s, nu)) > self.gate:
-            return self._reject(pixels, camera_pose, camera_cov)
+            return self._reject(pixels, g_c, camera_cov)
         self._bad = 0
         self._append(g_c, xy, self._frame_weight(self.pose, g_c, camera_cov, extra))
         ok = self._refine()
@@ -598,7 +605,7 @@ class TargetFilter:
             rejected = self.rejected
             self.reset()
             self.rejected = rejected
-            return self.update(pixels, camera_pose, camera_cov)
+            return self.update_checked(pixels, camera_pose, camera_cov)
         return False
 
     def _frames(self):
