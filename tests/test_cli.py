@@ -201,11 +201,15 @@ def test_bench_progress_line_on_stderr(monkeypatch, capsys, tmp_path):
     monkeypatch.setattr(bench, "paper_system", lambda **kw: type("S", (), {"n": 8})())
     one = {"wall_per_sim_second": 0.1, "real_time_factor": 10.0}
     monkeypatch.setattr(loop_bench, "time_loop", lambda ov, repeats=5: one)
+    share = {"period_ms": 2.0, "compiled_ms": 0.5, "compiled_fraction": 0.25,
+             "cap_real_time_factor": 40.0, "top": {}}  # fmt: skip
+    monkeypatch.setattr(loop_bench, "compiled_share", lambda ov: share)
     assert main(["bench", "--out", str(tmp_path)]) == 0
     cap = capsys.readouterr()
     assert "bench: model 1/2" in cap.err and "bench: model 2/2" in cap.err
     assert "bench: stiff integrators" in cap.err and "closed loop" in cap.err
     assert "bench:" not in cap.out and "RTF" in cap.out
+    assert "without any Python at most 40.0x" in cap.err and "40.0x" in cap.out
 
 
 # ------------------------------------------------------------------ subprocess behaviour

@@ -214,10 +214,18 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
 
     _stage("closed loop (paper-in-fov, 5 s, rendered and analytic C_L)")
     loop = loop_bench(repeats=5, cold=False, progress=_stage)
-    print(f"\n{'closed loop, paper-in-fov 5 s':38s} {'wall/sim s':>10s} {'RTF':>8s}")
+    print(
+        f"\n{'closed loop, paper-in-fov 5 s':38s} {'wall/sim s':>10s} {'RTF':>8s} "
+        f"{'compiled':>9s} {'cap':>7s}"
+    )
     for name in ("rendered", "analytic"):
         r = loop[name]
-        print(f"{name + ' C_L':38s} {r['wall_per_sim_second']:10.3f} {r['real_time_factor']:7.1f}x")
+        c = r.get("compiled")
+        extra = f" {c['compiled_ms']:7.2f}ms {c['cap_real_time_factor']:6.1f}x" if c else ""
+        print(
+            f"{name + ' C_L':38s} {r['wall_per_sim_second']:10.3f} {r['real_time_factor']:7.1f}x"
+            + extra
+        )
     load = open("/proc/loadavg").read().split()[:3] if Path("/proc/loadavg").exists() else []
     result = {
         "model": rows,

@@ -3,6 +3,9 @@
 * ``rendered``: ``paper-in-fov`` for 5 s, C_L rendered (planar renderer) and detected every
   period, C_G only when the servo needs it (``cameras.global_every = 0``);
 * ``analytic``: the same with ``cameras.local_renderer = "analytic"`` (campaigns);
+* ``compiled`` (inside each loop case): the period's time spent in compiled code, the numba
+  kernels and the OpenCV calls, from one profiled run (:func:`compiled_share`); ``dt``
+  divided by it bounds the real-time factor a loop with no Python overhead at all could reach;
 * ``cold_start``: a first ``tdacm run paper-in-fov --duration 1`` in a fresh numba cache
   (``NUMBA_CACHE_DIR`` set to an empty folder), wall time of the whole command;
 * ``cold_start_ab`` (optional): the same with the kernels compiled in one process and in two
@@ -54,6 +57,73 @@ def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
         "wall_s_all": walls,
         "wall_per_sim_second": med / duration,
         "real_time_factor": duration / med,
+    }
+
+
+def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict:
+    """Time per control period inside compiled code: every numba dispatcher and OpenCV call
+    of one ``paper-in-fov`` run (after a warm-up run), as ``cProfile`` measures their own
+    time (``tottime``, their call overhead included). The profiler slows the Python around
+    them, not the compiled calls, so the total is taken from an unprofiled run.
+
+    Returns the period's wall time, the compiled time, the cap ``dt / compiled`` on the
+    real-time factor of a loop without any Python overhead, and the ``top`` entries."""
+    import cProfile
+    import importlib
+    import pstats
+
+    import cv2
+    from numba.core.registry import CPUDispatcher
+
+    from ..sim import load_scenario
+    from .build import build_loop
+
+    sc = load_scenario("paper-in-fov").with_overrides(overrides)
+    walls = []
+    for _ in range(2):  # warm-up, then the unprofiled reference
+        loop = build_loop(sc, 0)
+        t0 = time.perf_counter()
+        res = loop.run(duration)
+        walls.append(time.perf_counter() - t0)
+        loop.close()
+    loop = build_loop(sc, 0)
+    prof = cProfile.Profile()
+    prof.enable()
+    res = loop.run(duration)
+    prof.disable()
+    loop.close()
+    n = len(res.arrays["t"])
+    dt = sc.data["dt"]
+    entries = {}
+    for (path, _line, name), (_cc, calls, tottime, _ct, _callers) in pstats.Stats(
+        prof
+    ).stats.items():
+        if path == "~":  # C functions: OpenCV's, named "<name>" or "<method ... of 'cv2...>"
+            bare = name[1:-1] if name[:1] in "<{" and name[-1:] in ">}" else None
+            if not ((bare and hasattr(cv2, bare)) or " of 'cv2." in name):
+                continue
+            key = bare or name
+        else:
+            if "/tdacm/" not in path.replace("\\", "/"):
+                continue
+            mod = "tdacm." + path.replace("\\", "/").rsplit("/tdacm/", 1)[1][:-3].replace("/", ".")
+            try:
+                obj = getattr(importlib.import_module(mod), name, None)
+            except ImportError:
+                continue
+            if not isinstance(obj, CPUDispatcher):
+                continue
+            key = f"{mod}.{name}"
+        entries[key] = (calls / n, tottime / n * 1e3)
+    compiled = sum(ms for _, ms in entries.values())
+    period = walls[1] / n * 1e3
+    ranked = sorted(entries.items(), key=lambda kv: -kv[1][1])[:top]
+    return {
+        "period_ms": period,
+        "compiled_ms": compiled,
+        "compiled_fraction": compiled / period,
+        "cap_real_time_factor": dt * 1e3 / compiled,
+        "top": {k: {"calls_per_period": c, "ms_per_period": ms} for k, (c, ms) in ranked},
     }
 
 
@@ -116,6 +186,11 @@ def loop_bench(repeats: int = 5, cold: bool = True, progress=print, cold_ab: int
         progress(f"closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
         res[name] = time_loop(ov, repeats=repeats)
         progress(f"  {res[name]['real_time_factor']:.1f}x real time")
+        c = res[name]["compiled"] = compiled_share(ov)
+        progress(
+            f"  compiled code {c['compiled_ms']:.2f} of {c['period_ms']:.2f} ms a period: "
+            f"without any Python at most {c['cap_real_time_factor']:.1f}x"
+        )
     if cold:
         progress("cold first run (empty numba cache)...")
         res["cold_start"] = time_cold_start()
