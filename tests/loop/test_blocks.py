@@ -341,9 +341,9 @@ def test_summary_window_metrics_match_the_logged_rmse():
     assert min(last1) <= s["late_rmse_1s"] <= max(last1)
 
 
-def test_logger_derives_its_comparison_columns_after_the_run():
-    """RunLog keeps the raw values per period and computes rmse_raw, rmse_measured, rmse_true
-    and target_error_deg in arrays(): the same as computing them in record()."""
+def test_logger_comparison_columns_match_their_definitions():
+    """rmse_raw and rmse_true of the log are the normalized RMSE of the raw C_L points and of
+    the true points of the state (the logger's truth), and arrays() is repeatable."""
     from tdacm.loop.servo import normalized_rmse
 
     sc = (
@@ -364,6 +364,6 @@ def test_logger_derives_its_comparison_columns_after_the_run():
         want = normalized_rmse(raw, log.desired_points) if np.all(np.isfinite(raw)) else np.nan
         assert a["rmse_raw"][k] == want or (np.isnan(want) and np.isnan(a["rmse_raw"][k]))
     assert np.isfinite(a["target_error_deg"][-1]) and a["target_error_deg"][-1] < 5.0
-    # idempotent: a second call derives nothing twice
+    # repeatable: a second call returns the same arrays
     again = log.arrays()
     assert all(np.array_equal(again[k], a[k], equal_nan=True) for k in a if a[k].dtype != object)

@@ -140,7 +140,8 @@ class ClosedLoop:
         self._request_global = self.servo.mode == ModeSwitch.RECOVERY
         self.switch_time = None
         self.plan = None
-        self.log.clear()
+        self.log.rows = {k: [] for k in self.log.rows}
+        self.log.frames = []
         return est
 
     def sense(self) -> Sensed:

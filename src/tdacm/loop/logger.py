@@ -32,14 +32,9 @@ class RunLog:
         # truth(q) -> (true points in the servo camera (4, 2), true target pose (4x4)):
         # the logger is the one block allowed to compare with the simulated world
         self.truth = truth
-        self.frame_composer = frame_composer
-        self.clear()
-
-    def clear(self) -> None:
-        """Forget every record (a new run)."""
         self.rows = {k: [] for k in LOG_KEYS}
         self.frames = []
-        self._raw, self._measured, self._target_pose = [], [], []
+        self.frame_composer = frame_composer
 
     def __len__(self) -> int:
         return len(self.rows["t"])
@@ -68,15 +63,19 @@ class RunLog:
         r["points_local"].append(raw if raw is not None else _NAN4)
         r["points_virtual"].append(cmd.points if cmd.points is not None else _NAN4)
         r["rmse"].append(cmd.rmse)
-        # the comparisons with the desired points and the simulated world are computed in
-        # arrays(), from the values kept here: the same functions on the same inputs, off
-        # the per-period path (nothing reads them during the run)
-        self._raw.append(raw)
-        measured = np.isfinite(cmd.rmse_measured)
-        self._measured.append(
-            (cmd.rmse_measured, None if measured or not view.found else cmd.points)
-        )
-        self._target_pose.append(cmd.target_pose)
+        r["rmse_raw"].append(normalized_rmse(raw, self.desired_points))
+        r["rmse_measured"].append(cmd.rmse_measured if np.isfinite(cmd.rmse_measured) else (
+            normalized_rmse(cmd.points, self.desired_points) if view.found else np.nan
+        ))  # fmt: skip
+        te, rt = np.nan, np.nan
+        if self.truth is not None:
+            pts, g_t = self.truth(plant.q)
+            rt = normalized_rmse(pts, self.desired_points)
+            if cmd.target_pose is not None:
+                d = _solve(g_t, cmd.target_pose)[:3, :3]
+                te = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(d) - 1), -1, 1))))
+        r["rmse_true"].append(rt)
+        r["target_error_deg"].append(te)
         r["mode"].append(MODE_CODES[cmd.mode])
         r["V"].append(act.V)
         r["detected_local"].append(bool(view.found))
@@ -96,34 +95,5 @@ class RunLog:
         if self.frame_composer is not None:
             self.frames.append(self.frame_composer(readings, view, cmd, plant.t))
 
-    def _derived(self) -> None:
-        """Fill the columns kept for :meth:`arrays`: ``rmse_raw``, ``rmse_measured`` (when
-        the servo did not report it), ``rmse_true`` and ``target_error_deg``."""
-        r = self.rows
-        n = len(r["t"])
-        if len(r["rmse_raw"]) == n:
-            return
-        desired = self.desired_points
-        for k in range(len(r["rmse_raw"]), n):
-            r["rmse_raw"].append(normalized_rmse(self._raw[k], desired))
-            value, points = self._measured[k]
-            if np.isfinite(value):
-                r["rmse_measured"].append(value)
-            else:
-                r["rmse_measured"].append(
-                    normalized_rmse(points, desired) if points is not None else np.nan
-                )
-            te, rt = np.nan, np.nan
-            if self.truth is not None:
-                pts, g_t = self.truth(r["q"][k])
-                rt = normalized_rmse(pts, desired)
-                pose = self._target_pose[k]
-                if pose is not None:
-                    d = _solve(g_t, pose)[:3, :3]
-                    te = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(d) - 1), -1, 1))))
-            r["rmse_true"].append(rt)
-            r["target_error_deg"].append(te)
-
     def arrays(self) -> dict:
-        self._derived()
         return {k: np.asarray(v) for k, v in self.rows.items()}
