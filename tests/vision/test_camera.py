@@ -132,6 +132,8 @@ def test_checked_forms_match_the_validating_methods():
     assert np.array_equal(cam.project(pc), cam.project_checked(pc), equal_nan=True)
     uv = rng.uniform(-50, 1100, (6, 2))
     assert np.array_equal(cam.normalize(uv), cam.normalize_checked(uv))
+    xy = cam.normalize(uv)
+    assert np.array_equal(cam.denormalize(xy), cam.denormalize_checked(xy))
     assert np.array_equal(cam.pixels_in_image(uv, 3.0), cam.pixels_in_image_checked(uv, 3.0))
     with pytest.raises(ValueError, match="points_cam"):
         cam.project(np.full((2, 3), np.inf))

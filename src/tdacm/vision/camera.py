@@ -198,8 +198,11 @@ class PinholeCamera:
 
     def denormalize(self, xy) -> np.ndarray:
         """Pixels ``(N, 2)`` of normalized coordinates ``(N, 2)`` (distorted if applicable)."""
-        n = C.points("xy", xy, 2)
-        return self.project(np.column_stack((n, np.ones(n.shape[0]))))
+        return self.denormalize_checked(C.points("xy", xy, 2))
+
+    def denormalize_checked(self, n: np.ndarray) -> np.ndarray:
+        """:meth:`denormalize` of a checked float ``(N, 2)`` array."""
+        return self.project_checked(np.column_stack((n, np.ones(n.shape[0]))))
 
     def ray(self, pixels) -> np.ndarray:
         """Unit viewing rays ``(N, 3)`` in the camera frame through the given pixels."""

@@ -245,6 +245,6 @@ class PredictiveServo:
         pix = None
         if camera_pose is not None:
             xl, zl = self._points_in(camera_pose)
-            pix = self.camera.denormalize(xl) if np.all(zl > 0) else None
+            pix = self.camera.denormalize_checked(xl) if np.all(zl > 0) else None
         f, e, v = self.controller.features_error_twist(xy, z)
         return PredictedStep(xy, z, f, e, v, pix)
