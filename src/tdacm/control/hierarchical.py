@@ -185,8 +185,8 @@ class TDACMController:
             force = out.tau[3:6].copy()
             force[2] = max(force[2], self.min_lift * self._weight)
             big_f, phi_d, theta_d = attitude_from_force(force, q_ref[2], self.exact_attitude)
-            # np.minimum/np.maximum: np.clip's result (NaN included) at a fraction of its
-            # call overhead, which mattered three times a period
+            # min/max (and np.minimum/np.maximum below): np.clip's results, NaN included, at
+            # a fraction of its call overhead (about 10 us a call)
             mt = self.max_tilt
             raw = np.array([min(max(phi_d, -mt), mt), min(max(theta_d, -mt), mt)])
             a = min(1.0, dt / max(self.attitude_filter, 1e-9))

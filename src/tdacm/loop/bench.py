@@ -62,14 +62,14 @@ def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
 
 def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict:
     """Time per control period inside compiled code: every numba dispatcher and OpenCV call
-    of one ``paper-in-fov`` run (after a warm-up run), as ``cProfile`` measures their own
-    time (``tottime``, their call overhead included). The profiler slows the Python around
-    them, not the compiled calls, so the total is taken from an unprofiled run.
+    of one ``paper-in-fov`` run, as ``cProfile`` measures their own time (``tottime``, their
+    call overhead included). The profiler slows the Python around them, not the compiled
+    calls, so the period's total comes from an unprofiled run (:func:`time_loop`, one run
+    after its warm-up).
 
     Returns the period's wall time, the compiled time, the cap ``dt / compiled`` on the
     real-time factor of a loop without any Python overhead, and the ``top`` entries."""
     import cProfile
-    import importlib
     import pstats
 
     import cv2
@@ -78,51 +78,44 @@ def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict
     from ..sim import load_scenario
     from .build import build_loop
 
+    wall = time_loop(overrides, duration, repeats=1)["wall_s_median"]
     sc = load_scenario("paper-in-fov").with_overrides(overrides)
-    walls = []
-    for _ in range(2):  # warm-up, then the unprofiled reference
-        loop = build_loop(sc, 0)
-        t0 = time.perf_counter()
-        res = loop.run(duration)
-        walls.append(time.perf_counter() - t0)
-        loop.close()
     loop = build_loop(sc, 0)
     prof = cProfile.Profile()
     prof.enable()
     res = loop.run(duration)
     prof.disable()
     loop.close()
+    # the profiler names a jitted function by its Python code: map those back to the kernels
+    kernels = {}
+    for mod in [m for k, m in sys.modules.items() if k.startswith("tdacm.")]:
+        for obj in vars(mod).values():
+            if isinstance(obj, CPUDispatcher):
+                code = obj.py_func.__code__
+                key = (code.co_filename, code.co_firstlineno, code.co_name)
+                kernels[key] = f"{obj.py_func.__module__}.{obj.py_func.__qualname__}"
     n = len(res.arrays["t"])
-    dt = sc.data["dt"]
     entries = {}
-    for (path, _line, name), (_cc, calls, tottime, _ct, _callers) in pstats.Stats(
-        prof
-    ).stats.items():
+    for where, (_cc, calls, tottime, _ct, _callers) in pstats.Stats(prof).stats.items():
+        path, _line, name = where
         if path == "~":  # C functions: OpenCV's, named "<name>" or "<method ... of 'cv2...>"
-            bare = name[1:-1] if name[:1] in "<{" and name[-1:] in ">}" else None
-            if not ((bare and hasattr(cv2, bare)) or " of 'cv2." in name):
+            bare = name[1:-1] if name[:1] in "<{" and name[-1:] in ">}" else name
+            if not (hasattr(cv2, bare) or " of 'cv2." in name):
                 continue
-            key = bare or name
+            key = bare
+        elif where in kernels:
+            key = kernels[where]
         else:
-            if "/tdacm/" not in path.replace("\\", "/"):
-                continue
-            mod = "tdacm." + path.replace("\\", "/").rsplit("/tdacm/", 1)[1][:-3].replace("/", ".")
-            try:
-                obj = getattr(importlib.import_module(mod), name, None)
-            except ImportError:
-                continue
-            if not isinstance(obj, CPUDispatcher):
-                continue
-            key = f"{mod}.{name}"
+            continue
         entries[key] = (calls / n, tottime / n * 1e3)
     compiled = sum(ms for _, ms in entries.values())
-    period = walls[1] / n * 1e3
+    period = wall / n * 1e3
     ranked = sorted(entries.items(), key=lambda kv: -kv[1][1])[:top]
     return {
         "period_ms": period,
         "compiled_ms": compiled,
         "compiled_fraction": compiled / period,
-        "cap_real_time_factor": dt * 1e3 / compiled,
+        "cap_real_time_factor": sc.data["dt"] * 1e3 / compiled,
         "top": {k: {"calls_per_period": c, "ms_per_period": ms} for k, (c, ms) in ranked},
     }
 

@@ -598,14 +598,14 @@ class TargetFilter:
         self._next = (k + 1) % self.window
         self._count = min(self._count + 1, self.window)
 
-    def _reject(self, pixels, camera_pose, camera_cov=None) -> bool:
+    def _reject(self, pixels, g_c, camera_cov=None) -> bool:
         self.rejected += 1
         self._bad += 1
         if self._bad >= self.reset_after:
             rejected = self.rejected
             self.reset()
             self.rejected = rejected
-            return self.update_checked(pixels, camera_pose, camera_cov)
+            return self.update_checked(pixels, g_c, camera_cov)
         return False
 
     def _frames(self):
