@@ -163,10 +163,13 @@ def _cmd_run(args) -> int:
 
 
 def _run_checked(args, sc, out: Path) -> int:
-    """The rest of ``tdacm run`` once the scenario passed its schema checks."""
-    from .sim import ScenarioError, run_scenario
+    """The rest of ``tdacm run`` once the scenario passed its schema checks: the run's data
+    (:class:`tdacm.sim.Simulation`), then its figures and video (:mod:`tdacm.viz`)."""
+    from .sim import ScenarioError, Simulation
     from .sim.outputs import clear_run_outputs
     from .sim.scenario import check_with_system
+    from .viz import plot_run_dir, write_video
+    from .viz.video import CaptionedFrames
 
     try:
         check_with_system(sc)
@@ -175,19 +178,22 @@ def _run_checked(args, sc, out: Path) -> int:
     removed = clear_run_outputs(out, keep=())
     if removed:
         _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
+    sim = Simulation(
+        sc,
+        duration=args.duration,
+        seed=args.seed,
+        video=args.video,
+        progress=True,
+        frame_composer=CaptionedFrames() if args.video else None,
+    )
     try:
-        _, summary = run_scenario(
-            sc,
-            out=out,
-            duration=args.duration,
-            seed=args.seed,
-            video=args.video,
-            progress=True,
-        )
+        _, summary = sim.run(out)
     except ScenarioError as exc:
         return _err(str(exc))
     except KeyboardInterrupt:
         stored = (out / "timeseries.npz").is_file()
+        if stored:
+            _write_pictures(out, sim, plot_run_dir, write_video)
         _note(
             "interrupted (Ctrl-C): "
             + (
@@ -197,6 +203,7 @@ def _run_checked(args, sc, out: Path) -> int:
             )
         )
         return 130
+    _write_pictures(out, sim, plot_run_dir, write_video)
     print(json.dumps(summary, indent=2))
     _note(f"Run written to {out.resolve()}/")
     if args.rerun is not None:
@@ -205,6 +212,14 @@ def _run_checked(args, sc, out: Path) -> int:
         path = record_run(out, args.rerun, progress=_progress("rerun", "step"))
         _note(f"Rerun recording written to {Path(path).resolve()} (open with `rerun {path}`)")
     return 1 if summary["terminated"] else 0
+
+
+def _write_pictures(out: Path, sim, plot_run_dir, write_video) -> None:
+    """The figures of a written run folder and, when frames were kept, its video."""
+    plot_run_dir(out)
+    frames = sim.result.frames if sim.result is not None else []
+    if frames:
+        write_video(out / "video.mp4", frames, 1.0 / sim.scenario["dt"])
 
 
 def _cmd_plot(args) -> int:

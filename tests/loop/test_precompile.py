@@ -138,7 +138,7 @@ def test_cold_cache_detection_asks_numbas_index(monkeypatch, tmp_path):
 
 
 def test_cold_start_ab_alternates_and_reports_the_ratio(monkeypatch):
-    import tdacm.loop.bench as lb
+    import tdacm.bench.loop as lb
 
     calls = []
 

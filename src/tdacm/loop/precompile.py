@@ -137,12 +137,12 @@ def stop() -> None:
 def compile_second_half() -> None:
     """Call once each kernel that the loop first needs in ``warm_up`` and in its first
     periods, with the argument types of the loop's own calls (module docstring)."""
-    from .. import paper_system
     from .._linalg import SVD_PINV, svd_solve
     from ..control.adaptive import _law_kernel
     from ..control.allocation import _allocate_tensions_kernel
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
+    from ..system.paper import paper_system
     from ..vision.ibvs import _twist_kernel
     from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 

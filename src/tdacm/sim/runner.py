@@ -19,6 +19,7 @@ import numpy as np
 from ..loop.closed_loop import ClosedLoop
 from ..loop.safety import SafetyMonitor
 from ..loop.servo import MODE_CODES, normalized_rmse
+from .outputs import write_run
 from .scenario import Scenario, check_run, check_with_system, load_scenario
 
 __all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
@@ -28,7 +29,11 @@ class Simulation:
     """One closed-loop run of a scenario; :meth:`run` returns the log arrays and the summary.
 
     ``controller``, ``servo`` and ``estimator`` replace the scenario's blocks (objects that
-    implement the protocols of :mod:`tdacm.loop.protocols`)."""
+    implement the protocols of :mod:`tdacm.loop.protocols`). With ``video``, the cameras keep
+    their images and ``frame_composer(readings, view, command, t)`` (e.g.
+    :class:`tdacm.viz.video.CaptionedFrames`) turns each period into a frame; a composer with a
+    ``bind(loop)`` method is bound to the built loop first. The frames are in
+    ``self.result.frames`` after :meth:`run`."""
 
     def __init__(
         self,
@@ -40,6 +45,7 @@ class Simulation:
         controller=None,
         servo=None,
         estimator=None,
+        frame_composer=None,
     ):
         self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
         d = self.scenario.data
@@ -48,47 +54,41 @@ class Simulation:
         self.video = bool(video)
         self.progress = bool(progress)
         self.blocks = {"controller": controller, "servo": servo, "estimator": estimator}
+        self.frame_composer = frame_composer if self.video else None
         self.loop: ClosedLoop | None = None
+        self.result = None
 
     def build(self) -> ClosedLoop:
         from ..loop.build import build_loop
 
-        composer = None
-        if self.video:
-            from ..viz.video import CaptionedFrames  # captioned frames
-
-            composer = CaptionedFrames()
+        composer = self.frame_composer
         loop = build_loop(
             self.scenario, self.seed, video=self.video, frame_composer=composer, **self.blocks
         )
-        if composer is not None:  # the desired points drawn on C_L
-            from ..viz.video import desired_pixels
-
-            composer.desired = desired_pixels(loop)
+        if composer is not None and hasattr(composer, "bind"):
+            composer.bind(loop)
         return loop
 
     def run(self, out_dir=None):
-        """Run; write ``out_dir`` if given. Ctrl-C writes what was simulated so far, then
+        """Run; write the data of the run folder ``out_dir`` if given
+        (:func:`~tdacm.sim.outputs.write_run`). Ctrl-C writes what was simulated so far, then
         re-raises ``KeyboardInterrupt``."""
         loop = self.loop = self.build()
         try:
             check_with_system(self.scenario, loop.plant.system)  # dt, target in front
             if out_dir is not None:
                 write_scene_picture(Path(out_dir) / "scene.png", loop)
-            result = loop.run(self.duration, progress=self.progress)
+            result = self.result = loop.run(self.duration, progress=self.progress)
             summary = self.summary(loop, result)
             summary["interrupted"] = bool(result.interrupted)
             if out_dir is not None:
-                from .outputs import write_all
-
-                write_all(
+                write_run(
                     Path(out_dir),
                     result.arrays,
                     summary,
                     loop.servo.desired_points,
-                    result.frames,
                     loop.plant.system,
-                    scenario=self.scenario,  # scenario.toml, figures, snapshots
+                    scenario=self.scenario,
                 )
         finally:
             loop.close()
@@ -254,11 +254,9 @@ def write_scene_picture(path: Path, loop: ClosedLoop) -> None:
         cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=1), cv2.COLOR_RGB2BGR))
 
 
-def run_scenario(
-    name, out=None, config=None, duration=None, seed=None, video=False, progress=False
-):
-    """Load and run a scenario; returns ``(arrays, summary)`` and writes ``out`` if given."""
+def run_scenario(name, out=None, config=None, duration=None, seed=None, progress=False):
+    """Load and run a scenario; returns ``(arrays, summary)`` and writes the data of the run
+    folder ``out`` if given (figures: :func:`tdacm.viz.plot_run_dir`; both: ``tdacm run``)."""
     sc = load_scenario(name, config)
     check_run(sc, duration, seed, flags=False)  # reject nan/inf/<=0, seed < 0
-    sim = Simulation(sc, duration=duration, seed=seed, video=video, progress=progress)
-    return sim.run(out)
+    return Simulation(sc, duration=duration, seed=seed, progress=progress).run(out)

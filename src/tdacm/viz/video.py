@@ -204,6 +204,10 @@ class CaptionedFrames:
     def __init__(self, desired=None):
         self.desired = desired
 
+    def bind(self, loop) -> None:
+        """Take the desired points of a built loop (:func:`desired_pixels`)."""
+        self.desired = desired_pixels(loop)
+
     def __call__(self, readings, view, command, t) -> np.ndarray:
         loc = readings.local
         img_l = loc.image if loc is not None and loc.image is not None else None
@@ -222,10 +226,6 @@ class CaptionedFrames:
             desired=self.desired,
             detected_global=det_g,
         )
-
-
-#: Old name: a composer without the desired points.
-caption_frame_composer = CaptionedFrames()
 
 
 def desired_pixels(loop) -> np.ndarray:

@@ -34,8 +34,8 @@ LOOP_CASES = {
 
 
 def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
+    from ..loop.build import build_loop
     from ..sim import load_scenario
-    from .build import build_loop
 
     sc = load_scenario("paper-in-fov").with_overrides(overrides)
     walls = []
@@ -75,8 +75,8 @@ def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict
     import cv2
     from numba.core.registry import CPUDispatcher
 
+    from ..loop.build import build_loop
     from ..sim import load_scenario
-    from .build import build_loop
 
     wall = time_loop(overrides, duration, repeats=1)["wall_s_median"]
     sc = load_scenario("paper-in-fov").with_overrides(overrides)

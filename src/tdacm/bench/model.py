@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .rod import StrainBasis
-from .system import kernels as K
-from .system import paper_system, simulate
+from ..rod import StrainBasis
+from ..system import kernels as K
+from ..system import paper_system, simulate
 
 
 def _stage(text: str, end: bool = False) -> None:
@@ -114,8 +114,8 @@ def bench_stiff(
     1e-10 (``reference="dop853"``) or, when DOP853 cannot afford the stiffness, Radau IIA at a
     tenth of its step with a Newton tolerance of 1e-10 (``"radau/10"``; checked once against
     RK4 at a resolved step, ``docs/benchmarks.md``).  ``ref`` reuses a reference simulation."""
-    from .system import stiff as ST
-    from .system.integrate import RADAU_DT, ROSENBROCK_DT, SimulationResult
+    from ..system import stiff as ST
+    from ..system.integrate import RADAU_DT, ROSENBROCK_DT, SimulationResult
 
     step = ROSENBROCK_DT if method == "rosenbrock" else RADAU_DT
     q, u = _released(system)
@@ -210,7 +210,7 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             f"{r['tip_error_max_m'] * 1e3:8.3f}mm ({r['check_s']} s, {r['reference']}, "
             f"travel {r['tip_travel_m'] * 1e3:.0f} mm, completed {r['completed']})"
         )
-    from .loop.bench import loop_bench
+    from .loop import loop_bench
 
     _stage("closed loop (paper-in-fov, 5 s, rendered and analytic C_L)")
     loop = loop_bench(repeats=5, cold=False, progress=_stage)
@@ -252,7 +252,7 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     orders 0..3 against a converged GVS reference; PyElastica when installed.  Writes
     ``bench.json``, ``time_vs_dofs.png`` and ``error_vs_time.png`` to ``out``.
     """
-    from .baselines import study
+    from ..baselines import study
 
     path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
@@ -281,7 +281,7 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     elastica = study.pyelastica_study(reference=ref)
     walls["pyelastica"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    from .loop.bench import time_cold_start
+    from .loop import time_cold_start
 
     _stage("full: cold first run (empty numba cache)")
     result["loop"]["cold_start"] = time_cold_start()
