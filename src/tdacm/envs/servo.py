@@ -179,6 +179,7 @@ class TipServoEnv(gym.Env):
             "success": success,
             "diverged": diverged,
             "reason": st.reason,
+            "termination": st.termination,
         }
         return obs, float(reward), bool(terminated), bool(truncated), info
 

@@ -23,7 +23,9 @@ from .data import (
     PlantState,
     SensorReadings,
     ServoCommand,
+    ServoEvent,
     StateEstimate,
+    Termination,
 )
 from .lowlevel import AdaptiveLowLevel, load_class
 from .perception import Perception
@@ -57,7 +59,9 @@ __all__ = [
     "Sensors",
     "Servo",
     "ServoCommand",
+    "ServoEvent",
     "StateEstimate",
+    "Termination",
     "VisualServo",
     "build_loop",
     "build_scene",

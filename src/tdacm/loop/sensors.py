@@ -221,6 +221,14 @@ class Sensors:
         for s in self.other.values():
             getattr(s, "reset", lambda: None)()
 
+    def first_look(self, t: float, q) -> CameraMeasurement:
+        """An ideal C_L measurement at configuration ``q`` (no imperfections, no noise drawn),
+        leaving C_L as it was reset: the view a run starts from (initial mode) or the
+        reference snapshot is taken from."""
+        det, _ = self.local.ideal(q)
+        self.local.reset()
+        return CameraMeasurement(t, det)
+
     def read(self, state: PlantState, request_global: bool = False) -> SensorReadings:
         k = self._k
         self._k += 1

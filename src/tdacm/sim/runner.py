@@ -146,6 +146,7 @@ class Simulation:
             "recovery_plan": result.plan,
             "terminated": bool(result.terminated),
             "termination_reason": result.reason,
+            "termination": None if result.termination is None else str(result.termination),
             "final_camera_position_error_m": cam_dp,
             "final_camera_rotation_error_deg": cam_da,
             "final_drone_position_error_m": drone_dp,
