@@ -167,17 +167,9 @@ def _run_checked(args, sc, out: Path) -> int:
     (:class:`tdacm.sim.Simulation`), then its figures and video (:mod:`tdacm.viz`)."""
     from .sim import ScenarioError, Simulation
     from .sim.outputs import clear_run_outputs
-    from .sim.scenario import check_with_system
     from .viz import plot_run_dir, write_video
     from .viz.video import CaptionedFrames
 
-    try:
-        check_with_system(sc)
-    except ScenarioError as exc:
-        return _err(str(exc))
-    removed = clear_run_outputs(out, keep=())
-    if removed:
-        _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
     sim = Simulation(
         sc,
         duration=args.duration,
@@ -186,6 +178,13 @@ def _run_checked(args, sc, out: Path) -> int:
         progress=True,
         frame_composer=CaptionedFrames() if args.video else None,
     )
+    try:
+        sim.build()  # the checks against the built robot, before anything is removed
+    except ScenarioError as exc:
+        return _err(str(exc))
+    removed = clear_run_outputs(out, keep=())
+    if removed:
+        _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
     try:
         _, summary = sim.run(out)
     except ScenarioError as exc:

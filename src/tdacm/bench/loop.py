@@ -34,13 +34,13 @@ LOOP_CASES = {
 
 
 def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
-    from ..loop.build import build_loop
     from ..sim import load_scenario
+    from ..sim.assemble import build_loop
 
     sc = load_scenario("paper-in-fov").with_overrides(overrides)
     walls = []
     for i in range(repeats + 1):
-        loop = build_loop(sc, 0)
+        loop = build_loop(sc, 0).loop
         t0 = time.perf_counter()
         res = loop.run(duration)
         wall = time.perf_counter() - t0
@@ -75,12 +75,12 @@ def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict
     import cv2
     from numba.core.registry import CPUDispatcher
 
-    from ..loop.build import build_loop
     from ..sim import load_scenario
+    from ..sim.assemble import build_loop
 
     wall = time_loop(overrides, duration, repeats=1)["wall_s_median"]
     sc = load_scenario("paper-in-fov").with_overrides(overrides)
-    loop = build_loop(sc, 0)
+    loop = build_loop(sc, 0).loop
     prof = cProfile.Profile()
     prof.enable()
     res = loop.run(duration)

@@ -13,7 +13,6 @@ safety, logger          the error-growth rule; the run's time series          :m
 ======================  ===================================================  ==================
 """
 
-from .build import build_loop, build_scene
 from .closed_loop import ClosedLoop, LoopStep, RunResult
 from .data import (
     ActuatorCommand,
@@ -63,8 +62,6 @@ __all__ = [
     "StateEstimate",
     "Termination",
     "VisualServo",
-    "build_loop",
-    "build_scene",
     "load_class",
     "normalized_rmse",
 ]

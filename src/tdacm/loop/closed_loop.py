@@ -11,7 +11,7 @@ One period of :meth:`ClosedLoop.step`, data flowing one way::
     plant.advance(act.u, dt)                           # true model, disturbances
 
 ``tdacm run``, campaigns and the Gymnasium env all drive this class
-(:func:`tdacm.loop.build.build_loop` assembles it from a scenario).
+(:func:`tdacm.sim.assemble.build_loop` assembles it from a scenario).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ The split follows the order in which the main process needs the kernels:
   reference view compiles the model's ``coupled_terms`` and its callees, ``input_matrix``,
   ``chain_jacobian``, the corner refinement and the image features (about 30 s);
 * meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
-  compiles what the loop needs only from :func:`~tdacm.loop.build.warm_up` on: the plant's
+  compiles what the loop needs only from :func:`~tdacm.sim.assemble.warm_up` on: the plant's
   ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's
   Gauss-Newton kernel, the servo's twist and joint-rate kernels and the SE(3)/SO(3) maps
   (about 30 s; ``rk4_run`` comes last, when the main

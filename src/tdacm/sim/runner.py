@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-# submodules, not the tdacm.loop package: tdacm.loop imports tdacm.sim (scenarios, robot)
 from ..loop.closed_loop import ClosedLoop
 from ..loop.safety import SafetyMonitor
+from ..loop.sensors import RenderedFrontEnd
 from ..loop.servo import MODE_CODES, normalized_rmse
+from .assemble import Assembly, World, build_loop, camera_pose_error
 from .outputs import write_run
-from .scenario import Scenario, check_run, check_with_system, load_scenario
+from .scenario import Scenario, check_run, load_scenario
 
 __all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
 
@@ -55,31 +56,35 @@ class Simulation:
         self.progress = bool(progress)
         self.blocks = {"controller": controller, "servo": servo, "estimator": estimator}
         self.frame_composer = frame_composer if self.video else None
-        self.loop: ClosedLoop | None = None
+        self.assembly: Assembly | None = None
         self.result = None
 
-    def build(self) -> ClosedLoop:
-        from ..loop.build import build_loop
+    @property
+    def loop(self) -> ClosedLoop | None:
+        return None if self.assembly is None else self.assembly.loop
 
+    def build(self) -> Assembly:
+        """Assemble the loop (:func:`~tdacm.sim.assemble.build_loop`; its checks raise
+        :class:`~tdacm.sim.ScenarioError`). :meth:`run` builds it if this was not called."""
         composer = self.frame_composer
-        loop = build_loop(
+        self.assembly = build_loop(
             self.scenario, self.seed, video=self.video, frame_composer=composer, **self.blocks
         )
         if composer is not None and hasattr(composer, "bind"):
-            composer.bind(loop)
-        return loop
+            composer.bind(self.assembly)
+        return self.assembly
 
     def run(self, out_dir=None):
         """Run; write the data of the run folder ``out_dir`` if given
         (:func:`~tdacm.sim.outputs.write_run`). Ctrl-C writes what was simulated so far, then
         re-raises ``KeyboardInterrupt``."""
-        loop = self.loop = self.build()
+        assembly = self.assembly if self.assembly is not None else self.build()
+        loop = assembly.loop
         try:
-            check_with_system(self.scenario, loop.plant.system)  # dt, target in front
             if out_dir is not None:
-                write_scene_picture(Path(out_dir) / "scene.png", loop)
+                write_scene_picture(Path(out_dir) / "scene.png", assembly)
             result = self.result = loop.run(self.duration, progress=self.progress)
-            summary = self.summary(loop, result)
+            summary = self.summary(assembly, result)
             summary["interrupted"] = bool(result.interrupted)
             if out_dir is not None:
                 write_run(
@@ -96,7 +101,8 @@ class Simulation:
             raise KeyboardInterrupt
         return result.arrays, summary
 
-    def summary(self, loop: ClosedLoop, result) -> dict:
+    def summary(self, assembly: Assembly, result) -> dict:
+        loop = assembly.loop
         a = result.arrays
         s = loop.plant.system
         rmse = a["rmse"]
@@ -119,11 +125,9 @@ class Simulation:
         u = a["u"]
         na = s.n_a
         sim_t = float(t[-1]) if t.size else 0.0
-        q_star = loop.world.q_star
+        q_star = assembly.world.q_star
         cam_dp = cam_da = drone_dp = None
         if t.size:
-            from ..loop.build import camera_pose_error
-
             cam_dp, cam_da = camera_pose_error(loop, a["q"][-1], q_star)
             if s.floating:
                 drone_dp = float(np.linalg.norm(a["q"][-1][3:6] - q_star[3:6]))
@@ -164,7 +168,7 @@ class Simulation:
             "controller_truth": self.scenario.data["estimation"]["controller_truth"] or None,
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
-            **_target_merit(loop),
+            **_target_merit(loop, assembly.world),
             **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
 
@@ -177,13 +181,13 @@ def _last_finite(x):
     return float(x[f][-1]) if f.any() else None
 
 
-def _target_merit(loop: ClosedLoop) -> dict:
+def _target_merit(loop: ClosedLoop, world: World) -> dict:
     """Final error of the robust servo's target estimate and its own 1-sigma (worst
     rotation direction), when the servo has one."""
     pred = getattr(loop.servo, "predictor", None)
     if pred is None or not pred.filter.initialized:
         return {}
-    g_t = loop.world.scene.target_pose
+    g_t = world.scene.target_pose
     e = np.linalg.solve(g_t, pred.filter.pose)
     ang = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(e[:3, :3]) - 1), -1, 1))))
     sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(pred.filter.P[:3, :3]).max())))
@@ -225,14 +229,12 @@ def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
     return out
 
 
-def write_scene_picture(path: Path, loop: ClosedLoop) -> None:
+def write_scene_picture(path: Path, assembly: Assembly) -> None:
     """The scenario's geometry as the cameras see it: C_L at the start, C_L at the desired
     configuration (the reference snapshot), C_G at the start (arm drawn)."""
     import cv2
 
-    from ..loop.sensors import RenderedFrontEnd
-
-    w = loop.world
+    loop, w = assembly.loop, assembly.world
     path.parent.mkdir(parents=True, exist_ok=True)
     tiles = []
     for label, sensor, q in (

@@ -196,7 +196,7 @@ def side_by_side(img_l, img_g, pix) -> np.ndarray:
 
 class CaptionedFrames:
     """The loop's per-period frame composer (``RunLog(frame_composer=...)``,
-    ``build_loop(frame_composer=...)``): ``composer(readings, view, command, t)`` returns
+    ``tdacm.sim.assemble.build_loop(frame_composer=...)``): ``composer(readings, view, command, t)`` returns
     :func:`compose_frame` of the C_L and C_G images with the detected points, the desired
     points ``desired`` (C_L pixels, set after the loop is built: :func:`desired_pixels`), the
     time, the mode and the RMSE of ``command``."""
@@ -204,9 +204,9 @@ class CaptionedFrames:
     def __init__(self, desired=None):
         self.desired = desired
 
-    def bind(self, loop) -> None:
-        """Take the desired points of a built loop (:func:`desired_pixels`)."""
-        self.desired = desired_pixels(loop)
+    def bind(self, assembly) -> None:
+        """Take the desired points of an assembled loop (:func:`desired_pixels`)."""
+        self.desired = desired_pixels(assembly)
 
     def __call__(self, readings, view, command, t) -> np.ndarray:
         loc = readings.local
@@ -228,10 +228,9 @@ class CaptionedFrames:
         )
 
 
-def desired_pixels(loop) -> np.ndarray:
-    """C_L pixels (4, 2) of the target at the desired configuration of a built
-    :class:`tdacm.loop.ClosedLoop` (where the detected points converge)."""
-    local = loop.sensors.local
-    return local.camera.project_world(
-        loop.world.scene.target_points_world(), local.pose(loop.world.q_star)
-    )
+def desired_pixels(assembly) -> np.ndarray:
+    """C_L pixels (4, 2) of the target at the desired configuration of an assembled loop
+    (:class:`tdacm.sim.assemble.Assembly`): where the detected points converge."""
+    local = assembly.loop.sensors.local
+    world = assembly.world
+    return local.camera.project_world(world.scene.target_points_world(), local.pose(world.q_star))
