@@ -23,6 +23,7 @@ from tdacm.loop import (
 )
 from tdacm.loop.data import ActuatorCommand
 from tdacm.loop.lowlevel import make_low_level
+from tdacm.loop.sensors import SensorModel
 from tdacm.sim import (
     ScenarioError,
     Simulation,
@@ -32,7 +33,6 @@ from tdacm.sim import (
     parse_scenario,
 )
 from tdacm.sim.robot import build_robot
-from tdacm.sim.sensors import SensorModel
 from tdacm.system.kernels import rk4_run
 from tdacm.vision.features import estimate_depths
 

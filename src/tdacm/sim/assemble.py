@@ -25,14 +25,20 @@ from ..loop.perception import Perception
 from ..loop.plant import Disturbances, Plant
 from ..loop.protocols import ControllerContext
 from ..loop.safety import SafetyMonitor
-from ..loop.sensors import AnalyticFrontEnd, CameraSensor, RenderedFrontEnd, Sensors
+from ..loop.sensors import (
+    AnalyticFrontEnd,
+    CameraSensor,
+    RenderedFrontEnd,
+    SensorModel,
+    Sensors,
+    perturbed_camera,
+)
 from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
 from ..vision import PAPER_MARKER, PAPER_PATTERN, LocalCameraServo, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
 from ..vision.virtual import virtual_camera_points, virtual_camera_transform
 from .robot import Robot, build_robot
 from .scenario import Scenario, ScenarioError, check_with_world
-from .sensors import SensorModel, perturbed_camera
 
 #: What ``controller.profile = "paper"`` sets (the paper's literal choices, docs/control.md
 #: "Profiles"): gravity lumped into Delta_hat, the approximate compensation p_V = R p_L on the

@@ -115,7 +115,7 @@ SCHEMA = {
         "downwash": ("vec:3", [0.0, 0.0, 0.0]),
         "downwash_noise": (float, 0.0),
     },
-    "sensors": {  # imperfections of the local camera (see tdacm.sim.sensors)
+    "sensors": {  # imperfections of the local camera (see tdacm.loop.sensors.SensorModel)
         "pixel_noise": (float, 0.0),  # px, std of the noise on detected points
         "dropout": (float, 0.0),  # probability that a frame has no detection
         "latency_steps": (int, 0),  # control steps between image and use
@@ -368,7 +368,7 @@ def validate(d: dict, source: str) -> Scenario:
         if not 0 <= d[sec][key] < 1:
             raise ScenarioError(f"{source}: {sec}.{key} must lie in [0, 1)")
     from ..estimation import EstimatorConfig, SensorSuiteConfig
-    from .sensors import SensorModel
+    from ..loop.sensors import SensorModel
 
     est = d["estimation"]
     if est["source"] not in ("true", "estimated"):
