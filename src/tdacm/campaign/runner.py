@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import require
 from .spec import CampaignSpec, CampaignSpecError, load_spec, sample_overrides, to_toml
 
 #: Summary fields copied into the store (None -> NaN for numbers).
@@ -113,7 +114,7 @@ COLUMNS = ("run", "seed", "status", "success", *ROW_FIELDS, "run_wall_s", "overr
 def row_schema():
     """The fixed Arrow schema of a stored row (the same for every run, whatever its
     outcome: a metric that is missing in one run is NaN/null, never a column of type null)."""
-    import pyarrow as pa
+    pa = require("pyarrow", "campaign")
 
     def typ(k):
         if k in _INT_FIELDS:
@@ -138,8 +139,8 @@ def _typed(k, v):
 
 
 def write_row(store: Path, row: dict) -> None:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    pa = require("pyarrow", "campaign")
+    pq = require("pyarrow.parquet", "campaign")
 
     schema = row_schema()
     table = pa.Table.from_pylist([{k: _typed(k, row.get(k)) for k in COLUMNS}], schema=schema)
@@ -161,9 +162,9 @@ def read_results(out):
     (columns :data:`COLUMNS`, see ``docs/campaigns.md``); an empty DataFrame if none.
     Equivalent to ``pandas.read_parquet(out / "results")`` plus the sort, and it also reads
     rows written with the schema of older versions (cast to :func:`row_schema`)."""
-    import pandas as pd
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    pd = require("pandas", "campaign")
+    pa = require("pyarrow", "campaign")
+    pq = require("pyarrow.parquet", "campaign")
 
     store = Path(out) / "results"
     files = sorted(store.glob("run-*.parquet"))
@@ -215,7 +216,11 @@ def run_campaign(
     """Run (or resume) a campaign; returns the report (see :mod:`tdacm.campaign.report`).
 
     ``max_runs`` stops after that many new runs (used to test interruption)."""
-    from dask.distributed import Client, LocalCluster, as_completed
+    distributed = require("dask.distributed", "campaign")
+    require("pandas", "campaign")
+    require("pyarrow.parquet", "campaign")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
+    as_completed = distributed.as_completed
 
     from ..sim.scenario import load_scenario
     from .report import write_report
@@ -257,8 +262,14 @@ def run_campaign(
         if progress:
             from tqdm import tqdm
 
+            from .._log import progress_enabled
+
             bar = tqdm(
-                total=spec.runs, initial=done_before, desc=f"campaign {spec.scenario}", unit="run"
+                total=spec.runs,
+                initial=done_before,
+                desc=f"campaign {spec.scenario}",
+                unit="run",
+                disable=not progress_enabled(),
             )
         try:
             spec_dict = {k: v for k, v in spec.__dict__.items()}
