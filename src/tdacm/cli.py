@@ -6,12 +6,17 @@ alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress line
 to" lines go to stderr. Invalid input exits with status 2 and one ``error:`` line naming the
 flag or the scenario key; Ctrl-C exits with status 130 and one line (``tdacm run`` writes the
 steps simulated so far; a campaign keeps its stored runs and resumes when rerun).
+
+Logging: the library logs through ``logging.getLogger(__name__)`` under the ``tdacm`` logger;
+the command line sends it to stderr in a plain format, at INFO by default, DEBUG with ``-v`` and
+warnings only with ``-q`` (which also hides the progress bars and notices).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 from pathlib import Path
@@ -23,7 +28,72 @@ def _err(msg: str) -> int:
 
 
 def _note(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+    """A notice on stderr (through logging: hidden by ``-q``)."""
+    if not any(isinstance(h, _StderrHandler) for h in logging.getLogger("tdacm").handlers):
+        configure_logging()  # a command called without main(), e.g. from the tests
+    logging.getLogger("tdacm.cli").info(msg)
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Writes to the current ``sys.stderr`` (looked up at each record, so a replaced stderr,
+    e.g. a test's capture, receives the messages)."""
+
+    def __init__(self):
+        super().__init__(self.stream)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class _StdoutHandler(_StderrHandler):
+    """The same on the current ``sys.stdout``: the tables of :data:`tdacm._log.REPORT`."""
+
+    @property
+    def stream(self):
+        return sys.stdout
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class _PlainFormatter(logging.Formatter):
+    """The message alone; warnings and errors start with their level (``warning: ...``)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if record.levelno >= logging.WARNING:
+            text = f"{record.levelname.lower()}: {text}"
+        return text
+
+
+def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
+    """Send the ``tdacm`` loggers to stderr: INFO by default, DEBUG with ``verbose``,
+    WARNING with ``quiet``; the tables of :data:`tdacm._log.REPORT` (a command's own output)
+    to stdout at any level. Replaces the handlers a previous call installed."""
+    from ._log import REPORT
+
+    level = logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO
+    report = logging.getLogger(REPORT)
+    for h in [h for h in report.handlers if isinstance(h, _StdoutHandler)]:
+        report.removeHandler(h)
+    out = _StdoutHandler()
+    out.setFormatter(logging.Formatter("%(message)s"))
+    report.addHandler(out)
+    report.setLevel(logging.INFO)
+    report.propagate = False
+    logger = logging.getLogger("tdacm")
+    for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
+        logger.removeHandler(h)
+    handler = _StderrHandler()
+    handler.setFormatter(_PlainFormatter("%(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(level)
 
 
 # ------------------------------------------------------------------ argument types
@@ -73,15 +143,19 @@ def _compile_notice(parallel: bool = False) -> None:
 
 
 def _progress(desc: str, unit: str = "frame"):
-    """A ``progress(done, total)`` callback drawing one tqdm line on stderr."""
+    """A ``progress(done, total)`` callback drawing one tqdm line on stderr (not with ``-q``)."""
     from tqdm import tqdm
+
+    from ._log import progress_enabled
 
     state = {}
 
     def cb(done, total):
         bar = state.get("bar")
         if bar is None:
-            bar = state["bar"] = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
+            bar = state["bar"] = tqdm(
+                total=total, desc=desc, unit=unit, file=sys.stderr, disable=not progress_enabled()
+            )
         bar.n = done
         bar.refresh()
         if done >= total:
@@ -147,6 +221,10 @@ def _cmd_run(args) -> int:
         return _err(f"--out {out} is a file, not a folder")
     if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
         return _err(f"--rerun must name a .rrd file, got {args.rerun}")
+    if args.rerun is not None:
+        from ._extras import require
+
+        require("rerun", "rerun")  # before the run, not after it
     try:
         sc = load_scenario(args.scenario, args.config)
         check_run(sc, args.duration, args.seed, flags=True)
@@ -324,6 +402,13 @@ def build_parser() -> argparse.ArgumentParser:
         "dynamics, dual-camera visual servoing, adaptive control.",
     )
     p.add_argument("--version", action="version", version=f"tdacm {__version__}")
+    level = p.add_mutually_exclusive_group()
+    level.add_argument(
+        "-v", "--verbose", action="count", default=0, help="also log debug messages (stderr)"
+    )
+    level.add_argument(
+        "-q", "--quiet", action="store_true", help="log warnings and errors only; no progress bars"
+    )
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("info", help="print the paper system's model summary and the model options")
     s.set_defaults(func=_cmd_info)
@@ -404,8 +489,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
+    from ._extras import MissingExtraError
+
     try:
         return args.func(args)
+    except MissingExtraError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         _note("interrupted (Ctrl-C)")
         return 130

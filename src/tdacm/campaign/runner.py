@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import require
 from .report import write_report
 from .spec import CampaignSpec, CampaignSpecError, load_spec, sample_overrides, to_toml
 from .store import ROW_FIELDS, completed_runs, write_row
@@ -106,7 +107,11 @@ def run_campaign(
     """Run (or resume) a campaign; returns the report (see :mod:`tdacm.campaign.report`).
 
     ``max_runs`` stops after that many new runs (used to test interruption)."""
-    from dask.distributed import Client, LocalCluster, as_completed
+    distributed = require("dask.distributed", "campaign")
+    require("pandas", "campaign")
+    require("pyarrow.parquet", "campaign")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
+    as_completed = distributed.as_completed
 
     from ..sim.scenario import load_scenario
 
@@ -147,8 +152,14 @@ def run_campaign(
         if progress:
             from tqdm import tqdm
 
+            from .._log import progress_enabled
+
             bar = tqdm(
-                total=spec.runs, initial=done_before, desc=f"campaign {spec.scenario}", unit="run"
+                total=spec.runs,
+                initial=done_before,
+                desc=f"campaign {spec.scenario}",
+                unit="run",
+                disable=not progress_enabled(),
             )
         try:
             spec_dict = {k: v for k, v in spec.__dict__.items()}

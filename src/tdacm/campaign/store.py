@@ -7,6 +7,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from .._extras import require
+
 #: Summary fields copied into the store (None -> NaN for numbers).
 ROW_FIELDS = (
     "initial_rmse",
@@ -49,7 +51,7 @@ COLUMNS = ("run", "seed", "status", "success", *ROW_FIELDS, "run_wall_s", "overr
 def row_schema():
     """The fixed Arrow schema of a stored row (the same for every run, whatever its
     outcome: a metric that is missing in one run is NaN/null, never a column of type null)."""
-    import pyarrow as pa
+    pa = require("pyarrow", "campaign")
 
     def typ(k):
         if k in _INT_FIELDS:
@@ -74,8 +76,8 @@ def _typed(k, v):
 
 
 def write_row(store: Path, row: dict) -> None:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    pa = require("pyarrow", "campaign")
+    pq = require("pyarrow.parquet", "campaign")
 
     schema = row_schema()
     table = pa.Table.from_pylist([{k: _typed(k, row.get(k)) for k in COLUMNS}], schema=schema)
@@ -97,9 +99,9 @@ def read_results(out):
     (columns :data:`COLUMNS`, see ``docs/campaigns.md``); an empty DataFrame if none.
     Equivalent to ``pandas.read_parquet(out / "results")`` plus the sort, and it also reads
     rows written with the schema of older versions (cast to :func:`row_schema`)."""
-    import pandas as pd
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    pd = require("pandas", "campaign")
+    pa = require("pyarrow", "campaign")
+    pq = require("pyarrow.parquet", "campaign")
 
     store = Path(out) / "results"
     files = sorted(store.glob("run-*.parquet"))

@@ -1,4 +1,4 @@
-"""State estimation: proprioceptive sensors and an EKF on the controller's model (issue 10).
+"""State estimation: proprioceptive sensors and an EKF on the controller's model.
 
 * :mod:`.sensors`: drone pose, IMU and tendon-encoder models (seeded, with latency/dropout);
 * :mod:`.ekf`: :class:`Estimator` (``reset``, ``step(t, u_applied, measurements) ->

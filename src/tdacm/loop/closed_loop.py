@@ -204,7 +204,11 @@ class ClosedLoop:
         if progress:
             from tqdm import tqdm
 
-            steps = bar = tqdm(steps, desc=self.name or "run", unit="step")
+            from .._log import progress_enabled
+
+            steps = bar = tqdm(
+                steps, desc=self.name or "run", unit="step", disable=not progress_enabled()
+            )
         terminated, reason, interrupted, termination = False, None, False, None
         wall0 = time.perf_counter()
         try:

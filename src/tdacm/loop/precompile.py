@@ -1,7 +1,7 @@
 """Compile half of the closed loop's numba kernels in a second process on a cold cache.
 
 Why: a first run in a fresh environment spends most of its time compiling numba kernels
-(docs/benchmarks.md, section 6: about 56 s of a 61 s ``tdacm run paper-in-fov --duration 1``).
+(docs/benchmarks.md, "Cold start": about 56 s of a 61 s ``tdacm run paper-in-fov --duration 1``).
 Numba compiles one kernel at a time and holds the GIL while doing it, so a second thread does
 not help. A second *process* does. Every kernel compiled with ``cache=True`` is written to
 numba's on-disk cache, and the main process then loads it from there instead of compiling it.
@@ -22,8 +22,8 @@ The split follows the order in which the main process needs the kernels:
   those kernels is called, so they load from the cache.
 
 Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 62-67 s in one
-process, 42-43 s with the second one (session 6); 88.5 s against 60.1 s in one bench run of
-session 7, on a slower moment of the machine (docs/benchmarks.md, section 6).
+process, 42-43 s with the second one; 88.5 s against 60.1 s in a bench run at a slower moment
+of the machine (docs/benchmarks.md, "Cold start").
 
 The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
 machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod

@@ -10,6 +10,7 @@ missing or fails, OpenCV's ``mp4v`` writer (MPEG-4 part 2) as before.
 
 from __future__ import annotations
 
+import logging
 import subprocess
 from pathlib import Path
 
@@ -20,6 +21,8 @@ TILE = 500
 _CAPTION_H = 28
 _FOOTER_H = 30
 MODE_NAMES = {0: "IBVS", 1: "recovery", "ibvs": "IBVS", "recovery": "recovery"}
+
+log = logging.getLogger(__name__)
 
 
 def _text(img, text, org, scale=0.55, color=(255, 255, 255), thick=1):
@@ -163,10 +166,10 @@ def write_video(path, frames, fps: float = 50) -> str:
             err = proc.stderr.read()
             if proc.wait() == 0 and path.is_file() and path.stat().st_size > 0:
                 return "h264"
-            import sys
-
-            print(f"warning: ffmpeg failed ({err.decode(errors='replace').strip()[:200]}); "
-                  "falling back to OpenCV mp4v", file=sys.stderr)  # fmt: skip
+            log.warning(
+                "ffmpeg failed (%s); falling back to OpenCV mp4v",
+                err.decode(errors="replace").strip()[:200],
+            )
         except OSError:
             pass
     import cv2
