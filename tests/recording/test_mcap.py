@@ -12,7 +12,9 @@ from scipy.spatial.transform import Rotation
 
 from tdacm.cli import main
 from tdacm.recording import (
+    DEFAULT_TOPIC_MAP,
     DEFAULT_TOPICS,
+    ExportError,
     export_run,
     load_run_folder,
     load_signals,
@@ -101,6 +103,7 @@ def test_every_message_decodes_with_the_ros2_decoder(exported, run):
 
 def test_round_trip_gives_the_stored_signals(exported, run):
     a, s = run.arrays, run.robot.system
+    assert set(DEFAULT_TOPIC_MAP) == set(DEFAULT_TOPICS) - {"/tf", "/tf_static"}
     sig = read_mcap(exported)
     t = a["t"]
     for name in ("strains", "strain_rates", "tensions", "features", "rmse", "tip_pose"):
@@ -439,3 +442,16 @@ def test_other_message_types_import(tmp_path):
     assert sig["f"].t.tolist() == [7.0, 7.0 + 1e-9, 7.0 + 2e-9]  # no header: the log time
     assert sig["m"].values.shape == (3, 2, 3) and sig["m"].names == ("a", "b", "c")
     assert sig["m"].values[1, 1].tolist() == [3, 4, 5]
+
+
+def test_export_rejects_bad_images_and_topics(run_dir, tmp_path):
+    frame = np.zeros((2, 2, 3), np.uint8)
+    with pytest.raises(ExportError, match="images"):
+        export_run(run_dir, tmp_path / "a.mcap", images={"C_X": ([0.0], [frame])})
+    with pytest.raises(ExportError, match="increasing"):
+        export_run(run_dir, tmp_path / "a.mcap", images={"C_L": ([0.2, 0.1], [frame, frame])})
+    with pytest.raises(ExportError, match="uint8"):
+        export_run(run_dir, tmp_path / "a.mcap", images={"C_L": ([0.1], [frame.astype(float)])})
+    assert not (tmp_path / "a.mcap").exists()  # checked before writing
+    with pytest.raises(ExportError, match="topics"):
+        export_run(run_dir, tmp_path / "a.mcap", topics=["/joint_states"])

@@ -255,9 +255,7 @@ def camera_info(ns: int, frame: str, cam) -> dict:
 _ENCODINGS = {1: "mono8", 3: "rgb8", 4: "rgba8"}
 
 
-def image(ns: int, frame: str, img) -> dict:
-    """``sensor_msgs/Image`` of an 8-bit image (H, W) ``mono8``, (H, W, 3) ``rgb8`` or
-    (H, W, 4) ``rgba8``."""
+def _checked_frame(img) -> np.ndarray:
     a = np.asarray(img)
     if (
         a.dtype != np.uint8
@@ -267,6 +265,13 @@ def image(ns: int, frame: str, img) -> dict:
         raise ExportError(
             f"images: a frame must be uint8 (H, W), (H, W, 3) or (H, W, 4), got {a.dtype} {a.shape}"
         )
+    return a
+
+
+def image(ns: int, frame: str, img) -> dict:
+    """``sensor_msgs/Image`` of an 8-bit image (H, W) ``mono8``, (H, W, 3) ``rgb8`` or
+    (H, W, 4) ``rgba8``."""
+    a = _checked_frame(img)
     ch = 1 if a.ndim == 2 else a.shape[2]
     return {
         "header": _header(ns, frame),
@@ -347,6 +352,13 @@ def export_run(
     bad = sorted(set(images) - {"C_L", "C_G"})
     if bad:
         raise ExportError(f"images: unknown camera {bad[0]!r} (C_L or C_G)")
+    for cam, given in images.items():
+        ti, fr = (np.asarray(x) for x in given)
+        if ti.ndim != 1 or len(fr) != len(ti) or np.any(np.diff(ti) < 0):
+            raise ExportError(f"images[{cam!r}]: give (t, frames) with increasing t, one per "
+                              f"frame (got {ti.shape} times, {len(fr)} frames)")  # fmt: skip
+        for f in fr:  # before the file is opened: no half-written recording
+            _checked_frame(f)
     a, robot, system = run.arrays, run.robot, run.robot.system
     t = np.asarray(a["t"], float)
     q = np.asarray(a["q"], float).reshape(len(t), -1)

@@ -244,6 +244,8 @@ def read_mcap(path, topic_map=None, *, t0: float | str | None = None) -> dict[st
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"FILE {path} not found")
+    if not (t0 is None or t0 == "first" or isinstance(t0, int | float)):
+        raise RecordingError(f"t0 must be seconds, 'first' or None, got {t0!r}")
     explicit = topic_map is not None
     tmap = load_topic_map(topic_map if explicit else DEFAULT_TOPIC_MAP)
     accs: dict[tuple, _Acc] = {}
