@@ -211,7 +211,8 @@ def test_floating_base_run_folder_exports_the_drone_and_rotors(tmp_path):
     q = q0 + rng.normal(0, [0.05, 0.05, 0.1, 0.2, 0.2, 0.2, 0.3, 0.3], (T, 8))
     arrays = {"t": 0.02 * np.arange(T), "q": q, "qd": rng.normal(size=(T, 8)),
               "u": rng.uniform(0, 5, (T, 8)), "tau": rng.normal(size=(T, 8)),
-              "rmse": rng.uniform(size=T)}  # fmt: skip
+              "rmse": rng.uniform(size=T), "points_local": rng.normal(size=(T, 4, 2))}  # fmt: skip
+    arrays["points_local"][2] = np.nan  # target not detected at that step
     write_all(tmp_path / "run", arrays, {}, np.zeros((4, 2)), None, None, scenario=sc,
               figures=False)  # fmt: skip
     path = export_run(tmp_path / "run", tmp_path / "f.mcap")
@@ -222,6 +223,8 @@ def test_floating_base_run_folder_exports_the_drone_and_rotors(tmp_path):
     np.testing.assert_array_equal(sig["tensions"].values, arrays["u"][:, 4:])
     np.testing.assert_array_equal(sig["strains"].values, q[:, 6:])
     assert sig["thrusts"].names == ("f1", "f2", "f3", "f4")
+    np.testing.assert_array_equal(sig["points_local"].values, arrays["points_local"])  # NaN too
+    assert np.isnan(sig["points_local"].values[2]).all()
     g = pose_matrices(sig["drone_pose"])
     assert np.abs(g - np.array([run.robot.system.base_pose(x) for x in q])).max() < 1e-14
 

@@ -5,47 +5,27 @@ installation): every schema is the ROS 2 ``.msg`` text (:mod:`.msgdefs`, encodin
 and every message is CDR, so Foxglove opens the file and ``ros2 bag play`` replays it. Header
 stamps and log times are the run's ``t`` (nanoseconds, plus ``start_ns``).
 
-Default topics (:data:`DEFAULT_TOPICS`), one message per control step unless noted:
+Default topics (:data:`DEFAULT_TOPICS`; the table with the fields is in docs/recordings.md),
+one message per control step unless noted:
 
-=================================  ===============================  ===========================
-topic                              type                             content
-=================================  ===============================  ===========================
-``/tf``                            ``tf2_msgs/msg/TFMessage``       ``world -> base_link``
-                                                                    (drone, eq. (1)),
-                                                                    ``rod_base -> rod_1 -> ...
-                                                                    -> rod_{n-1} -> tip``
-                                                                    (sections at s_k = k L / n,
-                                                                    eq. (5)-(7))
-``/tf_static``                     ``tf2_msgs/msg/TFMessage``       once, latched:
-                                                                    ``base_link -> rod_base``
-                                                                    (g_a^b), ``tip ->
-                                                                    C_L_optical``, ``base_link
-                                                                    -> C_G_optical`` (mounts),
-                                                                    ``world -> target``
-``/tdacm/drone/pose``              ``geometry_msgs/msg/PoseStamped`` drone pose in ``world``
-``/tdacm/tip/pose``                ``geometry_msgs/msg/PoseStamped`` tip pose g_L in ``world``
-``/tdacm/target/pose``             ``geometry_msgs/msg/PoseStamped`` once: the target's pose
-``/tdacm/goal/camera_pose``        ``geometry_msgs/msg/PoseStamped`` once: C_L at ``q*``
-``/tdacm/strains``                 ``sensor_msgs/msg/JointState``   ``q_s`` (position), their
-                                                                    rates (velocity), the
-                                                                    commanded generalized
-                                                                    force ``tau_s`` (effort)
-``/tdacm/tendons``                 ``sensor_msgs/msg/JointState``   tensions (effort, from
-                                                                    ``u``), path lengths
-                                                                    (position)
-``/tdacm/rotors``                  ``sensor_msgs/msg/JointState``   thrusts (effort; floating
-                                                                    base only)
-``/tdacm/servo/features``          ``std_msgs/msg/Float64MultiArray`` advanced features
-``/tdacm/servo/feature_error``     ``std_msgs/msg/Float64MultiArray`` ``p* - p*_d``
-``/tdacm/servo/points_local``      ``std_msgs/msg/Float64MultiArray`` C_L points (normalized)
-``/tdacm/servo/rmse``              ``std_msgs/msg/Float64``         normalized RMSE
-``/tdacm/C_L/camera_info``         ``sensor_msgs/msg/CameraInfo``   C_L intrinsics
-``/tdacm/C_G/camera_info``         ``sensor_msgs/msg/CameraInfo``   C_G intrinsics
-``/tdacm/C_L/image_raw``           ``sensor_msgs/msg/Image``        when frames are given
-``/tdacm/C_G/image_raw``           ``sensor_msgs/msg/Image``        when frames are given
-=================================  ===============================  ===========================
+* ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world -> base_link`` (the drone, eq. (1)) and the
+  rod chain ``rod_base -> rod_1 -> ... -> rod_{n-1} -> tip``, cross-sections at
+  ``s_k = k L / n`` (eq. (5)-(7)), ``tip`` the model's tip pose ``g_L``;
+* ``/tf_static`` (once, latched): ``base_link -> rod_base`` (``g_a^b``), ``tip ->
+  C_L_optical`` and ``base_link -> C_G_optical`` (the camera mounts), ``world -> target``;
+* ``geometry_msgs/msg/PoseStamped``: ``/tdacm/drone/pose``, ``/tdacm/tip/pose`` (in
+  ``world``), and once ``/tdacm/target/pose`` and ``/tdacm/goal/camera_pose`` (C_L at ``q*``);
+* ``sensor_msgs/msg/JointState``: ``/tdacm/strains`` (position ``q_s``, velocity their rates,
+  effort the commanded generalized force ``tau_s``), ``/tdacm/tendons`` (effort the tensions,
+  the columns of ``u`` after the thrusts; position the tendon path lengths),
+  ``/tdacm/rotors`` (effort the thrusts; flying base only);
+* ``std_msgs/msg/Float64MultiArray``: ``/tdacm/servo/features``, ``.../feature_error``,
+  ``.../points_local``; ``std_msgs/msg/Float64``: ``/tdacm/servo/rmse``;
+* ``sensor_msgs/msg/CameraInfo``: ``/tdacm/C_L/camera_info``, ``/tdacm/C_G/camera_info``;
+  ``sensor_msgs/msg/Image``: ``/tdacm/C_L/image_raw``, ``/tdacm/C_G/image_raw`` (when frames
+  are given or rendered).
 
-A :class:`std_msgs/msg/Float64MultiArray` names its components in its one dimension's label,
+A ``std_msgs/msg/Float64MultiArray`` names its components in its (last) dimension's label,
 comma-separated (``"p_phi,p_theta,p_psi,p_x,p_y,p_z"``); the names are those of
 ``timeseries.csv`` (:func:`tdacm.sim.outputs.columns`). A run folder holds no raw camera
 images (``video.mp4`` is the captioned composite), so images are exported when given
