@@ -458,3 +458,13 @@ def test_export_rejects_bad_images_and_topics(run_dir, tmp_path):
     assert not (tmp_path / "a.mcap").exists()  # checked before writing
     with pytest.raises(ExportError, match="topics"):
         export_run(run_dir, tmp_path / "a.mcap", topics=["/joint_states"])
+
+
+def test_frames_of_several_rods_are_prefixed():
+    from tdacm import dual_paper_system
+    from tdacm.recording.export import _section_frames
+
+    (b1, f1), (b2, f2) = _section_frames(dual_paper_system(), 3)
+    assert (b1, b2) == ("rod1_base", "rod2_base")
+    assert [f[:2] for f in f1] == [("rod1_1", "rod1_base"), ("rod1_2", "rod1_1"), ("tip", "rod1_2")]
+    assert [f[0] for f in f2] == ["rod2_1", "rod2_2", "rod2_tip"] and f2[-1][2] == 1.0
