@@ -468,3 +468,36 @@ def test_frames_of_several_rods_are_prefixed():
     assert (b1, b2) == ("rod1_base", "rod2_base")
     assert [f[:2] for f in f1] == [("rod1_1", "rod1_base"), ("rod1_2", "rod1_1"), ("tip", "rod1_2")]
     assert [f[0] for f in f2] == ["rod2_1", "rod2_2", "rod2_tip"] and f2[-1][2] == 1.0
+
+
+def test_import_errors_name_the_topic(tmp_path):
+    from mcap.writer import Writer as McapWriter
+
+    from tdacm.recording import RecordingError
+
+    path = tmp_path / "mixed.mcap"
+    with open(path, "wb") as f, Writer(f) as w:
+        arr = w.register_msgdef("std_msgs/msg/Float64MultiArray", ARRAY_DEF)
+        for k, n in enumerate((3, 3, 4)):  # a message longer than the others
+            w.write_message("/v", arr, {"data": [1.0] * n}, log_time=k, publish_time=k)
+    with pytest.raises(RecordingError, match="/v"):
+        read_mcap(path, {"/v": "v"})
+    with pytest.raises(RecordingError, match="one signal name"):
+        read_mcap(path, {"/v": {"position": "v"}})  # a table for a non-JointState topic
+    path = tmp_path / "joints.mcap"
+    with open(path, "wb") as f, Writer(f) as w:
+        js = w.register_msgdef("sensor_msgs/msg/JointState", JOINT_DEF)
+        w.write_message("/j", js, {"name": ["a"], "effort": [1.0]}, log_time=0, publish_time=0)
+    with pytest.raises(RecordingError, match="'pos' is not a JointState field"):
+        read_mcap(path, {"/j": {"pos": "x"}})
+    assert read_mcap(path, {"/j": "x"})["x"].values.tolist() == [[1.0]]  # the non-empty field
+    path = tmp_path / "json.mcap"
+    with open(path, "wb") as f:
+        w = McapWriter(f)
+        w.start()
+        sid = w.register_schema("Thing", "jsonschema", b"{}")
+        cid = w.register_channel("/json", "json", sid)
+        w.add_message(cid, 0, b"{}", 0)
+        w.finish()
+    with pytest.raises(RecordingError, match="not ROS 2"):
+        read_mcap(path, {"/json": "thing"})

@@ -221,10 +221,13 @@ class _Acc:
         ns = np.asarray(self.ns, np.int64)
         order = np.argsort(ns, kind="stable")
         dtype = np.uint8 if self.kind == "sensor_msgs/msg/Image" else float
-        vals = np.asarray(self.values, dtype=dtype)[order]
-        # seconds from integer nanoseconds: exact for the stamps a tdacm export writes
+        try:
+            vals = np.asarray(self.values, dtype=dtype)[order]
+        except ValueError:
+            raise RecordingError(f"{self.topic}: the messages of {self.name!r} do not all have "
+                                 "the same size") from None  # fmt: skip
         # the origin is removed in integer nanoseconds: epoch stamps (1.7e9 s) as floats
-        # would keep only 0.2 us
+        # would keep only 0.2 us; a tdacm export's stamps come back to the nanosecond
         t = _seconds(ns[order] - t0_ns)
         return Signal(self.name, t, vals, self.names or (), self.topic, self.kind)
 
@@ -237,7 +240,7 @@ def read_mcap(path, topic_map=None, *, t0: float | str | None = None) -> dict[st
 
     Every message of a mapped topic is decoded with ``mcap_ros2.decoder.DecoderFactory`` from
     the schema embedded in the file."""
-    from mcap.exceptions import McapError
+    from mcap.exceptions import DecoderNotFoundError, McapError
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
@@ -267,6 +270,9 @@ def read_mcap(path, topic_map=None, *, t0: float | str | None = None) -> dict[st
                 target = tmap[channel.topic]
                 kind = schema.name
                 _collect(accs, target, channel.topic, kind, msg, message.log_time)
+    except DecoderNotFoundError as exc:
+        raise RecordingError(f"FILE {path}: a mapped topic is not ROS 2 (ros2msg schema, CDR "
+                             f"messages): {exc}") from None  # fmt: skip
     except McapError as exc:
         raise RecordingError(f"FILE {path}: not a readable MCAP file ({exc})") from None
     signals = {}
