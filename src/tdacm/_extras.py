@@ -12,6 +12,7 @@ EXTRAS = {
     "campaign": "tdacm campaigns",
     "env": "the tdacm Gymnasium env",
     "rerun": "tdacm Rerun recordings",
+    "recording": "tdacm MCAP recordings",
 }
 
 

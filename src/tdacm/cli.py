@@ -1,5 +1,5 @@
 """Command-line interface: ``tdacm info``, ``demo``, ``bench``, ``run``, ``plot``, ``scenarios``,
-``campaign``, ``replay``.
+``campaign``, ``replay``, ``export`` (MCAP), ``import`` (MCAP through a topic map).
 
 Conventions: stdout carries only the program's own output (``tdacm run`` prints the summary JSON
 alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress lines and "written
@@ -393,8 +393,64 @@ def _cmd_replay(args) -> int:
     return 0
 
 
+def _cmd_export(args) -> int:
+    from .recording import ExportError, export_run
+
+    if Path(args.mcap).suffix != ".mcap":
+        return _err(f"--mcap must name a .mcap file, got {args.mcap}")
+    if Path(args.mcap).is_dir():
+        return _err(f"--mcap {args.mcap} is a folder, not a file")
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "timeseries.npz").is_file():
+        what = "has no timeseries.npz" if run_dir.is_dir() else "does not exist or is not a folder"
+        return _err(f"RUN_DIR {run_dir} {what}")
+    _compile_notice()
+    try:
+        path = export_run(
+            run_dir, args.mcap, n_sections=args.sections, render_every=args.images or None
+        )
+    except ExportError as exc:
+        return _err(str(exc))
+    _note(f"MCAP recording written to {Path(path).resolve()} (open in Foxglove, or "
+          f"`ros2 bag play {path}`)")  # fmt: skip
+    return 0
+
+
+def _topic_map_error(exc) -> str:
+    """The message of a :class:`~tdacm.recording.RecordingError` naming the flag: the topic
+    map's messages start with "topic map"."""
+    msg = str(exc)
+    return "--topic-map" + msg[len("topic map") :] if msg.startswith("topic map") else msg
+
+
+def _cmd_import(args) -> int:
+    from .recording import RecordingError, load_topic_map, read_mcap, save_signals
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        return _err(f"--out {out} is a file, not a folder")
+    if not Path(args.file).is_file():
+        return _err(f"FILE {args.file} does not exist or is not a file")
+    tmap = None
+    if args.topic_map is not None:
+        try:
+            tmap = load_topic_map(args.topic_map)
+        except RecordingError as exc:
+            return _err(_topic_map_error(exc))
+    try:
+        signals = read_mcap(args.file, tmap, t0="first" if args.relative else None)
+    except RecordingError as exc:
+        return _err(_topic_map_error(exc))
+    paths = save_signals(signals, out)
+    for name, sig in signals.items():
+        print(f"{name:20s} {len(sig):7d} samples  {sig.topic}  {sig.msg_type}")
+    _note(f"{len(paths)} signals written to {out.resolve()}/ (NAME.npz: t, values, names)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
+    from .recording.export import DEFAULT_SECTIONS
 
     p = argparse.ArgumentParser(
         prog="tdacm",
@@ -484,6 +540,44 @@ def build_parser() -> argparse.ArgumentParser:
         help="write a Rerun recording instead (default RUN_DIR/run.rrd)",
     )
     s.set_defaults(func=_cmd_replay)
+    s = sub.add_parser(
+        "export",
+        help="export a `tdacm run` folder as MCAP with ROS 2 message types",
+        description="Write a run folder as an MCAP recording (tf, joint states, poses, camera "
+        "info, servo features; see docs/recordings.md), readable by Foxglove and "
+        "`ros2 bag play` without a ROS installation.",
+    )
+    s.add_argument("run_dir", help="a folder written by `tdacm run`")
+    s.add_argument("--mcap", required=True, metavar="FILE", help="output .mcap file")
+    s.add_argument(
+        "--sections",
+        type=_positive_int,
+        default=DEFAULT_SECTIONS,
+        help=f"rod frames on /tf at s = k L / N (default {DEFAULT_SECTIONS})",
+    )
+    s.add_argument(
+        "--images",
+        type=_nonneg_int,
+        default=0,
+        metavar="N",
+        help="re-render C_L and C_G every N steps as sensor_msgs/Image (default 0: none)",
+    )
+    s.set_defaults(func=_cmd_export)
+    s = sub.add_parser(
+        "import",
+        help="import an MCAP recording into time-stamped signals (.npz)",
+        description="Read an MCAP recording (ROS 2 messages) through a topic map (TOML "
+        "[topics]: a lab's topic -> tdacm signal) and write one NAME.npz per signal.",
+    )
+    s.add_argument("file", help="an .mcap recording")
+    s.add_argument(
+        "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
+    )
+    s.add_argument("--out", required=True, metavar="DIR", help="folder for the signals")
+    s.add_argument(
+        "--relative", action="store_true", help="times from the recording's first message"
+    )
+    s.set_defaults(func=_cmd_import)
     return p
 
 
