@@ -3,11 +3,11 @@ recovery's C_G snapshot on demand, and the paper profile (docs/control.md, "Robu
 
 import numpy as np
 import pytest
-from tdacm.loop.build import apply_profile
 
 from tdacm.loop import GlobalView, LocalView, StateEstimate
 from tdacm.loop.servo import RobustServo, VisualServo
 from tdacm.sim import Simulation, build_loop, load_scenario
+from tdacm.sim.assemble import apply_profile
 
 ANALYTIC = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
 
