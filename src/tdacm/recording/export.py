@@ -106,7 +106,7 @@ class ExportError(ValueError):
 @dataclass(frozen=True)
 class RunFolder:
     """What the export reads from a ``tdacm run`` folder: the stored series, the summary, the
-    resolved scenario and its robot (:func:`tdacm.loop.build_scene`)."""
+    resolved scenario and its robot (:func:`tdacm.sim.build_world`)."""
 
     arrays: dict
     summary: dict
@@ -118,8 +118,8 @@ class RunFolder:
 
 def load_run_folder(run_dir) -> RunFolder:
     """Read ``run_dir`` (``timeseries.npz``, ``summary.json``, ``scenario.toml``)."""
-    from ..loop import build_scene
     from ..sim import ScenarioError, load_scenario
+    from ..sim.assemble import build_world
 
     run_dir = Path(run_dir)
     npz = run_dir / "timeseries.npz"
@@ -139,7 +139,7 @@ def load_run_folder(run_dir) -> RunFolder:
             sc = load_scenario(summary["scenario"])
         else:
             raise ExportError(f"RUN_DIR {run_dir} has neither scenario.toml nor summary.json")
-        world = build_scene(sc)
+        world = build_world(sc)
     except ScenarioError as exc:
         raise ExportError(f"RUN_DIR {run_dir}: cannot load its scenario: {exc}") from None
     for key in ("t", "q"):
