@@ -16,6 +16,7 @@ from tdacm.sim import (
     parse_scenario,
 )
 from tdacm.vision import camera_pose, world_to_camera
+from tdacm.viz import plot_run_dir
 
 NAMES = [
     "custom-robot-example",
@@ -109,6 +110,7 @@ def test_short_closed_loop_end_to_end(tmp_path):
     perturbed model: the image error drops; all outputs are written."""
     sc = load_scenario("ground-test-a").with_overrides({"cameras": {"global_renderer": "planar"}})
     arrays, summary = Simulation(sc, duration=1.5).run(tmp_path)
+    plot_run_dir(tmp_path)  # the figures, drawn from the folder's data
     assert not summary["terminated"], summary["termination_reason"]
     assert summary["final_rmse"] < 0.5 * summary["initial_rmse"]
     assert np.all(arrays["u"] >= 0.0)
