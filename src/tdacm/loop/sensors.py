@@ -18,10 +18,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..sim.sensors import SensorModel
 from ..vision import TargetDetector
 from ..vision.camera import PinholeCamera, points_in_camera
 from ..vision.detect import NOT_DETECTED, Detection
+from .config import SensorModel
 from .data import CameraMeasurement, PlantState, SensorReadings
 
 

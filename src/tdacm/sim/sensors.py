@@ -8,48 +8,21 @@
   (the images are rendered with the true camera, normalized with the wrong one).
 
 All randomness comes from one ``numpy.random.Generator`` seeded by the run's seed, so a run is
-reproducible from its seed.
+reproducible from its seed. The record :class:`SensorModel` (defaults, ranges) lives with the
+camera block, in :mod:`tdacm.loop.config`.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
+from ..loop.config import SensorModel
 from ..vision.detect import NOT_DETECTED, Detection
 
-
-@dataclass(frozen=True)
-class SensorModel:
-    pixel_noise: float = 0.0
-    dropout: float = 0.0
-    latency_steps: int = 0
-    intrinsics_error: float = 0.0
-
-    def __post_init__(self):
-        if not np.isfinite(self.pixel_noise) or self.pixel_noise < 0:
-            raise ValueError(f"sensors.pixel_noise must be >= 0, got {self.pixel_noise!r}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"sensors.dropout must lie in [0, 1), got {self.dropout!r}")
-        if int(self.latency_steps) != self.latency_steps or self.latency_steps < 0:
-            raise ValueError(
-                f"sensors.latency_steps must be an integer >= 0, got {self.latency_steps!r}"
-            )
-        if not np.isfinite(self.intrinsics_error) or not 0.0 <= self.intrinsics_error < 0.5:
-            raise ValueError(
-                f"sensors.intrinsics_error must lie in [0, 0.5), got {self.intrinsics_error!r}"
-            )
-
-    @property
-    def ideal(self) -> bool:
-        return (
-            self.pixel_noise == 0
-            and self.dropout == 0
-            and self.latency_steps == 0
-            and self.intrinsics_error == 0
-        )
+__all__ = ["Delay", "NoisyDetector", "SensorModel", "perturbed_camera"]
 
 
 class NoisyDetector:
