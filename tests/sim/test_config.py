@@ -80,7 +80,7 @@ def test_paper_values_reach_every_constructor():
         ("[sensors]\ndropout = 1.0", ["sensors.dropout", "in [0, 1)"]),
         ("[sensors]\npixel_noise = -1.0", ["sensors.pixel_noise", ">= 0"]),
         ("[controller]\nmax_tilt = 2.0", ["controller.max_tilt", "in (0, 1.5708)"]),
-        ("[controller]\nki = 1.0", ["unknown key controller.ki", "known: profile, class"]),
+        ("[controller]\nki = 1.0", ["unknown key controller.ki", "profile, class, options"]),
         ("[recovery]\nconfirm = 1.5", ["recovery.confirm", "integer"]),
         ("[robot.drone]\ninertia = [1, 2]", ["robot.drone.inertia", "3 entries"]),
         ("[model]\ngravity_feedforward = 1", ["model.gravity_feedforward", "true or false"]),

@@ -13,13 +13,13 @@ loop never imports ``sim``). The servo's own records (:class:`~.servo.ShapingPar
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Any, Literal
 
 from pydantic import field_validator
 
 from .._config import ConfigModel, Field
 from .._validate import unit_vector
+from ..control.config import ControlLawConfig
 
 Vec2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -111,9 +111,10 @@ class RecoveryConfig(ConfigModel):
     )
 
 
-class ControllerConfig(ConfigModel):
+class ControllerConfig(ControlLawConfig):
     """Section ``[controller]``: the low-level controller (the paper's adaptive law with the
-    drone loop and allocation, or a user class)."""
+    drone loop and allocation, whose keys come from
+    :class:`~tdacm.control.config.ControlLawConfig`, or a user class)."""
 
     profile: Literal["default", "paper"] = Field(
         "default",
@@ -126,14 +127,6 @@ class ControllerConfig(ConfigModel):
         description="'package.module:ClassName' of a user controller ('': the adaptive one); "
         "found on sys.path, the current folder and the scenario file's folder",
     )
-    pretension: float = Field(0.5, ge=0, description="N, minimum tendon tension")
-    max_tilt: float = Field(
-        0.35, gt=0, lt=math.pi / 2, description="rad, limit of the commanded drone tilt"
-    )
-    attitude_filter: float = Field(
-        0.05, ge=0, description="s, time constant of the commanded-attitude filter"
-    )
-    max_tilt_rate: float = Field(1.5, ge=0, description="rad/s, limit of the commanded tilt rate")
     options: dict[str, Any] = Field(
         {}, description="any keys: passed to a user controller as context.options"
     )
