@@ -74,7 +74,7 @@ def test_paper_in_fov_values():
         (
             'name = "a"\nduration = -1\n[initial]\nq = [0,0,0,0,0,3,0,0]\n[desired]\n'
             "q = [0,0,0,0,0,3,0,0]",
-            "duration must be positive",
+            "duration must be > 0",
         ),
         ('name = "a"\n[scene]\nbox_xy = [1, 2, 3]', "box_xy must have 2 entries"),
         ("name = ", "invalid TOML"),
