@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tdacm.loop.build import build_loop
 
 import tdacm
 from tdacm import paper_values as PV
@@ -19,6 +18,7 @@ from tdacm.estimation import EstimatorConfig, SensorSuiteConfig
 from tdacm.loop.config import IbvsConfig, RecoveryConfig
 from tdacm.loop.servo import RecoveryParams, RobustParams, ShapingParams
 from tdacm.rod import Rod, Tendons
+from tdacm.sim import build_loop
 from tdacm.sim import config as C
 from tdacm.sim.robot import build_robot
 from tdacm.sim.runner import Simulation
@@ -193,7 +193,7 @@ def test_user_controller_found_from_the_current_folder_gets_its_options(tmp_path
     sc = load_scenario("paper-in-fov").with_overrides(
         {**ANALYTIC, "controller": {"class": "mylab.pid:PID", "options": {"ki": 1.0}}}
     )
-    loop = build_loop(sc)
+    loop = build_loop(sc).loop
     assert type(loop.controller).__name__ == "PID"
     assert loop.controller.ki == 1.0
     assert loop.controller.options["max_tilt"] == 0.35  # the law's keys are there too
@@ -213,7 +213,7 @@ def test_user_controller_found_from_the_scenario_folder(tmp_path, monkeypatch):
         '[controller]\nclass = "mylab2.pid:PID"\n[controller.options]\nki = 2.5\n'
     )
     monkeypatch.chdir(tmp_path)  # not the scenario's folder
-    loop = build_loop(load_scenario(str(lab / "sc.toml")))
+    loop = build_loop(load_scenario(str(lab / "sc.toml"))).loop
     assert loop.controller.ki == 2.5
     sys.modules.pop("mylab2.pid", None)
     sys.modules.pop("mylab2", None)
@@ -225,7 +225,7 @@ def test_loop_blocks_take_the_scenario_values():
         {**ANALYTIC, "ibvs": {"filter_window": 17, "target_level_prior_deg": 0.25},
          "recovery": {"lost_timeout": 0.7, "margin_px": 11.0}}
     )  # fmt: skip
-    servo = build_loop(sc).servo
+    servo = build_loop(sc).loop.servo
     assert servo.robust.window == 17 and servo.robust.level_prior_deg == 0.25
     assert servo.robust.lost_timeout == 0.7 and servo.recovery.margin_px == 11.0
     assert servo.shaping.soft_start == sc["ibvs"]["soft_start"] == 0.4
