@@ -47,3 +47,6 @@ def test_wind_carries_the_drone_and_swings_the_arm(paper):
     assert tip[0] < -0.01 and abs(tip0[0]) < 1e-9
     with pytest.raises(ValueError, match="wind needs aero"):
         Plant(paper, q0, qd0, wind=SteadyWind())
+    other = tdacm.paper_system(n_gauss=8)
+    with pytest.raises(ValueError, match="packed array of this system"):
+        Plant(paper, q0, qd0, aero=aero_array(other))

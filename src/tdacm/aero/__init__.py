@@ -8,7 +8,7 @@ numba), below ``system``, whose kernels call its numba functions inside the coup
 
 from .params import LAYOUTS, Aerodynamics, Air, Drag, RotorWake
 from .wake import induced_velocity, jet_speed, wake_field
-from .wind import DrydenTurbulence, Gust, SteadyWind, Wind
+from .wind import DrydenTurbulence, Gust, SteadyWind, Wind, low_altitude_scales
 
 __all__ = [
     "LAYOUTS",
@@ -22,5 +22,6 @@ __all__ = [
     "Wind",
     "induced_velocity",
     "jet_speed",
+    "low_altitude_scales",
     "wake_field",
 ]

@@ -136,7 +136,7 @@ class DrydenTurbulence(Wind):
         (:func:`low_altitude_scales` gives the MIL-F-8785C values)
     airspeed : speed (m/s) at which the frozen turbulence passes the vehicle (> 0; the mean
         wind speed for a hovering drone)
-    direction : horizontal direction of ``u`` (the mean wind); default body... inertial +x
+    direction : horizontal direction (x, y) of ``u``, the mean wind's (default inertial +x)
     seed : of the generator; ``velocity`` must be asked at non-decreasing times (a call at an
         earlier time raises)
     """

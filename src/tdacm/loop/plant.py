@@ -14,6 +14,7 @@ import numpy as np
 
 from ..aero.layout import set_wind
 from ..aero.wind import Wind
+from ..system.aero import check_aero
 from ..system.kernels import forward_dynamics, forward_dynamics_aero, rk4_run, rk4_run_aero
 from ..system.tdacm import TDACM, Loads
 from .data import PlantState
@@ -87,7 +88,7 @@ class Plant:
     ):
         if wind is not None and aero is None:
             raise ValueError("wind needs aero (the packed aerodynamics it acts through)")
-        self.aero = None if aero is None else np.array(aero, float)
+        self.aero = None if aero is None else check_aero(system, aero).copy()
         self.wind = wind
         self.system = system
         self.substeps = int(substeps)

@@ -57,9 +57,23 @@ def aero_array(system: TDACM, aero: Aerodynamics | None = None, wind=(0.0, 0.0, 
     return out
 
 
+def check_aero(system: TDACM, aero) -> np.ndarray:
+    """``aero`` as a float array, checked to be a packed array of ``system`` (the kernels read
+    its per-step part without bounds checks)."""
+    a = np.ascontiguousarray(aero, dtype=float)
+    n = AL.N_HEADER + 2 * system.model_arrays.h.shape[0]
+    if a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(
+            f"aero must be the finite packed array of this system, shape ({n},) "
+            f"(tdacm.system.aero.aero_array), got shape {a.shape}"
+        )
+    return a
+
+
 def aero_generalized_force(system: TDACM, q, qd, u, aero: np.ndarray) -> np.ndarray:
     """The generalized force (n,) the aerodynamics add to ``tau_ext`` at ``(q, qdot, u)``."""
     q, qd, u = (np.asarray(x, float) for x in (q, qd, u))
+    aero = check_aero(system, aero)
     m, loads = system.model_arrays, system.loads.packed()
     with_air = K.coupled_terms_aero(q, qd, m, loads, False, u, aero)[3]
     without = K.coupled_terms(q, qd, m, loads, False)[3]
@@ -71,6 +85,7 @@ def section_air_loads(system: TDACM, q, qd, u, aero: np.ndarray, rod: int = 0):
     the Gauss points (n_g, 3) and the force per metre (n_g, 3) there, and the tip body's force
     (3,), all in the inertial frame."""
     q, qd, u = (np.asarray(x, float) for x in (q, qd, u))
+    aero = check_aero(system, aero)
     m = system.model_arrays
     poses, twists = K.chain_frames(q, qd, m, rod)
     gb = system.base_pose(q)
