@@ -128,3 +128,24 @@ def test_validation():
         RotorWake(rotor_radius=-1)
     with pytest.raises(ValueError, match="rod_drag"):
         Aerodynamics(rod_drag=False)
+
+
+def test_crosswind_skews_the_wake_downwind():
+    """Glauert's skew: the wake centreline leans downwind at ``tan chi = W / v_i`` (hover)."""
+    s = tdacm.paper_system()
+    wind = 1.5
+    a = aero_array(s, wind=[wind, 0.0, 0.0])
+    g = np.eye(4)
+    t = np.array([1.87, 0.0, 0.0, 0.0])  # rotor 0 alone (the others' jet tails reach here)
+    vi = induced_velocity(1.87, RHO, A, 0.0)
+    z = 0.3  # inside the near wake, whose radius there is 0.14 m
+    c = np.array([0.325, 0.0, 0.0])  # rotor 0
+    d = np.array([wind, 0.0, -vi]) / math.hypot(wind, vi)
+    on = wake_field(c + z * d, g, t, a)[0]
+    assert on == pytest.approx([0, 0, -jet_speed(0.0, z, vi, 0.0, R, S, B, 2 * R)], abs=1e-12)
+    # the unskewed point below the rotor is outside the slipstream, upwind of it
+    assert wake_field(c + [0.0, 0.0, -z * math.hypot(wind, vi) / vi], g, t, a)[0, 2] == 0.0
+    # flying at the wind's speed through still air is the same skew
+    still = aero_array(s)
+    moving = wake_field(c + z * d, g, t, still, velocity=[-wind, 0.0, 0.0])[0]
+    assert moving == pytest.approx(on, abs=1e-12)

@@ -30,6 +30,7 @@ DRONE_CDA = 34  # (3,) drag areas C_D A of the drone body along its body axes (m
 ROD_ON = 37  # 1: drag on the rod sections and the tip body
 DRONE_ON = 38  # 1: rotor and body drag on the drone
 N_ROTORS = 4
+ROTOR_STATE = 8  # per-rotor state of tdacm.aero.wake.rotor_states
 N_HEADER = 40
 
 

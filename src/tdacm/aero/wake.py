@@ -27,9 +27,12 @@ are therefore merged by adding their momentum fluxes, ``|u| = sqrt(sum_k u_k^2)`
 jets do not overlap this is each jet alone; far down (four equal, overlapping jets) it is twice
 one jet, the round jet of the total momentum flux (``U_c`` grows as its square root).
 
-Limits: quasi-steady (the wake follows the rotors at once); the wake is along the rotor axis
-(no skew by wind or forward flight); no inflow above the disc; no ground effect; no interference
-of the rod with the rotors.
+The air crossing a rotor sideways (wind, forward flight) skews its wake downwind as a straight
+centreline at Glauert's skew angle (:func:`rotor_states`).
+
+Limits: quasi-steady (the wake follows the rotors at once); a straight skewed centreline (no
+wake curvature, no roll-up); no inflow above the disc; no ground effect; no interference of
+the rod with the rotors.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .layout import CORE, DECAY, RADIUS, RHO, ROTORS, SPREAD, WIND
+from .layout import CORE, DECAY, RADIUS, RHO, ROTOR_STATE, ROTORS, SPREAD, WIND
 
 LN2 = math.log(2.0)
 
@@ -81,45 +84,59 @@ def jet_speed(r, z, v_i, v_climb, radius, spread, decay, core):
 
 @njit(cache=True)
 def rotor_states(gb, vb, thrusts, aero, out):
-    """Per rotor ``k``: centre (inertial), induced velocity, axial climb speed, in
-    ``out[k] = [cx, cy, cz, v_i, v_climb]``; returns the wake direction ``-R_b e_z``.
+    """Per rotor ``k``: ``out[k] = [cx, cy, cz, v_i, v_climb, sx, sy, sz]``, its centre
+    (inertial), induced velocity, axial climb speed and the unit direction of its skewed wake
+    centreline; returns the rotor axis ``-R_b e_z`` (the direction of the induced velocity).
 
     ``gb`` drone pose, ``vb`` its inertial velocity, ``aero`` the packed array (rotor centres in
-    the body frame at ``ROTORS``, wind at ``WIND``)."""
+    the body frame at ``ROTORS``, wind at ``WIND``).  The air crossing the rotor sideways
+    (wind minus the drone's velocity) skews the wake: its centreline leans downwind at
+    ``tan chi = |v_perp| / (V_c + v_i)`` (Glauert's skewed actuator disc, Leishman 2006, ch. 2)."""
     radius, rho = aero[RADIUS], aero[RHO]
     area = math.pi * radius * radius
     ax = -gb[0, 2]
     ay = -gb[1, 2]
     az = -gb[2, 2]
-    # climb speed along the thrust axis (+R_b e_z), relative to the air
-    vc = -(
-        (vb[0] - aero[WIND]) * ax + (vb[1] - aero[WIND + 1]) * ay + (vb[2] - aero[WIND + 2]) * az
-    )
+    # air velocity relative to the drone; its part along the wake is the climb speed
+    wx, wy, wz = aero[WIND] - vb[0], aero[WIND + 1] - vb[1], aero[WIND + 2] - vb[2]
+    vc = wx * ax + wy * ay + wz * az
+    px, py, pz = wx - vc * ax, wy - vc * ay, wz - vc * az
+    cross = math.sqrt(px * px + py * py + pz * pz)
     for k in range(4):
         for i in range(3):
             acc = gb[i, 3]
             for c in range(3):
                 acc += gb[i, c] * aero[ROTORS + 3 * k + c]
             out[k, i] = acc
-        out[k, 3] = induced_velocity(thrusts[k], rho, area, vc)
+        vi = induced_velocity(thrusts[k], rho, area, vc)
+        out[k, 3] = vi
         out[k, 4] = vc
+        along = max(vc, 0.0) + vi
+        if cross > 0.0 and along > 0.0:
+            sx, sy, sz = along * ax + px, along * ay + py, along * az + pz
+            n = math.sqrt(sx * sx + sy * sy + sz * sz)
+            out[k, 5], out[k, 6], out[k, 7] = sx / n, sy / n, sz / n
+        else:
+            out[k, 5], out[k, 6], out[k, 7] = ax, ay, az
     return ax, ay, az
 
 
 @njit(cache=True)
 def wake_at(px, py, pz, rot, ax, ay, az, aero):
-    """Merged wake speed of the rotors ``rot`` (from :func:`rotor_states`) at an inertial point;
-    the velocity is that speed along ``(ax, ay, az)``."""
+    """Merged wake speed of the rotors ``rot`` (from :func:`rotor_states`) at an inertial point,
+    each jet laid along its skewed centreline; the velocity is that speed along the rotor axis
+    ``(ax, ay, az)``."""
     radius, spread, decay, core = aero[RADIUS], aero[SPREAD], aero[DECAY], aero[CORE]
     acc = 0.0
     for k in range(rot.shape[0]):
         dx = px - rot[k, 0]
         dy = py - rot[k, 1]
         dz = pz - rot[k, 2]
-        z = dx * ax + dy * ay + dz * az
-        rx = dx - z * ax
-        ry = dy - z * ay
-        rz = dz - z * az
+        sx, sy, sz = rot[k, 5], rot[k, 6], rot[k, 7]
+        z = dx * sx + dy * sy + dz * sz
+        rx = dx - z * sx
+        ry = dy - z * sy
+        rz = dz - z * sz
         r = math.sqrt(rx * rx + ry * ry + rz * rz)
         u = jet_speed(r, z, rot[k, 3], rot[k, 4], radius, spread, decay, core)
         acc += u * u
@@ -128,10 +145,11 @@ def wake_at(px, py, pz, rot, ax, ay, az, aero):
 
 def wake_field(points, pose, thrusts, aero, velocity=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Wake velocity (n, 3) at inertial ``points`` (n, 3) of a drone at ``pose`` (4x4) moving at
-    ``velocity`` with rotor ``thrusts`` (4,), for a packed ``aero`` array (wind not added)."""
+    ``velocity`` with rotor ``thrusts`` (4,), for a packed ``aero`` array (its wind skews the
+    wake and sets the climb speed, but is not added to the result)."""
     pts = np.atleast_2d(np.asarray(points, float))
     gb = np.ascontiguousarray(pose, dtype=float)
-    rot = np.empty((4, 5))
+    rot = np.empty((4, ROTOR_STATE))
     ax, ay, az = rotor_states(
         gb, np.asarray(velocity, float), np.asarray(thrusts, float), aero, rot
     )

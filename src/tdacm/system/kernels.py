@@ -410,7 +410,7 @@ def coupled_terms_aero(q, qd, m, loads, want_c, u, aero):
     drone_air = air and floating and aero[AL.DRONE_ON] > 0.0
     rod_air = air and aero[AL.ROD_ON] > 0.0
     wake = rod_air and aero[AL.WAKE_ON] > 0.0
-    rot = np.empty((AL.N_ROTORS, 5))
+    rot = np.empty((AL.N_ROTORS, AL.ROTOR_STATE))
     ax = ay = az = 0.0
     if wake:
         ax, ay, az = _rotor_setup(q, qd, u, m, gb, aero, rot)
