@@ -18,6 +18,11 @@ for a fixed base.  The packed load vector ``loads`` (27,) is
 ``[gravity(3), base wrench in O_b (6), rod wrench density in O_s (6), rod force density in the
 inertial frame (3), tip wrench in O_L (6), tip force in the inertial frame (3)]``.
 
+Aerodynamics (:mod:`tdacm.aero`): the ``*_aero`` kernels take a packed array ``aero`` besides the
+loads; at every Gauss point the drag of the air (rotor wake + wind - section velocity) joins the
+section's wrench density, at the tip the camera's drag, at the drone its rotor and body drag.
+The plain kernels pass an empty array and skip every aerodynamic term (bit-identical results).
+
 Flags: numba compiles a separate specialization of a kernel for each literal flag
 (``True`` / ``False``) it receives from jitted code, besides the one for Python callers (a
 plain ``bool``). The forward dynamics keeps its ``want_c = False`` specialization (the plant's
