@@ -7,7 +7,7 @@
 * :class:`Aerodynamics`: the three together, with switches for each effect.
 
 Defaults are sized for the paper's 0.7331 kg drone on a Holybro X650 frame (the values the
-paper does not give are those of :data:`tdacm.system.paper.PAPER_DEFAULTS_NOT_IN_PAPER`:
+paper does not give are those of :data:`tdacm.paper_values.PAPER_DEFAULTS_NOT_IN_PAPER`:
 15-inch propellers, 0.325 m motor arms).
 """
 
@@ -41,7 +41,7 @@ class RotorWake:
     """Geometry of the four rotors and constants of their wake (:mod:`tdacm.aero.wake`).
 
     rotor_radius : 0.1905 m, a 15-inch propeller (the size behind the drone's default
-        ``drag_factor`` and ``max_thrust``, see ``PAPER_DEFAULTS_NOT_IN_PAPER``)
+        ``drag_factor`` and ``max_thrust``, see ``tdacm.paper_values``)
     arm_length : distance from the centre of mass to each rotor axis (m); ``None`` takes the
         drone's own ``Quadrotor.arm_length`` (one source of truth: it also sets ``Gamma``)
     layout : ``"+"`` (rotor 0 on body +x, the motor order of ``Gamma`` in eq. (15) as
