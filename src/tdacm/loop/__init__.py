@@ -25,7 +25,7 @@ from .data import (
     ServoCommand,
     StateEstimate,
 )
-from .lowlevel import AdaptiveLowLevel, load_class
+from .lowlevel import AdaptiveLowLevel, PDGravityController, load_class
 from .perception import Perception
 from .plant import Disturbances, Plant
 from .protocols import ControllerContext, Estimator, LowLevelController, Servo
@@ -36,6 +36,7 @@ from .servo import VisualServo, normalized_rmse
 __all__ = [
     "ActuatorCommand",
     "AdaptiveLowLevel",
+    "PDGravityController",
     "AnalyticFrontEnd",
     "CameraMeasurement",
     "CameraSensor",

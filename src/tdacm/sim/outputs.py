@@ -268,17 +268,3 @@ def write_all(
 
         dt = summary.get("dt") or (scenario["dt"] if scenario is not None else 0.02)
         write_video(out / "video.mp4", frames, fps or 1.0 / dt)
-
-
-def write_video(path: Path, frames, fps: int = 50) -> None:
-    """Kept for callers of the old API: see :func:`tdacm.viz.video.write_video`."""
-    from ..viz.video import write_video as _wv
-
-    _wv(path, frames, fps)
-
-
-def plot_all(out: Path, a: dict, summary: dict, desired_pts, system) -> None:
-    """Kept for callers of the old API: see :func:`tdacm.viz.figures.plot_run`."""
-    from ..viz.figures import plot_run
-
-    plot_run(out, a, summary, desired_pts, system)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import unit_vector
+from ..vision.mounts import tip_camera_pose
 from .robot import ROBOT_SCHEMA, RobotError, strain_count
 
 
@@ -498,7 +499,7 @@ def check_with_system(scenario: Scenario, system=None) -> None:
     except ValueError as exc:
         raise ScenarioError(f"{src}: {exc}") from None
     robot = world.robot
-    g_c = robot.system.tip_pose(world.q_star) @ robot.tip_mount
+    g_c = tip_camera_pose(robot.system, world.q_star, robot.tip_mount)
     pts = world.scene.target_points_world()
     depth = (pts - g_c[:3, 3]) @ g_c[:3, 2]
     if np.any(depth <= 0):

@@ -13,12 +13,9 @@ reproducible from its seed.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
-
-from ..vision.detect import NOT_DETECTED, Detection
 
 
 @dataclass(frozen=True)
@@ -50,40 +47,6 @@ class SensorModel:
             and self.latency_steps == 0
             and self.intrinsics_error == 0
         )
-
-
-class NoisyDetector:
-    """Wraps a detector (``detect(image)``, ``reset()``) with pixel noise and dropouts."""
-
-    def __init__(self, detector, model: SensorModel, rng: np.random.Generator):
-        self.inner = detector
-        self.model = model
-        self.rng = rng
-
-    def reset(self):
-        self.inner.reset()
-
-    def detect(self, image) -> Detection:
-        det = self.inner.detect(image)
-        if self.model.dropout > 0 and self.rng.random() < self.model.dropout:
-            return NOT_DETECTED
-        if not det.found or self.model.pixel_noise == 0:
-            return det
-        s = self.model.pixel_noise
-        points = det.points + self.rng.normal(0.0, s, det.points.shape)
-        corners = {k: v + self.rng.normal(0.0, s, np.shape(v)) for k, v in det.corners.items()}
-        return Detection(True, points, det.ids, corners)
-
-
-class Delay:
-    """A FIFO that returns the value pushed ``steps`` calls ago (the first value until full)."""
-
-    def __init__(self, steps: int):
-        self.buf = deque(maxlen=int(steps) + 1)
-
-    def __call__(self, value):
-        self.buf.append(value)
-        return self.buf[0]
 
 
 def perturbed_camera(camera, relative_error: float, rng: np.random.Generator):

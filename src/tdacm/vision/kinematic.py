@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tdacm.lie.se3 import expmap
-
+from ..lie.se3 import expmap, rotation_angle
 from . import _checks as C
 from .ibvs import IBVSController
+from .mounts import tip_camera_pose
 
 
 @dataclass(frozen=True)
@@ -38,10 +38,6 @@ def project_points(points_target, camera_pose_in_target):
     r, t = g[:3, :3], g[:3, 3]
     pc = (points_target - t) @ r
     return pc[:, :2] / pc[:, 2:3], pc[:, 2]
-
-
-def _rotation_angle(r: np.ndarray) -> float:
-    return float(np.arccos(np.clip(0.5 * (np.trace(r) - 1.0), -1.0, 1.0)))
 
 
 def free_camera_servo(
@@ -101,7 +97,7 @@ def free_camera_servo(
             break
         g = g @ expmap(dt * ctrl.twist(xy, z))
     pos = float(np.linalg.norm(g[:3, 3] - gd[:3, 3]))
-    rot = _rotation_angle(gd[:3, :3].T @ g[:3, :3])
+    rot = rotation_angle(gd[:3, :3].T @ g[:3, :3])
     return LoopResult(converged and not lost, k, e_norm, pos, rot, lost, g)
 
 
@@ -177,7 +173,7 @@ def tdacm_servo(
 
     def view(qq):
         g_b = system.base_pose(qq)
-        g_cl = system.tip_pose(qq) @ mount
+        g_cl = tip_camera_pose(system, qq, mount)
         r, t = g_cl[:3, :3], g_cl[:3, 3]
         pc = (pw - t) @ r
         if np.any(pc[:, 2] <= 1e-3):

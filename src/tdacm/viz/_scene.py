@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..vision.mounts import tip_camera_pose
+
 
 @dataclass
 class Geometry:
@@ -27,7 +29,7 @@ class Geometry:
     global_camera: object
 
     def local_pose(self, q):
-        return self.system.tip_pose(q) @ self.tip_mount
+        return tip_camera_pose(self.system, q, self.tip_mount)
 
     def global_pose(self, q):
         return self.system.base_pose(q) @ self.drone_mount
