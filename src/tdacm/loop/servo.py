@@ -295,6 +295,12 @@ class VisualServo:
     ) -> ServoCommand:
         """One servo period. ``twist`` (optional) replaces the IBVS twist (an external
         command, e.g. a learning agent's action); shaping and the mapping still apply."""
+        return self.command(t, dt, est.q, gview, twist, *self.perceive(t, dt, view, est))
+
+    def perceive(self, t: float, dt: float, view: LocalView, est: StateEstimate) -> tuple:
+        """The first part of a period: the mode switch on the view and the view in C_V.
+        Returns ``(mode, event, seen, ibvs_twist, points, features, error, rmse, extra)``
+        for :meth:`command` (``ibvs_twist()`` computes the IBVS twist when it is used)."""
         q = est.q
         prev = self.switch.mode
         mode = self.switch.update(view.pixels if view.found else None)
@@ -303,9 +309,8 @@ class VisualServo:
         rmse = float("nan")
         if view.found:
             points, depths, features, error, rmse = self.observe(view, q)
-        return self.command(
-            t, dt, q, gview, mode, event, view.found, twist,
-            lambda: self.ibvs.twist(points, depths, error=error),
+        return (
+            mode, event, view.found, lambda: self.ibvs.twist(points, depths, error=error),
             points, features, error, rmse, {},
         )  # fmt: skip
 
@@ -315,9 +320,9 @@ class VisualServo:
         self.shape(self.joint_rates(q, twist), t, dt)
         return np.zeros(self.n)
 
-    def command(self, t, dt, q, gview, mode, event, seen, twist, ibvs_twist, points, features,
+    def command(self, t, dt, q, gview, twist, mode, event, seen, ibvs_twist, points, features,
                 error, rmse, extra) -> ServoCommand:  # fmt: skip
-        """The end of a period, shared by both servos: IBVS on ``twist`` (if given) or on
+        """The end of a period, the same for both servos: IBVS on ``twist`` (if given) or on
         ``ibvs_twist()`` when the target is ``seen``, the recovery branch, or a hold while the
         target is not seen in IBVS mode. ``extra``: fields added to every command."""
         n = self.n
@@ -519,15 +524,10 @@ class RobustServo(VisualServo):
             for k in sorted(self._poses)[:-64]:
                 del self._poses[k]
 
-    def step(
-        self,
-        t: float,
-        dt: float,
-        view: LocalView,
-        gview: GlobalView | None,
-        est: StateEstimate,
-        twist: np.ndarray | None = None,
-    ) -> ServoCommand:
+    def perceive(self, t: float, dt: float, view: LocalView, est: StateEstimate) -> tuple:
+        """As :meth:`VisualServo.perceive`, on the features predicted from the target
+        estimate (the view is fused first; the mode switch watches the predicted C_L pixels
+        while in IBVS)."""
         q = est.q
         r = self.robust
         self._fuse(t, view, est)
@@ -557,9 +557,8 @@ class RobustServo(VisualServo):
         event = self.transition(prev, mode, t)
         rmse = normalized_rmse(ps.points, self.desired_points) if ps.valid else float("nan")
         extra = {"rmse_measured": rmse_meas, "target_pose": self.target_pose}
-        return self.command(
-            t, dt, q, gview, mode, event, ps.valid, twist, lambda: ps.twist,
-            ps.points, ps.features, ps.error, rmse, extra,
+        return (
+            mode, event, ps.valid, lambda: ps.twist, ps.points, ps.features, ps.error, rmse, extra,
         )  # fmt: skip
 
     def follow_twist(self, q, twist, t: float, dt: float) -> np.ndarray:
