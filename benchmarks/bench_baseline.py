@@ -9,8 +9,10 @@ import sys
 from pathlib import Path
 
 from tdacm.baselines import study
+from tdacm.cli import configure_logging
 
 if __name__ == "__main__":
+    configure_logging()  # the tables on stdout
     out = Path(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     out.mkdir(parents=True, exist_ok=True)
     timing = study.timing_study()

@@ -26,7 +26,7 @@ from tests.estimation.harness import nees, run  # noqa: E402
 
 from tdacm.control import EstimatedModel  # noqa: E402
 from tdacm.estimation import ExtendedKalmanFilter, SensorSuite  # noqa: E402
-from tdacm.loop import build_loop  # noqa: E402
+from tdacm.sim import build_loop  # noqa: E402
 from tdacm.sim.runner import estimation_summary  # noqa: E402
 from tdacm.sim.scenario import load_scenario  # noqa: E402
 
@@ -93,7 +93,7 @@ def closed_loop(name, source, duration=None, seed=0, estimation=None, sensors=No
     sc = load_scenario(name).with_overrides(
         {**FAST, "estimation": est, "sensors": dict(sensors or {})}
     )
-    loop = build_loop(sc, seed)
+    loop = build_loop(sc, seed).loop
     dur = sc["duration"] if duration is None else duration
     n_steps = int(round(dur / loop.dt))
     loop.reset()

@@ -2,13 +2,13 @@
 
     python benchmarks/bench_loop.py [--repeats 5] [--no-cold] [--cold-ab ROUNDS] [--out out/bench]
 
-Writes the ``loop`` section of ``OUT/bench.json`` (see :mod:`tdacm.loop.bench`).
+Writes the ``loop`` section of ``OUT/bench.json`` (see :mod:`tdacm.bench.loop`).
 """
 
 import argparse
 import json
 
-from tdacm.loop.bench import run_loop_bench
+from tdacm.bench.loop import run_loop_bench
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser()

@@ -67,7 +67,7 @@ def main(seed=3, excursions=(0.05, 0.1, 0.2), level_prior_deg=0.5):
     a, s = sim.run()
     servo = sim.loop.servo
     filt = servo.target_filter
-    g_t = sim.loop.world.scene.target_pose
+    g_t = sim.assembly.world.scene.target_pose
     poses = [servo.local_camera_pose(q) for q in a["q"]]
     rows = [("flown trajectory", poses), ("all frames at the final pose", [poses[-1]] * len(poses))]
     for b in excursions:
@@ -89,7 +89,7 @@ def main(seed=3, excursions=(0.05, 0.1, 0.2), level_prior_deg=0.5):
     for name, ps in rows:
         sx, sy = bounds[name] = tilt_sigma_deg(filt.information(g_t, ps))
         print(f"  {name:55s} {sx:.3f} {sy:.3f}")
-    g_ref = servo.local_camera_pose(sim.loop.world.q_star)
+    g_ref = servo.local_camera_pose(sim.assembly.world.q_star)
     within = ideal_within(filt.information(g_t, poses), g_t, g_ref)
     print(
         "an ideal controller (the camera exactly where an estimate at this bound says) ends "
@@ -128,8 +128,8 @@ def campaign_bound(runs, spec_path="examples/campaigns/paper-in-fov-200.toml"):
         ov.setdefault("cameras", {})["local_renderer"] = "analytic"
         sim = Simulation(base.with_overrides(ov, "bound"), duration=spec.duration, seed=seed)
         a, s = sim.run()
-        servo, g_t = sim.loop.servo, sim.loop.world.scene.target_pose
-        filt, g_ref = servo.target_filter, servo.local_camera_pose(sim.loop.world.q_star)
+        servo, g_t = sim.loop.servo, sim.assembly.world.scene.target_pose
+        filt, g_ref = servo.target_filter, servo.local_camera_pose(sim.assembly.world.q_star)
         poses = [servo.local_camera_pose(q) for q in a["q"]]
         ideal.append(ideal_within(filt.information(g_t, poses), g_t, g_ref))
         ideal_p.append(ideal_within(filt.information(g_t, poses, with_prior=True), g_t, g_ref))

@@ -21,7 +21,7 @@ def test_help_lists_commands():
     out = subprocess.run(
         [sys.executable, "-m", "tdacm.cli", "--help"], capture_output=True, text=True, check=True
     )
-    for cmd in ("info", "demo", "bench", "run", "plot", "replay", "campaign"):
+    for cmd in ("info", "demo", "bench", "run", "plot", "replay", "campaign", "export", "import"):
         assert cmd in out.stdout
 
 
@@ -188,8 +188,8 @@ def test_compile_notice_is_one_stderr_line_when_cold(monkeypatch, capsys, tmp_pa
 
 
 def test_bench_progress_line_on_stderr(monkeypatch, capsys, tmp_path):
-    import tdacm.bench as bench
-    import tdacm.loop.bench as loop_bench
+    import tdacm.bench.loop as loop_bench
+    import tdacm.bench.model as bench
 
     monkeypatch.setattr(bench, "bench_system", lambda name, s, repeats, duration=5.0: {
         "system": name, "n": s.n, "terms_us": 1.0, "forward_dynamics_api_us": 1.0,

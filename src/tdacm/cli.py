@@ -1,17 +1,22 @@
 """Command-line interface: ``tdacm info``, ``demo``, ``bench``, ``run``, ``plot``, ``scenarios``,
-``campaign``, ``replay``.
+``campaign``, ``replay``, ``export`` (MCAP), ``import`` (MCAP through a topic map).
 
 Conventions: stdout carries only the program's own output (``tdacm run`` prints the summary JSON
 alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress lines and "written
 to" lines go to stderr. Invalid input exits with status 2 and one ``error:`` line naming the
 flag or the scenario key; Ctrl-C exits with status 130 and one line (``tdacm run`` writes the
 steps simulated so far; a campaign keeps its stored runs and resumes when rerun).
+
+Logging: the library logs through ``logging.getLogger(__name__)`` under the ``tdacm`` logger;
+the command line sends it to stderr in a plain format, at INFO by default, DEBUG with ``-v`` and
+warnings only with ``-q`` (which also hides the progress bars and notices).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 from pathlib import Path
@@ -23,7 +28,72 @@ def _err(msg: str) -> int:
 
 
 def _note(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+    """A notice on stderr (through logging: hidden by ``-q``)."""
+    if not any(isinstance(h, _StderrHandler) for h in logging.getLogger("tdacm").handlers):
+        configure_logging()  # a command called without main(), e.g. from the tests
+    logging.getLogger("tdacm.cli").info(msg)
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Writes to the current ``sys.stderr`` (looked up at each record, so a replaced stderr,
+    e.g. a test's capture, receives the messages)."""
+
+    def __init__(self):
+        super().__init__(self.stream)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class _StdoutHandler(_StderrHandler):
+    """The same on the current ``sys.stdout``: the tables of :data:`tdacm._log.REPORT`."""
+
+    @property
+    def stream(self):
+        return sys.stdout
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class _PlainFormatter(logging.Formatter):
+    """The message alone; warnings and errors start with their level (``warning: ...``)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if record.levelno >= logging.WARNING:
+            text = f"{record.levelname.lower()}: {text}"
+        return text
+
+
+def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
+    """Send the ``tdacm`` loggers to stderr: INFO by default, DEBUG with ``verbose``,
+    WARNING with ``quiet``; the tables of :data:`tdacm._log.REPORT` (a command's own output)
+    to stdout at any level. Replaces the handlers a previous call installed."""
+    from ._log import REPORT
+
+    level = logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO
+    report = logging.getLogger(REPORT)
+    for h in [h for h in report.handlers if isinstance(h, _StdoutHandler)]:
+        report.removeHandler(h)
+    out = _StdoutHandler()
+    out.setFormatter(logging.Formatter("%(message)s"))
+    report.addHandler(out)
+    report.setLevel(logging.INFO)
+    report.propagate = False
+    logger = logging.getLogger("tdacm")
+    for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
+        logger.removeHandler(h)
+    handler = _StderrHandler()
+    handler.setFormatter(_PlainFormatter("%(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(level)
 
 
 # ------------------------------------------------------------------ argument types
@@ -73,15 +143,19 @@ def _compile_notice(parallel: bool = False) -> None:
 
 
 def _progress(desc: str, unit: str = "frame"):
-    """A ``progress(done, total)`` callback drawing one tqdm line on stderr."""
+    """A ``progress(done, total)`` callback drawing one tqdm line on stderr (not with ``-q``)."""
     from tqdm import tqdm
+
+    from ._log import progress_enabled
 
     state = {}
 
     def cb(done, total):
         bar = state.get("bar")
         if bar is None:
-            bar = state["bar"] = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
+            bar = state["bar"] = tqdm(
+                total=total, desc=desc, unit=unit, file=sys.stderr, disable=not progress_enabled()
+            )
         bar.n = done
         bar.refresh()
         if done >= total:
@@ -147,6 +221,10 @@ def _cmd_run(args) -> int:
         return _err(f"--out {out} is a file, not a folder")
     if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
         return _err(f"--rerun must name a .rrd file, got {args.rerun}")
+    if args.rerun is not None:
+        from ._extras import require
+
+        require("rerun", "rerun")  # before the run, not after it
     try:
         sc = load_scenario(args.scenario, args.config)
         check_run(sc, args.duration, args.seed, flags=True)
@@ -163,31 +241,36 @@ def _cmd_run(args) -> int:
 
 
 def _run_checked(args, sc, out: Path) -> int:
-    """The rest of ``tdacm run`` once the scenario passed its schema checks."""
-    from .sim import ScenarioError, run_scenario
+    """The rest of ``tdacm run`` once the scenario passed its schema checks: the run's data
+    (:class:`tdacm.sim.Simulation`), then its figures and video (:mod:`tdacm.viz`)."""
+    from .sim import ScenarioError, Simulation
     from .sim.outputs import clear_run_outputs
-    from .sim.scenario import check_with_system
+    from .viz import plot_run_dir, write_video
+    from .viz.video import CaptionedFrames
 
+    sim = Simulation(
+        sc,
+        duration=args.duration,
+        seed=args.seed,
+        video=args.video,
+        progress=True,
+        frame_composer=CaptionedFrames() if args.video else None,
+    )
     try:
-        check_with_system(sc)
+        sim.build()  # the checks against the built robot, before anything is removed
     except ScenarioError as exc:
         return _err(str(exc))
     removed = clear_run_outputs(out, keep=())
     if removed:
         _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
     try:
-        _, summary = run_scenario(
-            sc,
-            out=out,
-            duration=args.duration,
-            seed=args.seed,
-            video=args.video,
-            progress=True,
-        )
+        _, summary = sim.run(out)
     except ScenarioError as exc:
         return _err(str(exc))
     except KeyboardInterrupt:
         stored = (out / "timeseries.npz").is_file()
+        if stored:
+            _write_pictures(out, sim, plot_run_dir, write_video)
         _note(
             "interrupted (Ctrl-C): "
             + (
@@ -197,6 +280,7 @@ def _run_checked(args, sc, out: Path) -> int:
             )
         )
         return 130
+    _write_pictures(out, sim, plot_run_dir, write_video)
     print(json.dumps(summary, indent=2))
     _note(f"Run written to {out.resolve()}/")
     if args.rerun is not None:
@@ -205,6 +289,14 @@ def _run_checked(args, sc, out: Path) -> int:
         path = record_run(out, args.rerun, progress=_progress("rerun", "step"))
         _note(f"Rerun recording written to {Path(path).resolve()} (open with `rerun {path}`)")
     return 1 if summary["terminated"] else 0
+
+
+def _write_pictures(out: Path, sim, plot_run_dir, write_video) -> None:
+    """The figures of a written run folder and, when frames were kept, its video."""
+    plot_run_dir(out)
+    frames = sim.result.frames if sim.result is not None else []
+    if frames:
+        write_video(out / "video.mp4", frames, 1.0 / sim.scenario["dt"])
 
 
 def _cmd_plot(args) -> int:
@@ -301,8 +393,64 @@ def _cmd_replay(args) -> int:
     return 0
 
 
+def _cmd_export(args) -> int:
+    from .recording import ExportError, export_run
+
+    if Path(args.mcap).suffix != ".mcap":
+        return _err(f"--mcap must name a .mcap file, got {args.mcap}")
+    if Path(args.mcap).is_dir():
+        return _err(f"--mcap {args.mcap} is a folder, not a file")
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "timeseries.npz").is_file():
+        what = "has no timeseries.npz" if run_dir.is_dir() else "does not exist or is not a folder"
+        return _err(f"RUN_DIR {run_dir} {what}")
+    _compile_notice()
+    try:
+        path = export_run(
+            run_dir, args.mcap, n_sections=args.sections, render_every=args.images or None
+        )
+    except ExportError as exc:
+        return _err(str(exc))
+    _note(f"MCAP recording written to {Path(path).resolve()} (open in Foxglove, or "
+          f"`ros2 bag play {path}`)")  # fmt: skip
+    return 0
+
+
+def _topic_map_error(exc) -> str:
+    """The message of a :class:`~tdacm.recording.RecordingError` naming the flag: the topic
+    map's messages start with "topic map"."""
+    msg = str(exc)
+    return "--topic-map" + msg[len("topic map") :] if msg.startswith("topic map") else msg
+
+
+def _cmd_import(args) -> int:
+    from .recording import RecordingError, load_topic_map, read_mcap, save_signals
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        return _err(f"--out {out} is a file, not a folder")
+    if not Path(args.file).is_file():
+        return _err(f"FILE {args.file} does not exist or is not a file")
+    tmap = None
+    if args.topic_map is not None:
+        try:
+            tmap = load_topic_map(args.topic_map)
+        except RecordingError as exc:
+            return _err(_topic_map_error(exc))
+    try:
+        signals = read_mcap(args.file, tmap, t0="first" if args.relative else None)
+    except RecordingError as exc:
+        return _err(_topic_map_error(exc))
+    paths = save_signals(signals, out)
+    for name, sig in signals.items():
+        print(f"{name:20s} {len(sig):7d} samples  {sig.topic}  {sig.msg_type}")
+    _note(f"{len(paths)} signals written to {out.resolve()}/ (NAME.npz: t, values, names)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
+    from .recording.export import DEFAULT_SECTIONS
 
     p = argparse.ArgumentParser(
         prog="tdacm",
@@ -310,6 +458,13 @@ def build_parser() -> argparse.ArgumentParser:
         "dynamics, dual-camera visual servoing, adaptive control.",
     )
     p.add_argument("--version", action="version", version=f"tdacm {__version__}")
+    level = p.add_mutually_exclusive_group()
+    level.add_argument(
+        "-v", "--verbose", action="count", default=0, help="also log debug messages (stderr)"
+    )
+    level.add_argument(
+        "-q", "--quiet", action="store_true", help="log warnings and errors only; no progress bars"
+    )
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("info", help="print the paper system's model summary and the model options")
     s.set_defaults(func=_cmd_info)
@@ -385,13 +540,57 @@ def build_parser() -> argparse.ArgumentParser:
         help="write a Rerun recording instead (default RUN_DIR/run.rrd)",
     )
     s.set_defaults(func=_cmd_replay)
+    s = sub.add_parser(
+        "export",
+        help="export a `tdacm run` folder as MCAP with ROS 2 message types",
+        description="Write a run folder as an MCAP recording (tf, joint states, poses, camera "
+        "info, servo features; see docs/recordings.md), readable by Foxglove and "
+        "`ros2 bag play` without a ROS installation.",
+    )
+    s.add_argument("run_dir", help="a folder written by `tdacm run`")
+    s.add_argument("--mcap", required=True, metavar="FILE", help="output .mcap file")
+    s.add_argument(
+        "--sections",
+        type=_positive_int,
+        default=DEFAULT_SECTIONS,
+        help=f"rod frames on /tf at s = k L / N (default {DEFAULT_SECTIONS})",
+    )
+    s.add_argument(
+        "--images",
+        type=_nonneg_int,
+        default=0,
+        metavar="N",
+        help="re-render C_L and C_G every N steps as sensor_msgs/Image (default 0: none)",
+    )
+    s.set_defaults(func=_cmd_export)
+    s = sub.add_parser(
+        "import",
+        help="import an MCAP recording into time-stamped signals (.npz)",
+        description="Read an MCAP recording (ROS 2 messages) through a topic map (TOML "
+        "[topics]: a lab's topic -> tdacm signal) and write one NAME.npz per signal.",
+    )
+    s.add_argument("file", help="an .mcap recording")
+    s.add_argument(
+        "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
+    )
+    s.add_argument("--out", required=True, metavar="DIR", help="folder for the signals")
+    s.add_argument(
+        "--relative", action="store_true", help="times from the recording's first message"
+    )
+    s.set_defaults(func=_cmd_import)
     return p
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
+    from ._extras import MissingExtraError
+
     try:
         return args.func(args)
+    except MissingExtraError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         _note("interrupted (Ctrl-C)")
         return 130

@@ -126,7 +126,7 @@ def test_parquet_store_has_a_fixed_schema(tmp_path):
     another (issue 11: 'Unsupported cast from double to null')."""
     import pandas as pd
 
-    from tdacm.campaign.runner import COLUMNS, write_row
+    from tdacm.campaign.store import COLUMNS, write_row
 
     store = tmp_path / "results"
     store.mkdir()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tdacm.estimation import FilterBlock
-from tdacm.loop import build_loop
+from tdacm.sim import build_loop
 from tdacm.sim.runner import Simulation
 from tdacm.sim.scenario import load_scenario
 
@@ -49,21 +49,22 @@ def test_short_closed_loop_on_estimates(tmp_path):
 def test_the_filter_fuses_the_tip_camera_unless_told_not_to():
     # estimation.fuse_local_camera (default on): each C_L detection of the static target is a
     # measurement of the filter (tdacm.estimation.camera), which then holds the target pose
-    on = build_loop(scenario(), seed=2)
+    built = build_loop(scenario(), seed=2)
+    on = built.loop
     on.run(0.5)
     f = on.estimator.filter
     assert f.camera is not None and f.nx == 3 * f.n + 12
     assert f.views_fused >= 20 and f.views_rejected == 0
-    g_t = on.world.scene.target_pose
+    g_t = built.world.scene.target_pose
     err = f.target_pose()[:3, 3] - g_t[:3, 3]
     assert np.linalg.norm(err) < 0.02, err  # within 2 cm after 0.5 s (3 mm drone pose noise)
-    off = build_loop(scenario(fuse_local_camera=False), seed=2)
+    off = build_loop(scenario(fuse_local_camera=False), seed=2).loop
     off.run(0.1)
     assert off.estimator.filter.camera is None and off.estimator.filter.nx == 3 * f.n + 6
 
 
 def test_controller_and_servo_receive_the_estimate():
-    loop = build_loop(scenario(), seed=3)
+    loop = build_loop(scenario(), seed=3).loop
     seen = []
     ctl_step, servo_step = loop.controller.step, loop.servo.step
 
@@ -88,7 +89,7 @@ def test_controller_and_servo_receive_the_estimate():
 
 
 def test_true_source_is_unchanged():
-    loop = build_loop(scenario("true"), seed=0)
+    loop = build_loop(scenario("true"), seed=0).loop
     assert not isinstance(loop.estimator, FilterBlock)
     assert loop.sensors.other == {} and not loop.plant.accelerations
     loop.reset()
@@ -127,7 +128,7 @@ def test_plant_accelerations_for_the_imu():
     from tdacm.system import kernels as K
     from tdacm.system.tdacm import Loads
 
-    loop = build_loop(load_scenario("flight-test-c").with_overrides(FAST), seed=0)
+    loop = build_loop(load_scenario("flight-test-c").with_overrides(FAST), seed=0).loop
     s = loop.plant.system
     dist = Disturbances(np.array([0.01, 0.0, 0.0, 0.2, 0.0, 0.0]), 8.0)
     q0 = np.array([0.0, 0.0, 0.2, 0.25, -0.25, 3.0, 0.2, 0.2])

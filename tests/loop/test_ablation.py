@@ -9,8 +9,8 @@ import pytest
 
 from tdacm.loop.ablation import TruthAblation, parse_controller_truth
 from tdacm.loop.data import StateEstimate
-from tdacm.sim import Simulation, load_scenario
-from tdacm.sim.scenario import ScenarioError, check_with_system
+from tdacm.sim import Simulation, build_world, load_scenario
+from tdacm.sim.scenario import ScenarioError
 
 
 def test_parse():
@@ -62,7 +62,7 @@ def test_scenario_key_is_validated():
         {"estimation": {"source": "estimated", "controller_truth": "qd[0:9]"}}
     )
     with pytest.raises(ScenarioError, match="past the robot's 8 coordinates"):
-        check_with_system(far)
+        build_world(far)
 
 
 def test_short_run_with_the_controller_on_the_true_drone_velocity():

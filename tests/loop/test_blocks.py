@@ -19,15 +19,20 @@ from tdacm.loop import (
     Sensors,
     ServoCommand,
     StateEstimate,
-    build_loop,
-    build_scene,
     load_class,
 )
 from tdacm.loop.data import ActuatorCommand
 from tdacm.loop.lowlevel import make_low_level
-from tdacm.sim import ScenarioError, Simulation, load_scenario, parse_scenario
+from tdacm.loop.sensors import SensorModel
+from tdacm.sim import (
+    ScenarioError,
+    Simulation,
+    build_loop,
+    build_world,
+    load_scenario,
+    parse_scenario,
+)
 from tdacm.sim.robot import build_robot
-from tdacm.sim.sensors import SensorModel
 from tdacm.system.kernels import rk4_run
 from tdacm.vision.features import estimate_depths
 
@@ -36,7 +41,7 @@ ANALYTIC = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar
 
 @pytest.fixture(scope="module")
 def world():
-    return build_scene(load_scenario("paper-in-fov"))
+    return build_world(load_scenario("paper-in-fov"))
 
 
 # ---------------------------------------------------------------------- plant
@@ -67,7 +72,7 @@ def test_analytic_camera_sees_what_the_renderer_detects(world):
     r = world.robot
     an = CameraSensor(r.system, "tip", r.tip_mount,
                       AnalyticFrontEnd(r.local_camera, world.target, world.scene.target_pose))  # fmt: skip
-    loop = build_loop(load_scenario("paper-in-fov"), 0)
+    loop = build_loop(load_scenario("paper-in-fov"), 0).loop
     try:
         rendered = loop.sensors.local
         for lam in np.linspace(0.0, 1.0, 6):
@@ -150,7 +155,7 @@ def test_perception_normalizes_with_the_controllers_camera_and_estimates_depths(
 
 # ---------------------------------------------------------------------- servo
 def test_servo_ibvs_command_reduces_the_feature_error(world):
-    loop = build_loop(load_scenario("paper-in-fov").with_overrides(ANALYTIC), 0)
+    loop = build_loop(load_scenario("paper-in-fov").with_overrides(ANALYTIC), 0).loop
     servo = loop.servo
     sensed = loop.sense()  # not reset: reset() also does this
     loop.reset()
@@ -168,7 +173,7 @@ def test_servo_ibvs_command_reduces_the_feature_error(world):
 def test_servo_recovery_requests_the_global_camera_then_plans(world):
     loop = build_loop(load_scenario("paper-out-of-fov").with_overrides(
         {"cameras": {"local_renderer": "analytic", "global_renderer": "planar",
-                     "global_every": 0}}), 0)  # fmt: skip
+                     "global_every": 0}}), 0).loop  # fmt: skip
     try:
         loop.reset()
         servo = loop.servo
@@ -242,14 +247,14 @@ def test_allocation_box_least_squares_is_exact():
 # ---------------------------------------------------------------------- robot section
 def test_robot_section_builds_any_robot_and_names_bad_keys():
     sc = load_scenario("custom-robot-example")
-    w = build_scene(sc)
+    w = build_world(sc)
     s = w.robot.system
     assert s.rod.length == 0.8 and s.base.mass == 1.0 and s.tendons.n == 3
     offs = s.tendons.offsets[:, 1:]
     ang = np.degrees(np.arctan2(offs[:, 1], offs[:, 0])) % 360
     assert np.allclose(sorted(ang), [0, 120, 240])
     # omitted keys: the paper's robot exactly
-    paper = build_scene(load_scenario("paper-in-fov")).robot.system
+    paper = build_world(load_scenario("paper-in-fov")).robot.system
     from tdacm import paper_system
 
     ref = paper_system()
@@ -262,12 +267,12 @@ def test_robot_section_builds_any_robot_and_names_bad_keys():
         parse_scenario(base + '[robot.rod]\nlength = "long"\n')
     bad = load_scenario("paper-in-fov").with_overrides({"robot": {"rod": {"length": -1.0}}})
     with pytest.raises(ScenarioError, match="robot.rod: length must be positive"):
-        build_scene(bad)
+        build_world(bad)
     two = load_scenario("paper-in-fov").with_overrides(
         {"robot": {"tendons": {"offsets": [[0.01, 0.0], [-0.01, 0.0]]}}}
     )
     with pytest.raises(ScenarioError, match="at least 3"):
-        build_scene(two)
+        build_world(two)
     with pytest.raises(ScenarioError, match=r"initial.q must have 10 entries"):
         parse_scenario(base + '[robot.rod]\nbasis = "bending:1"\n')
     r = build_robot(load_scenario("paper-in-fov")["robot"])
@@ -303,9 +308,9 @@ def test_assembled_loop_with_a_user_controller_object():
             return self.inner.step(estimate, command, dt)
 
     sc = load_scenario("paper-in-fov").with_overrides(ANALYTIC)
-    ref = build_loop(sc, 0)
+    ref = build_loop(sc, 0).loop
     rec = Recorder(ref.controller)
-    loop = build_loop(sc, 0, controller=rec)
+    loop = build_loop(sc, 0, controller=rec).loop
     assert isinstance(loop, ClosedLoop)
     res = loop.run(0.4)
     assert rec.calls == 21 and len(res.arrays["t"]) == 21 and not res.terminated
@@ -351,7 +356,7 @@ def test_logger_comparison_columns_match_their_definitions():
         .with_overrides(ANALYTIC)
         .with_overrides({"cameras": {"global_every": 0}, "sensors": {"pixel_noise": 1.0}})
     )
-    loop = build_loop(sc, seed=3)
+    loop = build_loop(sc, seed=3).loop
     res = loop.run(0.4)
     a = res.arrays
     log = loop.log

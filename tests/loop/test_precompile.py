@@ -91,7 +91,7 @@ def test_second_half_uses_the_loops_signatures():
     from tdacm.control.adaptive import _law_kernel
     from tdacm.control.allocation import _allocate_tensions_kernel
     from tdacm.lie.se3 import expmap, so3_log
-    from tdacm.loop.build import build_loop
+    from tdacm.sim import build_loop
     from tdacm.system import kernels as K
     from tdacm.vision.ibvs import _twist_kernel
     from tdacm.vision.target_filter import _diagonal_flags, _gauss_newton_kernel
@@ -99,7 +99,7 @@ def test_second_half_uses_the_loops_signatures():
     sc = load_scenario("paper-in-fov").with_overrides(
         {"cameras": {"local_renderer": "analytic", "global_every": 0}}
     )
-    loop = build_loop(sc, 0)
+    loop = build_loop(sc, 0).loop
     loop.run(0.1)
     loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
     loop.close()
@@ -138,7 +138,7 @@ def test_cold_cache_detection_asks_numbas_index(monkeypatch, tmp_path):
 
 
 def test_cold_start_ab_alternates_and_reports_the_ratio(monkeypatch):
-    import tdacm.loop.bench as lb
+    import tdacm.bench.loop as lb
 
     calls = []
 

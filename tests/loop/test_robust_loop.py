@@ -4,10 +4,10 @@ recovery's C_G snapshot on demand, and the paper profile (docs/control.md, "Robu
 import numpy as np
 import pytest
 
-from tdacm.loop import GlobalView, LocalView, StateEstimate, build_loop
-from tdacm.loop.build import apply_profile
+from tdacm.loop import GlobalView, LocalView, StateEstimate
 from tdacm.loop.servo import RobustServo, VisualServo
-from tdacm.sim import Simulation, load_scenario
+from tdacm.sim import Simulation, build_loop, load_scenario
+from tdacm.sim.assemble import apply_profile
 
 ANALYTIC = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
 
@@ -61,7 +61,7 @@ def test_latency_is_compensated_in_the_loop():
 
 
 def test_recovery_holds_when_the_global_camera_misses_then_gives_up():
-    loop = build_loop(load_scenario("paper-out-of-fov").with_overrides(ANALYTIC), 0)
+    loop = build_loop(load_scenario("paper-out-of-fov").with_overrides(ANALYTIC), 0).loop
     try:
         loop.reset()
         servo = loop.servo
@@ -84,7 +84,7 @@ def test_paper_profile_selects_the_literal_choices():
     assert d["model"]["gravity_feedforward"] is False
     assert d["ibvs"]["compensation"] == "approx" and d["ibvs"]["floor"] == 0.0
     assert d["safety"]["min_increase"] == 0.0 and d["safety"]["grace"] == 0.0
-    loop = build_loop(sc.with_overrides(ANALYTIC), 0)
+    loop = build_loop(sc.with_overrides(ANALYTIC), 0).loop
     try:
         assert type(loop.servo) is VisualServo
         assert np.isinf(loop.servo.shaping.max_drone_speed)
@@ -111,7 +111,7 @@ def test_camera_pose_covariance_maps_the_state_covariance_through_the_kinematics
     def log_small(d):  # [w; v] of a small relative pose (first order, like the filter's eps)
         return np.concatenate((Rotation.from_matrix(d[:3, :3]).as_rotvec(), d[:3, 3]))
 
-    loop = build_loop(load_scenario("paper-in-fov").with_overrides(ANALYTIC), 0)
+    loop = build_loop(load_scenario("paper-in-fov").with_overrides(ANALYTIC), 0).loop
     servo = loop.servo
     assert isinstance(servo, RobustServo)
     n = loop.plant.system.n

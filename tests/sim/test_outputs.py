@@ -7,7 +7,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from tdacm.sim import load_scenario, run_scenario
+from tdacm.cli import main
+from tdacm.sim import load_scenario
 from tdacm.sim.outputs import clear_run_outputs
 from tdacm.viz.figures import KINDS
 
@@ -17,7 +18,8 @@ def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     cfg = out / "cfg.toml"
     cfg.write_text('[cameras]\nglobal_every = 0\nglobal_renderer = "planar"\n')
-    run_scenario("paper-in-fov", out=out / "r", config=cfg, duration=0.1, video=True)
+    args = ["run", "paper-in-fov", "--out", str(out / "r"), "--config", str(cfg)]
+    assert main([*args, "--duration", "0.1", "--video"]) == 0  # data, figures and video
     return out / "r"
 
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from tdacm.cli import main as cli_main
-from tdacm.loop import build_scene
 from tdacm.sim import (
     SafetyMonitor,
     ScenarioError,
     Simulation,
+    build_world,
     list_scenarios,
     load_scenario,
     parse_scenario,
@@ -38,7 +38,7 @@ def test_shipped_scenarios_load():
 def test_scenario_geometry_matches_expectations(name):
     """The documented visibility conditions hold at the initial configuration."""
     sc = load_scenario(name)
-    w = build_scene(sc)
+    w = build_world(sc)
     r, s = w.robot, w.robot.system
     pts = w.scene.target_points_world()
     exp = sc["expect"]

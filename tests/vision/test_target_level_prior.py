@@ -150,7 +150,7 @@ def test_scenario_keys_are_validated(section, key, value):
 
 def test_scenario_normal_reaches_the_filter():
     """``ibvs.target_level_normal`` and the prior reach the servo's filter (normalized)."""
-    from tdacm.loop.build import build_loop
+    from tdacm.sim import build_loop
 
     sc = load_scenario("paper-in-fov").with_overrides(
         {
@@ -158,7 +158,7 @@ def test_scenario_normal_reaches_the_filter():
             "ibvs": {"target_level_normal": [0.0, 0.0, -2.0], "target_level_prior_deg": 0.3},
         }
     )
-    loop = build_loop(sc, 0)
+    loop = build_loop(sc, 0).loop
     f = loop.servo.target_filter
     np.testing.assert_allclose(f.level_normal, [0.0, 0.0, -1.0])
     assert f.level_prior == pytest.approx(np.radians(0.3))

@@ -6,7 +6,7 @@ from PIL import Image
 
 from tdacm.cli import main
 from tdacm.sim import run_scenario
-from tdacm.viz import replay_frames, write_animation
+from tdacm.viz import plot_run_dir, replay_frames, write_animation
 from tdacm.viz.replay import playback_plan
 
 
@@ -15,7 +15,8 @@ def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("replay")
     cfg = out / "cfg.toml"
     cfg.write_text('[cameras]\nglobal_every = 0\nglobal_renderer = "planar"\n')
-    run_scenario("paper-in-fov", out=out / "run", config=cfg, duration=0.1)
+    run_scenario("paper-in-fov", out=out / "run", config=cfg, duration=0.1)  # the data
+    plot_run_dir(out / "run")  # its figures
     return out / "run"
 
 

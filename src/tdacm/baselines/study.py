@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import time
 from functools import partial
 
 import numpy as np
 
+from .._log import REPORT
 from .._timing import batch_times
 from ..control import CubicTrajectory, EstimatedModel, TDACMController, default_gains
 from ..rod import StrainBasis
@@ -31,6 +33,8 @@ from .integrate import rk4_step
 #: the paper's first scenario (``scenarios/paper-in-fov.toml``): initial and desired states
 PAPER_Q0 = np.array([0.0, 0.0, np.pi / 18, -0.5, 0.5, 5.0, -0.3, -0.4])
 PAPER_QD = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 3.0, 0.0, 0.0])
+
+report = logging.getLogger(REPORT)  # the tables: stdout of `tdacm bench`
 
 
 def _stats(samples) -> dict:
@@ -584,24 +588,24 @@ def plot_accuracy(acc, path, elastica=None) -> None:
 def print_report(timing, scaling, accuracy, elastica) -> None:
     """Terminal tables."""
     b = timing["cc_build"]
-    print(
+    report.info(
         f"\nCC baseline code: {b['generated_ops']} operations after CSE; symbolic derivation "
         f"{b['derivation_s']:.1f} s + CSE {b['cse_s']:.1f} s when generated; this build "
         f"{b['first_call_s']:.2f} s ({'cache' if b['from_cache'] else 'derived now'})"
     )
     m = timing["model"]
-    print(f"\nPer call / step, {timing['system']} (median +- IQR, us):")
-    print(f"{'':26s} {'GVS':>16s} {'CC':>18s} {'CC/GVS':>7s} {'(min)':>6s}")
+    report.info(f"\nPer call / step, {timing['system']} (median +- IQR, us):")
+    report.info(f"{'':26s} {'GVS':>16s} {'CC':>18s} {'CC/GVS':>7s} {'(min)':>6s}")
     for k in ("forward_dynamics", "forward_dynamics_kernel", "terms", "rk4_step"):
         g, c = m["gvs"][k], m["cc"][k]
-        print(
+        report.info(
             f"{k + (' (Python RK4)' if k == 'rk4_step' else ''):26s} {g['median_s'] * 1e6:9.1f} +- {g['iqr_s'] * 1e6:4.1f}"
             f" {c['median_s'] * 1e6:10.1f} +- {c['iqr_s'] * 1e6:5.1f} {m['ratio_cc_over_gvs'][k]:7.1f}"
             f" {m['ratio_cc_over_gvs_min'][k]:6.1f}"
         )
-    print(f"{'rk4_step (numba GVS)':26s} {m['gvs_numba_rk4_step']['median_s'] * 1e6:9.1f}")
+    report.info(f"{'rk4_step (numba GVS)':26s} {m['gvs_numba_rk4_step']['median_s'] * 1e6:9.1f}")
     cl = timing["closed_loop"]
-    print(
+    report.info(
         f"\nClosed loop, {1 / cl['period_s']:.0f} Hz, {cl['rk4_substeps']} RK4 substeps, "
         f"{cl['duration_s']} s ({cl['law']}); per iteration (ms):"
     )
@@ -611,42 +615,42 @@ def print_report(timing, scaling, accuracy, elastica) -> None:
         ("GVS, numba RK4", "gvs_numba_rk4"),
     ):
         r = cl[key]
-        print(
+        report.info(
             f"  {name:18s} median {r['median_s'] * 1e3:7.3f}  IQR {r['iqr_s'] * 1e3:6.3f}  "
             f"mean {r['mean_s'] * 1e3:7.3f} +- {r['std_s'] * 1e3:6.3f}  min {r['min_s'] * 1e3:7.3f}"
         )
-    print(
+    report.info(
         f"  CC/GVS medians (minima): {cl['ratio_cc_over_gvs']:.1f} ({cl['ratio_cc_over_gvs_min']:.1f}) "
         f"same integrator, {cl['ratio_cc_over_gvs_numba']:.1f} ({cl['ratio_cc_over_gvs_numba_min']:.1f}) "
         "GVS with its numba RK4; "
         f"final states differ by {cl['final_state_difference']:.2e}"
     )
-    print(
+    report.info(
         "\nGVS forward dynamics vs strain DoFs (floating, numba kernel, median of interleaved batches, us):"
     )
     gauss = sorted({r["n_gauss"] for r in scaling})
-    print(f"{'n_s':>4s} " + " ".join(f"{g:>6d}G" for g in gauss))
+    report.info(f"{'n_s':>4s} " + " ".join(f"{g:>6d}G" for g in gauss))
     for ns in sorted({r["n_s"] for r in scaling}):
         vals = {r["n_gauss"]: r["fd_kernel_us"] for r in scaling if r["n_s"] == ns}
-        print(f"{ns:4d} " + " ".join(f"{vals[g]:7.1f}" for g in gauss))
-    print(
+        report.info(f"{ns:4d} " + " ".join(f"{vals[g]:7.1f}" for g in gauss))
+    report.info(
         f"\nAccuracy (clamped rod, {accuracy['duration_s']} s, Python RK4 dt = {accuracy['rk4_dt_s']} s):"
     )
     for case, res in accuracy["cases"].items():
-        print(
+        report.info(
             f"  {case}: {res['description']}\n    reference self-check {res['reference_self_error_m'] * 1e3:.3f} mm, "
             f"tip travel {res['reference_tip_travel_m']:.3f} m"
         )
-        print(
+        report.info(
             f"    {'model':6s} {'n_s':>3s} {'fd us':>7s} {'max mm':>8s} {'rms mm':>8s} {'final mm':>8s}"
         )
         for name, row in res["models"].items():
-            print(
+            report.info(
                 f"    {name:6s} {row['n_s']:3d} {row['fd_us']:7.1f} {row['max_error_m'] * 1e3:8.2f} "
                 f"{row['rms_error_m'] * 1e3:8.2f} {row['final_error_m'] * 1e3:8.2f}"
             )
     if "skipped" in elastica:
-        print(f"\nPyElastica: {elastica['skipped']}")
+        report.info(f"\nPyElastica: {elastica['skipped']}")
     else:
         line = (
             f"\nPyElastica {elastica['version']}: swing case, {elastica['n_elements']} elements, "
@@ -658,4 +662,4 @@ def print_report(timing, scaling, accuracy, elastica) -> None:
                 f"; tip vs GVS reference: max {elastica['max_error_m'] * 1e3:.2f} mm, "
                 f"RMS {elastica['rms_error_m'] * 1e3:.2f} mm"
             )
-        print(line)
+        report.info(line)

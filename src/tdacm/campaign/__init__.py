@@ -2,8 +2,9 @@
 report (``tdacm campaign SPEC.toml``)."""
 
 from .report import wilson_interval, write_report
-from .runner import completed_runs, execute_run, read_results, run_campaign
+from .runner import execute_run, run_campaign
 from .spec import CampaignSpec, CampaignSpecError, load_spec, parse_spec, sample_overrides, to_toml
+from .store import completed_runs, read_results
 
 __all__ = [
     "CampaignSpec",

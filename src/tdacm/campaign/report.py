@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .store import read_results
+
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
     """95 % Wilson score interval of a binomial proportion (good at small n and near 0 or 1)."""
@@ -39,8 +41,6 @@ def _first_line(text) -> str:
 
 def write_report(spec, out, n_worst: int = 5) -> dict:
     """Write ``report.json``, ``report.md`` and ``report.png`` and return the report dict."""
-    from .runner import read_results
-
     out = Path(out)
     df = read_results(out)
     n = len(df)

@@ -2,7 +2,7 @@
 
 The store is a directory ``OUT/results/`` of one-row Parquet files ``run-000042.parquet``, all
 with the fixed schema :data:`ROW_SCHEMA` (so the directory is one Parquet dataset:
-``pandas.read_parquet(OUT / "results")`` reads it as one table; :func:`read_results` does the
+``pandas.read_parquet(OUT / "results")`` reads it as one table; :func:`~tdacm.campaign.store.read_results` does the
 same sorted by run and also reads stores of older versions).  Only the
 driver writes, each row to a temporary name renamed atomically, so an interrupted campaign
 holds complete rows only; on restart the runs already stored are skipped and the missing ones
@@ -26,34 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import require
+from .report import write_report
 from .spec import CampaignSpec, CampaignSpecError, load_spec, sample_overrides, to_toml
-
-#: Summary fields copied into the store (None -> NaN for numbers).
-ROW_FIELDS = (
-    "initial_rmse",
-    "final_rmse",
-    "min_rmse",
-    "late_rmse_1s",
-    "within_0.01_last_2s",
-    "time_to_0.01",
-    "time_to_0.001",
-    "mode_switch_time",
-    "terminated",
-    "termination_reason",
-    "wall_time_s",
-    "max_tension",
-    "max_thrust",
-    "local_detection_rate",
-    "estimation_source",
-    "strain_estimation_rms",
-    "drone_position_estimation_rms",
-    "final_rmse_true",
-    "final_camera_position_error_m",
-    "final_camera_rotation_error_deg",
-    "final_drone_position_error_m",
-    "final_target_estimate_error_deg",
-    "final_target_estimate_sigma_deg",
-)
+from .store import ROW_FIELDS, completed_runs, write_row
 
 
 def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
@@ -99,90 +75,6 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _row_path(store: Path, index: int) -> Path:
-    return store / f"run-{index:06d}.parquet"
-
-
-_STRING_FIELDS = ("status", "termination_reason", "overrides", "error", "estimation_source")
-_BOOL_FIELDS = ("success", "terminated")
-_INT_FIELDS = ("run", "seed")
-#: Column order of the store; every other column is float64 (None -> NaN).
-COLUMNS = ("run", "seed", "status", "success", *ROW_FIELDS, "run_wall_s", "overrides", "error")
-
-
-def row_schema():
-    """The fixed Arrow schema of a stored row (the same for every run, whatever its
-    outcome: a metric that is missing in one run is NaN/null, never a column of type null)."""
-    import pyarrow as pa
-
-    def typ(k):
-        if k in _INT_FIELDS:
-            return pa.int64()
-        if k in _BOOL_FIELDS:
-            return pa.bool_()
-        if k in _STRING_FIELDS:
-            return pa.string()
-        return pa.float64()
-
-    return pa.schema([(k, typ(k)) for k in COLUMNS])
-
-
-def _typed(k, v):
-    if k in _INT_FIELDS:
-        return int(v)
-    if k in _BOOL_FIELDS:
-        return None if v is None else bool(v)
-    if k in _STRING_FIELDS:
-        return "" if v is None else str(v)
-    return float("nan") if v is None else float(v)
-
-
-def write_row(store: Path, row: dict) -> None:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    schema = row_schema()
-    table = pa.Table.from_pylist([{k: _typed(k, row.get(k)) for k in COLUMNS}], schema=schema)
-    path = _row_path(store, row["run"])
-    # hidden temporary name: pyarrow datasets skip files starting with "." (a partial row is
-    # never read), and the rename is atomic: a row is either complete or absent
-    tmp = path.with_name(f".{path.name}.tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
-
-
-def completed_runs(store: Path) -> set[int]:
-    """Indices already in the store (complete rows only)."""
-    return {int(p.stem.split("-")[1]) for p in store.glob("run-*.parquet")}
-
-
-def read_results(out):
-    """All stored rows of campaign folder ``out`` as one pandas DataFrame sorted by run index
-    (columns :data:`COLUMNS`, see ``docs/campaigns.md``); an empty DataFrame if none.
-    Equivalent to ``pandas.read_parquet(out / "results")`` plus the sort, and it also reads
-    rows written with the schema of older versions (cast to :func:`row_schema`)."""
-    import pandas as pd
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    store = Path(out) / "results"
-    files = sorted(store.glob("run-*.parquet"))
-    if not files:
-        return pd.DataFrame(columns=list(COLUMNS))
-    schema = row_schema()
-    tables = []
-    for f in files:
-        t = pq.read_table(f)
-        cols = {}
-        for field in schema:
-            if field.name in t.column_names:
-                cols[field.name] = t[field.name].cast(field.type)
-            else:
-                cols[field.name] = pa.nulls(len(t), field.type)
-        tables.append(pa.table(cols, schema=schema))
-    return pa.concat_tables(tables).to_pandas().sort_values("run", ignore_index=True)
-
-
 def _prepare_out(spec: CampaignSpec, out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     store = out / "results"
@@ -215,10 +107,13 @@ def run_campaign(
     """Run (or resume) a campaign; returns the report (see :mod:`tdacm.campaign.report`).
 
     ``max_runs`` stops after that many new runs (used to test interruption)."""
-    from dask.distributed import Client, LocalCluster, as_completed
+    distributed = require("dask.distributed", "campaign")
+    require("pandas", "campaign")
+    require("pyarrow.parquet", "campaign")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
+    as_completed = distributed.as_completed
 
     from ..sim.scenario import load_scenario
-    from .report import write_report
 
     spec = load_spec(spec_or_path) if not isinstance(spec_or_path, CampaignSpec) else spec_or_path
     out = Path(out)
@@ -257,8 +152,14 @@ def run_campaign(
         if progress:
             from tqdm import tqdm
 
+            from .._log import progress_enabled
+
             bar = tqdm(
-                total=spec.runs, initial=done_before, desc=f"campaign {spec.scenario}", unit="run"
+                total=spec.runs,
+                initial=done_before,
+                desc=f"campaign {spec.scenario}",
+                unit="run",
+                disable=not progress_enabled(),
             )
         try:
             spec_dict = {k: v for k, v in spec.__dict__.items()}

@@ -235,7 +235,8 @@ def load_spec(path) -> CampaignSpec:
     """Read a spec file and validate it against its scenario (resolved with
     :func:`resolve_scenario`; an unknown or invalid scenario, a directory or a non-UTF-8 file
     raise :class:`CampaignSpecError` naming the file and the key)."""
-    from ..sim.scenario import ScenarioError, check_run, check_with_system, load_scenario
+    from ..sim.assemble import build_world
+    from ..sim.scenario import ScenarioError, check_run, load_scenario
 
     p = Path(path)
     if p.is_dir():
@@ -251,7 +252,7 @@ def load_spec(path) -> CampaignSpec:
     try:
         scenario = load_scenario(ref)
         check_run(scenario, first.duration, flags=False)
-        check_with_system(scenario)
+        build_world(scenario)  # the checks against the built robot
     except ScenarioError as exc:
         raise CampaignSpecError(f"{p}: scenario = {first.scenario!r}: {exc}") from None
     spec = parse_spec(text, str(p), scenario.data)

@@ -1,8 +1,10 @@
 """Gymnasium environments: ``gymnasium.make("tdacm/TipServo-v0")`` (see :mod:`.servo`)."""
 
-import gymnasium as gym
+from .._extras import require
 
-from .servo import TipServoEnv
+gym = require("gymnasium", "env")
+
+from .servo import TipServoEnv  # noqa: E402 (after the check for the extra)
 
 ENV_ID = "tdacm/TipServo-v0"
 

@@ -98,11 +98,12 @@ class TipServoEnv(gym.Env):
         )
 
     def _build(self, seed: int) -> None:
-        from ..loop import build_loop
+        from ..sim.assemble import build_loop
 
         if self.loop is not None:
             self.loop.close()
-        self.loop = build_loop(self.scenario, seed, video=self.render_mode == "rgb_array")
+        assembly = build_loop(self.scenario, seed, video=self.render_mode == "rgb_array")
+        self.loop, self.world = assembly.loop, assembly.world
         self._seed = seed
 
     @property
@@ -136,7 +137,7 @@ class TipServoEnv(gym.Env):
         if seed is not None:  # a new model perturbation and sensor-noise stream
             self._build(int(self.np_random.integers(2**31)))
         loop = self.loop
-        w = loop.world
+        w = self.world
         q = w.q0 + self.np_random.normal(0.0, self.init_noise, size=self.n)
         if loop.plant.system.floating:
             q[:2] = w.q0[:2]  # roll/pitch are not free: start level as the scenario
@@ -179,6 +180,7 @@ class TipServoEnv(gym.Env):
             "success": success,
             "diverged": diverged,
             "reason": st.reason,
+            "termination": st.termination,
         }
         return obs, float(reward), bool(terminated), bool(truncated), info
 

@@ -1,4 +1,4 @@
-"""State estimation: proprioceptive sensors and an EKF on the controller's model (issue 10).
+"""State estimation: proprioceptive sensors and an EKF on the controller's model.
 
 * :mod:`.sensors`: drone pose, IMU and tendon-encoder models (seeded, with latency/dropout);
 * :mod:`.ekf`: :class:`ExtendedKalmanFilter` (``reset``, ``step(t, u_applied, measurements) ->
@@ -6,7 +6,7 @@
 * :mod:`.inversion`: strains from measured tendon lengths (least squares);
 * :mod:`.camera`: the tip camera's view of the static target as a filter measurement;
 * :mod:`.block`: :class:`FilterBlock`, the filter as the closed loop's estimation block
-  (``estimation.source = "estimated"``, assembled by :func:`tdacm.loop.build.build_loop`).
+  (``estimation.source = "estimated"``, assembled by :func:`tdacm.sim.assemble.build_loop`).
 """
 
 from .block import FilterBlock

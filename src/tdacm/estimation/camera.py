@@ -1,6 +1,6 @@
 """The tip camera as a measurement of the state estimator: the static target seen by C_L.
 
-Why (docs/estimation.md, "Camera in the filter"): with the proprioceptive sensors alone the
+Why (docs/estimation.md, "The tip camera in the filter"): with the proprioceptive sensors alone the
 drone's velocity estimate is off by about 5 mm/s below 1 Hz (a 3 mm / 50 Hz pose and a MEMS
 accelerometer cannot do better), and the low-level controller turns that error into camera
 motion. The tip camera sees a target that does not move; its image fixes exactly the

@@ -1,4 +1,4 @@
-"""Proprioceptive sensors of a TD-ACM: drone pose, IMU, tendon encoders (issue 10).
+"""Proprioceptive sensors of a TD-ACM: drone pose, IMU, tendon encoders.
 
 Each sensor samples the *plant* state ``(t, q, qd, qdd)`` when polled (the loop polls every
 control period), on its own schedule (``rate_hz``; a capture happens at the first poll at or

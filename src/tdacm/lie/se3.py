@@ -5,7 +5,7 @@ A twist (or strain) is ``xi = [k; u]`` (angular part ``k``, linear part ``u``), 
 rod recursion can call them without Python overhead; they are also the public reference
 implementation used by the tests.
 
-Formulas (see ``shared/NOTES.md`` and Renda et al. 2020, "Geometric variable-strain approach"):
+Formulas (Renda et al. 2020, "Geometric variable-strain approach"; ``docs/model.md``):
 
 * ``ad(xi) = [[k~, 0], [u~, k~]]``,  ``coad(xi) = -ad(xi)^T``
 * ``Ad(g) = [[R, 0], [p~ R, R]]``,   ``Ad(g)^-1 = [[R^T, 0], [-R^T p~, R^T]]``

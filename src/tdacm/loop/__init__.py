@@ -13,7 +13,6 @@ safety, logger          the error-growth rule; the run's time series          :m
 ======================  ===================================================  ==================
 """
 
-from .build import build_loop, build_scene
 from .closed_loop import ClosedLoop, LoopStep, RunResult
 from .data import (
     ActuatorCommand,
@@ -23,7 +22,9 @@ from .data import (
     PlantState,
     SensorReadings,
     ServoCommand,
+    ServoEvent,
     StateEstimate,
+    Termination,
 )
 from .lowlevel import AdaptiveLowLevel, PDGravityController, load_class
 from .perception import Perception
@@ -58,10 +59,10 @@ __all__ = [
     "Sensors",
     "Servo",
     "ServoCommand",
+    "ServoEvent",
     "StateEstimate",
+    "Termination",
     "VisualServo",
-    "build_loop",
-    "build_scene",
     "load_class",
     "normalized_rmse",
 ]

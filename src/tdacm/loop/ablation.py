@@ -4,7 +4,7 @@ plant instead of the estimator (scenario key ``estimation.controller_truth``).
 Why: to measure what each part of the estimation error costs the closed loop. One example is
 "how well would test C do on estimates if the drone's horizontal velocity were measured
 exactly?". The answer bounds what a better sensor or filter for that quantity could gain
-(docs/estimation.md, "Session 6"). This is a diagnostic, not a robot: it breaks the rule that
+(docs/estimation.md, "What limits test C"). This is a diagnostic, not a robot: it breaks the rule that
 nothing downstream of the sensors reads the plant. So it is off by default, allowed only with
 ``estimation.source = "estimated"``, and named in ``summary.json`` (``controller_truth``). The
 servo, the virtual camera and the estimator itself are unchanged; they still see estimates

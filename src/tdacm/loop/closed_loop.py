@@ -11,7 +11,7 @@ One period of :meth:`ClosedLoop.step`, data flowing one way::
     plant.advance(act.u, dt)                           # true model, disturbances
 
 ``tdacm run``, campaigns and the Gymnasium env all drive this class
-(:func:`tdacm.loop.build.build_loop` assembles it from a scenario).
+(:func:`tdacm.sim.assemble.build_loop` assembles it from a scenario).
 """
 
 from __future__ import annotations
@@ -24,12 +24,13 @@ import numpy as np
 from ..control import ModeSwitch
 from .data import (
     ActuatorCommand,
-    CameraMeasurement,
     GlobalView,
     LocalView,
     SensorReadings,
     ServoCommand,
+    ServoEvent,
     StateEstimate,
+    Termination,
 )
 from .estimation import TrueState
 from .logger import RunLog
@@ -46,7 +47,8 @@ class LoopStep:
     command: ServoCommand
     actuation: ActuatorCommand
     done: bool
-    reason: str | None
+    reason: str | None  # why it ended, in words (None: not ended, or ended at its duration)
+    termination: Termination | None = None
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,7 @@ class RunResult:
     switch_time: float | None
     plan: dict | None
     interrupted: bool = False
+    termination: Termination | None = None
 
 
 class ClosedLoop:
@@ -131,10 +134,8 @@ class ClosedLoop:
         self.safety.reset()
         est = self.estimator.reset(p.state.t)
         # the initial mode from the first C_L view (an ideal look, no noise drawn)
-        det, _ = self.sensors.local.ideal(p.state.q)
-        first = self.perception.local(CameraMeasurement(p.state.t, det))
+        first = self.perception.local(self.sensors.first_look(p.state.t, p.state.q))
         self.servo.reset(est.q, first)
-        self.sensors.local.reset()
         self.controller.reset(est)
         self._u = None
         self._request_global = self.servo.mode == ModeSwitch.RECOVERY
@@ -162,14 +163,16 @@ class ClosedLoop:
         est, view = sensed.estimate, sensed.view
         cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
         self._request_global = cmd.request_global
-        if cmd.event == "ibvs engaged":
+        if cmd.event == ServoEvent.IBVS_ENGAGED:
             if self.switch_time is None:
                 self.switch_time = t
             self.safety.arm(t)
         if cmd.plan is not None:
             self.plan = cmd.plan
         if cmd.failure is not None:
-            return LoopStep(t, view, est, cmd, _hold(est), True, cmd.failure)
+            return LoopStep(
+                t, view, est, cmd, _hold(est), True, cmd.failure, Termination.RECOVERY_FAILED
+            )
         if u is None:
             act = self.controller.step(est, cmd, dt)
         else:
@@ -177,14 +180,13 @@ class ClosedLoop:
         self.log.record(state, sensed.readings, view, est, cmd, act)
         self._u = act.u
         if cmd.mode == ModeSwitch.IBVS and not self.safety.check(t, cmd.rmse):
-            return LoopStep(t, view, est, cmd, act, True, self.safety.reason)
+            return LoopStep(t, view, est, cmd, act, True, self.safety.reason, Termination.SAFETY)
         if last:
             return LoopStep(t, view, est, cmd, act, True, None)
         plant.advance(act.u, dt)
         if not plant.ok:
-            return LoopStep(
-                t, view, est, cmd, act, True, "plant integration failed (singular mass matrix)"
-            )
+            reason = "plant integration failed (singular mass matrix)"
+            return LoopStep(t, view, est, cmd, act, True, reason, Termination.PLANT_FAILED)
         return LoopStep(t, view, est, cmd, act, False, None)
 
     def step(self, twist=None, u=None, last: bool = False) -> LoopStep:
@@ -202,14 +204,19 @@ class ClosedLoop:
         if progress:
             from tqdm import tqdm
 
-            steps = bar = tqdm(steps, desc=self.name or "run", unit="step")
-        terminated, reason, interrupted = False, None, False
+            from .._log import progress_enabled
+
+            steps = bar = tqdm(
+                steps, desc=self.name or "run", unit="step", disable=not progress_enabled()
+            )
+        terminated, reason, interrupted, termination = False, None, False, None
         wall0 = time.perf_counter()
         try:
             for k in steps:
                 st = self.step(last=k == nsteps)
                 if st.done:
                     terminated, reason = st.reason is not None, st.reason
+                    termination = st.termination
                     break
         except (KeyboardInterrupt, SystemError) as exc:
             # Ctrl-C inside a numba kernel arrives as a SystemError (possibly several nested)
@@ -217,6 +224,7 @@ class ClosedLoop:
             if isinstance(exc, SystemError) and not caused_by_interrupt(exc):
                 raise
             interrupted, terminated, reason = True, True, "interrupted (Ctrl-C)"
+            termination = Termination.INTERRUPTED
         finally:
             if bar is not None:
                 bar.close()
@@ -230,6 +238,7 @@ class ClosedLoop:
             self.switch_time,
             self.plan,
             interrupted,
+            termination,
         )
 
     def close(self) -> None:

@@ -15,11 +15,29 @@ sensors read it, the logger records it, nothing downstream of the sensors sees i
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
 from ..estimation.estimate import StateEstimate  # noqa: F401  (shared with the estimator)
 from ..vision.detect import NOT_DETECTED, Detection
+
+
+class Termination(StrEnum):
+    """Why a run, a campaign run or an env episode ended before its duration (the summary's
+    ``termination``; its ``termination_reason`` says it in words, with the numbers)."""
+
+    SAFETY = "safety"  # the error-growth monitor (paper, "Simulation Results")
+    RECOVERY_FAILED = "recovery failed"  # no C_G view of the target, or planning failed
+    PLANT_FAILED = "plant failed"  # the plant's integration failed (singular mass matrix)
+    INTERRUPTED = "interrupted"  # Ctrl-C
+
+
+class ServoEvent(StrEnum):
+    """A change of the servo's mode in one period (:attr:`ServoCommand.event`)."""
+
+    IBVS_ENGAGED = "ibvs engaged"
+    TARGET_LOST = "target lost"
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@
 exactly; it is the sensor of ``estimation.source = "true"``. It is the one place after the
 sensors that reads the plant, on purpose and by name. The real estimator,
 :class:`tdacm.estimation.FilterBlock` (``estimation.source = "estimated"``, assembled by
-:func:`tdacm.loop.build.estimation_block`), implements the same
+:func:`tdacm.sim.assemble.estimation_block`), implements the same
 :class:`~.protocols.Estimator` protocol from the sensor readings instead.
 """
 

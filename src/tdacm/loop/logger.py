@@ -1,7 +1,8 @@
 """The logger block: one row per control period, numpy arrays at the end.
 
-Keys and meanings are those of :mod:`tdacm.sim.outputs` (``LOG_KEYS``); the logger is the only
-block that sees both the true state (``q``, ``qd``) and what the controller used.
+The logged series and their units and meanings are defined here (:data:`LOG_KEYS`,
+:data:`SERIES_INFO`); the run folder (:mod:`tdacm.sim.outputs`) writes them. The logger is the
+only block that sees both the true state (``q``, ``qd``) and what the controller used.
 """
 
 from __future__ import annotations
@@ -10,7 +11,6 @@ import numpy as np
 
 from .._linalg import solve as _solve
 from ..lie.se3 import rotation_angle
-from ..sim.outputs import LOG_KEYS
 from .data import (
     ActuatorCommand,
     LocalView,
@@ -20,6 +20,72 @@ from .data import (
     StateEstimate,
 )
 from .servo import MODE_CODES, normalized_rmse
+
+#: One value per control step (written as single CSV columns).
+SCALAR_SERIES = (
+    "rmse",
+    "rmse_raw",
+    "rmse_measured",
+    "rmse_true",
+    "target_error_deg",
+    "mode",
+    "V",
+    "detected_local",
+    "detected_global",
+    "thrust_saturated",
+    "tension_saturated",
+)
+#: Vector series (one CSV column per component), then the scalar ones: what the runner logs.
+VECTOR_SERIES = (
+    "t",
+    "q",
+    "qd",
+    "q_d",
+    "qd_d",
+    "u",
+    "tau",
+    "q_ref",
+    "features",
+    "feature_error",
+    "points_local",
+    "points_virtual",
+    "twist",
+    "delta_hat",
+    "q_hat",  # the state estimate the blocks after the sensors used (= q for source "true")
+    "qd_hat",
+    "P_diag",  # diagonal of its covariance [q, qd] (NaN for the true state)
+)
+LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
+
+#: series -> (unit, meaning). Units of configuration-space series depend on the coordinate:
+#: "q" means rad (angles), m (positions), 1/m (strains); "qd" their rates; "tau" N m, N, N m^2.
+SERIES_INFO = {
+    "t": ("s", "simulated time of the control step"),
+    "q": ("q", "true configuration [phi, theta, psi, x, y, z, q_s...] (ZYX Euler angles)"),
+    "qd": ("qd", "true generalized velocity"),
+    "q_d": ("q", "desired configuration sent to the low-level controller (IBVS or recovery)"),
+    "qd_d": ("qd", "desired generalized velocity"),
+    "q_ref": ("q", "reference used by the low-level controller (roll/pitch from the drone loop)"),
+    "u": ("N", "inputs: 4 rotor thrusts f_i (floating base), then tendon tensions T_i"),
+    "tau": ("tau", "generalized force commanded by the adaptive controller"),
+    "delta_hat": ("tau", "adaptive estimate of the unmodelled generalized force"),
+    "features": ("feat", "advanced image features [p_phi, p_theta, p_psi, p_x, p_y, p_z]"),
+    "feature_error": ("feat", "advanced-feature error p* - p*_d"),
+    "points_local": ("-", "detected points in C_L, normalized image coordinates (x, y) x 4"),
+    "points_virtual": ("-", "points in the virtual camera C_V (floating) or C_L, normalized"),
+    "twist": ("twist", "commanded local camera twist [w_x, w_y, w_z, v_x, v_y, v_z]"),
+    "rmse": ("-", "normalized RMSE of the points used by the servo to the desired points"),
+    "rmse_raw": ("-", "normalized RMSE of the raw C_L points to the desired points"),
+    "mode": ("-", "0 = IBVS, 1 = recovery (trajectory planned from one C_G snapshot)"),
+    "V": ("J", "Lyapunov function of the adaptive controller (known part)"),
+    "detected_local": ("-", "1 if the target was detected in C_L"),
+    "detected_global": ("-", "1 if the target was detected in C_G (when rendered)"),
+    "thrust_saturated": ("-", "1 if a rotor thrust hit its limit"),
+    "tension_saturated": ("-", "1 if a tendon tension hit its limit"),
+    "q_hat": ("q", "state estimate used after the sensors (= q for estimation.source = true)"),
+    "qd_hat": ("qd", "generalized-velocity estimate used after the sensors"),
+    "P_diag": ("var", "variances of the estimate [q_hat, qd_hat] (NaN for the true state)"),
+}
 
 _NAN4 = np.full((4, 2), np.nan)
 _NAN6 = np.full(6, np.nan)

@@ -1,7 +1,7 @@
 """The perception block: detections -> normalized image points and depths.
 
 The controller interprets pixels with *its* model of the camera (intrinsics possibly wrong,
-``sensors.intrinsics_error``): ``x = (u - c_x) / f_x``, ``y = (v - c_y) / f_y`` (NOTES.md), and
+``sensors.intrinsics_error``): ``x = (u - c_x) / f_x``, ``y = (v - c_y) / f_y``, and
 the depths of the four points come from the known target geometry (planar PnP,
 :func:`~tdacm.vision.features.estimate_depths`) - the paper's depth estimation.
 """

@@ -1,7 +1,7 @@
 """Compile half of the closed loop's numba kernels in a second process on a cold cache.
 
 Why: a first run in a fresh environment spends most of its time compiling numba kernels
-(docs/benchmarks.md, section 6: about 56 s of a 61 s ``tdacm run paper-in-fov --duration 1``).
+(docs/benchmarks.md, "Cold start": about 56 s of a 61 s ``tdacm run paper-in-fov --duration 1``).
 Numba compiles one kernel at a time and holds the GIL while doing it, so a second thread does
 not help. A second *process* does. Every kernel compiled with ``cache=True`` is written to
 numba's on-disk cache, and the main process then loads it from there instead of compiling it.
@@ -12,7 +12,7 @@ The split follows the order in which the main process needs the kernels:
   reference view compiles the model's ``coupled_terms`` and its callees, ``input_matrix``,
   ``chain_jacobian``, the corner refinement and the image features (about 30 s);
 * meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
-  compiles what the loop needs only from :func:`~tdacm.loop.build.warm_up` on: the plant's
+  compiles what the loop needs only from :func:`~tdacm.sim.assemble.warm_up` on: the plant's
   ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's
   Gauss-Newton kernel, the servo's twist and joint-rate kernels and the SE(3)/SO(3) maps
   (about 30 s; ``rk4_run`` comes last, when the main
@@ -22,8 +22,8 @@ The split follows the order in which the main process needs the kernels:
   those kernels is called, so they load from the cache.
 
 Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 62-67 s in one
-process, 42-43 s with the second one (session 6); 88.5 s against 60.1 s in one bench run of
-session 7, on a slower moment of the machine (docs/benchmarks.md, section 6).
+process, 42-43 s with the second one; 88.5 s against 60.1 s in a bench run at a slower moment
+of the machine (docs/benchmarks.md, "Cold start").
 
 The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
 machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod
@@ -137,12 +137,12 @@ def stop() -> None:
 def compile_second_half() -> None:
     """Call once each kernel that the loop first needs in ``warm_up`` and in its first
     periods, with the argument types of the loop's own calls (module docstring)."""
-    from .. import paper_system
     from .._linalg import SVD_PINV, svd_solve
     from ..control.adaptive import _law_kernel
     from ..control.allocation import _allocate_tensions_kernel
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
+    from ..system.paper import paper_system
     from ..vision.ibvs import _twist_kernel
     from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 

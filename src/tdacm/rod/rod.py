@@ -1,6 +1,6 @@
 """Cosserat rod parameters and cross-section matrices (circular section).
 
-Section matrices follow SoRoSim's choices (``shared/NOTES.md``):
+Section matrices follow SoRoSim's choices for a circular section (``docs/model.md``):
 
 * ``A = pi d^2/4``, ``I_y = I_z = pi d^4/64``, ``J = I_y + I_z``, ``G = E / (2 (1 + nu))``;
 * inertia density ``Mbar = rho diag(J, I_y, I_z, A, A, A)`` (paper eq. (11));

@@ -1,5 +1,6 @@
 """Closed-loop simulation of the TD-ACM scenarios (see ``docs/control.md``)."""
 
+from .assemble import Assembly, World, build_loop, build_world
 from .runner import SafetyMonitor, Simulation, normalized_rmse, run_scenario
 from .scenario import (
     Scenario,
@@ -10,6 +11,10 @@ from .scenario import (
 )
 
 __all__ = [
+    "Assembly",
+    "World",
+    "build_loop",
+    "build_world",
     "SafetyMonitor",
     "Scenario",
     "ScenarioError",

@@ -15,12 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-# submodules, not the tdacm.loop package: tdacm.loop imports tdacm.sim (scenarios, robot)
 from ..lie.se3 import rotation_angle
 from ..loop.closed_loop import ClosedLoop
 from ..loop.safety import SafetyMonitor
+from ..loop.sensors import RenderedFrontEnd
 from ..loop.servo import MODE_CODES, normalized_rmse
-from .scenario import Scenario, check_run, check_with_system, load_scenario
+from .assemble import Assembly, World, build_loop, camera_pose_error
+from .outputs import write_run
+from .scenario import Scenario, check_run, load_scenario
 
 __all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
 
@@ -29,7 +31,11 @@ class Simulation:
     """One closed-loop run of a scenario; :meth:`run` returns the log arrays and the summary.
 
     ``controller``, ``servo`` and ``estimator`` replace the scenario's blocks (objects that
-    implement the protocols of :mod:`tdacm.loop.protocols`)."""
+    implement the protocols of :mod:`tdacm.loop.protocols`). With ``video``, the cameras keep
+    their images and ``frame_composer(readings, view, command, t)`` (e.g.
+    :class:`tdacm.viz.video.CaptionedFrames`) turns each period into a frame; a composer with a
+    ``bind(loop)`` method is bound to the built loop first. The frames are in
+    ``self.result.frames`` after :meth:`run`."""
 
     def __init__(
         self,
@@ -41,6 +47,7 @@ class Simulation:
         controller=None,
         servo=None,
         estimator=None,
+        frame_composer=None,
     ):
         self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
         d = self.scenario.data
@@ -49,47 +56,45 @@ class Simulation:
         self.video = bool(video)
         self.progress = bool(progress)
         self.blocks = {"controller": controller, "servo": servo, "estimator": estimator}
-        self.loop: ClosedLoop | None = None
+        self.frame_composer = frame_composer if self.video else None
+        self.assembly: Assembly | None = None
+        self.result = None
 
-    def build(self) -> ClosedLoop:
-        from ..loop.build import build_loop
+    @property
+    def loop(self) -> ClosedLoop | None:
+        return None if self.assembly is None else self.assembly.loop
 
-        composer = None
-        if self.video:
-            from ..viz.video import CaptionedFrames  # captioned frames
-
-            composer = CaptionedFrames()
-        loop = build_loop(
+    def build(self) -> Assembly:
+        """Assemble the loop (:func:`~tdacm.sim.assemble.build_loop`; its checks raise
+        :class:`~tdacm.sim.ScenarioError`). :meth:`run` builds it if this was not called."""
+        composer = self.frame_composer
+        self.assembly = build_loop(
             self.scenario, self.seed, video=self.video, frame_composer=composer, **self.blocks
         )
-        if composer is not None:  # the desired points drawn on C_L
-            from ..viz.video import desired_pixels
-
-            composer.desired = desired_pixels(loop)
-        return loop
+        if composer is not None and hasattr(composer, "bind"):
+            composer.bind(self.assembly)
+        return self.assembly
 
     def run(self, out_dir=None):
-        """Run; write ``out_dir`` if given. Ctrl-C writes what was simulated so far, then
+        """Run; write the data of the run folder ``out_dir`` if given
+        (:func:`~tdacm.sim.outputs.write_run`). Ctrl-C writes what was simulated so far, then
         re-raises ``KeyboardInterrupt``."""
-        loop = self.loop = self.build()
+        assembly = self.assembly if self.assembly is not None else self.build()
+        loop = assembly.loop
         try:
-            check_with_system(self.scenario, loop.plant.system)  # dt, target in front
             if out_dir is not None:
-                write_scene_picture(Path(out_dir) / "scene.png", loop)
-            result = loop.run(self.duration, progress=self.progress)
-            summary = self.summary(loop, result)
+                write_scene_picture(Path(out_dir) / "scene.png", assembly)
+            result = self.result = loop.run(self.duration, progress=self.progress)
+            summary = self.summary(assembly, result)
             summary["interrupted"] = bool(result.interrupted)
             if out_dir is not None:
-                from .outputs import write_all
-
-                write_all(
+                write_run(
                     Path(out_dir),
                     result.arrays,
                     summary,
                     loop.servo.desired_points,
-                    result.frames,
                     loop.plant.system,
-                    scenario=self.scenario,  # scenario.toml, figures, snapshots
+                    scenario=self.scenario,
                 )
         finally:
             loop.close()
@@ -97,7 +102,8 @@ class Simulation:
             raise KeyboardInterrupt
         return result.arrays, summary
 
-    def summary(self, loop: ClosedLoop, result) -> dict:
+    def summary(self, assembly: Assembly, result) -> dict:
+        loop = assembly.loop
         a = result.arrays
         s = loop.plant.system
         rmse = a["rmse"]
@@ -113,18 +119,16 @@ class Simulation:
         def window(seconds):  # the finite RMSE samples of the last `seconds` of the run
             return rmse[finite & (t >= t[-1] - seconds - 1e-9)] if t.size else rmse[:0]
 
-        # after convergence the RMSE wanders (docs/estimation.md, "Session 6"): the last
+        # after convergence the RMSE wanders (docs/estimation.md, "What limits test C"): the last
         # sample alone (final_rmse, the campaigns' criterion) ranks runs noisily
         last1, last2 = window(1.0), window(2.0)
 
         u = a["u"]
         na = s.n_a
         sim_t = float(t[-1]) if t.size else 0.0
-        q_star = loop.world.q_star
+        q_star = assembly.world.q_star
         cam_dp = cam_da = drone_dp = None
         if t.size:
-            from ..loop.build import camera_pose_error
-
             cam_dp, cam_da = camera_pose_error(loop, a["q"][-1], q_star)
             if s.floating:
                 drone_dp = float(np.linalg.norm(a["q"][-1][3:6] - q_star[3:6]))
@@ -147,6 +151,7 @@ class Simulation:
             "recovery_plan": result.plan,
             "terminated": bool(result.terminated),
             "termination_reason": result.reason,
+            "termination": None if result.termination is None else str(result.termination),
             "final_camera_position_error_m": cam_dp,
             "final_camera_rotation_error_deg": cam_da,
             "final_drone_position_error_m": drone_dp,
@@ -164,7 +169,7 @@ class Simulation:
             "controller_truth": self.scenario.data["estimation"]["controller_truth"] or None,
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
-            **_target_merit(loop),
+            **_target_merit(loop, assembly.world),
             **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
 
@@ -177,13 +182,13 @@ def _last_finite(x):
     return float(x[f][-1]) if f.any() else None
 
 
-def _target_merit(loop: ClosedLoop) -> dict:
+def _target_merit(loop: ClosedLoop, world: World) -> dict:
     """Final error of the robust servo's target estimate and its own 1-sigma (worst
     rotation direction), when the servo has one."""
     filt = getattr(loop.servo, "target_filter", None)
     if filt is None or not filt.initialized:
         return {}
-    g_t = loop.world.scene.target_pose
+    g_t = world.scene.target_pose
     e = np.linalg.solve(g_t, filt.pose)
     ang = float(np.degrees(rotation_angle(e[:3, :3])))
     sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(filt.P[:3, :3]).max())))
@@ -195,7 +200,8 @@ def _target_merit(loop: ClosedLoop) -> dict:
     }
 
 
-#: Estimation errors are summarized after this time (the filter's convergence, issue 10).
+#: Estimation errors are summarized after this time: the filter has converged by then
+#: (strain RMS 3e-4 rad/m after 1 s, docs/estimation.md).
 ESTIMATION_WINDOW_S = 1.0
 
 
@@ -225,14 +231,12 @@ def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
     return out
 
 
-def write_scene_picture(path: Path, loop: ClosedLoop) -> None:
+def write_scene_picture(path: Path, assembly: Assembly) -> None:
     """The scenario's geometry as the cameras see it: C_L at the start, C_L at the desired
     configuration (the reference snapshot), C_G at the start (arm drawn)."""
     import cv2
 
-    from ..loop.sensors import RenderedFrontEnd
-
-    w = loop.world
+    loop, w = assembly.loop, assembly.world
     path.parent.mkdir(parents=True, exist_ok=True)
     tiles = []
     for label, sensor, q in (
@@ -255,11 +259,9 @@ def write_scene_picture(path: Path, loop: ClosedLoop) -> None:
         cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=1), cv2.COLOR_RGB2BGR))
 
 
-def run_scenario(
-    name, out=None, config=None, duration=None, seed=None, video=False, progress=False
-):
-    """Load and run a scenario; returns ``(arrays, summary)`` and writes ``out`` if given."""
+def run_scenario(name, out=None, config=None, duration=None, seed=None, progress=False):
+    """Load and run a scenario; returns ``(arrays, summary)`` and writes the data of the run
+    folder ``out`` if given (figures: :func:`tdacm.viz.plot_run_dir`; both: ``tdacm run``)."""
     sc = load_scenario(name, config)
     check_run(sc, duration, seed, flags=False)  # reject nan/inf/<=0, seed < 0
-    sim = Simulation(sc, duration=duration, seed=seed, video=video, progress=progress)
-    return sim.run(out)
+    return Simulation(sc, duration=duration, seed=seed, progress=progress).run(out)

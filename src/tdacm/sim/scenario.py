@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import unit_vector
+from ..loop.ablation import parse_controller_truth
 from ..vision.mounts import tip_camera_pose
 from .robot import ROBOT_SCHEMA, RobotError, strain_count
 
@@ -115,7 +116,7 @@ SCHEMA = {
         "downwash": ("vec:3", [0.0, 0.0, 0.0]),
         "downwash_noise": (float, 0.0),
     },
-    "sensors": {  # imperfections of the local camera (see tdacm.sim.sensors)
+    "sensors": {  # imperfections of the local camera (see tdacm.loop.sensors.SensorModel)
         "pixel_noise": (float, 0.0),  # px, std of the noise on detected points
         "dropout": (float, 0.0),  # probability that a frame has no detection
         "latency_steps": (int, 0),  # control steps between image and use
@@ -368,7 +369,7 @@ def validate(d: dict, source: str) -> Scenario:
         if not 0 <= d[sec][key] < 1:
             raise ScenarioError(f"{source}: {sec}.{key} must lie in [0, 1)")
     from ..estimation import EstimatorConfig, SensorSuiteConfig
-    from .sensors import SensorModel
+    from ..loop.sensors import SensorModel
 
     est = d["estimation"]
     if est["source"] not in ("true", "estimated"):
@@ -376,8 +377,6 @@ def validate(d: dict, source: str) -> Scenario:
     if est["initial_guess"] not in ("measured", "true"):
         raise ScenarioError(f"{source}: estimation.initial_guess must be 'measured' or 'true'")
     try:
-        from ..loop.ablation import parse_controller_truth
-
         truth = parse_controller_truth(est["controller_truth"])
     except ValueError as exc:
         raise ScenarioError(f"{source}: {exc}") from None
@@ -462,24 +461,19 @@ def check_run(scenario: Scenario, duration=None, seed=None, flags: bool = True) 
             raise ScenarioError(f"{sn} must be a non-negative integer, got {seed!r}")
 
 
-def check_with_system(scenario: Scenario, system=None) -> None:
-    """Checks that need the built robot (:func:`tdacm.loop.build_scene`):
+def check_with_world(scenario: Scenario, world) -> None:
+    """Checks that need the built robot (:func:`tdacm.sim.assemble.build_world` runs them on
+    the :class:`~tdacm.sim.assemble.World` it builds):
 
     * the plant's RK4 step ``dt / substeps`` at most ``MAX_STEP_FACTOR`` times
       ``system.suggested_dt()``, and the control period ``dt`` at most ``MAX_CONTROL_PERIOD``
       (the sampled closed loop diverges at longer periods, see the constant);
     * the target in front of the tip camera C_L at the desired configuration (the reference
       view of the IBVS is taken there).
-
-    ``system`` (the built plant) is used for the step limit when given.
     """
-    from ..loop.build import build_scene
-
     d = scenario.data
     src = scenario.source
-    world = build_scene(scenario)
-    if system is None:
-        system = world.robot.system
+    system = world.robot.system
     if d["dt"] > MAX_CONTROL_PERIOD:
         raise ScenarioError(
             f"{src}: dt = {d['dt']} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
@@ -492,8 +486,6 @@ def check_with_system(scenario: Scenario, system=None) -> None:
             f"{src}: dt / substeps = {h:.4g} s exceeds the plant's RK4 step limit "
             f"{h_max:.4g} s ({MAX_STEP_FACTOR:g} x suggested_dt()); raise substeps or lower dt"
         )
-    from ..loop.ablation import parse_controller_truth
-
     try:
         parse_controller_truth(d["estimation"]["controller_truth"], system.n)
     except ValueError as exc:

@@ -232,7 +232,9 @@ def _rk4_callable(system, q0, qd0, ufun, dt, nsteps, every, progress):
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=nsteps, desc="simulate", unit="step")
+        from .._log import progress_enabled
+
+        bar = tqdm(total=nsteps, desc="simulate", unit="step", disable=not progress_enabled())
     ok, msg = True, ""
     for k in range(nsteps):
         uk = system._u(ufun(k * dt, q, qd))

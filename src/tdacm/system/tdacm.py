@@ -4,7 +4,7 @@ This is the thin, validated Python API over the numba kernels of :mod:`tdacm.sys
 Model data (parameters, precomputed quadrature and basis arrays) lives in the object; every
 algorithm is a function of ``(q, qdot)``.
 
-Conventions (paper section II, ``shared/NOTES.md``): ``q = [phi, theta, psi, x, y, z, q_s]``
+Conventions (paper section II, ``docs/model.md``): ``q = [phi, theta, psi, x, y, z, q_s]``
 (ZYX Euler angles, inertial position of the drone's centre of mass; ``q = q_s`` for a fixed
 base); poses are 4x4 in the inertial frame; Jacobians map ``qdot`` to the twist ``[w; v]`` of the
 frame in that frame (local, angular first).

@@ -1,6 +1,6 @@
 """Pinhole cameras: intrinsics, projection, normalized coordinates and field-of-view tests.
 
-Conventions (shared/NOTES.md): the camera frame has x right, y down, z forward (optical axis).
+Conventions (``docs/vision.md``): the camera frame has x right, y down, z forward (optical axis).
 A point ``P = [X, Y, Z]`` in the camera frame has the normalized image coordinates
 ``x = X/Z``, ``y = Y/Z`` and the pixel coordinates ``u = fx x + cx``, ``v = fy y + cy``.
 Pixel coordinates follow OpenCV: the centre of pixel ``(col, row)`` is at ``u = col``,

@@ -17,7 +17,7 @@ If the target is not fully seen (marker missing, or any of the four tags missing
 is :data:`NOT_DETECTED`-like: ``found`` is False and ``points`` is ``None``; ``ids`` still
 lists what was seen.
 
-OpenCV 5 notes (shared/NOTES.md): ``detectMarkers`` is a method of ``ArucoDetector``, ``ids``
+OpenCV 5 removed the module-level ``cv2.aruco.detectMarkers``: ``detectMarkers`` is a method of ``ArucoDetector``, ``ids``
 is ``(N,)`` in 5.x and ``(N, 1)`` in 4.x (both handled).
 """
 

@@ -41,11 +41,11 @@ edge length squared in the denominator), so the interaction matrix is the chain 
 
     J_img = (d p* / d points) @ [L_1; L_2; L_3; L_4]
 
-with the point interaction matrices (shared/NOTES.md, ViSP/Corke, *linear-first* twist
+with the point interaction matrices (ViSP and Corke, *linear-first* twist
 ``[v; w]``) ``Lx = [-1/Z, 0, x/Z, x y, -(1 + x^2), y]``,
 ``Ly = [0, -1/Z, y/Z, 1 + y^2, -x y, -x]``. This module returns interaction matrices whose
-columns follow the model's **angular-first** twist ``[w; v]`` by default (the NOTES columns
-permuted by :data:`LINEAR_TO_ANGULAR`); pass ``order="linear_first"`` for the NOTES layout.
+columns follow the model's **angular-first** twist ``[w; v]`` by default (the ViSP columns
+permuted by :data:`LINEAR_TO_ANGULAR`); pass ``order="linear_first"`` for the ViSP layout.
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ def point_interaction_matrix(points, depths, order: str = "angular_first") -> np
 
     Rows ``2k, 2k+1`` hold ``Lx, Ly`` of point ``k``; they map the camera twist (expressed in
     the camera frame) to ``[x_dot, y_dot]``. Columns: ``[w; v]`` (``order="angular_first"``,
-    default) or ``[v; w]`` (``"linear_first"``, as in shared/NOTES.md).
+    default) or ``[v; w]`` (``"linear_first"``, as in ViSP and Corke).
     """
     _check_order(order)
     p = C.points("points", points, 2)

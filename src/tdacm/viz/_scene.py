@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..sim.assemble import build_world
+from ..sim.scenario import ScenarioError, load_scenario
 from ..vision.mounts import tip_camera_pose
 
 
@@ -44,10 +46,8 @@ class Geometry:
 
 def geometry(scenario) -> Geometry:
     """The :class:`Geometry` of a :class:`~tdacm.sim.Scenario` (its ``[robot]`` section,
-    through :func:`tdacm.loop.build_scene`)."""
-    from ..loop.build import build_scene
-
-    w = build_scene(scenario)
+    through :func:`tdacm.sim.assemble.build_world`)."""
+    w = build_world(scenario)
     r = w.robot
     return Geometry(
         scenario, r.system, w.scene, w.target, r.tip_mount, r.drone_mount, w.q_star,
@@ -62,8 +62,6 @@ class RunDirError(ValueError):
 def load_run(run_dir):
     """``(arrays, summary, scenario)`` of a run folder; the scenario from its
     ``scenario.toml`` (self-contained folder), else by the name in ``summary.json``."""
-    from ..sim.scenario import ScenarioError, load_scenario
-
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise RunDirError(f"RUN_DIR {run_dir} does not exist or is not a folder")

@@ -37,19 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-#: Figure kinds, in the order :func:`plot_run` writes them.
-KINDS = (
-    "state_errors",
-    "tracking_errors",
-    "actuation",
-    "features",
-    "feature_error",
-    "camera_twist",
-    "strain_rates",
-    "snapshots",
-    "lyapunov",
-    "estimation",
-)
+from ..sim.outputs import FIGURE_KINDS
+
+#: Figure kinds, in the order :func:`plot_run` writes them (the run folder's layout).
+KINDS = FIGURE_KINDS
 
 _ANGLES = (r"$\phi$", r"$\theta$", r"$\psi$")
 _POS = ("$x$", "$y$", "$z$")
@@ -68,7 +59,7 @@ _STYLE = {
 
 @dataclass
 class RunData:
-    """What the figures read: the log ``arrays`` (see :data:`tdacm.sim.outputs.LOG_KEYS`), the
+    """What the figures read: the log ``arrays`` (see :data:`tdacm.loop.logger.LOG_KEYS`), the
     summary, and the scenario's facts."""
 
     arrays: dict

@@ -22,11 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import require
+
 TIMELINE = "sim_time"
 
 
 def _cols(rec, path, t, values, names=None):
-    import rerun as rr
+    rr = require("rerun", "rerun")
 
     values = np.asarray(values, float)
     if values.ndim == 1:
@@ -51,7 +53,7 @@ def record_run(
     """Convert a ``tdacm run`` folder to a Rerun recording ``path`` (default
     ``RUN_DIR/run.rrd``); returns the path. ``image_every`` steps between camera images
     (default: about 100 images over the run); ``progress(done, total)`` is called per step."""
-    import rerun as rr
+    rr = require("rerun", "rerun")
 
     from ..vision import PlanarRenderer, TargetDetector
     from ._scene import geometry, load_run

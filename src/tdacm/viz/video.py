@@ -10,6 +10,7 @@ missing or fails, OpenCV's ``mp4v`` writer (MPEG-4 part 2) as before.
 
 from __future__ import annotations
 
+import logging
 import subprocess
 from pathlib import Path
 
@@ -20,6 +21,8 @@ TILE = 500
 _CAPTION_H = 28
 _FOOTER_H = 30
 MODE_NAMES = {0: "IBVS", 1: "recovery", "ibvs": "IBVS", "recovery": "recovery"}
+
+log = logging.getLogger(__name__)
 
 
 def _text(img, text, org, scale=0.55, color=(255, 255, 255), thick=1):
@@ -163,10 +166,10 @@ def write_video(path, frames, fps: float = 50) -> str:
             err = proc.stderr.read()
             if proc.wait() == 0 and path.is_file() and path.stat().st_size > 0:
                 return "h264"
-            import sys
-
-            print(f"warning: ffmpeg failed ({err.decode(errors='replace').strip()[:200]}); "
-                  "falling back to OpenCV mp4v", file=sys.stderr)  # fmt: skip
+            log.warning(
+                "ffmpeg failed (%s); falling back to OpenCV mp4v",
+                err.decode(errors="replace").strip()[:200],
+            )
         except OSError:
             pass
     import cv2
@@ -196,13 +199,17 @@ def side_by_side(img_l, img_g, pix) -> np.ndarray:
 
 class CaptionedFrames:
     """The loop's per-period frame composer (``RunLog(frame_composer=...)``,
-    ``build_loop(frame_composer=...)``): ``composer(readings, view, command, t)`` returns
+    ``tdacm.sim.assemble.build_loop(frame_composer=...)``): ``composer(readings, view, command, t)`` returns
     :func:`compose_frame` of the C_L and C_G images with the detected points, the desired
     points ``desired`` (C_L pixels, set after the loop is built: :func:`desired_pixels`), the
     time, the mode and the RMSE of ``command``."""
 
     def __init__(self, desired=None):
         self.desired = desired
+
+    def bind(self, assembly) -> None:
+        """Take the desired points of an assembled loop (:func:`desired_pixels`)."""
+        self.desired = desired_pixels(assembly)
 
     def __call__(self, readings, view, command, t) -> np.ndarray:
         loc = readings.local
@@ -224,14 +231,9 @@ class CaptionedFrames:
         )
 
 
-#: Old name: a composer without the desired points.
-caption_frame_composer = CaptionedFrames()
-
-
-def desired_pixels(loop) -> np.ndarray:
-    """C_L pixels (4, 2) of the target at the desired configuration of a built
-    :class:`tdacm.loop.ClosedLoop` (where the detected points converge)."""
-    local = loop.sensors.local
-    return local.camera.project_world(
-        loop.world.scene.target_points_world(), local.pose(loop.world.q_star)
-    )
+def desired_pixels(assembly) -> np.ndarray:
+    """C_L pixels (4, 2) of the target at the desired configuration of an assembled loop
+    (:class:`tdacm.sim.assemble.Assembly`): where the detected points converge."""
+    local = assembly.loop.sensors.local
+    world = assembly.world
+    return local.camera.project_world(world.scene.target_points_world(), local.pose(world.q_star))

@@ -6,7 +6,7 @@ as a textured quad mesh on its top, and optionally the TD-ACM: the drone as a ``
 created once; :meth:`PyBulletRenderer.set_arm` only moves them with
 ``resetBasePositionAndOrientation``.
 
-Projection built exactly from the intrinsics (shared/NOTES.md): row-major
+Projection built exactly from the intrinsics (``docs/vision.md``): row-major
 
     P = [[2fx/W, 0, 1 - 2cx'/W, 0], [0, 2fy/H, 2cy'/H - 1, 0],
          [0, 0, -(f+n)/(f-n), -2fn/(f-n)], [0, 0, -1, 0]]
@@ -14,7 +14,7 @@ Projection built exactly from the intrinsics (shared/NOTES.md): row-major
 passed column-major (``P.T.ravel()``), view matrix ``inv(T_wc @ diag(1, -1, -1, 1))``. OpenGL
 puts pixel centres at half-integers and OpenCV at integers, hence ``cx' = cx + 0.5`` and
 ``cy' = cy + 0.5`` for the EGL plugin (measured exact to 0.02 px). TinyRenderer samples at
-integer pixel positions and puts rows one pixel low (NOTES: "rendered row = v - 1"), so it
+integer pixel positions and puts rows one pixel low (rendered row = v - 1, measured), so it
 takes ``cx' = cx``, ``cy' = cy + 1`` (measured: area centroids of rasterized polygons within
 0.03 px of the analytic ones; the tests check rendered marker corners at sub-pixel level).
 

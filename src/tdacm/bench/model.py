@@ -14,21 +14,31 @@ Medians over ``repeats`` repetitions; the spread is the interquartile range.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ._timing import batch_times
-from .rod import StrainBasis
-from .system import kernels as K
-from .system import paper_system, simulate
+from .._log import REPORT
+from .._timing import batch_times
+from ..rod import StrainBasis
+from ..system import kernels as K
+from ..system import paper_system, simulate
+
+log = logging.getLogger(__name__)
+report = logging.getLogger(REPORT)  # the tables: stdout of `tdacm bench`
 
 
 def _stage(text: str, end: bool = False) -> None:
-    """One progress line on stderr (overwritten in a terminal), so stdout keeps the tables."""
+    """One progress line on stderr (overwritten in a terminal), drawn like a progress bar:
+    not with ``tdacm -q``."""
     import sys
 
+    from ._log import progress_enabled
+
+    if not progress_enabled():
+        return
     tty = sys.stderr.isatty()
     sys.stderr.write(
         ("\r\033[K" if tty else "") + f"bench: {text}" + ("\n" if end or not tty else "")
@@ -109,8 +119,8 @@ def bench_stiff(
     1e-10 (``reference="dop853"``) or, when DOP853 cannot afford the stiffness, Radau IIA at a
     tenth of its step with a Newton tolerance of 1e-10 (``"radau/10"``; checked once against
     RK4 at a resolved step, ``docs/benchmarks.md``).  ``ref`` reuses a reference simulation."""
-    from .system import stiff as ST
-    from .system.integrate import RADAU_DT, ROSENBROCK_DT, SimulationResult
+    from ..system import stiff as ST
+    from ..system.integrate import RADAU_DT, ROSENBROCK_DT, SimulationResult
 
     step = ROSENBROCK_DT if method == "rosenbrock" else RADAU_DT
     q, u = _released(system)
@@ -176,11 +186,11 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
         _stage(f"model {i + 1}/{len(systems)}: {name}")
         rows.append(bench_system(name, s, repeats, duration=d))
     _stage("model: done", end=True)
-    print(
+    report.info(
         f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} {'RK4 dt':>9s} {'RTF':>8s}"
     )
     for r in rows:
-        print(
+        report.info(
             f"{r['system']:38s} {r['n']:3d} {r['terms_us']:8.1f}us {r['forward_dynamics_api_us']:8.1f}us "
             f"{r['forward_dynamics_kernel_us']:9.1f}us {r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
         )
@@ -196,20 +206,20 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             row = bench_stiff(sysname, s_, method, reference=refname, ref=ref)
             ref = row.pop("_ref")
             stiff.append(row)
-    print(
+    report.info(
         f"\n{'stiff rod, fixed steps':38s} {'n':>3s} {'w_max':>9s} {'RTF':>8s} {'tip err':>10s} (first s, reference)"
     )
     for r in stiff:
-        print(
+        report.info(
             f"{r['system'][:26] + ', ' + r['method']:38s} {r['n']:3d} {r['w_max_rad_s']:9.3g} {r['real_time_factor']:7.1f}x "
             f"{r['tip_error_max_m'] * 1e3:8.3f}mm ({r['check_s']} s, {r['reference']}, "
             f"travel {r['tip_travel_m'] * 1e3:.0f} mm, completed {r['completed']})"
         )
-    from .loop.bench import loop_bench
+    from .loop import loop_bench
 
     _stage("closed loop (paper-in-fov, 5 s, rendered and analytic C_L)")
     loop = loop_bench(repeats=5, cold=False, progress=_stage)
-    print(
+    report.info(
         f"\n{'closed loop, paper-in-fov 5 s':38s} {'wall/sim s':>10s} {'RTF':>8s} "
         f"{'compiled':>9s} {'cap':>7s}"
     )
@@ -217,7 +227,7 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
         r = loop[name]
         c = r.get("compiled")
         extra = f" {c['compiled_ms']:7.2f}ms {c['cap_real_time_factor']:6.1f}x" if c else ""
-        print(
+        report.info(
             f"{name + ' C_L':38s} {r['wall_per_sim_second']:10.3f} {r['real_time_factor']:7.1f}x"
             + extra
         )
@@ -229,16 +239,16 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
         "load_average": load,
         "machine_note": "medians; IQR in *_iqr_us",
     }
-    print(f"load average (1, 5, 15 min) at the end: {load}")
+    report.info(f"load average (1, 5, 15 min) at the end: {load}")
     path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
     (path / "bench.json").write_text(json.dumps(result, indent=2))
-    print(f"\nwritten {path.resolve() / 'bench.json'}")
+    log.info(f"written {path.resolve() / 'bench.json'}")
     return result
 
 
 def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> dict:
-    """The model benchmark plus the GVS-vs-CC comparison of issue 5, in one run.
+    """The model benchmark plus the GVS-vs-CC comparison, in one run.
 
     Sections (see :mod:`tdacm.baselines.study` and ``docs/benchmarks.md``): the model timings of
     :func:`run_model_bench`; the CC Lagrangian baseline's derivation/cache figures; per-call and
@@ -247,7 +257,7 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     orders 0..3 against a converged GVS reference; PyElastica when installed.  Writes
     ``bench.json``, ``time_vs_dofs.png`` and ``error_vs_time.png`` to ``out``.
     """
-    from .baselines import study
+    from ..baselines import study
 
     path = Path(out)
     path.mkdir(parents=True, exist_ok=True)
@@ -276,14 +286,14 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
     elastica = study.pyelastica_study(reference=ref)
     walls["pyelastica"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    from .loop.bench import time_cold_start
+    from .loop import time_cold_start
 
     _stage("full: cold first run (empty numba cache)")
     result["loop"]["cold_start"] = time_cold_start()
     walls["cold_start"] = time.perf_counter() - t0
     _stage("full: done", end=True)
     study.print_report(timing, rows, acc, elastica)
-    print("\nsection wall times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in walls.items()))
+    report.info("\nsection wall times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in walls.items()))
     result.update(
         {
             "baseline": timing,
@@ -299,5 +309,5 @@ def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> d
         study.plot_scaling(rows, path / "time_vs_dofs.png", cc_fd_s=cc_fd)
     if acc["cases"]:
         study.plot_accuracy(acc, path / "error_vs_time.png", elastica=elastica)
-    print(f"\nwritten {path.resolve() / 'bench.json'} and plots")
+    log.info(f"written {path.resolve() / 'bench.json'} and plots")
     return result

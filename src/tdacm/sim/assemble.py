@@ -1,7 +1,8 @@
 """Assembling the closed loop from a scenario (``tdacm run``, campaigns and the env use it).
 
-:func:`build_loop` turns a validated :class:`~tdacm.sim.scenario.Scenario` into a
-:class:`~.closed_loop.ClosedLoop`: the robot of its ``[robot]`` section, the scene, the cameras
+:func:`build_loop` turns a validated :class:`~tdacm.sim.scenario.Scenario` into an
+:class:`Assembly`: the :class:`~tdacm.loop.ClosedLoop` with the :class:`World` it was built
+from and its seed. The loop is made of the robot of its ``[robot]`` section, the scene, the cameras
 and their imperfections (``[cameras]``, ``[sensors]``), the reference snapshot, the servo
 (``[ibvs]``, ``[recovery]``), the controller (``[model]``, ``[controller]``, or a user class),
 the disturbances and the safety monitor. Randomness: the model perturbation is drawn from the
@@ -18,22 +19,28 @@ import numpy as np
 from .._linalg import solve as _solve
 from ..control import EstimatedModel
 from ..lie.se3 import rotation_angle
-from ..sim.robot import Robot, build_robot
-from ..sim.scenario import Scenario, ScenarioError
-from ..sim.sensors import SensorModel, perturbed_camera
+from ..loop.closed_loop import ClosedLoop
+from ..loop.logger import RunLog
+from ..loop.lowlevel import make_low_level
+from ..loop.perception import Perception
+from ..loop.plant import Disturbances, Plant
+from ..loop.protocols import ControllerContext
+from ..loop.safety import SafetyMonitor
+from ..loop.sensors import (
+    AnalyticFrontEnd,
+    CameraSensor,
+    RenderedFrontEnd,
+    SensorModel,
+    Sensors,
+    perturbed_camera,
+)
+from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
 from ..vision import PAPER_MARKER, PAPER_PATTERN, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
 from ..vision.target_filter import reference_from_pose
 from ..vision.virtual import virtual_camera_points, virtual_camera_transform
-from .closed_loop import ClosedLoop
-from .logger import RunLog
-from .lowlevel import make_low_level
-from .perception import Perception
-from .plant import Disturbances, Plant
-from .protocols import ControllerContext
-from .safety import SafetyMonitor
-from .sensors import AnalyticFrontEnd, CameraSensor, RenderedFrontEnd, Sensors
-from .servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
+from .robot import Robot, build_robot
+from .scenario import Scenario, ScenarioError, check_with_world
 
 #: What ``controller.profile = "paper"`` sets (the paper's literal choices, docs/control.md
 #: "Profiles"): gravity lumped into Delta_hat, the approximate compensation p_V = R p_L on the
@@ -58,9 +65,10 @@ def apply_profile(scenario: Scenario) -> Scenario:
     return Scenario(d, scenario.source + " (profile paper)")
 
 
-@dataclass
-class Scene:
-    """The static world and the robot of a scenario."""
+@dataclass(frozen=True)
+class World:
+    """The static world and the robot of a scenario: the robot, the scene (box and target),
+    the target, the initial state ``(q0, qd0)`` and the desired configuration ``q_star``."""
 
     robot: Robot
     scene: SceneConfig
@@ -70,7 +78,10 @@ class Scene:
     q_star: np.ndarray
 
 
-def build_scene(scenario: Scenario) -> Scene:
+def build_world(scenario: Scenario) -> World:
+    """The :class:`World` of a scenario, checked against the built robot
+    (:func:`~tdacm.sim.scenario.check_with_world`: the plant's step limit, the target in front
+    of C_L at the desired configuration)."""
     d = scenario.data
     held = d["system"]["held_base_q"] if not scenario.floating else None
     try:
@@ -89,7 +100,9 @@ def build_scene(scenario: Scenario) -> Scene:
     n = robot.system.n
     q0 = np.asarray(d["initial"]["q"], float)
     qd0 = np.zeros(n) if d["initial"]["qd"] is None else np.asarray(d["initial"]["qd"], float)
-    return Scene(robot, scene, target, q0, qd0, np.asarray(d["desired"]["q"], float))
+    world = World(robot, scene, target, q0, qd0, np.asarray(d["desired"]["q"], float))
+    check_with_world(scenario, world)
+    return world
 
 
 def _front_end(kind: str, camera, scene: SceneConfig, target, backend: str = "auto"):
@@ -128,6 +141,15 @@ def reference_snapshot(local: CameraSensor, robot: Robot, target, scene, q_star,
     return pts, z
 
 
+@dataclass(frozen=True)
+class Assembly:
+    """What :func:`build_loop` assembled: the closed loop, the world it runs in, its seed."""
+
+    loop: ClosedLoop
+    world: World
+    seed: int
+
+
 def build_loop(
     scenario: Scenario,
     seed: int | None = None,
@@ -136,7 +158,7 @@ def build_loop(
     servo=None,
     estimator=None,
     frame_composer=None,
-) -> ClosedLoop:
+) -> Assembly:
     """The closed loop of ``scenario`` (module docstring). ``controller``, ``servo`` and
     ``estimator`` replace the scenario's blocks (objects implementing the protocols of
     :mod:`tdacm.loop.protocols`)."""
@@ -144,7 +166,7 @@ def build_loop(
     d = scenario.data
     seed = int(d["seed"] if seed is None else seed)
     paper = d["controller"]["profile"] == "paper"
-    world = build_scene(scenario)
+    world = build_world(scenario)
     robot, s = world.robot, world.robot.system
     cams = d["cameras"]
     sensor_model = SensorModel(**{k: d["sensors"][k] for k in _CAMERA_SENSOR_KEYS})
@@ -243,7 +265,7 @@ def build_loop(
     )
     truth = d["estimation"]["controller_truth"]
     if truth:  # ablation: the controller reads these coordinates from the plant
-        from .ablation import TruthAblation, parse_controller_truth
+        from ..loop.ablation import TruthAblation, parse_controller_truth
 
         try:
             q_idx, qd_idx = parse_controller_truth(truth, s.n)
@@ -267,13 +289,11 @@ def build_loop(
         log=RunLog(servo.desired_points, frame_composer, _truth(s, local, world)),
         name=scenario.name,
     )
-    loop.world = world
-    loop.seed = seed
     warm_up(s, world.q0)
-    return loop
+    return Assembly(loop, world, seed)
 
 
-def _truth(system, local: CameraSensor, world: Scene):
+def _truth(system, local: CameraSensor, world: World):
     """``q -> (true points of the target in the servo camera, true target pose)`` for the
     logger (C_V for a floating base, C_L for a fixed one)."""
     from ..vision.virtual import _virtual_pose
@@ -357,8 +377,8 @@ def warm_up(system, q) -> None:
     """Call the numba kernels of one period once, so that their first-use compilation (or
     loading from the on-disk cache) happens before the run, not inside its first step."""
     from ..control.allocation import box_least_squares
+    from ..loop.precompile import wait
     from ..system.kernels import rk4_run
-    from .precompile import wait
 
     q = np.asarray(q, float)
     qd = np.zeros(system.n)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tdacm.loop.bench import LOOP_CASES, compiled_share
+from tdacm.bench.loop import LOOP_CASES, compiled_share
 
 
 def test_compiled_share_finds_the_kernels_and_bounds_the_real_time_factor():

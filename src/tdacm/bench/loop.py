@@ -35,12 +35,12 @@ LOOP_CASES = {
 
 def time_loop(overrides: dict, duration: float = 5.0, repeats: int = 5) -> dict:
     from ..sim import load_scenario
-    from .build import build_loop
+    from ..sim.assemble import build_loop
 
     sc = load_scenario("paper-in-fov").with_overrides(overrides)
     walls = []
     for i in range(repeats + 1):
-        loop = build_loop(sc, 0)
+        loop = build_loop(sc, 0).loop
         t0 = time.perf_counter()
         res = loop.run(duration)
         wall = time.perf_counter() - t0
@@ -76,11 +76,11 @@ def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict
     from numba.core.registry import CPUDispatcher
 
     from ..sim import load_scenario
-    from .build import build_loop
+    from ..sim.assemble import build_loop
 
     wall = time_loop(overrides, duration, repeats=1)["wall_s_median"]
     sc = load_scenario("paper-in-fov").with_overrides(overrides)
-    loop = build_loop(sc, 0)
+    loop = build_loop(sc, 0).loop
     prof = cProfile.Profile()
     prof.enable()
     res = loop.run(duration)
