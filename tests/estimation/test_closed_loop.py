@@ -10,6 +10,7 @@ from tdacm.estimation import FilterBlock
 from tdacm.sim import build_loop
 from tdacm.sim.runner import Simulation
 from tdacm.sim.scenario import load_scenario
+from tdacm.viz import plot_run_dir
 
 FAST = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
 
@@ -23,6 +24,7 @@ def scenario(source="estimated", **est):
 def test_short_closed_loop_on_estimates(tmp_path):
     sim = Simulation(scenario(initial_strain_error=0.3), duration=1.6)
     a, s = sim.run(tmp_path)
+    plot_run_dir(tmp_path, kinds=("estimation",))
     assert not s["terminated"], s["termination_reason"]
     assert isinstance(sim.loop.estimator, FilterBlock)
     assert s["estimation_source"] == "estimated"

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from tdacm.lie.se3 import expmap, rotation_angle
+from tdacm.loop.config import IbvsConfig, RecoveryConfig
 from tdacm.loop.servo import RobustParams, RobustServo
 from tdacm.vision import (
     GLOBAL_CAMERA,
@@ -259,7 +260,9 @@ def _servo(smoothing=0.0):
     xd, zd = project_points(PAPER_MARKER.feature_points, g_des)
     return RobustServo(
         _HeldCamera(), LOCAL_CAMERA, GLOBAL_CAMERA, PAPER_MARKER, np.eye(4), np.eye(4), xd, zd,
-        gain=1.0, mode="mean", robust=RobustParams(smoothing=smoothing),
+        gain=1.0, mode="mean", robust=RobustParams.from_config(
+            IbvsConfig(filter_smoothing=smoothing, target_level_prior_deg=0.0), RecoveryConfig()
+        ),
     )  # fmt: skip
 
 

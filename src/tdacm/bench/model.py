@@ -35,7 +35,7 @@ def _stage(text: str, end: bool = False) -> None:
     not with ``tdacm -q``."""
     import sys
 
-    from ._log import progress_enabled
+    from .._log import progress_enabled
 
     if not progress_enabled():
         return

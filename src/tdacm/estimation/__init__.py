@@ -11,23 +11,27 @@
 
 from .block import FilterBlock
 from .camera import TargetCamera, TargetViewMeasurement
+from .config import (
+    EncoderConfig,
+    EstimationConfig,
+    ImuConfig,
+    PoseSensorConfig,
+    SensorSuiteConfig,
+)
 from .ekf import EstimatorConfig, ExtendedKalmanFilter, StateEstimate, euler_from_rotation
 from .inversion import InversionResult, strains_from_tendon_lengths
 from .sensors import (
     DronePoseSensor,
-    EncoderConfig,
     EncoderMeasurement,
     Imu,
-    ImuConfig,
     ImuMeasurement,
     PoseMeasurement,
-    PoseSensorConfig,
     SensorSuite,
-    SensorSuiteConfig,
     TendonEncoders,
 )
 
 __all__ = [
+    "EstimationConfig",
     "DronePoseSensor",
     "EncoderConfig",
     "EncoderMeasurement",

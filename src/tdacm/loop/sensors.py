@@ -4,7 +4,7 @@ A :class:`CameraSensor` is a camera on a carrier frame (C_L on the rod's tip, C_
 drone's body) together with its front end: either a renderer and the fiducial detector
 (``"planar"``/``"pybullet"``: an image, then ArUco/AprilTag detection, as on the robot) or the
 ``"analytic"`` front end (the target's points projected from the 3-D target: no image, no
-detector; campaigns). The same imperfection models (:class:`SensorModel`, the scenario's
+detector; campaigns). The same imperfection models (:class:`~tdacm.loop.config.SensorModel`, the scenario's
 ``[sensors]`` camera keys: pixel noise, dropped frames, latency, intrinsics error) then apply to
 either, so the two front ends differ only by the renderer's corner error (tested). All their
 randomness comes from one ``numpy.random.Generator`` seeded by the run's seed.
@@ -15,7 +15,7 @@ Sensors read the true :class:`~.data.PlantState`; nothing after them does.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -23,44 +23,8 @@ from ..vision import TargetDetector
 from ..vision.camera import PinholeCamera, points_in_camera
 from ..vision.detect import NOT_DETECTED, Detection
 from ..vision.mounts import tip_camera_pose
+from .config import SensorModel
 from .data import CameraMeasurement, PlantState, SensorReadings
-
-
-@dataclass(frozen=True)
-class SensorModel:
-    """Imperfections of a camera: ``pixel_noise`` (std, px, on every detected feature point
-    and raw corner), ``dropout`` (probability that a frame yields no detection),
-    ``latency_steps`` (the controller sees the result of that many periods ago) and
-    ``intrinsics_error`` (relative std of the controller's ``fx, fy, cx, cy``: images are
-    rendered with the true camera, normalized with the wrong one, :func:`perturbed_camera`)."""
-
-    pixel_noise: float = 0.0
-    dropout: float = 0.0
-    latency_steps: int = 0
-    intrinsics_error: float = 0.0
-
-    def __post_init__(self):
-        if not np.isfinite(self.pixel_noise) or self.pixel_noise < 0:
-            raise ValueError(f"sensors.pixel_noise must be >= 0, got {self.pixel_noise!r}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"sensors.dropout must lie in [0, 1), got {self.dropout!r}")
-        if int(self.latency_steps) != self.latency_steps or self.latency_steps < 0:
-            raise ValueError(
-                f"sensors.latency_steps must be an integer >= 0, got {self.latency_steps!r}"
-            )
-        if not np.isfinite(self.intrinsics_error) or not 0.0 <= self.intrinsics_error < 0.5:
-            raise ValueError(
-                f"sensors.intrinsics_error must lie in [0, 0.5), got {self.intrinsics_error!r}"
-            )
-
-    @property
-    def ideal(self) -> bool:
-        return (
-            self.pixel_noise == 0
-            and self.dropout == 0
-            and self.latency_steps == 0
-            and self.intrinsics_error == 0
-        )
 
 
 def perturbed_camera(camera, relative_error: float, rng: np.random.Generator):

@@ -35,6 +35,7 @@ from ..vision.mounts import tip_camera_pose
 from ..vision.target_filter import TargetFilter
 from ..vision.tip import rates_from_jacobian
 from ..vision.virtual import virtual_points, virtual_transform
+from .config import IbvsConfig, RecoveryConfig
 from .data import GlobalView, LocalView, ServoCommand, StateEstimate
 
 MODE_CODES = {ModeSwitch.IBVS: 0, ModeSwitch.RECOVERY: 1}
@@ -52,23 +53,32 @@ def normalized_rmse(points, desired) -> float:
 
 @dataclass(frozen=True)
 class ShapingParams:
-    """Command shaping of the IBVS joint rates (scenario section ``[ibvs]``)."""
+    """Command shaping of the IBVS joint rates (from ``[ibvs]``, :class:`~.config.IbvsConfig`
+    holds the defaults and meanings)."""
 
-    max_joint_rate: float = 0.4  # rad/s, rod strains and yaw
-    max_drone_speed: float = 0.3  # m/s, horizontal
-    max_vertical_speed: float = 1.0  # m/s
-    soft_start: float = 1.0  # s, time constant of the ramp after IBVS engages (0: off)
-    rate_filter: float = 0.15  # s, time constant of the first-order rate filter (0: off)
+    max_joint_rate: float  # rad/s, rod strains and yaw
+    max_drone_speed: float  # m/s, horizontal
+    max_vertical_speed: float  # m/s
+    soft_start: float  # s, time constant of the ramp after IBVS engages (0: off)
+    rate_filter: float  # s, time constant of the first-order rate filter (0: off)
+
+    @classmethod
+    def from_config(cls, ibvs: IbvsConfig) -> ShapingParams:
+        return cls(**{f: getattr(ibvs, f) for f in cls.__dataclass_fields__})
 
 
 @dataclass(frozen=True)
 class RecoveryParams:
-    """Recovery planner and mode switch (scenario section ``[recovery]``)."""
+    """Recovery planner and mode switch (from ``[recovery]``, :class:`~.config.RecoveryConfig`)."""
 
-    max_speed: float = 0.3
-    margin_px: float = 20.0
-    confirm: int = 2
-    lose: int = 5
+    max_speed: float
+    margin_px: float
+    confirm: int
+    lose: int
+
+    @classmethod
+    def from_config(cls, recovery: RecoveryConfig) -> RecoveryParams:
+        return cls(**{f: getattr(recovery, f) for f in cls.__dataclass_fields__})
 
 
 class VisualServo:
@@ -100,9 +110,9 @@ class VisualServo:
         drone_mount,
         desired_points,
         desired_depths,
-        gain: float = 1.0,
-        mode: str = "current",
-        compensation: str = "exact",
+        gain: float = IbvsConfig().gain,
+        mode: str = IbvsConfig().mode,
+        compensation: str = IbvsConfig().compensation,
         shaping: ShapingParams | None = None,
         recovery: RecoveryParams | None = None,
     ):
@@ -116,8 +126,8 @@ class VisualServo:
         self.desired_depths = np.asarray(desired_depths, float)
         self.ibvs = IBVSController(self.desired_points, self.desired_depths, gain=gain, mode=mode)
         self.compensation = compensation
-        self.shaping = shaping or ShapingParams()
-        self.recovery = recovery or RecoveryParams()
+        self.shaping = shaping or ShapingParams.from_config(IbvsConfig())
+        self.recovery = recovery or RecoveryParams.from_config(RecoveryConfig())
         s = system
         n = s.n
         self.n = n
@@ -348,18 +358,34 @@ class VisualServo:
 
 @dataclass(frozen=True)
 class RobustParams:
-    """The robust servo's options (scenario section ``[ibvs]``, docs/control.md)."""
+    """The robust servo's options (from ``[ibvs]`` and ``recovery.lost_timeout``; meanings and
+    defaults in :class:`~.config.IbvsConfig`, docs/control.md)."""
 
-    floor: float = 0.05  # singular-value floor of the J_img solve
-    solver: str = "floor"  # "floor" | "damped"
-    pixel_sigma: float = 1.0  # px, corner noise assumed by the target filter
-    window: int = 250  # frames fused by the target filter
-    smoothing: float = 1.0  # s, smoothing of the estimate used by the prediction
-    accel_feedforward: bool = True  # qdd_d = d(qd_d)/dt of the filtered rate command
-    reference_leak: float = 4.0  # 1/s, pull of q_d toward q_hat (anti wind-up)
-    lost_timeout: float = 1.0  # s without a fused frame before the target counts as lost
-    level_prior_deg: float = 0.0  # deg, prior that the target lies level (0: none)
-    level_normal: tuple = (0.0, 0.0, -1.0)  # its believed z axis in the world (face up)
+    floor: float  # singular-value floor of the J_img solve
+    solver: str  # "floor" | "damped"
+    pixel_sigma: float  # px, corner noise assumed by the target filter
+    window: int  # frames fused by the target filter
+    smoothing: float  # s, smoothing of the estimate used by the prediction
+    accel_feedforward: bool  # qdd_d = d(qd_d)/dt of the filtered rate command
+    reference_leak: float  # 1/s, pull of q_d toward q_hat (anti wind-up)
+    lost_timeout: float  # s without a fused frame before the target counts as lost
+    level_prior_deg: float  # deg, prior that the target lies level (0: none)
+    level_normal: tuple  # its believed z axis in the world
+
+    @classmethod
+    def from_config(cls, ibvs: IbvsConfig, recovery: RecoveryConfig) -> RobustParams:
+        return cls(
+            floor=ibvs.floor,
+            solver=ibvs.solver,
+            pixel_sigma=ibvs.filter_pixel_sigma,
+            window=ibvs.filter_window,
+            smoothing=ibvs.filter_smoothing,
+            accel_feedforward=ibvs.accel_feedforward,
+            reference_leak=ibvs.reference_leak,
+            lost_timeout=recovery.lost_timeout,
+            level_prior_deg=ibvs.target_level_prior_deg,
+            level_normal=tuple(ibvs.target_level_normal),
+        )
 
 
 @dataclass(frozen=True)
@@ -403,7 +429,7 @@ class RobustServo(VisualServo):
 
     def __init__(self, *args, robust: RobustParams | None = None, **kwargs):
         super().__init__(*args, **kwargs)
-        self.robust = r = robust or RobustParams()
+        self.robust = r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
         self.ibvs.floor = r.floor
         self.ibvs.solver = r.solver
         self.target_filter = TargetFilter(

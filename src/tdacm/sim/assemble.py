@@ -20,6 +20,7 @@ from .._linalg import solve as _solve
 from ..control import EstimatedModel
 from ..lie.se3 import rotation_angle
 from ..loop.closed_loop import ClosedLoop
+from ..loop.config import ControllerConfig, IbvsConfig, RecoveryConfig, SafetyConfig, SensorModel
 from ..loop.logger import RunLog
 from ..loop.lowlevel import make_low_level
 from ..loop.perception import Perception
@@ -30,7 +31,6 @@ from ..loop.sensors import (
     AnalyticFrontEnd,
     CameraSensor,
     RenderedFrontEnd,
-    SensorModel,
     Sensors,
     perturbed_camera,
 )
@@ -58,11 +58,12 @@ def apply_profile(scenario: Scenario) -> Scenario:
     if scenario.data["controller"]["profile"] != "paper":
         return scenario
     import copy
+    from dataclasses import replace
 
     d = copy.deepcopy(scenario.data)
     for sec, kv in PAPER_PROFILE.items():
         d[sec].update(kv)
-    return Scenario(d, scenario.source + " (profile paper)")
+    return replace(scenario, data=d, source=scenario.source + " (profile paper)")
 
 
 @dataclass(frozen=True)
@@ -169,7 +170,7 @@ def build_loop(
     world = build_world(scenario)
     robot, s = world.robot, world.robot.system
     cams = d["cameras"]
-    sensor_model = SensorModel(**{k: d["sensors"][k] for k in _CAMERA_SENSOR_KEYS})
+    sensor_model = SensorModel(**{k: d["sensors"][k] for k in SensorModel.model_fields})
     sensor_rng = np.random.default_rng([seed, 1])
     kind = "planar-local" if cams["local_renderer"] == "planar" else "analytic"
     local = CameraSensor(
@@ -199,18 +200,18 @@ def build_loop(
     desired_pts, desired_z = reference_snapshot(
         local, robot, world.target, world.scene, world.q_star, ctl_camera
     )
-    ib, rc = d["ibvs"], d["recovery"]
+    ib, rc = IbvsConfig(**d["ibvs"]), RecoveryConfig(**d["recovery"])
     if servo is None:
         if paper:  # the plain law: no limits, no ramp, no filter
-            shaping = ShapingParams(np.inf, np.inf, np.inf, 0.0, 0.0)
-        else:
             shaping = ShapingParams(
-                ib["max_joint_rate"],
-                ib["max_drone_speed"],
-                ib["max_vertical_speed"],
-                ib["soft_start"],
-                ib["rate_filter"],
+                max_joint_rate=np.inf,
+                max_drone_speed=np.inf,
+                max_vertical_speed=np.inf,
+                soft_start=0.0,
+                rate_filter=0.0,
             )
+        else:
+            shaping = ShapingParams.from_config(ib)
         args = (
             s,
             ctl_camera,
@@ -222,37 +223,27 @@ def build_loop(
             desired_z,
         )
         kwargs = dict(
-            gain=ib["gain"],
-            mode=ib["mode"],
-            compensation=ib["compensation"],
+            gain=ib.gain,
+            mode=ib.mode,
+            compensation=ib.compensation,
             shaping=shaping,
-            recovery=RecoveryParams(rc["max_speed"], rc["margin_px"], rc["confirm"], rc["lose"]),
+            recovery=RecoveryParams.from_config(rc),
         )
-        if ib["features"] == "predicted":
-            robust = RobustParams(
-                ib["floor"],
-                ib["solver"],
-                ib["filter_pixel_sigma"],
-                ib["filter_window"],
-                ib["filter_smoothing"],
-                ib["accel_feedforward"],
-                ib["reference_leak"],
-                rc["lost_timeout"],
-                ib["target_level_prior_deg"],
-                tuple(ib["target_level_normal"]),
-            )
-            servo = RobustServo(*args, robust=robust, **kwargs)
+        if ib.features == "predicted":
+            servo = RobustServo(*args, robust=RobustParams.from_config(ib, rc), **kwargs)
         else:
             servo = VisualServo(*args, **kwargs)
-            servo.ibvs.floor = ib["floor"]
-            servo.ibvs.solver = ib["solver"]
+            servo.ibvs.floor = ib.floor
+            servo.ibvs.solver = ib.solver
     m = d["model"]
     model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
     if controller is None:
-        options = {k: v for k, v in d["controller"].items() if k != "class"}
+        ctl = ControllerConfig(**d["controller"])
+        # the [controller] keys the adaptive law reads, and the user's [controller.options]
+        options = {**ctl.model_dump(exclude={"class_", "options"}), **ctl.options}
         ctx = ControllerContext(s, model, world.q_star, d["dt"], options)
         try:
-            controller = make_low_level(d["controller"].get("class"), ctx)
+            controller = make_low_level(ctl.class_, ctx, search=_folders(scenario))
         except ValueError as exc:
             raise ScenarioError(f"{scenario.source}: {exc}") from None
     plant = Plant(
@@ -285,7 +276,7 @@ def build_loop(
         controller,
         d["dt"],
         estimator=estimator,
-        safety=SafetyMonitor(**d["safety"]),
+        safety=SafetyMonitor(**SafetyConfig(**d["safety"]).model_dump()),
         log=RunLog(servo.desired_points, frame_composer, _truth(s, local, world)),
         name=scenario.name,
     )
@@ -324,8 +315,6 @@ def estimation_block(
     ``estimation.fuse_local_camera`` the filter also fuses C_L's detections of the static
     target (:mod:`tdacm.estimation.camera`): ``tip_mount``, ``target`` and ``camera`` are
     C_L's mount, the target and the controller's model of C_L."""
-    from dataclasses import replace
-
     from ..estimation import (
         EstimatorConfig,
         ExtendedKalmanFilter,
@@ -342,10 +331,13 @@ def estimation_block(
     plant.accelerations = True  # the accelerometer senses qdd
     init = None
     if est["initial_guess"] == "measured":
-        start = replace(
-            cfg,
-            pose=replace(cfg.pose, latency=0.0, dropout=0.0, enabled=True),
-            encoders=replace(cfg.encoders, latency=0.0, dropout=0.0, enabled=True),
+        start = cfg.model_copy(
+            update=dict(
+                pose=cfg.pose.model_copy(update=dict(latency=0.0, dropout=0.0, enabled=True)),
+                encoders=cfg.encoders.model_copy(
+                    update=dict(latency=0.0, dropout=0.0, enabled=True)
+                ),
+            )
         )
         first = SensorSuite(system, start, seed, stream_offset=100)
 
@@ -389,8 +381,13 @@ def warm_up(system, q) -> None:
     rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 
-#: The ``[sensors]`` keys of the camera imperfection model.
-_CAMERA_SENSOR_KEYS = ("pixel_noise", "dropout", "latency_steps", "intrinsics_error")
+def _folders(scenario: Scenario) -> tuple[str, ...]:
+    """Where a user controller's module is looked for after ``sys.path``: the current folder
+    (as ``python -m`` would), then the scenario file's folder."""
+    import os
+
+    folder = getattr(scenario, "folder", None)
+    return (os.getcwd(),) + ((folder,) if folder else ())
 
 
 def camera_pose_error(loop: ClosedLoop, q, q_ref) -> tuple[float, float]:
