@@ -202,7 +202,7 @@ def test_low_level_controller_protocol_and_loading(world):
     from tdacm.control import EstimatedModel
 
     ctx = ControllerContext(s, EstimatedModel(s, 0.1, 0), world.q_star, 0.02, {})
-    for path in ("", "tdacm.control.pd:PDGravityController"):
+    for path in ("", "tdacm.loop.lowlevel:PDGravityController"):
         ctl = make_low_level(path, ctx)
         assert isinstance(ctl, LowLevelController)
         est = StateEstimate(0.0, world.q_star, np.zeros(s.n))

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .._log import REPORT
+from .._timing import batch_times
 from ..rod import StrainBasis
 from ..system import kernels as K
 from ..system import paper_system, simulate
@@ -46,13 +47,7 @@ def _stage(text: str, end: bool = False) -> None:
 
 
 def _median_time(fn, number, repeats):
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        samples.append((time.perf_counter() - t0) / number)
-    a = np.array(samples)
+    a = np.array(batch_times(fn, number, repeats))
     return float(np.median(a)), float(np.percentile(a, 75) - np.percentile(a, 25))
 
 

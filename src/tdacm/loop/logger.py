@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._linalg import solve as _solve
+from ..lie.se3 import rotation_angle
 from .data import (
     ActuatorCommand,
     LocalView,
@@ -139,7 +140,7 @@ class RunLog:
             rt = normalized_rmse(pts, self.desired_points)
             if cmd.target_pose is not None:
                 d = _solve(g_t, cmd.target_pose)[:3, :3]
-                te = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(d) - 1), -1, 1))))
+                te = float(np.degrees(rotation_angle(d)))
         r["rmse_true"].append(rt)
         r["target_error_deg"].append(te)
         r["mode"].append(MODE_CODES[cmd.mode])

@@ -22,6 +22,7 @@ import numpy as np
 from ..vision import TargetDetector
 from ..vision.camera import PinholeCamera, points_in_camera
 from ..vision.detect import NOT_DETECTED, Detection
+from ..vision.mounts import tip_camera_pose
 from .config import SensorModel
 from .data import CameraMeasurement, PlantState, SensorReadings
 
@@ -167,8 +168,9 @@ class CameraSensor:
 
     def pose(self, q) -> np.ndarray:
         """Inertial pose of the camera at configuration ``q``."""
-        frame = self.system.tip_pose(q) if self.carrier == "tip" else self.system.base_pose(q)
-        return frame @ self.mount  # tdacm.vision.camera_pose, on the model's rigid poses
+        if self.carrier == "tip":
+            return tip_camera_pose(self.system, q, self.mount)
+        return self.system.base_pose(q) @ self.mount
 
     def ideal(self, q) -> tuple[Detection, np.ndarray | None]:
         """Detection (no imperfections) and image (``None`` for the analytic front end)."""

@@ -18,6 +18,7 @@ import numpy as np
 
 from .._linalg import solve as _solve
 from ..control import EstimatedModel
+from ..lie.se3 import rotation_angle
 from ..loop.closed_loop import ClosedLoop
 from ..loop.config import ControllerConfig, IbvsConfig, RecoveryConfig, SafetyConfig, SensorModel
 from ..loop.logger import RunLog
@@ -34,8 +35,9 @@ from ..loop.sensors import (
     perturbed_camera,
 )
 from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
-from ..vision import PAPER_MARKER, PAPER_PATTERN, LocalCameraServo, PlanarRenderer, SceneConfig
+from ..vision import PAPER_MARKER, PAPER_PATTERN, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
+from ..vision.target_filter import reference_from_pose
 from ..vision.virtual import virtual_camera_points, virtual_camera_transform
 from .robot import Robot, build_robot
 from .scenario import Scenario, ScenarioError, check_with_world
@@ -124,9 +126,7 @@ def reference_snapshot(local: CameraSensor, robot: Robot, target, scene, q_star,
     s = robot.system
     g_c = local.pose(q_star)
     try:
-        ref, z = LocalCameraServo.reference_from_pose(
-            controller_camera, target, scene.target_pose, g_c
-        )
+        ref, z = reference_from_pose(target, scene.target_pose, g_c)
     except ValueError as exc:
         raise ScenarioError(f"desired.q: {exc}") from None
     det, _ = local.ideal(q_star)
@@ -316,8 +316,8 @@ def estimation_block(
     target (:mod:`tdacm.estimation.camera`): ``tip_mount``, ``target`` and ``camera`` are
     C_L's mount, the target and the controller's model of C_L."""
     from ..estimation import (
-        Estimator,
         EstimatorConfig,
+        ExtendedKalmanFilter,
         FilterBlock,
         SensorSuite,
         SensorSuiteConfig,
@@ -357,7 +357,7 @@ def estimation_block(
             est["target_initial_position_std"],
             est["target_initial_attitude_std"],
         )
-    filt = Estimator(model, cfg, EstimatorConfig.from_section(est), camera=view)
+    filt = ExtendedKalmanFilter(model, cfg, EstimatorConfig.from_section(est), camera=view)
     filt.warm_up()
     return FilterBlock(
         filt, init, q_nominal, est["initial_strain_error"], est["initial_position_error"],
@@ -396,5 +396,5 @@ def camera_pose_error(loop: ClosedLoop, q, q_ref) -> tuple[float, float]:
     b = loop.sensors.local.pose(q_ref)
     dp = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
     r = a[:3, :3].T @ b[:3, :3]
-    ang = float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))))
+    ang = float(np.degrees(rotation_angle(r)))
     return dp, ang
