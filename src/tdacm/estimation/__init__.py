@@ -18,7 +18,13 @@ from .config import (
     PoseSensorConfig,
     SensorSuiteConfig,
 )
-from .ekf import EstimatorConfig, ExtendedKalmanFilter, StateEstimate, euler_from_rotation
+from .ekf import (
+    EstimatorConfig,
+    EstimatorDiverged,
+    ExtendedKalmanFilter,
+    StateEstimate,
+    euler_from_rotation,
+)
 from .inversion import InversionResult, strains_from_tendon_lengths
 from .sensors import (
     DronePoseSensor,
@@ -38,6 +44,7 @@ __all__ = [
     "ExtendedKalmanFilter",
     "FilterBlock",
     "EstimatorConfig",
+    "EstimatorDiverged",
     "Imu",
     "ImuConfig",
     "ImuMeasurement",

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import TargetViewMeasurement
-from .ekf import ExtendedKalmanFilter
+from .ekf import EstimatorDiverged, ExtendedKalmanFilter
+from .estimate import StateEstimate
 from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
 #: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
@@ -41,6 +42,9 @@ class FilterBlock:
         the filter has a :class:`~tdacm.estimation.camera.TargetCamera`), each new C_L
         detection of ``readings.local`` is fused as a
         :class:`~tdacm.estimation.camera.TargetViewMeasurement` at its capture time.
+
+    A filter that diverges (:class:`~tdacm.estimation.ekf.EstimatorDiverged`) gives its last
+    estimate with ``failure`` set: the closed loop ends the run (``estimator failed``).
     """
 
     def __init__(
@@ -96,7 +100,11 @@ class FilterBlock:
             self._last_view = local.t_capture
             pts = self.normalize(local.detection.points)
             meas.append(TargetViewMeasurement(local.t_capture, pts))
-        return self.filter.step(readings.t, u_applied, meas)
+        try:
+            return self.filter.step(readings.t, u_applied, meas)
+        except EstimatorDiverged as exc:  # an outcome of the run, not a bug: the loop ends it
+            last = self.filter.estimate
+            return StateEstimate(readings.t, last.q, last.qd, last.P, failure=str(exc))
 
     @property
     def timings(self):

@@ -60,6 +60,12 @@ from .sensors import (
 )
 
 
+class EstimatorDiverged(FloatingPointError):
+    """The filter cannot go on: its model's mass matrix lost positive definiteness at the
+    estimated state, or the state became non-finite. :class:`~.block.FilterBlock` turns it
+    into :attr:`StateEstimate.failure` (the closed loop ends the run)."""
+
+
 class _Tick:
     __slots__ = ("t", "u", "x_prior", "p_prior", "phi", "qn", "jac", "meas", "x_post", "p_post")
 
@@ -287,7 +293,7 @@ class ExtendedKalmanFilter:
             self._s_m, self._s_d, self._k_scale, self._g_scale,
         )  # fmt: skip
         if not ok:
-            raise FloatingPointError("estimator: the model's mass matrix is not positive definite")
+            raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
         return a
 
     def _predict(self, prev: _Tick, t: float, u) -> _Tick:
@@ -299,7 +305,7 @@ class ExtendedKalmanFilter:
         a0, jac, ok = EK.linearize(q, qd, u, ad, *args, self._skip)
         q1, qd1, ok2 = EK.propagate_mean(q, qd, u, ad, dt, self.config.rk4_steps, *args)
         if not (ok and ok2):
-            raise FloatingPointError("estimator: the model's mass matrix is not positive definite")
+            raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
         a = np.zeros((nx, nx))
         a[:n, n : 2 * n] = np.eye(n)
         a[n : 2 * n, : 2 * n] = jac
@@ -332,7 +338,7 @@ class ExtendedKalmanFilter:
             x[:n], x[n : 2 * n], tk.u, x[2 * n : 3 * n], tk.t - prev.t, self.config.rk4_steps, *args
         )
         if not ok:
-            raise FloatingPointError("estimator: the model's mass matrix is not positive definite")
+            raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
         xp = x.copy()
         xp[:n], xp[n : 2 * n] = q1, qd1
         pp = tk.phi @ prev.p_post @ tk.phi.T + tk.qn
@@ -556,6 +562,6 @@ class ExtendedKalmanFilter:
             while len(self._hist) > 1 and self._hist[1].t < t - self.config.max_delay - 1e-9:
                 self._hist.pop(0)
         if not np.all(np.isfinite(self._hist[-1].x_post)):
-            raise FloatingPointError("estimator diverged (non-finite state)")
+            raise EstimatorDiverged("estimator diverged (non-finite state)")
         self.timings.append(time.perf_counter() - w0)
         return self.estimate

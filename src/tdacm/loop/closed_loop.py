@@ -10,6 +10,13 @@ One period of :meth:`ClosedLoop.step`, data flowing one way::
     logger.record(...); safety check
     plant.advance(act.u, dt)                           # true model, disturbances
 
+A run ends at its duration or with a :class:`~.data.Termination` (``LoopStep.termination``,
+with the reason in words): the safety monitor, a failed recovery, the plant's integration
+failing, the drone tumbling, the estimator diverging, a non-finite command, or Ctrl-C. Whatever
+state the plant, cameras, estimator or servo reach ends the run this way; an exception means a
+bug. A camera frame that cannot be interpreted (no pose puts the target in front of the camera,
+or no image in the virtual camera) is a missed frame, not an end.
+
 ``tdacm run``, campaigns and the Gymnasium env all drive this class
 (:func:`tdacm.sim.assemble.build_loop` assembles it from a scenario).
 """
@@ -161,6 +168,15 @@ class ClosedLoop:
         state = plant.state
         t = state.t
         est, view = sensed.estimate, sensed.view
+        if est.failure is not None or not _finite(est.q, est.qd):
+            reason = est.failure or "estimator gave a non-finite state"
+            cmd = _stopped(self.servo.mode, est)
+            return LoopStep(t, view, est, cmd, _hold(est), True, reason,
+                            Termination.ESTIMATOR_FAILED)  # fmt: skip
+        if twist is not None and not _finite(np.asarray(twist, float)):
+            cmd = _stopped(self.servo.mode, est)
+            return LoopStep(t, view, est, cmd, _hold(est), True,
+                            "non-finite twist command", Termination.NON_FINITE)  # fmt: skip
         cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
         self._request_global = cmd.request_global
         if cmd.event == ServoEvent.IBVS_ENGAGED:
@@ -177,6 +193,10 @@ class ClosedLoop:
             act = self.controller.step(est, cmd, dt)
         else:
             act = ActuatorCommand(np.asarray(u, float), np.zeros(len(est.q)), cmd.q_d)
+        if not _finite(act.u):
+            what = "actuator command" if u is not None else "controller output"
+            return LoopStep(t, view, est, cmd, act, True, f"non-finite {what} u",
+                            Termination.NON_FINITE)  # fmt: skip
         self.log.record(state, sensed.readings, view, est, cmd, act)
         self._u = act.u
         if cmd.mode == ModeSwitch.IBVS and not self.safety.check(t, cmd.rmse):
@@ -185,8 +205,13 @@ class ClosedLoop:
             return LoopStep(t, view, est, cmd, act, True, None)
         plant.advance(act.u, dt)
         if not plant.ok:
-            reason = "plant integration failed (singular mass matrix)"
+            reason = "plant integration failed (singular mass matrix or non-finite state)"
             return LoopStep(t, view, est, cmd, act, True, reason, Termination.PLANT_FAILED)
+        if plant.tumbled:
+            q = plant.state.q
+            reason = (f"drone tumbled: roll {np.degrees(q[0]):.0f} deg, pitch "
+                      f"{np.degrees(q[1]):.0f} deg at t = {plant.state.t:.2f} s")  # fmt: skip
+            return LoopStep(t, view, est, cmd, act, True, reason, Termination.TUMBLED)
         return LoopStep(t, view, est, cmd, act, False, None)
 
     def step(self, twist=None, u=None, last: bool = False) -> LoopStep:
@@ -254,6 +279,16 @@ def caused_by_interrupt(exc: BaseException) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+def _finite(*arrays) -> bool:
+    return all(bool(np.isfinite(a).all()) for a in arrays)
+
+
+def _stopped(mode: str, est: StateEstimate) -> ServoCommand:
+    """The command of a period that ended before the servo ran (nothing commanded)."""
+    n = len(est.q)
+    return ServoCommand(mode, np.array(est.q, float), np.zeros(n), np.zeros(n), np.zeros(6))
 
 
 def _hold(est: StateEstimate) -> ActuatorCommand:

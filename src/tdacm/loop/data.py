@@ -31,6 +31,9 @@ class Termination(StrEnum):
     RECOVERY_FAILED = "recovery failed"  # no C_G view of the target, or planning failed
     PLANT_FAILED = "plant failed"  # the plant's integration failed (singular mass matrix)
     INTERRUPTED = "interrupted"  # Ctrl-C
+    TUMBLED = "tumbled"  # the drone's roll or pitch beyond plant.MAX_TILT_RAD
+    ESTIMATOR_FAILED = "estimator failed"  # the filter diverged (non-finite or singular model)
+    NON_FINITE = "non-finite command"  # a twist or actuator command with NaN or inf
 
 
 class ServoEvent(StrEnum):

@@ -3,7 +3,9 @@
 The controller interprets pixels with *its* model of the camera (intrinsics possibly wrong,
 ``sensors.intrinsics_error``): ``x = (u - c_x) / f_x``, ``y = (v - c_y) / f_y``, and
 the depths of the four points come from the known target geometry (planar PnP,
-:func:`~tdacm.vision.features.estimate_depths`) - the paper's depth estimation.
+:func:`~tdacm.vision.features.estimate_depths`) - the paper's depth estimation. A detection
+whose corners admit no pose with the target in front of the camera (large pixel noise does
+that) is rejected: the view is "not seen" that period, as a missed frame.
 """
 
 from __future__ import annotations
@@ -33,7 +35,9 @@ class Perception:
         # checked once here: the servo and its target filter take the view's arrays as they are
         uv = C.array("detection.points", det.points, (4, 2))
         xy = self.local_camera.normalize_checked(uv)
-        z = _estimate_depths(xy, self._object)
+        z, _ = _estimate_depths(xy, self._object)
+        if z is None:  # no pose puts the target in front: a corrupted frame, rejected
+            return LocalView(m.t_capture)
         return LocalView(m.t_capture, True, uv, xy, z)
 
     def global_(self, m: CameraMeasurement | None) -> GlobalView | None:

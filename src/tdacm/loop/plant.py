@@ -19,6 +19,11 @@ from ..system.kernels import forward_dynamics, forward_dynamics_aero, rk4_run, r
 from ..system.tdacm import TDACM, Loads
 from .data import PlantState
 
+#: Roll or pitch (rad) beyond which the drone counts as tumbled and the run ends
+#: (:attr:`~tdacm.loop.Termination.TUMBLED`): the model's ZYX Euler coordinates are singular at
+#: a pitch of 90 degrees, and a quadrotor tilted this far has lost its thrust against gravity.
+MAX_TILT_RAD = float(np.radians(80.0))
+
 
 @dataclass(frozen=True)
 class Disturbances:
@@ -67,7 +72,8 @@ class Disturbances:
 class Plant:
     """The simulated TD-ACM. ``advance(u, dt)`` holds ``u`` over ``dt`` and returns the new
     :class:`PlantState`; ``ok`` turns false when the integration fails (singular mass matrix
-    or a non-finite state).
+    or a non-finite state), ``tumbled`` true when the drone's roll or pitch exceeds
+    :data:`MAX_TILT_RAD`.
 
     ``aero``: the packed aerodynamics of the system (:func:`tdacm.system.aero.aero_array`),
     integrated inside the kernels (the rotor wake follows the state and the thrusts at every
@@ -104,6 +110,7 @@ class Plant:
     def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
         self.state = PlantState(float(t), np.array(q0, float), np.array(qd0, float))
         self.ok = True
+        self.tumbled = False
         self._t0, self._k = float(t), 0  # t = t0 + k dt, without accumulated round-off
         return self.state
 
@@ -129,6 +136,7 @@ class Plant:
             )  # fmt: skip
         q, qd = qs[-1].copy(), qds[-1].copy()
         self.ok = bool(ok and np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
+        self.tumbled = self.system.floating and max(abs(q[0]), abs(q[1])) > MAX_TILT_RAD
         self._k += 1
         qdd = None
         if self.accelerations and self.ok:

@@ -170,17 +170,25 @@ class VisualServo:
         return tip_camera_pose(self.system, q, self.tip_mount)
 
     def to_virtual(self, view: LocalView, q):
-        """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""
+        """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base.
+        ``(None, None)`` when a point lies behind C_V (the drone tilted so far that the view
+        has no image in the virtual camera)."""
         if not self.system.floating:
             return view.points, view.depths
         gv = virtual_transform(self.system.base_pose(q), self.local_camera_pose(q))
-        xy, zv = virtual_points(view.points, gv, view.depths, self.compensation, True)
+        out = virtual_points(view.points, gv, view.depths, self.compensation, True)
+        if out is None:
+            return None, None
+        xy, zv = out
         # "exact" returns z^{C_V}; the other forms the ratio z^{C_V} / z^{C_L}
         return xy, (zv if self.compensation == "exact" else zv * view.depths)
 
     def observe(self, view: LocalView, q):
-        """``(points, depths, features, error, rmse)`` of a view in C_V (no state change)."""
+        """``(points, depths, features, error, rmse)`` of a view in C_V (no state change);
+        ``None`` when the view has no image in C_V (:meth:`to_virtual`)."""
         points, depths = self.to_virtual(view, q)
+        if points is None:
+            return None
         rmse = normalized_rmse(points, self.desired_points)
         f = advanced_features(points)
         return points, depths, f, self.ibvs.error(points, features=f), rmse
@@ -317,10 +325,15 @@ class VisualServo:
         event = self.transition(prev, mode, t)
         points = depths = features = error = None
         rmse = float("nan")
-        if view.found:
-            points, depths, features, error, rmse = self.observe(view, q)
+        seen = view.found
+        if seen:
+            obs = self.observe(view, q)
+            if obs is None:  # no image in C_V this period: held as a missed frame
+                seen = False
+            else:
+                points, depths, features, error, rmse = obs
         return (
-            mode, event, view.found, lambda: self.ibvs.twist(points, depths, error=error),
+            mode, event, seen, lambda: self.ibvs.twist(points, depths, error=error),
             points, features, error, rmse, {},
         )  # fmt: skip
 
@@ -563,11 +576,9 @@ class RobustServo(VisualServo):
         # what was measured, in C_V (logged only)
         rmse_meas = float("nan")
         if view.found:
-            try:
-                # the RMSE only: the features and the error of the measured view are not used
-                rmse_meas = normalized_rmse(self.to_virtual(view, q)[0], self.desired_points)
-            except ValueError:
-                pass
+            # the RMSE only: the features and the error of the measured view are not used
+            # (NaN when the view has no image in C_V)
+            rmse_meas = normalized_rmse(self.to_virtual(view, q)[0], self.desired_points)
         prev = self.switch.mode
         if prev == ModeSwitch.IBVS:
             ok = (

@@ -350,22 +350,29 @@ def estimate_depths(points, object_points) -> np.ndarray:
     """Depths ``(4,)`` of the four feature points from their normalized image coordinates
     and the known target geometry (``object_points`` ``(4, 3)``, same order, planar), by
     planar PnP (``cv2.solvePnP`` with ``SOLVEPNP_IPPE`` and unit intrinsics)."""
-    return _estimate_depths(_check_points(points), C.array("object_points", object_points, (4, 3)))
+    z, why = _estimate_depths(
+        _check_points(points), C.array("object_points", object_points, (4, 3))
+    )
+    if z is None:
+        raise ValueError(why)
+    return z
 
 
-def _estimate_depths(p: np.ndarray, obj: np.ndarray) -> np.ndarray:
+def _estimate_depths(p: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray | None, str | None]:
     """:func:`estimate_depths` on checked points ``(4, 2)`` and object points ``(4, 3)`` (the
-    perception block checks the constant target geometry once, not every period)."""
+    perception block checks the constant target geometry once, not every period):
+    ``(depths, None)``, or ``(None, why)`` when the points admit no pose with the target in
+    front of the camera (noisy corners do: the perception block then rejects the frame)."""
     ok, rvec, tvec = cv2.solvePnP(
         obj, p.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
     )
     if not ok:
-        raise ValueError("pose estimation failed for these points")
+        return None, "pose estimation failed for these points"
     r, _ = cv2.Rodrigues(rvec)
     z = (obj @ r.T + tvec.reshape(1, 3))[:, 2]
-    if np.any(z <= 0.0):
-        raise ValueError("pose estimation put the target behind the camera")
-    return z
+    if not np.all(z > 0.0):  # also false for NaN
+        return None, "pose estimation put the target behind the camera"
+    return z, None
 
 
 def depth_from_size(points, perimeter: float) -> float:

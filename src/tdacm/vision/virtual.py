@@ -123,24 +123,29 @@ def virtual_camera_points(
         z = C.array("depths", z, (p.shape[0],))
         if np.any(z <= 0.0):
             raise ValueError(f"depths must be positive, got {z!r}")
-    return virtual_points(p, g, z, method, return_depths)
+    out = virtual_points(p, g, z, method, return_depths)
+    if out is None:
+        raise ValueError("a point lies behind the virtual camera")
+    return out
 
 
 def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
     """:func:`virtual_camera_points` on checked inputs (``(N, 2)`` points, a rigid 4x4
-    ``g_{C_L}^{C_V}``, positive depths for ``"exact"``); the closed loop's per-period path."""
+    ``g_{C_L}^{C_V}``, positive depths for ``"exact"``); the closed loop's per-period path.
+    ``None`` when a point lies behind the virtual camera (a drone tilted far enough: the
+    view has no image in C_V)."""
     r, tr = g[:3, :3], g[:3, 3]
     h = np.column_stack((p, np.ones(p.shape[0])))
     if method == "exact":
         rv = (h * z[:, None]) @ r.T + tr
         if np.any(rv[:, 2] <= 0.0):
-            raise ValueError("a point lies behind the virtual camera")
+            return None
         out = rv[:, :2] / rv[:, 2:3]
         return (out, rv[:, 2]) if return_depths else out
     rp = h @ r.T
     if method == "rotation":
         if np.any(rp[:, 2] <= 0.0):
-            raise ValueError("a point lies behind the virtual camera")
+            return None
         out = rp[:, :2] / rp[:, 2:3]
         return (out, rp[:, 2]) if return_depths else out
     out = rp[:, :2].copy()

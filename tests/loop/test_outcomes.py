@@ -1,0 +1,130 @@
+"""Every state the loop can reach ends a period with a named Termination, never an exception:
+non-finite commands, a tumbling drone, a diverged estimator, views with no pose or no image in
+the virtual camera (missed frames)."""
+
+import numpy as np
+import pytest
+
+from tdacm.loop import Termination
+from tdacm.loop.data import CameraMeasurement, StateEstimate
+from tdacm.loop.plant import MAX_TILT_RAD
+from tdacm.sim import build_loop, load_scenario
+from tdacm.vision.detect import Detection
+from tdacm.vision.features import _estimate_depths, estimate_depths
+from tdacm.vision.virtual import virtual_camera_points, virtual_points
+
+FAST = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar", "global_every": 0}}
+
+
+@pytest.fixture(scope="module")
+def assembly():
+    a = build_loop(load_scenario("paper-in-fov").with_overrides(FAST, "test"))
+    yield a
+    a.loop.close()
+
+
+def test_non_finite_twist_and_inputs_end_the_period(assembly):
+    loop = assembly.loop
+    for kw, words in (
+        ({"twist": np.array([0, 0, np.nan, 0, 0, 0])}, "twist"),
+        ({"u": np.r_[np.full(4, np.inf), np.zeros(4)]}, "actuator command"),
+    ):
+        loop.reset(assembly.world.q0, assembly.world.qd0)
+        st = loop.step(**kw)
+        assert st.done and st.termination is Termination.NON_FINITE and words in st.reason
+        assert loop.plant.state.t == 0.0  # the plant did not advance on it
+
+
+def test_a_tumbling_drone_ends_the_run_by_name(assembly):
+    loop = assembly.loop
+    s = loop.plant.system
+    loop.reset(assembly.world.q0, assembly.world.qd0)
+    # full thrust on two adjacent rotors, none on the others: the drone rolls over
+    u = np.r_[s.base.max_thrust, s.base.max_thrust, 0.0, 0.0, np.zeros(s.n_a)]
+    for _ in range(200):
+        st = loop.step(u=u)
+        if st.done:
+            break
+    assert st.termination is Termination.TUMBLED, st.reason
+    q = loop.plant.state.q
+    assert max(abs(q[0]), abs(q[1])) > MAX_TILT_RAD and "tumbled" in st.reason
+
+
+def test_a_failed_estimate_ends_the_run(assembly):
+    loop = assembly.loop
+    loop.reset(assembly.world.q0, assembly.world.qd0)
+    sensed = loop.sense()
+    est = sensed.estimate
+    from dataclasses import replace
+
+    bad = replace(sensed, estimate=StateEstimate(est.t, est.q, est.qd, failure="diverged"))
+    st = loop.act(bad)
+    assert st.termination is Termination.ESTIMATOR_FAILED and st.reason == "diverged"
+    nan_q = est.q.copy()
+    nan_q[3] = np.nan
+    st = loop.act(replace(sensed, estimate=StateEstimate(est.t, nan_q, est.qd)))
+    assert st.termination is Termination.ESTIMATOR_FAILED and "non-finite" in st.reason
+
+
+def test_the_ekf_divergence_becomes_the_estimate_failure():
+    from tdacm.estimation import EstimatorDiverged
+
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {**FAST, "estimation": {"source": "estimated"}}, "test"
+    )
+    a = build_loop(sc)
+    loop = a.loop
+    try:
+        loop.reset()
+        block = loop.estimator
+
+        def diverge(*args, **kw):
+            raise EstimatorDiverged("estimator diverged (non-finite state)")
+
+        block.filter.step = diverge
+        st = loop.step()
+        assert st.termination is Termination.ESTIMATOR_FAILED
+        assert st.reason == "estimator diverged (non-finite state)"
+    finally:
+        loop.close()
+
+
+def test_a_view_without_a_pose_is_a_missed_frame(assembly):
+    loop = assembly.loop
+    obj = np.asarray(assembly.world.target.feature_points, float)
+    # normalized corners as 50 px of noise can leave them: IPPE's best pose has the target
+    # behind the camera (found by drawing noisy squares)
+    bad = np.array([[-0.005, -0.045], [-0.087, 0.004], [0.027, 0.061], [0.0, -0.06]])
+    z, why = _estimate_depths(bad, obj)
+    assert z is None and why == "pose estimation put the target behind the camera"
+    with pytest.raises(ValueError, match="behind the camera"):
+        estimate_depths(bad, obj)  # the public function still says why
+    cam = loop.perception.local_camera
+    m = CameraMeasurement(0.0, Detection(True, cam.denormalize(bad), (), {}))
+    assert not loop.perception.local(m).found  # rejected: a missed frame
+    good = np.array([[-0.1, -0.1], [-0.1, 0.1], [0.1, 0.1], [0.1, -0.1]])
+    m = CameraMeasurement(0.0, Detection(True, cam.denormalize(good), (), {}))
+    assert loop.perception.local(m).found
+
+
+def test_points_behind_the_virtual_camera_are_flagged():
+    g = np.eye(4)
+    g[:3, :3] = np.diag([1.0, -1.0, -1.0])  # C_L flipped about x: every point behind C_V
+    p = np.zeros((4, 2)) + [[0.1, 0.1], [-0.1, 0.1], [-0.1, -0.1], [0.1, -0.1]]
+    z = np.ones(4)
+    assert virtual_points(p, g, z, "exact", True) is None
+    assert virtual_points(p, g, z, "rotation", True) is None
+    with pytest.raises(ValueError, match="behind the virtual camera"):
+        virtual_camera_points(p, g, z, "exact")
+
+
+def test_the_servo_holds_when_the_view_has_no_image_in_the_virtual_camera(assembly):
+    loop = assembly.loop
+    loop.reset(assembly.world.q0, assembly.world.qd0)
+    sensed = loop.sense()
+    assert sensed.view.found
+    servo = loop.servo
+    q = sensed.estimate.q.copy()
+    q[0] = 2.0  # rolled past 90 degrees: the target lies behind C_V
+    assert servo.to_virtual(sensed.view, q) == (None, None)
+    assert servo.observe(sensed.view, q) is None
