@@ -39,6 +39,19 @@ def _first_line(text) -> str:
     return text.splitlines()[0] if isinstance(text, str) and text else ""
 
 
+def replay_command(spec, out, run: int, seed: int) -> str:
+    """The ``tdacm run`` command that reproduces stored run ``run``: the spec's scenario,
+    the run's sampled overrides (``OUT/configs/run-NNNNNN.toml``, an absolute path: the command
+    works from any folder), its seed, and the spec's duration when it sets one."""
+    import shlex
+
+    cfg = (Path(out) / "configs" / f"run-{run:06d}.toml").resolve()
+    cmd = ["tdacm", "run", spec.scenario, "--config", str(cfg), "--seed", str(seed)]
+    if spec.duration is not None:
+        cmd += ["--duration", repr(float(spec.duration))]
+    return shlex.join(cmd)
+
+
 def write_report(spec, out, n_worst: int = 5) -> dict:
     """Write ``report.json``, ``report.md`` and ``report.png`` and return the report dict."""
     out = Path(out)
@@ -60,6 +73,12 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
         "terminated": int(df["terminated"].fillna(False).astype(bool).sum())
         if n and "terminated" in df
         else 0,
+        # runs ended early, by their named outcome (tdacm.loop.Termination)
+        "terminations": {
+            str(k): int(v) for k, v in df["termination"].fillna("").value_counts().items() if k
+        }
+        if n and "termination" in df
+        else {},
         "time_to_0.01": _stats(df["time_to_0.01"]) if n and "time_to_0.01" in df else None,
         "final_rmse": _stats(df["final_rmse"]) if n and "final_rmse" in df else None,
         **{
@@ -92,7 +111,7 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
                     or r["final_rmse"] is None
                     or not np.isfinite(r["final_rmse"])
                     else float(r["final_rmse"]),
-                    "replay": f"tdacm run {spec.scenario} --config {out / 'configs' / 'run-{:06d}.toml'.format(int(r['run']))} --seed {int(r['seed'])}",
+                    "replay": replay_command(spec, out, int(r["run"]), int(r["seed"])),
                     "error": _first_line(r.get("error")),
                 }
             )
@@ -113,8 +132,10 @@ def _write_markdown(report, out: Path):
             f"{report['successes']}/{report['runs_stored']} = {100 * report['success_rate']:.1f} % "
             f"(95 % Wilson CI {100 * lo:.1f}-{100 * hi:.1f} %)"
         )
+    by = ", ".join(f"{k} {v}" for k, v in report.get("terminations", {}).items())
     lines.append(
-        f"- errors: {report['errors']}, safety-monitor terminations: {report['terminated']}"
+        f"- errors (bugs): {report['errors']}, ended early: {report['terminated']}"
+        + (f" ({by})" if by else "")
     )
     for key in (
         "time_to_0.01",

@@ -21,6 +21,7 @@ ROW_FIELDS = (
     "mode_switch_time",
     "terminated",
     "termination_reason",
+    "termination",
     "wall_time_s",
     "max_tension",
     "max_thrust",
@@ -41,7 +42,14 @@ def _row_path(store: Path, index: int) -> Path:
     return store / f"run-{index:06d}.parquet"
 
 
-_STRING_FIELDS = ("status", "termination_reason", "overrides", "error", "estimation_source")
+_STRING_FIELDS = (
+    "status",
+    "termination_reason",
+    "termination",
+    "overrides",
+    "error",
+    "estimation_source",
+)
 _BOOL_FIELDS = ("success", "terminated")
 _INT_FIELDS = ("run", "seed")
 #: Column order of the store; every other column is float64 (None -> NaN).
