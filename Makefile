@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/tdacm run paper-in-fov --out out/demo
+	$(VENV)/bin/tdacm run paper-in-fov --out out/paper-in-fov
 
 test: $(STAMP)
 	$(PY) -m pytest -q   # includes tests/test_docs.py: mkdocs build --strict

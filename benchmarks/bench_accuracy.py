@@ -23,4 +23,4 @@ if __name__ == "__main__":
             )
     study.plot_accuracy(acc, out / "error_vs_time.png")
     (out / "bench_accuracy.json").write_text(json.dumps(acc, indent=2))
-    print(f"written {out.resolve()}/bench_accuracy.json, error_vs_time.png")
+    print(f"written {out.resolve()}/bench_accuracy.json, error_vs_time.png", file=sys.stderr)

@@ -26,4 +26,4 @@ if __name__ == "__main__":
     (out / "bench_baseline.json").write_text(
         json.dumps({"baseline": timing, "scaling": rows}, indent=2)
     )
-    print(f"written {out.resolve()}/bench_baseline.json, time_vs_dofs.png")
+    print(f"written {out.resolve()}/bench_baseline.json, time_vs_dofs.png", file=sys.stderr)

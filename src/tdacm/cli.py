@@ -5,7 +5,10 @@ Conventions: stdout carries only the program's own output (``tdacm run`` prints 
 alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress lines and "written
 to" lines go to stderr. Invalid input exits with status 2 and one ``error:`` line naming the
 flag or the scenario key; Ctrl-C exits with status 130 and one line (``tdacm run`` writes the
-steps simulated so far; a campaign keeps its stored runs and resumes when rerun).
+steps simulated so far; a campaign keeps its stored runs and resumes when rerun). ``tdacm run``
+exits 0 when the run reached its duration and 1 when an outcome ended it early (the summary's
+``termination``: safety monitor, failed recovery, plant, tumbled drone, estimator, non-finite
+command; every output written), see :func:`main`.
 
 Logging: the library logs through ``logging.getLogger(__name__)`` under the ``tdacm`` logger;
 the command line sends it to stderr in a plain format, at INFO by default, DEBUG with ``-v`` and
@@ -120,6 +123,22 @@ _positive_float = _number_type(
 
 
 # ------------------------------------------------------------------ helpers
+def _out_error(flag: str, path, folder: bool = True) -> str | None:
+    """Why ``path`` cannot be written (a file where a folder is needed, on the path or at its
+    end), or ``None``: the one-line message of an ``--out`` flag."""
+    p = Path(path)
+    if folder and p.exists() and not p.is_dir():
+        return f"{flag} {p} is a file, not a folder"
+    if not folder and p.is_dir():
+        return f"{flag} {p} is a folder, not a file"
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                return f"{flag} {p}: {parent} is a file, not a folder"
+            break
+    return None
+
+
 def numba_cache_is_cold() -> bool:
     """:func:`tdacm.loop.precompile.numba_cache_is_cold` (imported on use: the CLI starts
     without the loop's modules)."""
@@ -193,6 +212,8 @@ def _cmd_info(args) -> int:
 def _cmd_demo(args) -> int:
     from .demo import run_demo
 
+    if (problem := _out_error("--out", args.out)) is not None:
+        return _err(problem)
     _compile_notice()  # one process: the demo's kernels would not split evenly (measured)
     summary = run_demo(args.out, duration=args.duration)
     out = Path(args.out).resolve()
@@ -204,6 +225,8 @@ def _cmd_demo(args) -> int:
 def _cmd_bench(args) -> int:
     from .bench import run_full_bench, run_model_bench
 
+    if (problem := _out_error("--out", args.out)) is not None:
+        return _err(problem)
     _compile_notice()
     if args.full:
         run_full_bench(out=args.out, repeats=args.repeats)
@@ -217,8 +240,8 @@ def _cmd_run(args) -> int:
     from .sim.scenario import check_run, load_scenario
 
     out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
-    if out.exists() and not out.is_dir():
-        return _err(f"--out {out} is a file, not a folder")
+    if (problem := _out_error("--out", out)) is not None:
+        return _err(problem)
     if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
         return _err(f"--rerun must name a .rrd file, got {args.rerun}")
     if args.rerun is not None:
@@ -310,6 +333,8 @@ def _cmd_plot(args) -> int:
     formats = tuple(f.strip() for f in args.formats.split(","))
     if any(f not in ("png", "pdf", "svg") for f in formats):
         return _err(f"--formats must list png, pdf or svg, got {args.formats!r}")
+    if args.out is not None and (problem := _out_error("--out", args.out)) is not None:
+        return _err(problem)
     try:
         paths = plot_run_dir(args.run_dir, args.out, formats=formats, kinds=kinds)
     except RunDirError as exc:
@@ -350,8 +375,8 @@ def _cmd_campaign(args) -> int:
     from .campaign import CampaignSpecError, run_campaign
 
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        return _err(f"--out {out} is a file, not a folder")
+    if (problem := _out_error("--out", out)) is not None:
+        return _err(problem)
     _compile_notice()
     try:
         report = run_campaign(args.spec, args.out, workers=args.workers, scheduler=args.scheduler)
@@ -385,6 +410,8 @@ def _cmd_replay(args) -> int:
         rrd = None if args.rerun == "" else args.rerun
         if rrd is not None and Path(rrd).suffix != ".rrd":
             return _err(f"--rerun must name a .rrd file, got {rrd}")
+        if rrd is not None and (problem := _out_error("--rerun", rrd, False)) is not None:
+            return _err(problem)
         try:
             path = record_run(run_dir, rrd, progress=_progress("rerun", "step"))
         except RunDirError as exc:
@@ -395,6 +422,8 @@ def _cmd_replay(args) -> int:
 
     if args.out is not None and Path(args.out).suffix.lower() not in (".gif", ".mp4"):
         return _err(f"--out must end in .gif or .mp4, got {args.out}")
+    if args.out is not None and (problem := _out_error("--out", args.out, False)) is not None:
+        return _err(problem)
     try:
         path = replay_run(
             run_dir,
@@ -416,8 +445,8 @@ def _cmd_export(args) -> int:
 
     if Path(args.mcap).suffix != ".mcap":
         return _err(f"--mcap must name a .mcap file, got {args.mcap}")
-    if Path(args.mcap).is_dir():
-        return _err(f"--mcap {args.mcap} is a folder, not a file")
+    if (problem := _out_error("--mcap", args.mcap, False)) is not None:
+        return _err(problem)
     run_dir = Path(args.run_dir)
     if not (run_dir / "timeseries.npz").is_file():
         what = "has no timeseries.npz" if run_dir.is_dir() else "does not exist or is not a folder"
@@ -445,8 +474,8 @@ def _cmd_import(args) -> int:
     from .recording import RecordingError, load_topic_map, read_mcap, save_signals
 
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        return _err(f"--out {out} is a file, not a folder")
+    if (problem := _out_error("--out", out)) is not None:
+        return _err(problem)
     if not Path(args.file).is_file():
         return _err(f"FILE {args.file} does not exist or is not a file")
     tmap = None
@@ -613,11 +642,52 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: set by the SIGINT handler of :func:`main`: after a Ctrl-C, what fails is its consequence
+_interrupted = False
+
+
+def _on_sigint(signum, frame):
+    """Python's own Ctrl-C handler (raise ``KeyboardInterrupt``), remembering the interrupt."""
+    global _interrupted
+    _interrupted = True
+    raise KeyboardInterrupt
+
+
+def _unraisable_hook(default):
+    """``sys.unraisablehook`` that drops the finalizer errors of numba/llvmlite objects left
+    half-built by a Ctrl-C during a compilation (``Exception ignored in: ...__del__``), once
+    an interrupt was seen; anything else goes to ``default``."""
+
+    def hook(unraisable):
+        mod = getattr(type(unraisable.object), "__module__", "") or ""
+        if _interrupted and mod.split(".")[0] in ("numba", "llvmlite"):
+            return
+        default(unraisable)
+
+    return hook
+
+
 def main(argv=None) -> int:
+    """Exit codes: 0 success (``tdacm run``: the run reached its duration), 1 ``tdacm run``
+    ended early by an outcome (the safety monitor, a failed recovery, the plant, a tumbled
+    drone, the estimator, a non-finite command: the summary's ``termination``; its data is
+    written) or a missing optional extra, 2 invalid input (one ``error:`` line), 130 Ctrl-C."""
+    import signal
+
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     from ._extras import MissingExtraError
 
+    global _interrupted
+    _interrupted = False
+    previous = None
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        try:
+            previous = signal.signal(signal.SIGINT, _on_sigint)
+        except ValueError:  # not the main thread: Python's handler stays
+            previous = None
+    default_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable_hook(default_hook)
     try:
         return args.func(args)
     except MissingExtraError as exc:
@@ -626,13 +696,18 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         _note("interrupted (Ctrl-C)")
         return 130
-    except SystemError as exc:  # Ctrl-C inside a numba kernel
+    except Exception as exc:  # e.g. numba's RuntimeError after a Ctrl-C during a compilation
         from .loop.closed_loop import caused_by_interrupt
 
-        if caused_by_interrupt(exc):
+        if _interrupted or caused_by_interrupt(exc):
             _note("interrupted (Ctrl-C)")
             return 130
         raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+        if not _interrupted:  # after a Ctrl-C the half-built objects die at exit: stay quiet
+            sys.unraisablehook = default_hook
 
 
 if __name__ == "__main__":

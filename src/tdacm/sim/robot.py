@@ -162,6 +162,12 @@ class RobotConfig(ConfigModel):
 _CAMERA_KEYS = tuple(CameraIntrinsics.model_fields)
 
 
+#: The drone's four rotors together must lift at least this many times the robot's weight
+#: (drone, rod and tip): hovering takes 1, and the attitude and position loops need headroom
+#: on top (the paper's drone has 8: 4 x 15 N for 0.76 kg).
+MIN_THRUST_TO_WEIGHT = 1.5
+
+
 class RobotError(ValueError):
     """Invalid ``[robot]`` data; the message names the key."""
 
@@ -286,6 +292,8 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
         q[:6] = pose_q
         base = FixedBase(pose=held.base_pose(q))
     system = TDACM(rod, tendons, base, attachment)
+    if system.floating:
+        _check_thrust(system, robot["drone"])
     cams = robot["cameras"]
     local = _camera(LOCAL_CAMERA, cams["local"], "robot.cameras.local")
     glob = _camera(GLOBAL_CAMERA, cams["global"], "robot.cameras.global")
@@ -297,6 +305,20 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
     except ValueError as exc:
         raise RobotError(f"robot.cameras: {exc}") from None
     return Robot(system, local, glob, tip_mount, drone_mount)
+
+
+def _check_thrust(system: TDACM, drone: dict) -> None:
+    """The rotors' total thrust against the robot's weight (:data:`MIN_THRUST_TO_WEIGHT`)."""
+    weight = system.total_mass * float(np.linalg.norm(system.loads.gravity))
+    total = 4 * drone["max_thrust"]
+    if total < MIN_THRUST_TO_WEIGHT * weight:
+        raise RobotError(
+            f"robot.drone: 4 x max_thrust = {total:g} N cannot fly the robot: its weight is "
+            f"{weight:.4g} N ({system.total_mass:.4g} kg: robot.drone.mass = {drone['mass']:g} "
+            f"kg plus rod and tip) and the rotors need {MIN_THRUST_TO_WEIGHT:g} times it; raise "
+            f"robot.drone.max_thrust to at least {MIN_THRUST_TO_WEIGHT * weight / 4:.4g} N or "
+            "lower robot.drone.mass"
+        )
 
 
 def strain_count(robot: dict) -> int:

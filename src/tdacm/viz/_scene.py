@@ -8,6 +8,7 @@ loop is restructured.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,10 +69,23 @@ def load_run(run_dir):
     npz = run_dir / "timeseries.npz"
     if not npz.is_file():
         raise RunDirError(f"{npz} not found: is {run_dir} a `tdacm run` output folder?")
-    with np.load(npz) as data:
-        arrays = {k: data[k] for k in data.files}
+    try:
+        with np.load(npz) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:
+        raise RunDirError(
+            f"{npz} cannot be read (truncated or not written by `tdacm run`): {exc}"
+        ) from None
+    missing = [k for k in ("t", "q") if k not in arrays]
+    if missing:
+        raise RunDirError(f"{npz} has no {', '.join(missing)} array: not written by `tdacm run`")
+    if len(arrays["q"]) != len(arrays["t"]):
+        raise RunDirError(f"{npz}: q has {len(arrays['q'])} rows for {len(arrays['t'])} times")
     sj = run_dir / "summary.json"
-    summary = json.loads(sj.read_text()) if sj.is_file() else {}
+    try:
+        summary = json.loads(sj.read_text()) if sj.is_file() else {}
+    except (OSError, ValueError) as exc:
+        raise RunDirError(f"{sj} cannot be read: {exc}") from None
     toml = run_dir / "scenario.toml"
     try:
         if toml.is_file():

@@ -177,21 +177,34 @@ def write_animation(frames, path, fps=20) -> Path:
     return path
 
 
-def playback_plan(duration: float, n_steps: int, fps=None, max_frames=None, speed=1.0):
+#: A GIF stores each frame's delay in hundredths of a second (and viewers play delays under
+#: 0.02 s at 0.1 s): its frame rate is 100 / k for a whole k >= 2.
+GIF_DELAY_QUANTUM = 0.01
+
+
+def playback_plan(
+    duration: float, n_steps: int, fps=None, max_frames=None, speed=1.0, quantum=None
+):
     """``(stride, fps, actual_speed)`` for ``n_steps`` logged steps over ``duration`` s: real
-    time times ``speed`` unless ``max_frames``/``fps`` forbid it (then the actual speed)."""
+    time times ``speed`` unless ``max_frames``/``fps`` forbid it (then the actual speed).
+    Each frame shows ``stride`` logged periods of ``dt = duration / (n_steps - 1)``; the
+    actual speed is ``stride dt fps`` (simulated seconds per second of playback). ``quantum``
+    (s): the container's delay unit (:data:`GIF_DELAY_QUANTUM`): the frame delay is a whole
+    number of it (at least 2), and the speed is computed with that rate."""
     duration = max(float(duration), 1e-9)
+    dt = duration / max(n_steps - 1, 1)
     want_fps = 20.0 if fps is None else float(fps)
     frames = int(np.ceil(duration / speed * want_fps)) + 1
     if max_frames is not None:
         frames = min(frames, int(max_frames))
     frames = max(1, min(frames, n_steps))
     stride = max(1, int(np.ceil(n_steps / frames)))
-    shown = len(range(0, n_steps, stride))
     if fps is None:  # choose the rate that keeps the requested speed
-        fps = max(1.0, min(50.0, shown * speed / duration))
-    actual = duration / max(shown / float(fps), 1e-9)
-    return stride, float(fps), actual
+        fps = max(1.0, min(50.0, speed / (stride * dt)))
+    fps = float(fps)
+    if quantum:
+        fps = 1.0 / (max(2, round(1.0 / (fps * quantum))) * quantum)
+    return stride, fps, stride * dt * fps
 
 
 def replay_run(
@@ -208,7 +221,9 @@ def replay_run(
     if len(t) == 0:
         raise RunDirError(f"{run_dir} holds no time steps")
     duration = float(t[-1] - t[0]) if len(t) > 1 else float(scenario["dt"])
-    stride, fps, actual = playback_plan(duration, len(t), fps, max_frames, speed)
+    out = Path(out) if out is not None else run_dir / "replay.gif"
+    quantum = GIF_DELAY_QUANTUM if out.suffix.lower() == ".gif" else None
+    stride, fps, actual = playback_plan(duration, len(t), fps, max_frames, speed, quantum)
     captions = None
     if "mode" in arrays:
         captions = ["recovery" if int(m) == 1 else "IBVS" for m in arrays["mode"]]
@@ -218,5 +233,4 @@ def replay_run(
         times=t, scene=g.scene, view=view, camera=g.local_camera, captions=captions,
         progress=progress,
     )  # fmt: skip
-    out = Path(out) if out is not None else run_dir / "replay.gif"
     return write_animation(frames, out, fps)
