@@ -3,7 +3,6 @@ cameras run to their end with every output, an outcome exits 1, bad run folders 
 paths exit 2, a robot that cannot fly is rejected, Ctrl-C during a compilation exits 130."""
 
 import json
-import logging
 import re
 import sys
 from pathlib import Path
@@ -163,13 +162,20 @@ def test_demo_and_make_demo_write_distinct_folders():
     assert f"output in {make_out}/" in readme and f"writes {demo_out}/" in readme
 
 
-def test_bench_writes_only_tables_on_stdout(capsys):
-    cli.configure_logging()
-    logging.getLogger("tdacm.bench.model").info("written out/bench/bench.json")
-    logging.getLogger("tdacm.report").info("a table row")
+def test_bench_writes_only_tables_on_stdout(tmp_path, monkeypatch, capsys):
+    import tdacm.bench as bench
+    from tdacm.bench import model
+
+    def stub(out, repeats):  # the bench's own loggers, without its minutes of timing
+        model.report.info("system  n  terms")
+        model.log.info(f"written {tmp_path / 'bench.json'}")
+
+    monkeypatch.setattr(bench, "run_model_bench", stub)
+    monkeypatch.setattr(cli, "numba_cache_is_cold", lambda: False)
+    assert main(["bench", "--out", str(tmp_path)]) == 0
     cap = capsys.readouterr()
-    assert "written" not in cap.out and "written" in cap.err
-    assert "a table row" in cap.out
+    assert cap.out == "system  n  terms\n"
+    assert "written" in cap.err
 
 
 def test_an_error_after_ctrl_c_during_a_compilation_exits_130(monkeypatch, capsys):
@@ -200,13 +206,27 @@ def test_an_error_after_ctrl_c_during_a_compilation_exits_130(monkeypatch, capsy
 
     OutputString.__module__ = "llvmlite.binding.ffi"
 
+    def _raw_object_cache_notify(data):  # llvmlite's ctypes callback, where Ctrl-C lands
+        pass
+
+    _raw_object_cache_notify.__module__ = "llvmlite.binding.executionengine"
+
     class Unraisable:
         object = OutputString()
+        exc_type = AttributeError
 
     hook(Unraisable())
+    Unraisable.object, Unraisable.exc_type = _raw_object_cache_notify, KeyboardInterrupt
+    hook(Unraisable())
+    Unraisable.object, Unraisable.exc_type = print, KeyboardInterrupt  # the interrupt itself
+    hook(Unraisable())
     assert seen == []
-    Unraisable.object = object()
+    Unraisable.object, Unraisable.exc_type = object(), ValueError  # not ours: reported
     hook(Unraisable())
     assert len(seen) == 1
     cli._interrupted = False
+    hook(Unraisable())  # before any interrupt, everything is reported
+    Unraisable.object, Unraisable.exc_type = OutputString(), AttributeError
+    hook(Unraisable())
+    assert len(seen) == 3
     sys.unraisablehook = sys.__unraisablehook__

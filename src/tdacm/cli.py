@@ -654,13 +654,18 @@ def _on_sigint(signum, frame):
 
 
 def _unraisable_hook(default):
-    """``sys.unraisablehook`` that drops the finalizer errors of numba/llvmlite objects left
-    half-built by a Ctrl-C during a compilation (``Exception ignored in: ...__del__``), once
-    an interrupt was seen; anything else goes to ``default``."""
+    """``sys.unraisablehook`` that, once an interrupt was seen, drops what a Ctrl-C during a
+    numba compilation leaves behind: the ``KeyboardInterrupt`` raised inside llvmlite's ctypes
+    callbacks (``Exception ignored on calling ctypes callback function``, the interrupt itself,
+    swallowed there) and the finalizer errors of half-built numba/llvmlite objects
+    (``Exception ignored in: ...__del__``); anything else goes to ``default``."""
 
     def hook(unraisable):
-        mod = getattr(type(unraisable.object), "__module__", "") or ""
-        if _interrupted and mod.split(".")[0] in ("numba", "llvmlite"):
+        obj = unraisable.object
+        mods = (getattr(obj, "__module__", None) or "", getattr(type(obj), "__module__", ""))
+        ours = any(str(m).split(".")[0] in ("numba", "llvmlite") for m in mods)
+        exc = unraisable.exc_type
+        if _interrupted and (ours or (exc is not None and issubclass(exc, KeyboardInterrupt))):
             return
         default(unraisable)
 
