@@ -17,7 +17,8 @@ held ``ground-test-a``) with random overrides:
 * the state true or estimated (``estimation.source``);
 
 and runs :data:`EPISODES_PER_CASE` episodes on it, each from a random initial state
-(:meth:`~tdacm.loop.ClosedLoop.reset`) under one policy: the loop's own servo and controller,
+(:meth:`~tdacm.loop.ClosedLoop.reset`), its run summary computed at the end as ``tdacm run``
+writes it, under one policy: the loop's own servo and controller,
 random twists (``ClosedLoop.act(sensed, twist=...)``), random actuator inputs
 (``act(sensed, u=...)``, up to 1.5 times the limits), or either of these with a non-finite
 value injected at a random period. A case whose overrides the scenario checks reject (an
@@ -26,6 +27,7 @@ invalid input: ``tdacm run`` exits 2) is counted as ``rejected`` and has no epis
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 import traceback
@@ -37,6 +39,7 @@ import numpy as np
 from .. import paper_values as PV
 from ..sim import ScenarioError
 from ..sim.assemble import build_loop
+from ..sim.runner import Simulation
 from ..sim.scenario import load_scenario
 
 log = logging.getLogger(__name__)
@@ -159,6 +162,19 @@ def run_episode(loop, rng: np.random.Generator, policy: str, duration: float) ->
     return None, None, nsteps + 1
 
 
+def _summarize(scenario, assembly, duration, termination, reason) -> dict:
+    """The run summary of the episode just run, as ``tdacm run`` writes it (it must exist, and
+    be JSON, whatever state the episode ended in)."""
+    from ..loop.closed_loop import RunResult
+
+    loop = assembly.loop
+    result = RunResult(loop.log.arrays(), [], termination is not None, reason, 0.0,
+                       loop.switch_time, loop.plan, False, termination)  # fmt: skip
+    summary = Simulation(scenario, duration=duration).summary(assembly, result)
+    json.dumps(summary, allow_nan=True)
+    return summary
+
+
 def fuzz(n: int, seed: int = 0, duration=(0.5, 1.0), progress=None) -> list[FuzzOutcome]:
     """At least ``n`` episodes (whole cases of :data:`EPISODES_PER_CASE`) drawn from ``seed``;
     rejected cases are reported and do not count. ``progress(outcomes)`` is called after each
@@ -186,6 +202,7 @@ def fuzz(n: int, seed: int = 0, duration=(0.5, 1.0), progress=None) -> list[Fuzz
                 try:
                     loop.reset(q0, qd0)
                     term, reason, steps = run_episode(loop, rng, policy, dur)
+                    _summarize(sc, assembly, dur, term, reason)
                 except Exception:  # a bug: reported with its traceback, never hidden
                     out.append(FuzzOutcome(case, e, name, policy, "exception", None, 0, over,
                                            traceback.format_exc()))  # fmt: skip
