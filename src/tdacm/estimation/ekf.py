@@ -114,8 +114,8 @@ class ExtendedKalmanFilter:
         self._m = sysm.model_arrays
         self._loads = sysm.loads.packed().copy()
         self._gravity = sysm.loads.gravity.copy()
-        self._s_m = np.ascontiguousarray(model._s_m)
-        self._s_d = np.ascontiguousarray(model._s_d)
+        self._s_m = np.ascontiguousarray(model.mass_scale)
+        self._s_d = np.ascontiguousarray(model.damping_scale)
         self._k_scale = 1.0 + model.d_k
         self._g_scale = 1.0 + model.d_g
         n = sysm.n

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control import ModeSwitch
+from ..control import Mode
 from .data import (
     ActuatorCommand,
     GlobalView,
@@ -138,7 +138,7 @@ class ClosedLoop:
         self.servo.reset(est.q, first)
         self.controller.reset(est)
         self._u = None
-        self._request_global = self.servo.mode == ModeSwitch.RECOVERY
+        self._request_global = self.servo.mode == Mode.RECOVERY
         self.switch_time = None
         self.plan = None
         self.log.rows = {k: [] for k in self.log.rows}
@@ -179,7 +179,7 @@ class ClosedLoop:
             act = ActuatorCommand(np.asarray(u, float), np.zeros(len(est.q)), cmd.q_d)
         self.log.record(state, sensed.readings, view, est, cmd, act)
         self._u = act.u
-        if cmd.mode == ModeSwitch.IBVS and not self.safety.check(t, cmd.rmse):
+        if cmd.mode == Mode.IBVS and not self.safety.check(t, cmd.rmse):
             return LoopStep(t, view, est, cmd, act, True, self.safety.reason, Termination.SAFETY)
         if last:
             return LoopStep(t, view, est, cmd, act, True, None)

@@ -27,7 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._linalg import solve as _solve
-from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
+from ..control import (
+    CubicTrajectory,
+    Mode,
+    ModeSwitch,
+    estimate_target_pose,
+    plan_rod_configuration,
+)
 from ..lie.se3 import adjoint_pair, expmap, so3_log
 from ..vision.features import advanced_features
 from ..vision.ibvs import IBVSController
@@ -38,7 +44,7 @@ from ..vision.virtual import virtual_points, virtual_transform
 from .config import IbvsConfig, RecoveryConfig
 from .data import GlobalView, LocalView, ServoCommand, StateEstimate
 
-MODE_CODES = {ModeSwitch.IBVS: 0, ModeSwitch.RECOVERY: 1}
+MODE_CODES = {Mode.IBVS: 0, Mode.RECOVERY: 1}
 
 
 def normalized_rmse(points, desired) -> float:
@@ -148,10 +154,9 @@ class VisualServo:
         """Start from configuration ``q0`` (the estimate); the initial mode is IBVS when the
         first C_L view has the target inside the margin, recovery otherwise."""
         s = self.system
-        self.switch.mode = ModeSwitch.RECOVERY
-        self.switch._good = self.switch._bad = 0
-        if first_view is not None and first_view.found and self.switch.inside(first_view.pixels):
-            self.switch.mode = ModeSwitch.IBVS
+        seen = first_view is not None and first_view.found
+        start = Mode.IBVS if seen and self.switch.inside(first_view.pixels) else Mode.RECOVERY
+        self.switch.reset(start)
         self.q_d = np.array(q0, float)
         if s.floating:
             self.q_d[:2] = 0.0
@@ -225,11 +230,11 @@ class VisualServo:
     def transition(self, prev: str, mode: str, t: float) -> str | None:
         """The event of a mode change: IBVS engaging (its ramp restarts; ``q_d`` continues from
         the recovery reference, a continuous error) or the target lost."""
-        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
+        if prev == Mode.RECOVERY and mode == Mode.IBVS:
             self.ibvs_start = t
             self.traj = None
             return "ibvs engaged"
-        if prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
+        if prev == Mode.IBVS and mode == Mode.RECOVERY:
             return "target lost"
         return None
 
@@ -339,10 +344,10 @@ class VisualServo:
         out_twist = np.zeros(6)
         qdd_d = np.zeros(n)
         plan_info = None
-        if mode == ModeSwitch.IBVS and (seen or twist is not None):
+        if mode == Mode.IBVS and (seen or twist is not None):
             out_twist = np.asarray(ibvs_twist() if twist is None else twist, float)
             qdd_d = self.follow_twist(q, out_twist, t, dt)
-        elif mode == ModeSwitch.RECOVERY:
+        elif mode == Mode.RECOVERY:
             ended, plan_info, event = self.recovery_branch(
                 t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event, **extra
             )
@@ -478,9 +483,9 @@ class RobustServo(VisualServo):
         g_c = self.local_camera_pose(q)
         if not self.system.floating:
             return g_c
-        from ..vision.virtual import _virtual_pose
+        from ..vision.virtual import virtual_pose
 
-        return _virtual_pose(self.system.base_pose(q), g_c)
+        return virtual_pose(self.system.base_pose(q), g_c)
 
     def predict_target(self, dt: float) -> None:
         """Advance the smoothed target pose toward the filter's estimate by one period: a
@@ -569,7 +574,7 @@ class RobustServo(VisualServo):
             except ValueError:
                 pass
         prev = self.switch.mode
-        if prev == ModeSwitch.IBVS:
+        if prev == Mode.IBVS:
             ok = (
                 ps.valid
                 and self._last_seen is not None

@@ -12,19 +12,31 @@ run is reproducible from its seed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .._linalg import solve as _solve
 from ..control import EstimatedModel
+from ..control.allocation import box_least_squares
+from ..estimation import (
+    EstimatorConfig,
+    ExtendedKalmanFilter,
+    FilterBlock,
+    SensorSuite,
+    SensorSuiteConfig,
+)
+from ..estimation.camera import TargetCamera
 from ..lie.se3 import rotation_angle
+from ..loop.ablation import TruthAblation, parse_controller_truth
 from ..loop.closed_loop import ClosedLoop
 from ..loop.config import ControllerConfig, IbvsConfig, RecoveryConfig, SafetyConfig, SensorModel
 from ..loop.logger import RunLog
 from ..loop.lowlevel import make_low_level
 from ..loop.perception import Perception
 from ..loop.plant import Disturbances, Plant
+from ..loop.precompile import wait
 from ..loop.protocols import ControllerContext
 from ..loop.safety import SafetyMonitor
 from ..loop.sensors import (
@@ -35,10 +47,11 @@ from ..loop.sensors import (
     perturbed_camera,
 )
 from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
+from ..system.kernels import rk4_run
 from ..vision import PAPER_MARKER, PAPER_PATTERN, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
 from ..vision.target_filter import reference_from_pose
-from ..vision.virtual import virtual_camera_points, virtual_camera_transform
+from ..vision.virtual import virtual_camera_points, virtual_camera_transform, virtual_pose
 from .robot import Robot, build_robot
 from .scenario import Scenario, ScenarioError, check_with_world
 
@@ -57,9 +70,6 @@ def apply_profile(scenario: Scenario) -> Scenario:
     """The scenario with its ``controller.profile`` applied (unchanged for "default")."""
     if scenario.data["controller"]["profile"] != "paper":
         return scenario
-    import copy
-    from dataclasses import replace
-
     d = copy.deepcopy(scenario.data)
     for sec, kv in PAPER_PROFILE.items():
         d[sec].update(kv)
@@ -193,7 +203,12 @@ def build_loop(
         _front_end(g_kind, robot.global_camera, world.scene, world.target, cams["global_backend"]),
         keep_images=video,
     )
-    sensors = Sensors(local, glob, cams["global_every"], always_global=video)
+    # the proprioceptive sensors of the EKF (estimation.source = "estimated"), read every period
+    suite = None
+    if estimator is None and d["estimation"]["source"] == "estimated":
+        suite = proprioceptive_sensors(d, s, seed)
+    other = suite.named if suite is not None else None
+    sensors = Sensors(local, glob, cams["global_every"], always_global=video, other=other)
     # the controller's model of C_L (intrinsics error drawn after nothing else: reproducible)
     ctl_camera = perturbed_camera(robot.local_camera, sensor_model.intrinsics_error, sensor_rng)
     perception = Perception(ctl_camera, robot.global_camera, world.target)
@@ -253,21 +268,19 @@ def build_loop(
         d["substeps"],
         Disturbances.from_dict(d["disturbances"]),
         np.random.default_rng(seed),
+        accelerations=suite is not None,  # the accelerometer senses qdd
     )
     truth = d["estimation"]["controller_truth"]
     if truth:  # ablation: the controller reads these coordinates from the plant
-        from ..loop.ablation import TruthAblation, parse_controller_truth
-
         try:
             q_idx, qd_idx = parse_controller_truth(truth, s.n)
         except ValueError as exc:
             raise ScenarioError(f"{scenario.source}: {exc}") from None
         controller = TruthAblation(controller, plant, q_idx, qd_idx)
-    if estimator is None and d["estimation"]["source"] == "estimated":
+    if suite is not None:
         estimator = estimation_block(
-            d, s, seed, plant, sensors, world.q0, model, robot.tip_mount, world.target,
-            ctl_camera,
-        )  # fmt: skip
+            d, s, seed, plant, suite, world.q0, model, robot.tip_mount, world.target, ctl_camera
+        )
     loop = ClosedLoop(
         plant,
         sensors,
@@ -287,15 +300,13 @@ def build_loop(
 def _truth(system, local: CameraSensor, world: World):
     """``q -> (true points of the target in the servo camera, true target pose)`` for the
     logger (C_V for a floating base, C_L for a fixed one)."""
-    from ..vision.virtual import _virtual_pose
-
     g_t = world.scene.target_pose
     obj = world.target.feature_points
 
     def truth(q):
         g = local.pose(q)
         if system.floating:
-            g = _virtual_pose(system.base_pose(q), g)
+            g = virtual_pose(system.base_pose(q), g)
         r = _solve(g, g_t)
         pc = obj @ r[:3, :3].T + r[:3, 3]
         return pc[:, :2] / pc[:, 2:3], g_t
@@ -303,32 +314,26 @@ def _truth(system, local: CameraSensor, world: World):
     return truth
 
 
+def proprioceptive_sensors(d: dict, system, seed: int):
+    """The drone pose, IMU and tendon-encoder sensors of ``[sensors]`` (a
+    :class:`~tdacm.estimation.SensorSuite` seeded by ``[seed, 11..13]``): the sensors block
+    reads them every period for the EKF."""
+    return SensorSuite(system, SensorSuiteConfig.from_section(d["sensors"]), seed)
+
+
 def estimation_block(
-    d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model,
-    tip_mount, target, camera,
-):  # fmt: skip
-    """``estimation.source = "estimated"``: the proprioceptive sensors (drone pose, IMU,
-    tendon encoders; ``[sensors]``, seeded by ``[seed, 11..13]``) join ``sensors.other`` and
-    the EKF (``[estimation]``) runs on the controller's perturbed ``model``. The initial guess
+    d: dict, system, seed: int, plant: Plant, suite, q_nominal, model, tip_mount, target, camera
+):
+    """``estimation.source = "estimated"``: the EKF (``[estimation]``) on the controller's
+    perturbed ``model``, fusing the proprioceptive sensors ``suite``
+    (:func:`proprioceptive_sensors`, read by the sensors block). The initial guess
     (``initial_guess = "measured"``) comes from one start-up reading of an independent copy of
     the sensors (no latency, no dropout: taken before the run starts). With
     ``estimation.fuse_local_camera`` the filter also fuses C_L's detections of the static
     target (:mod:`tdacm.estimation.camera`): ``tip_mount``, ``target`` and ``camera`` are
     C_L's mount, the target and the controller's model of C_L."""
-    from ..estimation import (
-        EstimatorConfig,
-        ExtendedKalmanFilter,
-        FilterBlock,
-        SensorSuite,
-        SensorSuiteConfig,
-    )
-    from ..estimation.camera import TargetCamera
-
     est = d["estimation"]
-    cfg = SensorSuiteConfig.from_section(d["sensors"])
-    suite = SensorSuite(system, cfg, seed)
-    sensors.other.update(suite.named)
-    plant.accelerations = True  # the accelerometer senses qdd
+    cfg = suite.config
     init = None
     if est["initial_guess"] == "measured":
         start = cfg.model_copy(
@@ -368,10 +373,6 @@ def estimation_block(
 def warm_up(system, q) -> None:
     """Call the numba kernels of one period once, so that their first-use compilation (or
     loading from the on-disk cache) happens before the run, not inside its first step."""
-    from ..control.allocation import box_least_squares
-    from ..loop.precompile import wait
-    from ..system.kernels import rk4_run
-
     q = np.asarray(q, float)
     qd = np.zeros(system.n)
     system.terms(q, qd)

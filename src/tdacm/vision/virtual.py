@@ -61,12 +61,13 @@ def _yaw_only_pose(g: np.ndarray) -> np.ndarray:
 def virtual_camera_pose(base_pose, camera_pose) -> np.ndarray:
     """``g_{C_V} = g_psi g_{C_L}^b`` (inertial), from the inertial drone pose ``g_b`` and
     the inertial pose of the real camera ``g_{C_L}``."""
-    return _virtual_pose(
+    return virtual_pose(
         C.transform("base_pose", base_pose), C.transform("camera_pose", camera_pose)
     )
 
 
-def _virtual_pose(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
+def virtual_pose(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
+    """:func:`virtual_camera_pose` of transforms already known to be rigid (no checks)."""
     return _yaw_only_pose(g_b) @ inv_se3(g_b) @ g_c
 
 
@@ -82,7 +83,7 @@ def virtual_camera_transform(base_pose, camera_pose) -> np.ndarray:
 def virtual_transform(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
     """:func:`virtual_camera_transform` of transforms already known to be rigid (the model's
     poses; no checks: the closed loop's per-period path)."""
-    return inv_se3(_virtual_pose(g_b, g_c)) @ g_c
+    return inv_se3(virtual_pose(g_b, g_c)) @ g_c
 
 
 def virtual_camera_points(
