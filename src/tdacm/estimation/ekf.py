@@ -52,7 +52,7 @@ from .camera import TargetCamera, TargetViewMeasurement, target_pose_from_view, 
 from .config import EstimatorConfig
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     EncoderMeasurement,
     ImuMeasurement,
     PoseMeasurement,
