@@ -104,6 +104,9 @@ class VisualServo:
         The reference snapshot in C_V (C_L for a fixed base).
     gain, mode, compensation:
         IBVS gain ``lambda``, interaction-matrix choice and the virtual-camera form.
+    floor, solver:
+        Singular-value floor of the ``J_img`` solve and its kind
+        (:func:`~tdacm.vision.ibvs.robust_solve`; ``floor = 0``: the plain inverse).
     """
 
     def __init__(
@@ -121,6 +124,8 @@ class VisualServo:
         compensation: str = IbvsConfig().compensation,
         shaping: ShapingParams | None = None,
         recovery: RecoveryParams | None = None,
+        floor: float = IbvsConfig().floor,
+        solver: str = IbvsConfig().solver,
     ):
         self.system = system
         self.local_camera = local_camera
@@ -130,7 +135,10 @@ class VisualServo:
         self.drone_mount = np.asarray(drone_mount, float)
         self.desired_points = np.asarray(desired_points, float)
         self.desired_depths = np.asarray(desired_depths, float)
-        self.ibvs = IBVSController(self.desired_points, self.desired_depths, gain=gain, mode=mode)
+        self.ibvs = IBVSController(
+            self.desired_points, self.desired_depths, gain=gain, mode=mode, floor=floor,
+            solver=solver,
+        )  # fmt: skip
         self.compensation = compensation
         self.shaping = shaping or ShapingParams.from_config(IbvsConfig())
         self.recovery = recovery or RecoveryParams.from_config(RecoveryConfig())
@@ -433,10 +441,9 @@ class RobustServo(VisualServo):
     """
 
     def __init__(self, *args, robust: RobustParams | None = None, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.robust = r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
-        self.ibvs.floor = r.floor
-        self.ibvs.solver = r.solver
+        r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
+        super().__init__(*args, floor=r.floor, solver=r.solver, **kwargs)
+        self.robust = r
         self.target_filter = TargetFilter(
             self.local_camera,
             self.target.feature_points,

@@ -247,9 +247,7 @@ def build_loop(
         if ib.features == "predicted":
             servo = RobustServo(*args, robust=RobustParams.from_config(ib, rc), **kwargs)
         else:
-            servo = VisualServo(*args, **kwargs)
-            servo.ibvs.floor = ib.floor
-            servo.ibvs.solver = ib.solver
+            servo = VisualServo(*args, floor=ib.floor, solver=ib.solver, **kwargs)
     m = d["model"]
     model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
     if controller is None:
