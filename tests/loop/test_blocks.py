@@ -120,6 +120,35 @@ def test_sensors_read_global_camera_when_due_or_requested(world):
     assert got == [True, False, False, True, False, False]
 
 
+def test_global_camera_renders_only_when_read_or_due_for_outputs(world):
+    """C_G offered every period is measured only when read (the servo's snapshot), and then
+    gives the frame an eager read gives; ``global_output_every`` renders it for the outputs."""
+    r = world.robot
+    fe = AnalyticFrontEnd(r.local_camera, world.target, world.scene.target_pose)
+    fg = AnalyticFrontEnd(r.global_camera, world.target, world.scene.target_pose)
+    calls = []
+    detect = fg.detect_at
+    fg.detect_at = lambda pose: calls.append(1) or detect(pose)
+    local = CameraSensor(r.system, "tip", r.tip_mount, fe)
+    glob = CameraSensor(r.system, "base", r.drone_mount, fg)
+    st = PlantState(0.0, world.q0, world.qd0)
+    lazy = Sensors(local, glob, global_every=1)
+    readings = [lazy.read(st) for _ in range(4)]
+    assert calls == [] and all(rd.global_ is not None for rd in readings)
+    assert all(rd.global_rendered is None for rd in readings)
+    eager = glob.measure(st)
+    calls.clear()
+    view = Perception(r.local_camera, r.global_camera, world.target).global_(readings[2].global_)
+    assert calls == []  # the view defers too
+    assert view.found and np.array_equal(view.detection.points, eager.detection.points)
+    assert len(calls) == 1 and readings[2].global_rendered is not None
+    calls.clear()
+    out = Sensors(local, glob, global_every=0, global_output_every=2)
+    got = [out.read(st) for _ in range(4)]
+    assert len(calls) == 2 and [g.global_ for g in got] == [None] * 4
+    assert [g.global_output is not None for g in got] == [True, False, True, False]
+
+
 # ---------------------------------------------------------------------- perception
 def test_perception_normalizes_with_the_controllers_camera_and_estimates_depths(world):
     r = world.robot
