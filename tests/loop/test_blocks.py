@@ -402,3 +402,32 @@ def test_logger_comparison_columns_match_their_definitions():
     # repeatable: a second call returns the same arrays
     again = log.arrays()
     assert all(np.array_equal(again[k], a[k], equal_nan=True) for k in a if a[k].dtype != object)
+
+
+def test_a_point_behind_the_virtual_camera_ends_the_run_as_an_outcome():
+    """Eq. (18) has no image for a point behind C_V (the drone tilted beyond what C_V can
+    see): the loop ends the run with Termination.BEHIND_CAMERA instead of raising."""
+    from tdacm.loop.data import Termination
+    from tdacm.vision.virtual import BehindVirtualCamera, virtual_points
+
+    with pytest.raises(BehindVirtualCamera):  # still a ValueError for direct callers
+        g = np.eye(4)
+        g[2, 3] = -10.0
+        virtual_points(np.zeros((4, 2)), g, np.ones(4))
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
+    )
+    loop = build_loop(sc, 0).loop
+    step = loop.servo.step
+    calls = []
+
+    def tumbling(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise BehindVirtualCamera("a point lies behind the virtual camera")
+        return step(*args, **kwargs)
+
+    loop.servo.step = tumbling
+    res = loop.run(1.0)
+    assert res.terminated and res.termination == Termination.BEHIND_CAMERA
+    assert "behind the virtual camera" in res.reason and len(res.arrays["t"]) == 4

@@ -9,7 +9,9 @@ Cameras: unless ``overrides`` say otherwise, both cameras are the analytic front
 target's corners projected, no image: what the campaigns use; C_G is read only for a recovery
 snapshot), so no renderer runs inside ``step`` and none is initialized in the process
 (fork-safe under ``AsyncVectorEnv``). With PyBullet for C_G (``overrides``), a process forked
-after its parent loaded EGL renders with PyBullet's TinyRenderer instead. ``render()`` draws C_L's view with the planar renderer, created on the
+after its parent loaded EGL renders with PyBullet's TinyRenderer instead. The servo works on the
+measured points (``ibvs.features = "measured"``): the robust servo's target filter predicts
+features for its own IBVS twist, which a twist action replaces (about 40 % of a step). ``render()`` draws C_L's view with the planar renderer, created on the
 first call in the calling process.
 
 Actions (``action_type``):
@@ -74,8 +76,11 @@ OBSERVATION_SCALES = {
 }
 #: Roll/pitch (rad) beyond which the episode ends (Termination.OUT_OF_ENVELOPE).
 MAX_TILT = 1.2
-#: The env's camera defaults (module docstring), under the user's overrides.
-ENV_CAMERAS = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
+#: The env's scenario defaults (module docstring), under the user's overrides.
+ENV_DEFAULTS = {
+    "cameras": {"local_renderer": "analytic", "global_renderer": "planar"},
+    "ibvs": {"features": "measured"},
+}
 
 
 def _merge(a: dict, b: dict) -> dict:
@@ -114,7 +119,7 @@ class TipServoEnv(gym.Env):
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps!r}")
         sc = load_scenario(scenario)
-        ov = _merge(ENV_CAMERAS, overrides or {})
+        ov = _merge(ENV_DEFAULTS, overrides or {})
         if not safety:
             ov = _merge(ov, {"safety": {"enabled": False}})
         sc = sc.with_overrides(ov, "env overrides")
@@ -132,6 +137,7 @@ class TipServoEnv(gym.Env):
         self._renderer = None
         self.assembly = build_loop(sc, int(sc["seed"]))
         self.loop, self.world = self.assembly.loop, self.assembly.world
+        self._quiet_log()
         s = self.loop.plant.system
         self.n = n = s.n
         if action_type == "twist":
@@ -155,6 +161,11 @@ class TipServoEnv(gym.Env):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._seed = int(sc["seed"])
         self._sensed = None
+
+    def _quiet_log(self) -> None:
+        from ..loop.logger import NullLog
+
+        self.loop.log = NullLog(self.loop.servo.desired_points)
 
     @property
     def desired_points(self) -> np.ndarray:
@@ -214,6 +225,7 @@ class TipServoEnv(gym.Env):
             self.loop.close()
             self.assembly = build_loop(self.scenario, seed)
             self.loop = self.assembly.loop
+            self._quiet_log()
         self._seed = seed
 
     def step(self, action):

@@ -167,3 +167,11 @@ class RunLog:
 
     def arrays(self) -> dict:
         return {k: np.asarray(v) for k, v in self.rows.items()}
+
+
+class NullLog(RunLog):
+    """A logger that keeps nothing (the Gymnasium env: an episode's rows are not needed, and
+    recording them costs about a tenth of a period)."""
+
+    def record(self, *args, **kwargs) -> None:
+        pass
