@@ -1,5 +1,7 @@
 """The Gymnasium environment passes Gymnasium's checker and behaves."""
 
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -159,8 +161,16 @@ def test_async_vector_after_the_parent_used_an_env(renderer):
     fails the test."""
     script = Path(__file__).with_name("_async_after_parent.py")
     args = [sys.executable, str(script)] + (["pybullet"] if renderer == "pybullet" else [])
-    p = subprocess.run(args, capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0 and "done" in p.stdout, p.stderr[-2000:]
+    p = subprocess.Popen(
+        args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        out, err = p.communicate(timeout=300)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)  # the script and its hung workers
+        p.communicate()
+        pytest.fail("AsyncVectorEnv hung after the parent used an env")
+    assert p.returncode == 0 and "done" in out, err[-2000:]
 
 
 def test_env_has_the_scenario_disturbances():

@@ -156,14 +156,16 @@ class Assembly:
     def reseedable(self) -> bool:
         """Whether :func:`reseed` can give this loop another seed's random streams in place:
         not with an intrinsics error (the controller's camera, hence the reference snapshot,
-        depends on the seed) nor with the estimator (its sensors and filter are seeded when
-        built); those need :func:`build_loop` again."""
+        depends on the seed), with the estimator (its sensors and filter are seeded when
+        built) or with a user controller (it may copy the model when built); those need
+        :func:`build_loop` again."""
         d = self.scenario.data if self.scenario is not None else None
         return (
             d is not None
             and self.model is not None
             and d["sensors"]["intrinsics_error"] == 0
             and d["estimation"]["source"] == "true"
+            and not d["controller"]["class"]
         )
 
 
