@@ -42,7 +42,7 @@ def ibvs_action(env, obs) -> np.ndarray:
     e = env.unwrapped
     if obs[14] < 0.5:
         return np.zeros(6, np.float32)
-    pts = obs[6:14].reshape(4, 2).astype(float) * e._half
+    pts = obs[6:14].reshape(4, 2).astype(float) * e.point_scale
     twist = e.loop.servo.ibvs.twist(pts, e.desired_depths)
     return np.clip(np.asarray(twist) / e.scale, -1, 1).astype(np.float32)
 

@@ -47,7 +47,7 @@ def test_observation_is_scaled_and_of_fixed_size(env):
     assert np.array_equal(o1, o2)
     assert o1.shape == (15 + 2 * env.n,) and env.observation_space.contains(o1)
     assert info1["detected"] and o1[14] == 1.0
-    pts = o1[6:14].reshape(4, 2) * env._half  # +-1 is the image border
+    pts = o1[6:14].reshape(4, 2) * env.point_scale  # +-1 is the image border
     assert np.all(np.abs(o1[6:14]) < 1)
     assert np.isclose(
         info1["rmse"], np.sqrt(np.mean(np.sum((pts - env.desired_points) ** 2, 1))), atol=1e-5
@@ -100,7 +100,7 @@ def test_servoing_action_reduces_error(env):
     obs, info = env.reset(seed=0)
     start = info["rmse"]
     for _ in range(50):
-        pts = obs[6:14].reshape(4, 2).astype(float) * env._half
+        pts = obs[6:14].reshape(4, 2).astype(float) * env.point_scale
         twist = env.loop.servo.ibvs.twist(pts, env.desired_depths)
         action = np.clip(np.asarray(twist) / env.scale, -1, 1).astype(np.float32)
         obs, reward, terminated, truncated, info = env.step(action)

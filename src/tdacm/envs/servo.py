@@ -149,12 +149,12 @@ class TipServoEnv(gym.Env):
                 np.full(s.n_a, s.tendons.max_tension),
             ]
         cam = self.loop.perception.local_camera
-        self._half = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
+        self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
         q_scale = np.full(n, STRAIN_SCALE)
         if s.floating:
             q_scale[:3] = ANGLE_SCALE
             q_scale[3:6] = POSITION_SCALE
-        self._q_scale = q_scale
+        self.q_scale = q_scale
         high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
         low = -high
         high[14], low[14] = 1.0, 0.0
@@ -205,10 +205,10 @@ class TipServoEnv(gym.Env):
                 behind = True
             else:
                 obs[:6] = error / FEATURE_SCALE
-                obs[6:14] = (np.asarray(points) / self._half).ravel()
+                obs[6:14] = (np.asarray(points) / self.point_scale).ravel()
                 obs[14] = 1.0
-        obs[15 : 15 + n] = (est.q - self.world.q_star) / self._q_scale
-        obs[15 + n :] = est.qd / self._q_scale
+        obs[15 : 15 + n] = (est.q - self.world.q_star) / self.q_scale
+        obs[15 + n :] = est.qd / self.q_scale
         if not np.isfinite(obs).all():
             np.nan_to_num(obs, copy=False, nan=0.0)
         np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
