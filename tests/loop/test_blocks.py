@@ -431,3 +431,20 @@ def test_a_point_behind_the_virtual_camera_ends_the_run_as_an_outcome():
     res = loop.run(1.0)
     assert res.terminated and res.termination == Termination.BEHIND_CAMERA
     assert "behind the virtual camera" in res.reason and len(res.arrays["t"]) == 4
+
+
+def test_rendering_global_camera_for_outputs_leaves_the_run_unchanged():
+    """paper-out-of-fov starts in recovery: the servo reads C_G's snapshot. Rendering C_G
+    every period for the outputs (the former default) changes nothing but the logged
+    detected_global, which then holds every period's detection."""
+    sc = load_scenario("paper-out-of-fov").with_overrides(
+        {"cameras": {"global_renderer": "planar"}}
+    )
+    lazy = build_loop(sc, 0).loop.run(0.6).arrays
+    eager_sc = sc.with_overrides({"cameras": {"global_output_every": 1}})
+    eager = build_loop(eager_sc, 0).loop.run(0.6).arrays
+    for k in lazy:
+        if k != "detected_global":
+            assert np.array_equal(lazy[k], eager[k], equal_nan=True), k
+    assert lazy["detected_global"].sum() == 1  # the snapshot, read once
+    assert eager["detected_global"].sum() > 0.9 * len(eager["t"])
