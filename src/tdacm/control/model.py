@@ -75,7 +75,13 @@ class EstimatedModel:
             system.attachment,
             Loads(gravity=system.loads.gravity.copy()),
         )
-        n = system.n
+        self.n = system.n
+        self.reseed(self.seed)
+
+    def reseed(self, seed: int) -> None:
+        """Draw the parameter errors of ``seed`` (what a model built with that seed has)."""
+        self.seed = int(seed)
+        n, level = self.n, self.level
         rng = np.random.default_rng(self.seed)
         draw = lambda: rng.uniform(-level, level, n)  # noqa: E731
         self.d_m, self.d_d, self.d_k, self.d_g = draw(), draw(), draw(), draw()
@@ -83,7 +89,6 @@ class EstimatedModel:
         # positive definite like the true matrices
         self.mass_scale = np.sqrt(1.0 + self.d_m)
         self.damping_scale = np.sqrt(1.0 + self.d_d)
-        self.n = n
 
     def terms(self, q, qd) -> EstimatedTerms:
         """Estimated ``M, C, D, K`` at ``(q, qdot)``."""

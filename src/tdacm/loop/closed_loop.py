@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control import Mode
+from ..vision.virtual import BehindVirtualCamera
 from .data import (
     ActuatorCommand,
     GlobalView,
@@ -161,7 +162,15 @@ class ClosedLoop:
         state = plant.state
         t = state.t
         est, view = sensed.estimate, sensed.view
-        cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        try:
+            cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        except BehindVirtualCamera as exc:  # eq. (18) undefined: the run ends, as an outcome
+            n = len(est.q)
+            z = np.zeros(n)
+            cmd = ServoCommand(self.servo.mode, np.array(est.q, float), z, z, np.zeros(6))
+            return LoopStep(
+                t, view, est, cmd, _hold(est), True, f"servo: {exc}", Termination.BEHIND_CAMERA
+            )
         self._request_global = cmd.request_global
         if cmd.event == ServoEvent.IBVS_ENGAGED:
             if self.switch_time is None:

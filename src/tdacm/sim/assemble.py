@@ -159,6 +159,41 @@ class Assembly:
     loop: ClosedLoop
     world: World
     seed: int
+    model: EstimatedModel | None = None  # the controller's model (perturbation drawn from seed)
+    scenario: Scenario | None = None  # as assembled (profile applied)
+
+    @property
+    def reseedable(self) -> bool:
+        """Whether :func:`reseed` can give this loop another seed's random streams in place:
+        not with an intrinsics error (the controller's camera, hence the reference snapshot,
+        depends on the seed), with the estimator (its sensors and filter are seeded when
+        built) or with a user controller (it may copy the model when built); those need
+        :func:`build_loop` again."""
+        d = self.scenario.data if self.scenario is not None else None
+        return (
+            d is not None
+            and self.model is not None
+            and d["sensors"]["intrinsics_error"] == 0
+            and d["estimation"]["source"] == "true"
+            and not d["controller"]["class"]
+        )
+
+
+def reseed(assembly: Assembly, seed: int) -> Assembly:
+    """The assembled loop with the random streams of ``seed``, without rebuilding it: the
+    controller's model perturbation (drawn from ``seed``), C_L's imperfections (``[seed, 1]``)
+    and the disturbances (``seed``), as :func:`build_loop` seeds them, so a reseeded loop runs
+    as one built with ``seed`` (tested). Only when :attr:`Assembly.reseedable`."""
+    from dataclasses import replace
+
+    if not assembly.reseedable:
+        raise ValueError("this loop cannot be reseeded in place (see Assembly.reseedable)")
+    seed = int(seed)
+    loop = assembly.loop
+    assembly.model.reseed(seed)
+    loop.sensors.local.rng = np.random.default_rng([seed, 1])
+    loop.plant.rng = np.random.default_rng(seed)
+    return replace(assembly, seed=seed)
 
 
 def build_loop(
@@ -207,8 +242,14 @@ def build_loop(
     suite = None
     if estimator is None and d["estimation"]["source"] == "estimated":
         suite = proprioceptive_sensors(d, s, seed)
-    other = suite.named if suite is not None else None
-    sensors = Sensors(local, glob, cams["global_every"], always_global=video, other=other)
+    sensors = Sensors(
+        local,
+        glob,
+        cams["global_every"],
+        always_global=video,
+        other=suite.named if suite is not None else None,
+        global_output_every=cams["global_output_every"],
+    )
     # the controller's model of C_L (intrinsics error drawn after nothing else: reproducible)
     ctl_camera = perturbed_camera(robot.local_camera, sensor_model.intrinsics_error, sensor_rng)
     perception = Perception(ctl_camera, robot.global_camera, world.target)
@@ -292,7 +333,7 @@ def build_loop(
         name=scenario.name,
     )
     warm_up(s, world.q0)
-    return Assembly(loop, world, seed)
+    return Assembly(loop, world, seed, model, scenario)
 
 
 def _truth(system, local: CameraSensor, world: World):

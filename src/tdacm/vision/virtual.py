@@ -127,6 +127,11 @@ def virtual_camera_points(
     return virtual_points(p, g, z, method, return_depths)
 
 
+class BehindVirtualCamera(ValueError):
+    """A point maps behind the virtual camera (the drone tilted so far that C_V cannot see
+    what C_L sees): the closed loop ends the run with a named termination."""
+
+
 def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
     """:func:`virtual_camera_points` on checked inputs (``(N, 2)`` points, a rigid 4x4
     ``g_{C_L}^{C_V}``, positive depths for ``"exact"``); the closed loop's per-period path."""
@@ -135,13 +140,13 @@ def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
     if method == "exact":
         rv = (h * z[:, None]) @ r.T + tr
         if np.any(rv[:, 2] <= 0.0):
-            raise ValueError("a point lies behind the virtual camera")
+            raise BehindVirtualCamera("a point lies behind the virtual camera")
         out = rv[:, :2] / rv[:, 2:3]
         return (out, rv[:, 2]) if return_depths else out
     rp = h @ r.T
     if method == "rotation":
         if np.any(rp[:, 2] <= 0.0):
-            raise ValueError("a point lies behind the virtual camera")
+            raise BehindVirtualCamera("a point lies behind the virtual camera")
         out = rp[:, :2] / rp[:, 2:3]
         return (out, rp[:, 2]) if return_depths else out
     out = rp[:, :2].copy()
