@@ -7,8 +7,8 @@ to" lines go to stderr. Invalid input exits with status 2 and one ``error:`` lin
 flag or the scenario key; Ctrl-C exits with status 130 and one line (``tdacm run`` writes the
 steps simulated so far; a campaign keeps its stored runs and resumes when rerun). ``tdacm run``
 exits 0 when the run reached its duration and 1 when an outcome ended it early (the summary's
-``termination``: safety monitor, failed recovery, plant, tumbled drone, estimator, non-finite
-command; every output written), see :func:`main`.
+``termination``: safety monitor, failed recovery, plant, tumbled drone, point behind the virtual
+camera, estimator, non-finite command; every output written), see :func:`main`.
 
 Logging: the library logs through ``logging.getLogger(__name__)`` under the ``tdacm`` logger;
 the command line sends it to stderr in a plain format, at INFO by default, DEBUG with ``-v`` and
@@ -675,8 +675,9 @@ def _unraisable_hook(default):
 def main(argv=None) -> int:
     """Exit codes: 0 success (``tdacm run``: the run reached its duration), 1 ``tdacm run``
     ended early by an outcome (the safety monitor, a failed recovery, the plant, a tumbled
-    drone, the estimator, a non-finite command: the summary's ``termination``; its data is
-    written) or a missing optional extra, 2 invalid input (one ``error:`` line), 130 Ctrl-C."""
+    drone, a point behind the virtual camera, the estimator, a non-finite command: the
+    summary's ``termination``; its data is written) or a missing optional extra, 2 invalid
+    input (one ``error:`` line), 130 Ctrl-C."""
     import signal
 
     args = build_parser().parse_args(argv)

@@ -1,6 +1,6 @@
 """Every state the loop can reach ends a period with a named Termination, never an exception:
-non-finite commands, a tumbling drone, a diverged estimator, views with no pose or no image in
-the virtual camera (missed frames)."""
+non-finite commands, a tumbling drone, a diverged estimator; a C_L view whose corners admit no
+pose in front of the camera is a missed frame."""
 
 import numpy as np
 import pytest
@@ -11,7 +11,6 @@ from tdacm.loop.plant import MAX_TILT_RAD
 from tdacm.sim import build_loop, load_scenario
 from tdacm.vision.detect import Detection
 from tdacm.vision.features import _estimate_depths, estimate_depths
-from tdacm.vision.virtual import virtual_camera_points, virtual_points
 
 FAST = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar", "global_every": 0}}
 
@@ -107,24 +106,14 @@ def test_a_view_without_a_pose_is_a_missed_frame(assembly):
     assert loop.perception.local(m).found
 
 
-def test_points_behind_the_virtual_camera_are_flagged():
-    g = np.eye(4)
-    g[:3, :3] = np.diag([1.0, -1.0, -1.0])  # C_L flipped about x: every point behind C_V
-    p = np.zeros((4, 2)) + [[0.1, 0.1], [-0.1, 0.1], [-0.1, -0.1], [0.1, -0.1]]
-    z = np.ones(4)
-    assert virtual_points(p, g, z, "exact", True) is None
-    assert virtual_points(p, g, z, "rotation", True) is None
-    with pytest.raises(ValueError, match="behind the virtual camera"):
-        virtual_camera_points(p, g, z, "exact")
+def test_a_view_with_no_image_in_the_virtual_camera_is_named_by_the_servo(assembly):
+    from tdacm.vision.virtual import BehindVirtualCamera
 
-
-def test_the_servo_holds_when_the_view_has_no_image_in_the_virtual_camera(assembly):
     loop = assembly.loop
     loop.reset(assembly.world.q0, assembly.world.qd0)
     sensed = loop.sense()
     assert sensed.view.found
-    servo = loop.servo
     q = sensed.estimate.q.copy()
-    q[0] = 2.0  # rolled past 90 degrees: the target lies behind C_V
-    assert servo.to_virtual(sensed.view, q) == (None, None)
-    assert servo.observe(sensed.view, q) is None
+    q[0] = 2.0  # rolled past 90 degrees: the target lies behind C_V (the loop's BEHIND_CAMERA)
+    with pytest.raises(BehindVirtualCamera):
+        loop.servo.observe(sensed.view, q)

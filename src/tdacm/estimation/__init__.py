@@ -26,7 +26,7 @@ from .ekf import (
     euler_from_rotation,
 )
 from .inversion import InversionResult, strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     DronePoseSensor,
     EncoderMeasurement,
     Imu,

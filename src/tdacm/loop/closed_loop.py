@@ -12,10 +12,11 @@ One period of :meth:`ClosedLoop.step`, data flowing one way::
 
 A run ends at its duration or with a :class:`~.data.Termination` (``LoopStep.termination``,
 with the reason in words): the safety monitor, a failed recovery, the plant's integration
-failing, the drone tumbling, the estimator diverging, a non-finite command, or Ctrl-C. Whatever
-state the plant, cameras, estimator or servo reach ends the run this way; an exception means a
-bug. A camera frame that cannot be interpreted (no pose puts the target in front of the camera,
-or no image in the virtual camera) is a missed frame, not an end.
+failing, the drone tumbling, a detected point behind the virtual camera, the estimator
+diverging, a non-finite command, or Ctrl-C. Whatever state the plant, cameras, estimator or
+servo reach ends the run this way; an exception means a bug. A C_L frame whose corners admit
+no pose with the target in front of the camera (large pixel noise) is a missed frame, not an
+end.
 
 ``tdacm run``, campaigns and the Gymnasium env all drive this class
 (:func:`tdacm.sim.assemble.build_loop` assembles it from a scenario).
@@ -28,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control import ModeSwitch
+from ..control import Mode
+from ..vision.virtual import BehindVirtualCamera
 from .data import (
     ActuatorCommand,
     GlobalView,
@@ -145,7 +147,7 @@ class ClosedLoop:
         self.servo.reset(est.q, first)
         self.controller.reset(est)
         self._u = None
-        self._request_global = self.servo.mode == ModeSwitch.RECOVERY
+        self._request_global = self.servo.mode == Mode.RECOVERY
         self.switch_time = None
         self.plan = None
         self.log.rows = {k: [] for k in self.log.rows}
@@ -177,7 +179,11 @@ class ClosedLoop:
             cmd = _stopped(self.servo.mode, est)
             return LoopStep(t, view, est, cmd, _hold(est), True,
                             "non-finite twist command", Termination.NON_FINITE)  # fmt: skip
-        cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        try:
+            cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        except BehindVirtualCamera as exc:  # eq. (18) undefined: the run ends, as an outcome
+            return LoopStep(t, view, est, _stopped(self.servo.mode, est), _hold(est), True,
+                            f"servo: {exc}", Termination.BEHIND_CAMERA)  # fmt: skip
         self._request_global = cmd.request_global
         if cmd.event == ServoEvent.IBVS_ENGAGED:
             if self.switch_time is None:
@@ -199,7 +205,7 @@ class ClosedLoop:
                             Termination.NON_FINITE)  # fmt: skip
         self.log.record(state, sensed.readings, view, est, cmd, act)
         self._u = act.u
-        if cmd.mode == ModeSwitch.IBVS and not self.safety.check(t, cmd.rmse):
+        if cmd.mode == Mode.IBVS and not self.safety.check(t, cmd.rmse):
             return LoopStep(t, view, est, cmd, act, True, self.safety.reason, Termination.SAFETY)
         if last:
             return LoopStep(t, view, est, cmd, act, True, None)
