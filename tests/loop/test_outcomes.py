@@ -88,6 +88,29 @@ def test_the_ekf_divergence_becomes_the_estimate_failure():
         loop.close()
 
 
+def test_a_singular_innovation_covariance_is_the_filter_diverging(monkeypatch):
+    """Found by the fuzz campaign (90 % dropout, 7 periods of latency, random thrusts): the
+    EKF's solve with H P H^T + R raised LinAlgError out of the run."""
+    from tdacm.estimation import kernels as EK
+
+    sc = load_scenario("ground-test-a").with_overrides(
+        {**FAST, "estimation": {"source": "estimated"}}, "test"
+    )
+    loop = build_loop(sc).loop
+    try:
+        loop.reset()
+
+        def singular(*args):
+            raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
+
+        monkeypatch.setattr(EK, "kalman_update", singular)
+        st = loop.step()
+        assert st.termination is Termination.ESTIMATOR_FAILED
+        assert "singular innovation covariance" in st.reason
+    finally:
+        loop.close()
+
+
 def test_a_view_without_a_pose_is_a_missed_frame(assembly):
     loop = assembly.loop
     obj = np.asarray(assembly.world.target.feature_points, float)

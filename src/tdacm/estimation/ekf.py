@@ -66,6 +66,17 @@ class EstimatorDiverged(FloatingPointError):
     into :attr:`StateEstimate.failure` (the closed loop ends the run)."""
 
 
+def _kalman_update(x, p, r, h, rr):
+    """:func:`~.kernels.kalman_update`; a singular innovation covariance ``H P H^T + R`` (only
+    a broken ``P`` makes it so: ``R`` is positive definite) is the filter's divergence."""
+    try:
+        return EK.kalman_update(x, p, r, h, rr)
+    except np.linalg.LinAlgError as exc:
+        raise EstimatorDiverged(
+            f"estimator diverged (singular innovation covariance: {exc})"
+        ) from exc
+
+
 class _Tick:
     __slots__ = ("t", "u", "x_prior", "p_prior", "phi", "qn", "jac", "meas", "x_post", "p_post")
 
@@ -360,7 +371,7 @@ class ExtendedKalmanFilter:
                 continue
             res = self._measurement(x, meas, tk)
             if res is not None:
-                x, p, _ = EK.kalman_update(x, p, *res)
+                x, p, _ = _kalman_update(x, p, *res)
         tk.x_post, tk.p_post = x, p
 
     # ------------------------------------------------------------------ the tip camera
@@ -446,7 +457,7 @@ class ExtendedKalmanFilter:
         if pred is None:
             self.views_rejected += 1
             return x, p
-        x1, p1, nis = EK.kalman_update(x, p, pts.ravel() - pred[0], pred[1], self._r_view)
+        x1, p1, nis = _kalman_update(x, p, pts.ravel() - pred[0], pred[1], self._r_view)
         if nis > cam.gate:
             self.views_rejected += 1
             return x, p
