@@ -140,3 +140,34 @@ def test_a_view_with_no_image_in_the_virtual_camera_is_named_by_the_servo(assemb
     q[0] = 2.0  # rolled past 90 degrees: the target lies behind C_V (the loop's BEHIND_CAMERA)
     with pytest.raises(BehindVirtualCamera):
         loop.servo.observe(sensed.view, q)
+
+
+def test_a_reference_view_no_pose_explains_falls_back_to_the_projection():
+    """Found by the fuzz campaign: a robot whose rendered reference view at desired.q gave
+    corners IPPE put behind the camera; the build raised. The reference is then the analytic
+    projection, as when the detector misses the target."""
+    over = {
+        "robot": {
+            "rod": {"length": 0.9509902317318857, "diameter": 0.0016063272948239437,
+                    "density": 7923.595896729291, "youngs_modulus": 74484656894.81564,
+                    "damping": 93.35160822851604, "tip_mass": 0.007353004564123378},
+            "tendons": {"radius": 0.0074356603069228675, "max_tension": 38.48347719331806},
+            "attachment": {"offset": 0.058226870849051364},
+            "drone": {"mass": 0.530639555126165, "max_thrust": 16.50294737127488},
+        },
+        "cameras": {"local_renderer": "planar", "global_renderer": "planar", "global_every": 0},
+    }  # fmt: skip
+    from tdacm.vision.target_filter import reference_from_pose
+
+    a = build_loop(load_scenario("paper-in-fov").with_overrides(over, "test"))
+    try:
+        loop, w = a.loop, a.world
+        det, _ = loop.sensors.local.ideal(w.q_star)
+        with pytest.raises(ValueError, match="behind the camera"):
+            estimate_depths(loop.perception.local_camera.normalize(det.points),
+                            w.target.feature_points)  # fmt: skip
+        g_c = loop.sensors.local.pose(w.q_star)
+        _, z = reference_from_pose(w.target, w.scene.target_pose, g_c)
+        assert np.all(np.isfinite(loop.servo.desired_points)) and np.all(z > 0)
+    finally:
+        a.loop.close()

@@ -132,7 +132,8 @@ def _front_end(kind: str, camera, scene: SceneConfig, target, backend: str = "au
 
 def reference_snapshot(local: CameraSensor, robot: Robot, target, scene, q_star, controller_camera):
     """The paper's reference snapshot: C_L's view at the desired configuration (detected;
-    the analytic projection if the detector misses it), in C_V for a floating base."""
+    the analytic projection if the detector misses it or its corners admit no pose in front
+    of the camera), in C_V for a floating base."""
     s = robot.system
     g_c = local.pose(q_star)
     try:
@@ -141,11 +142,14 @@ def reference_snapshot(local: CameraSensor, robot: Robot, target, scene, q_star,
         raise ScenarioError(f"desired.q: {exc}") from None
     det, _ = local.ideal(q_star)
     local.reset()
+    pts = ref
     if det.found:
-        pts = controller_camera.normalize(det.points)
-        z = estimate_depths(pts, target.feature_points)
-    else:
-        pts = ref
+        detected = controller_camera.normalize(det.points)
+        try:
+            z = estimate_depths(detected, target.feature_points)
+            pts = detected
+        except ValueError:  # corners no pose explains (a grazing view): as a missed detection
+            pass
     if s.floating:
         gv = virtual_camera_transform(s.base_pose(q_star), g_c)
         pts, z = virtual_camera_points(pts, gv, z, "exact", return_depths=True)
