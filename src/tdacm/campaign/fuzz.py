@@ -22,14 +22,14 @@ writes it, under one policy: the loop's own servo and controller,
 random twists (``ClosedLoop.act(sensed, twist=...)``), random actuator inputs
 (``act(sensed, u=...)``, up to 1.5 times the limits), or either of these with a non-finite
 value injected at a random period. A case whose overrides the scenario checks reject (an
-invalid input: ``tdacm run`` exits 2) is counted as ``rejected`` and has no episodes.
+invalid input: ``tdacm run`` exits 2) is counted as ``rejected`` and has no episodes; one whose
+assembly raises anything else is an ``exception`` (a bug), and the campaign goes on.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import time
 import traceback
 from collections import Counter
 from dataclasses import dataclass
@@ -188,8 +188,13 @@ def fuzz(n: int, seed: int = 0, duration=(0.5, 1.0), progress=None) -> list[Fuzz
         try:
             sc = load_scenario(name).with_overrides(over, "fuzz")
             assembly = build_loop(sc)
-        except ScenarioError as exc:
+        except ScenarioError as exc:  # invalid input: `tdacm run` exits 2
             out.append(FuzzOutcome(case, -1, name, "-", REJECTED, str(exc), 0, over))
+            case += 1
+            continue
+        except Exception:  # a bug in building: reported, and the campaign goes on
+            out.append(FuzzOutcome(case, -1, name, "-", "exception", None, 0, over,
+                                   traceback.format_exc()))  # fmt: skip
             case += 1
             continue
         loop = assembly.loop
@@ -237,9 +242,3 @@ def main_report(outcomes, wall: float) -> str:
             lines.append(f"\ncase {o.case} episode {o.episode} ({o.scenario}, {o.policy}):")
             lines.append(o.error)
     return "\n".join(lines)
-
-
-def timed_fuzz(n: int, seed: int = 0, **kw) -> tuple[list[FuzzOutcome], float]:
-    w0 = time.perf_counter()
-    out = fuzz(n, seed, **kw)
-    return out, time.perf_counter() - w0
