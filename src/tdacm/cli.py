@@ -511,7 +511,9 @@ def _cmd_identify(args) -> int:
     if args.use == "camera" and any(r.pixels is None for r in recs):
         return _err("--use camera: a recording has no camera pixels")
     try:
-        res = identify_staged(recs, names, start, segment=args.segment, use=args.use)
+        res = identify_staged(
+            recs, names, start, segment=args.segment, use=args.use, decimate=args.decimate
+        )
     except ValueError as exc:
         return _err(str(exc))
     print(res.table())
@@ -683,6 +685,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("auto", "mocap", "camera", "all"),
         default="auto",
         help="measurements fitted: poses (mocap), tip-camera pixels (camera), or both",
+    )
+    s.add_argument(
+        "--decimate",
+        type=_positive_int,
+        default=1,
+        metavar="K",
+        help="fit every K-th sample with RK4 steps of K sample periods (default 1)",
     )
     s.set_defaults(func=_cmd_identify)
     return p

@@ -7,7 +7,9 @@ A :class:`Recording` holds, at the sample times ``t`` (uniform spacing):
 * ``drone``: the drone's pose from motion capture (4x4 per sample; ``None`` for a clamped rod);
 * ``tip``: the tip body's pose from motion capture (a rigid marker set on the tip);
 * ``pixels`` (optional): the tip camera's four target feature points (pixels), with the scene's
-  ``target_points`` (4, 3) and the camera.
+  ``target_points`` (4, 3) and the camera;
+* ``added``: known additions to parameters during the experiment (a clip-on calibration mass
+  ``{"tip_mass": 0.02}``), read from an ``experiment.toml`` ``[added]`` table in a run folder.
 
 The strains are never read: the fit compares poses (and pixels) only.
 
@@ -52,6 +54,7 @@ class Recording:
     camera: object = None
     truth: dict = field(default_factory=dict)  # hidden parameters of a synthetic recording
     q: np.ndarray | None = None  # the true states when known (never used by the fit)
+    added: dict = field(default_factory=dict)  # known additions, e.g. a clip-on tip mass (kg)
 
     def __post_init__(self):
         self.t = np.asarray(self.t, float)
@@ -81,6 +84,20 @@ class Recording:
     def duration(self) -> float:
         return float(self.t[-1] - self.t[0])
 
+    def decimated(self, k: int) -> Recording:
+        """Every ``k``-th sample, the inputs averaged over the ``k`` samples they now hold
+        for (the mean of a zero-order hold); the poses and pixels are the samples'."""
+        if k == 1:
+            return self
+        m = len(self.t) // k
+        cut = lambda a: None if a is None else a[: m * k : k]  # noqa: E731
+        u = self.u[: m * k].reshape(m, k, -1).mean(axis=1)
+        return Recording(
+            self.name, self.t[: m * k : k], u, self.model, cut(self.tip), cut(self.drone),
+            cut(self.pixels), self.target_points, self.camera, self.truth, cut(self.q),
+            self.added,
+        )  # fmt: skip
+
     def window(self, t0: float, t1: float) -> Recording:
         """The samples with ``t0 <= t < t1``."""
         k = (self.t >= t0 - 1e-9) & (self.t < t1 - 1e-9)
@@ -88,7 +105,15 @@ class Recording:
         return Recording(
             self.name, self.t[k], self.u[k], self.model, cut(self.tip), cut(self.drone),
             cut(self.pixels), self.target_points, self.camera, self.truth, cut(self.q),
+            self.added,
         )  # fmt: skip
+
+    def values(self, values: dict) -> dict:
+        """The model's values during this experiment: ``values`` plus the known additions."""
+        v = self.model.values(values)
+        for k, a in self.added.items():
+            v[k] += a
+        return v
 
 
 def pose7_to_matrix(v: np.ndarray) -> np.ndarray:
@@ -163,6 +188,10 @@ def _load_folder(path: Path, scenario) -> Recording:
         raise RecordingInputError(
             f"RECORDING {path}: q has {q.shape[1]} columns, the scenario's robot {sysm.n}"
         )
+    added = {}
+    ef = path / "experiment.toml"
+    if ef.is_file():
+        added = {k: float(v) for k, v in tomllib.loads(ef.read_text()).get("added", {}).items()}
     truth = {}
     tf = path / "truth.toml"
     if tf.is_file():
@@ -186,7 +215,7 @@ def _load_folder(path: Path, scenario) -> Recording:
         drone = base if sysm.floating else None
     return Recording(
         path.name, t, u, model, tip, drone if sysm.floating else None, pixels,
-        world.scene.target_points_world(), world.robot.local_camera, truth, q,
+        world.scene.target_points_world(), world.robot.local_camera, truth, q, added,
     )  # fmt: skip
 
 

@@ -1,17 +1,20 @@
 """Excitation experiments a lab can run, and the synthetic recordings they give.
 
-Four documented experiments (``EXPERIMENTS``; ``docs/identify.md`` says what each identifies):
+Five documented experiments (``EXPERIMENTS``; ``docs/identify.md`` says what each identifies):
 
 * ``tendon-steps`` (clamped rod, the robot of ``ground-test-a``): 20 s of tension steps, a new
-  step every 2 s on one tendon or two neighbouring ones, levels 1.5-6 N (bending the rod up to
-  ~100 deg, where the gravity moment of the bent rod is no longer linear in the curvature, which separates the
+  step every 2 s on one tendon or two neighbouring ones, levels 1-4 N (the rod swings up to
+  ~80 deg, where the gravity moment of the bent rod is no longer linear in the curvature, which separates the
   elastic stiffness ``E I`` from the gravity stiffness of the tip mass);
-* ``tendon-chirp`` (clamped rod): 20 s of antagonistic tension chirps, ``3 +- 3 N`` on the pairs
+* ``tendon-chirp`` (clamped rod): 20 s of antagonistic tension chirps, ``2 +- 0.5 N`` on the pairs
   (0, 2) and (1, 3), 0.1 -> 2.5 Hz (a quarter period apart), across the rod's first bending
   mode (0.8 Hz for the paper robot);
-* ``hover`` (flying): 10 s of hover under a PD position/attitude controller (nominal values,
-  as the lab's controller knows them), with collective-thrust steps (+-1.5 N every 1.5 s),
+* ``hover`` (flying): 10 s of hover under a PID position / PD attitude controller (nominal
+  values, as the lab's controller knows them), with collective-thrust steps (0.4-0.75 N up or
+  down every 1.5 s),
   body-torque chirps (0.03 N m, 0.2 -> 2 Hz) and tendon steps (0-4 N) added;
+* ``camera-chirp`` (clamped rod): the chirps at ``2 +- 0.12 N``, small enough that the target
+  of ``ground-test-a`` stays in the tip camera's view (for the camera-alone study);
 * ``held-out`` (clamped rod): 5 s from rest of two tension sines (0.7 and 1.9 Hz) over a ramp
   on tendons 0 and 1: not used for fitting, only to validate a fitted model's prediction.
 
@@ -78,6 +81,7 @@ class Experiment:
     doc: str
     profile: Callable | None = None
     q0: tuple = ()
+    added: tuple = ()  # known additions to parameters: (("tip_mass", 0.02),)
 
 
 def _steps(t: np.ndarray, rng) -> np.ndarray:
@@ -88,11 +92,29 @@ def _steps(t: np.ndarray, rng) -> np.ndarray:
         if k == 0:
             continue  # 2 s at rest: the static hanging state
         i = int(rng.integers(4))
-        level = float(rng.choice([1.5, 3.0, 4.5, 6.0]))
-        u[sl, i] = level
+        u[sl, i] = float(rng.choice(STEP_LEVELS))
         if rng.random() < 0.4:
-            u[sl, (i + 1) % 4] = float(rng.choice([1.5, 3.0]))
-    return u
+            u[sl, (i + 1) % 4] = float(rng.choice(STEP_LEVELS[:2]))
+    # each step rises over STEP_RISE seconds (a moving average): large deflections with
+    # less overshoot than a sharp step
+    w = max(1, int(round(STEP_RISE / (t[1] - t[0]))))
+    pad = np.vstack([np.repeat(u[:1], w - 1, axis=0), u])
+    c = np.cumsum(np.vstack([np.zeros((1, 4)), pad]), axis=0)
+    return (c[w:] - c[:-w]) / w
+
+
+#: The known clip-on mass of ``tendon-steps-loaded`` (kg).
+CALIBRATION_MASS = 0.02
+
+#: Tension levels of the steps (N) and their rise time (s).
+STEP_LEVELS = (1.5, 3.0, 4.5, 6.0)
+STEP_RISE = 0.5
+
+
+#: Amplitude of the tension chirps (N) around a 2 N pretension.
+CHIRP = 0.5
+#: The same for the tip-camera experiment: small enough that the target stays in C_L's view.
+CAMERA_CHIRP = 0.12
 
 
 def _chirp(t, f0, f1, duration):
@@ -103,13 +125,21 @@ def _chirps(t: np.ndarray, rng) -> np.ndarray:
     d = t[-1] + (t[1] - t[0])
     a = _chirp(t, 0.1, 2.5, d)
     b = _chirp(t + 0.25 / 0.8, 0.1, 2.5, d)
-    return np.column_stack([3 + 3 * a, 3 + 3 * b, 3 - 3 * a, 3 - 3 * b])
+    return np.column_stack([2 + CHIRP * a, 2 + CHIRP * b, 2 - CHIRP * a, 2 - CHIRP * b])
+
+
+def _camera_chirps(t: np.ndarray, rng) -> np.ndarray:
+    d = t[-1] + (t[1] - t[0])
+    a = _chirp(t, 0.1, 2.5, d)
+    b = _chirp(t + 0.25 / 0.8, 0.1, 2.5, d)
+    c = CAMERA_CHIRP
+    return np.column_stack([2 + c * a, 2 + c * b, 2 - c * a, 2 - c * b])
 
 
 def _held_out(t: np.ndarray, rng) -> np.ndarray:
     ramp = np.minimum(t / 2.0, 1.0)
-    u0 = 2.5 * ramp + 1.5 * (1 + np.sin(2 * np.pi * 0.7 * t))
-    u1 = 1.5 * ramp + 1.5 * (1 + np.sin(2 * np.pi * 1.9 * t + 1.0))
+    u0 = 1.5 * ramp + 1.0 * (1 + np.sin(2 * np.pi * 0.7 * t))
+    u1 = 1.0 * ramp + 1.0 * (1 + np.sin(2 * np.pi * 1.9 * t + 1.0))
     return np.column_stack([u0, u1, np.zeros_like(t), np.zeros_like(t)])
 
 
@@ -117,6 +147,15 @@ EXPERIMENTS = {
     e.name: e
     for e in (
         Experiment("tendon-steps", "ground-test-a", 20.0, "clamped rod, tension steps", _steps),
+        Experiment(
+            "tendon-steps-loaded",
+            "ground-test-a",
+            20.0,
+            "clamped rod, tension steps, a known 20 g clip-on mass at the tip",
+            _steps,
+            (),
+            (("tip_mass", CALIBRATION_MASS),),
+        ),
         Experiment("tendon-chirp", "ground-test-a", 20.0, "clamped rod, tension chirps", _chirps),
         Experiment(
             "hover",
@@ -125,6 +164,13 @@ EXPERIMENTS = {
             "hover with thrust and torque excitation",
             None,
             (0.0, 0.0, 0.0, 0.0, 0.0, 2.6, 0.0, 0.0),
+        ),
+        Experiment(
+            "camera-chirp",
+            "ground-test-a",
+            20.0,
+            "clamped rod, small tension chirps keeping the target in the tip camera's view",
+            _camera_chirps,
         ),
         Experiment("held-out", "ground-test-a", 5.0, "validation: sines over a ramp", _held_out),
     )
@@ -150,6 +196,10 @@ def experiment(name: str) -> Experiment:
     return EXPERIMENTS[name]
 
 
+#: Gains of the hover experiment's controller (position: 1/s^2, 1/s, 1/s^3; attitude).
+GAINS = {"kp": 4.0, "kd": 3.0, "ki": 1.0, "kp_att": 60.0, "kd_att": 14.0}
+
+
 def _hover_controller(model, q_ref):
     """A PD position/attitude controller with the nominal mass and inertia (what the lab's
     controller knows), returning the four thrusts."""
@@ -159,12 +209,17 @@ def _hover_controller(model, q_ref):
     gam = s.base.gamma[[0, 1, 2, 5]]
     g = 9.81
 
+    state = {"iz": 0.0, "dt": 0.01}
+
     def control(q, qd):
         p, v = q[3:6], qd[3:6]
-        a = 2.0 * (q_ref[3:6] - p) - 2.5 * v
+        ez = q_ref[5] - p[2]
+        state["iz"] += ez * state["dt"]
+        a = GAINS["kp"] * (q_ref[3:6] - p) - GAINS["kd"] * v
+        a[2] += GAINS["ki"] * state["iz"]
         f = mass * (g + a[2]) / (np.cos(q[0]) * np.cos(q[1]))
         att_d = np.array([-a[1] / g, a[0] / g, 0.0])
-        tau = inertia * (30.0 * (att_d - q[:3]) - 8.0 * qd[:3])
+        tau = inertia * (GAINS["kp_att"] * (att_d - q[:3]) - GAINS["kd_att"] * qd[:3])
         return np.linalg.solve(gam, np.r_[tau, f])
 
     return control
@@ -176,7 +231,7 @@ def _hover_excitation(t: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
     ex = np.zeros((len(t), 4))
     for k in range(int(np.ceil(d / 1.5))):
         sl = (t >= k * 1.5) & (t < (k + 1) * 1.5)
-        ex[sl, 3] = float(rng.choice([-1.5, -0.75, 0.75, 1.5]))
+        ex[sl, 3] = float(rng.choice([-0.75, -0.4, 0.4, 0.75]))
     for i, ph in enumerate((0.0, 1.0, 2.0)):
         ex[:, i] = 0.03 * _chirp(t + ph, 0.2, 2.0, d)
     ten = np.zeros((len(t), 4))
@@ -207,6 +262,10 @@ def synthesize(
     model, world = model_of_scenario(parse_scenario(scenario_text(exp)))
     sysm = model.system
     valid = {k: v for k, v in truth.items() if k in model.nominal}
+    added = dict(exp.added)
+    sim_values = model.values(valid)
+    for k, a in added.items():
+        sim_values[k] += a
     rng_profile = np.random.default_rng([seed, 1])
     rng_noise = np.random.default_rng([seed, 2])
     nsamp = int(round((exp.duration if duration is None else duration) / SAMPLE_DT))
@@ -214,7 +273,7 @@ def synthesize(
     q0 = np.zeros(sysm.n) if not exp.q0 else np.asarray(exp.q0, float)
     if exp.profile is not None:
         u = exp.profile(t, rng_profile)
-        pred = model.simulate(valid, q0[None], np.zeros((1, sysm.n)), [0], [nsamp], u,
+        pred = model.simulate(sim_values, q0[None], np.zeros((1, sysm.n)), [0], [nsamp], u,
                               SAMPLE_DT, GENERATOR_SUBSTEPS)  # fmt: skip
         q, qd = pred.q, pred.qd
     else:
@@ -231,12 +290,12 @@ def synthesize(
             f = control(qk, qdk) + np.linalg.solve(gam, ex[k])
             u[k] = np.r_[np.clip(f, 0.0, top), ten[k]]
             if k + 1 < nsamp:
-                pred = model.simulate(valid, qk[None], qdk[None], [0], [2], u[k : k + 2],
+                pred = model.simulate(sim_values, qk[None], qdk[None], [0], [2], u[k : k + 2],
                                       SAMPLE_DT, GENERATOR_SUBSTEPS)  # fmt: skip
                 if not pred.ok:
                     raise RuntimeError(f"{name}: the synthetic run failed at t = {t[k]:.2f} s")
                 qk, qdk = pred.q[1], pred.qd[1]
-    true_sys = model.build(valid)
+    true_sys = model.build(sim_values)
     base, tip = model.poses(true_sys, q)
     rec_u = u.copy()
     na = sysm.n_a
@@ -256,7 +315,7 @@ def synthesize(
         px[~seen] = np.nan  # a point outside the image is not detected
     rec = Recording(
         name, t, rec_u, model, tip_m, drone_m, px, world.scene.target_points_world(),
-        world.robot.local_camera, valid, q,
+        world.robot.local_camera, valid, q, added,
     )  # fmt: skip
     if out is not None:
         write_recording(rec, out, exp, qd, u, seed, noise)
@@ -297,6 +356,11 @@ def write_recording(rec: Recording, out, exp: Experiment, qd, u_true, seed, nois
     (out / "scenario.toml").write_text(scenario_text(exp))
     np.savez(out / "timeseries.npz", t=rec.t, q=rec.q, qd=qd, u=u_true)
     meas = {"t": rec.t, "u": rec.u, "tip_pose": matrix_to_pose7(rec.tip)}
+    if rec.added:
+        (out / "experiment.toml").write_text(
+            "# known additions to the robot during this experiment (read by the fit)\n"
+            + tomli_w.dumps({"experiment": exp.name, "added": rec.added})
+        )
     if rec.drone is not None:
         meas["drone_pose"] = matrix_to_pose7(rec.drone)
     if rec.pixels is not None:

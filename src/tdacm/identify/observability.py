@@ -58,13 +58,16 @@ def fisher_report(recordings, params, values: dict | None = None, rtol: float = 
 #: The study of ``docs/identify.md``: (experiment, measurements, parameters).
 STUDY = (
     ("tendon-steps", "mocap", ("E", "damping", "tip_mass", "radius")),
+    ("tendon-steps+tendon-steps-loaded", "mocap", ("E", "damping", "tip_mass", "radius")),
     ("tendon-chirp", "mocap", ("E", "damping", "tip_mass", "radius")),
     ("tendon-steps", "mocap", ("E", "damping", "tip_mass", "radius", "friction", "viscous")),
     ("hover", "mocap", ("drone_mass",)),
     ("hover", "mocap", ("drone_mass", "inertia_x", "inertia_y", "inertia_z")),
     ("hover", "mocap", ("drone_mass", "thrust")),
-    ("tendon-steps", "camera", ("E", "damping", "tip_mass", "radius", "camera_offset")),
-    ("tendon-chirp", "camera", ("E", "damping", "tip_mass", "radius", "camera_offset")),
+    ("camera-chirp", "mocap", ("E", "damping", "tip_mass", "radius")),
+    ("camera-chirp", "camera", ("E", "damping", "tip_mass", "radius")),
+    ("camera-chirp", "camera", ("E", "damping", "tip_mass", "radius", "camera_offset")),
+    ("camera-chirp", "camera", ("E", "damping", "radius")),
 )
 
 
@@ -82,9 +85,10 @@ def observability_table(seed: int = 0, study=STUDY) -> str:
     for exp, use, names in study:
         key = (exp, use)
         if key not in cache:
-            cache[key] = synthesize(exp, seed=seed, pixels=use == "camera")
-        rec = cache[key]
-        rep = fisher_report(rec, list(names), values={**rec.model.nominal, **rec.truth,
+            cache[key] = [synthesize(e, seed=seed, pixels=use == "camera") for e in exp.split("+")]
+        recs = cache[key]
+        rec = recs[0]
+        rep = fisher_report(recs, list(names), values={**rec.model.nominal, **rec.truth,
                             "camera_offset": 0.0}, use=use)  # fmt: skip
         bounds = ", ".join(_bound(n, rep["crlb"][n]) for n in names)
         rows.append(
