@@ -1,18 +1,20 @@
 """Excitation experiments a lab can run, and the synthetic recordings they give.
 
-Five documented experiments (``EXPERIMENTS``; ``docs/identify.md`` says what each identifies):
+Six documented experiments (``EXPERIMENTS``; ``docs/identify.md`` says what each identifies):
 
 * ``tendon-steps`` (clamped rod, the robot of ``ground-test-a``): 20 s of tension steps, a new
-  step every 2 s on one tendon or two neighbouring ones, levels 1-4 N (the rod swings up to
-  ~80 deg, where the gravity moment of the bent rod is no longer linear in the curvature, which separates the
-  elastic stiffness ``E I`` from the gravity stiffness of the tip mass);
+  step every 2 s (0.5 s rise) on one tendon or two neighbouring ones, levels 1.5-6 N; the
+  largest swing the rod past the horizontal, where the gravity moment is far from linear in
+  the curvature;
+* ``tendon-steps-loaded``: the same with a known 20 g clip-on mass at the tip
+  (:data:`CALIBRATION_MASS`, recorded in ``Recording.added``): the known mass fixes the common
+  scale of ``E``, damping, tip mass and moment arm that one clamped experiment leaves loose;
 * ``tendon-chirp`` (clamped rod): 20 s of antagonistic tension chirps, ``2 +- 0.5 N`` on the pairs
   (0, 2) and (1, 3), 0.1 -> 2.5 Hz (a quarter period apart), across the rod's first bending
   mode (0.8 Hz for the paper robot);
 * ``hover`` (flying): 10 s of hover under a PID position / PD attitude controller (nominal
   values, as the lab's controller knows them), with collective-thrust steps (0.4-0.75 N up or
-  down every 1.5 s),
-  body-torque chirps (0.03 N m, 0.2 -> 2 Hz) and tendon steps (0-4 N) added;
+  down every 1.5 s), body-torque chirps (0.03 N m, 0.2 -> 2 Hz) and tendon steps (0-4 N);
 * ``camera-chirp`` (clamped rod): the chirps at ``2 +- 0.12 N``, small enough that the target
   of ``ground-test-a`` stays in the tip camera's view (for the camera-alone study);
 * ``held-out`` (clamped rod): 5 s from rest of two tension sines (0.7 and 1.9 Hz) over a ramp
