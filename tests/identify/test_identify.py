@@ -229,3 +229,25 @@ def test_acceptance_five_parameters_from_the_shipped_experiments():
     for k, lim in limits.items():
         assert abs(err[k]) < lim, (k, err[k])
     assert held_out_rms(res.values, seed=seed) < 5e-3
+
+
+def test_a_run_folder_without_measurements_fits_on_the_poses_of_q(tmp_path, clamped):
+    """A `tdacm run`-style folder (timeseries.npz t, q, qd, u; scenario.toml): the poses are
+    those of q; noise-free data give the scenario's own value back."""
+    from pathlib import Path
+
+    from tdacm import __file__ as pkg
+
+    sysm = clamped.system
+    u = np.array([2.0, 0.5, 0.0, 0.0])
+    ref = simulate(sysm, [0.3, -0.1], duration=3.0, dt=0.01, u=u, method="rk4")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    text = (Path(pkg).parent / "scenarios" / "ground-test-a.toml").read_text()
+    (folder / "scenario.toml").write_text(text)
+    np.savez(folder / "timeseries.npz", t=ref.t, q=ref.q, qd=ref.qd, u=ref.u[:-1])
+    rec = load_recording(folder)
+    assert rec.u.shape == (len(ref.t), 4)
+    np.testing.assert_allclose(rec.tip[100], sysm.tip_pose(ref.q[100]), atol=1e-14)
+    res = identify(rec, ["E"], start={"E": 1.2 * sysm.rod.youngs_modulus}, max_nfev=20)
+    assert res.values["E"] == pytest.approx(sysm.rod.youngs_modulus, rel=1e-6)
