@@ -329,6 +329,24 @@ def _cmd_scenarios(args) -> int:
     return 0
 
 
+def _cmd_schema(args) -> int:
+    """The JSON Schema of a scenario file, or (``--markdown``) the scenario reference."""
+    import json
+
+    from .sim.config import json_schema, reference_markdown
+
+    if args.markdown is None:
+        print(json.dumps(json_schema(), indent=2))
+        return 0
+    text = reference_markdown()
+    if args.markdown == "-":
+        sys.stdout.write(text)
+    else:
+        Path(args.markdown).write_text(text, encoding="utf-8")
+        _note(f"Scenario reference written to {args.markdown}")
+    return 0
+
+
 def _cmd_campaign(args) -> int:
     from .campaign import CampaignSpecError, run_campaign
 
@@ -589,6 +607,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_plot)
     s = sub.add_parser("scenarios", help="list the shipped scenarios")
     s.set_defaults(func=_cmd_scenarios)
+    s = sub.add_parser(
+        "schema",
+        help="print the JSON Schema of a scenario file (for editor completion)",
+        description="Print the JSON Schema of a scenario file; with --markdown, write the "
+        "scenario reference (docs/scenario-reference.md) generated from the same records.",
+    )
+    s.add_argument(
+        "--markdown",
+        nargs="?",
+        const="-",
+        metavar="FILE.md",
+        help="write the scenario reference in Markdown instead (default: stdout)",
+    )
+    s.set_defaults(func=_cmd_schema)
     s = sub.add_parser("campaign", help="run a robustness campaign on Dask (resumable)")
     s.add_argument("spec", help="campaign spec TOML (see docs/campaigns.md)")
     s.add_argument(

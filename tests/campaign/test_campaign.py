@@ -77,13 +77,20 @@ def test_seeding_is_reproducible_and_distinct(scenario_data):
 def test_failing_run_becomes_an_error_row(scenario_data):
     spec = parse_spec(
         'scenario = "paper-in-fov"\nruns = 1\nduration = 0.04\n[distributions]\n'
-        '"model.perturbation" = { kind = "fixed", value = -3.0 }',
+        '"robot.rod.basis" = { kind = "fixed", value = "bogus:1" }',
         "s",
         scenario_data,
     )
     row = execute_run(spec.__dict__, 0, 123)
     assert row["status"] == "error" and row["success"] is False
-    assert "model.perturbation must lie in [0, 1)" in row["error"]
+    assert "robot.rod.basis = 'bogus:1'" in row["error"]
+    with pytest.raises(CampaignSpecError, match="model.perturbation must be in"):  # on load
+        parse_spec(
+            'scenario = "paper-in-fov"\nruns = 1\n[distributions]\n'
+            '"model.perturbation" = { kind = "fixed", value = -3.0 }',
+            "s",
+            scenario_data,
+        )
 
 
 def test_wilson_interval():
@@ -175,7 +182,7 @@ def test_campaign_cli_exits_nonzero_when_every_run_errors(tmp_path, capsys):
     spec = tmp_path / "spec.toml"
     spec.write_text(
         'scenario = "paper-in-fov"\nruns = 2\nduration = 0.04\n[distributions]\n'
-        '"model.perturbation" = { kind = "fixed", value = -3.0 }\n'
+        '"robot.rod.basis" = { kind = "fixed", value = "bogus:1" }\n'
     )
     code = main(["campaign", str(spec), "--workers", "1", "--out", str(tmp_path / "c")])
     cap = capsys.readouterr()

@@ -10,6 +10,7 @@ from tdacm.estimation import FilterBlock
 from tdacm.sim import build_loop
 from tdacm.sim.runner import Simulation
 from tdacm.sim.scenario import load_scenario
+from tdacm.viz import plot_run_dir
 
 FAST = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
 
@@ -23,6 +24,7 @@ def scenario(source="estimated", **est):
 def test_short_closed_loop_on_estimates(tmp_path):
     sim = Simulation(scenario(initial_strain_error=0.3), duration=1.6)
     a, s = sim.run(tmp_path)
+    plot_run_dir(tmp_path, kinds=("estimation",))
     assert not s["terminated"], s["termination_reason"]
     assert isinstance(sim.loop.estimator, FilterBlock)
     assert s["estimation_source"] == "estimated"
@@ -116,7 +118,8 @@ def test_gymnasium_env_on_estimates():
     for _ in range(3):
         obs, reward, term, trunc, info = env.step(np.zeros(env.action_space.shape))
         assert np.all(np.isfinite(obs))
-    q_hat = obs[15 : 15 + env.n]
+    q_hat = obs[15 : 15 + env.n] * env.q_scale + env.world.q_star  # the scaled offset
+    assert np.allclose(q_hat, env._sensed.estimate.q, rtol=0, atol=1e-5)
     assert not np.allclose(q_hat, env.loop.plant.state.q, rtol=0, atol=1e-5)  # the estimate
     env.close()
 

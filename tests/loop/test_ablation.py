@@ -74,7 +74,7 @@ def test_short_run_with_the_controller_on_the_true_drone_velocity():
     )
     sim = Simulation(sc, duration=0.3, seed=0)
     seen = []
-    loop = sim.build()
+    loop = sim.build().loop
     inner = loop.controller.controller
     orig = inner.step
 

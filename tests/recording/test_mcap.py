@@ -22,7 +22,7 @@ from tdacm.recording import (
     read_mcap,
 )
 from tdacm.sim import Simulation, load_scenario
-from tdacm.sim.outputs import write_all
+from tdacm.sim.outputs import write_run
 
 FAST = '[cameras]\nlocal_renderer = "analytic"\nglobal_renderer = "planar"\n'
 
@@ -41,14 +41,12 @@ def _decoded(path):
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
-    """A real 0.5 s run of ground-test-a (drone held), written without figures."""
+    """A real 0.5 s run of ground-test-a (drone held): the run folder's data, no figures."""
     tmp = tmp_path_factory.mktemp("run")
     (tmp / "fast.toml").write_text(FAST)
     sim = Simulation(load_scenario("ground-test-a", tmp / "fast.toml"), duration=0.5)
-    arrays, summary = sim.run(None)
     out = tmp / "run"
-    write_all(out, arrays, summary, sim.loop.servo.desired_points, None, sim.loop.plant.system,
-              scenario=sim.scenario, figures=False)  # fmt: skip
+    sim.run(out)
     return out
 
 
@@ -213,8 +211,7 @@ def test_floating_base_run_folder_exports_the_drone_and_rotors(tmp_path):
               "u": rng.uniform(0, 5, (T, 8)), "tau": rng.normal(size=(T, 8)),
               "rmse": rng.uniform(size=T), "points_local": rng.normal(size=(T, 4, 2))}  # fmt: skip
     arrays["points_local"][2] = np.nan  # target not detected at that step
-    write_all(tmp_path / "run", arrays, {}, np.zeros((4, 2)), None, None, scenario=sc,
-              figures=False)  # fmt: skip
+    write_run(tmp_path / "run", arrays, {}, np.zeros((4, 2)), None, scenario=sc)
     path = export_run(tmp_path / "run", tmp_path / "f.mcap")
     run = load_run_folder(tmp_path / "run")
     _check_tf_chain(path, run)

@@ -16,6 +16,7 @@ from tdacm.sim import (
     parse_scenario,
 )
 from tdacm.vision import camera_pose, world_to_camera
+from tdacm.viz import plot_run_dir
 
 NAMES = [
     "custom-robot-example",
@@ -73,7 +74,7 @@ def test_paper_in_fov_values():
         (
             'name = "a"\nduration = -1\n[initial]\nq = [0,0,0,0,0,3,0,0]\n[desired]\n'
             "q = [0,0,0,0,0,3,0,0]",
-            "duration must be positive",
+            "duration must be > 0",
         ),
         ('name = "a"\n[scene]\nbox_xy = [1, 2, 3]', "box_xy must have 2 entries"),
         ("name = ", "invalid TOML"),
@@ -109,6 +110,7 @@ def test_short_closed_loop_end_to_end(tmp_path):
     perturbed model: the image error drops; all outputs are written."""
     sc = load_scenario("ground-test-a").with_overrides({"cameras": {"global_renderer": "planar"}})
     arrays, summary = Simulation(sc, duration=1.5).run(tmp_path)
+    plot_run_dir(tmp_path)  # the figures, drawn from the folder's data
     assert not summary["terminated"], summary["termination_reason"]
     assert summary["final_rmse"] < 0.5 * summary["initial_rmse"]
     assert np.all(arrays["u"] >= 0.0)

@@ -21,17 +21,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _validate as V
+from .. import paper_values as PV
 
 
 @dataclass
 class Quadrotor:
     """Rigid quadrotor body; its frame is at the centre of mass, principal axes, z up."""
 
-    mass: float = 0.7331
-    inertia: tuple = (2.4388e-2, 2.6151e-2, 2.6929e-2)
-    arm_length: float = 0.325
-    drag_factor: float = 0.016
-    max_thrust: float = 15.0
+    mass: float = PV.DRONE_MASS
+    inertia: tuple = PV.DRONE_INERTIA
+    arm_length: float = PV.DRONE_ARM_LENGTH
+    drag_factor: float = PV.DRONE_DRAG_FACTOR
+    max_thrust: float = PV.DRONE_MAX_THRUST
 
     floating = True
 

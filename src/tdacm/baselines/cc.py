@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import paper_values as PV
 from ..lie.euler import rot_zyx
 from ..system import Loads, SingularConfigurationError, Terms
 from ..system.tdacm import default_attachment
@@ -53,18 +54,18 @@ class CCLagrangian:
         floating: bool = True,
         base_pose=None,
         n_gauss: int = 5,
-        length: float = 1.0,
-        diameter: float = 2e-3,
-        density: float = 6.45e3,
-        youngs_modulus: float = 5e10,
-        damping: float = 1e2,
-        drone_mass: float = 0.7331,
-        drone_inertia=(2.4388e-2, 2.6151e-2, 2.6929e-2),
-        arm_length: float = 0.325,
-        drag_factor: float = 0.016,
-        tendon_radius: float = 0.01,
-        tip_mass: float = 0.01,
-        attachment_offset: float = 0.1,
+        length: float = PV.ROD_LENGTH,
+        diameter: float = PV.ROD_DIAMETER,
+        density: float = PV.ROD_DENSITY,
+        youngs_modulus: float = PV.ROD_YOUNGS_MODULUS,
+        damping: float = PV.ROD_DAMPING,
+        drone_mass: float = PV.DRONE_MASS,
+        drone_inertia=PV.DRONE_INERTIA,
+        arm_length: float = PV.DRONE_ARM_LENGTH,
+        drag_factor: float = PV.DRONE_DRAG_FACTOR,
+        tendon_radius: float = PV.TENDON_RADIUS,
+        tip_mass: float = PV.TIP_MASS,
+        attachment_offset: float = PV.ATTACHMENT_OFFSET,
         loads: Loads | None = None,
         rebuild: bool = False,
     ):

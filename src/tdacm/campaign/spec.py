@@ -9,7 +9,7 @@ A spec is a TOML file::
     success_rmse = 0.01           # a run succeeds if it ends at or below this normalized RMSE
 
     [distributions]
-    # keys are "section.key" paths into the scenario (see ``tdacm.sim.scenario.SCHEMA``)
+    # keys are "section.key" paths into the scenario (docs/scenario-reference.md)
     "initial.q"          = { kind = "normal", std = [0, 0, 0.05, 0.1, 0.1, 0.1, 0.05, 0.05] }
     "model.perturbation" = { kind = "fixed", value = 0.1 }
     "sensors.pixel_noise" = { kind = "fixed", value = 1.0 }
@@ -19,8 +19,16 @@ A spec is a TOML file::
 Kinds: ``fixed`` (``value``), ``normal`` (``std``, optional ``mean``; added to the scenario's
 value when ``relative = false`` (default) — a perturbation around the nominal — or multiplying
 ``1 + N(mean, std)`` when ``relative = true``), ``uniform`` (``low``, ``high``; same ``relative``
-rule: absolute values unless ``offset = true``), ``choice`` (``values``).  Vectors take vector
+rule: absolute values unless ``offset = true``), ``choice`` (``values``: numbers, strings or
+booleans, each a valid value of the key), ``truncnormal`` (``mean``, ``std``, optional ``low``,
+``high``: absolute values drawn from ``N(mean, std)`` and redrawn, from the run's seeded
+generator, until they lie in ``[low, high]`` and in the key's valid range).  Vectors take vector
 parameters of the key's length or scalars (broadcast).
+
+The valid range of a key comes from the scenario's records (:func:`tdacm.sim.config.bounds`):
+a distribution whose samples can leave it (a ``normal`` on ``sensors.pixel_noise``, which must
+be >= 0; a ``uniform`` or ``choice`` reaching outside) is rejected when the spec is loaded,
+naming the key; ``truncnormal`` is the way to draw a bell-shaped value on a bounded key.
 """
 
 from __future__ import annotations
@@ -44,7 +52,11 @@ KINDS = {
     "normal": {"std", "mean", "relative"},
     "uniform": {"low", "high", "offset"},
     "choice": {"values"},
+    "truncnormal": {"mean", "std", "low", "high"},
 }
+
+#: draws of a truncnormal before giving up (the window must hold some of the normal's mass)
+MAX_REDRAWS = 10_000
 
 
 @dataclass
@@ -97,6 +109,85 @@ def _vec_or_scalar(source, where, v, length):
             _err(source, f"{where} must have {length} entries, got {len(v)}")
         return [_num(source, where, x) for x in v]
     return _num(source, where, v)
+
+
+def _side(d: dict, side: str):
+    """A truncnormal's ``low``/``high`` (``None``: unbounded on that side)."""
+    v = d.get(side)
+    return (-math.inf if side == "low" else math.inf) if v is None else v
+
+
+def _key_bounds(key: str):
+    from ..sim.config import bounds
+
+    try:
+        return bounds(key)
+    except KeyError:  # not a scenario value with a range
+        return None, False, None, False
+
+
+def _check_range(source, where, key, d: dict, base) -> None:
+    """Reject a distribution whose samples can leave ``key``'s valid range (from the records),
+    and text/boolean values that are not valid values of the key."""
+    kind = d["kind"]
+    if isinstance(base, bool | str):
+        from pydantic import ValidationError
+
+        from ..sim.config import ScenarioConfig, error_line
+
+        vals = [d["value"]] if kind == "fixed" else d["values"]
+        for v in vals:
+            node = v
+            for part in reversed(key.split(".")):
+                node = {part: node}
+            try:
+                ScenarioConfig.model_validate(node)
+            except ValidationError as exc:
+                _err(source, f"{where}: {error_line(exc)}")
+        return
+    lo, lo_in, hi, hi_in = _key_bounds(key)
+    if lo is None and hi is None:
+        return
+    from ..sim.config import range_text
+
+    rng = range_text(key)
+
+    def inside(x) -> bool:
+        x = np.asarray(x, float)
+        ok = np.ones(x.shape, bool)
+        if lo is not None:
+            ok &= (x >= lo) if lo_in else (x > lo)
+        if hi is not None:
+            ok &= (x <= hi) if hi_in else (x < hi)
+        return bool(np.all(ok))
+
+    b = np.asarray(base, float)
+    if kind == "fixed":
+        ends = [d["value"]]
+    elif kind == "choice":
+        ends = d["values"]
+    elif kind == "uniform":
+        ends = [d["low"], d["high"]]
+        if d["offset"]:
+            ends = [b + np.asarray(e, float) for e in ends]
+    elif kind == "normal":
+        spread = np.asarray(d["std"], float) * (np.abs(b) if d["relative"] else 1.0)
+        if np.any(spread > 0):
+            _err(
+                source,
+                f"{where}: a normal distribution can leave the valid range of {key} ({rng}); "
+                "use kind = 'truncnormal' (mean, std, low, high)",
+            )
+        return
+    else:  # truncnormal: the window must meet the key's range
+        lo_w = np.maximum(_side(d, "low"), -np.inf if lo is None else lo)
+        hi_w = np.minimum(_side(d, "high"), np.inf if hi is None else hi)
+        if np.any(hi_w < lo_w):
+            _err(source, f"{where}: [low, high] lies outside the valid range of {key} ({rng})")
+        return
+    for e in ends:
+        if not inside(e):
+            _err(source, f"{where}: {key} must be {rng}, the distribution gives {e!r}")
 
 
 def parse_spec(
@@ -211,11 +302,27 @@ def parse_spec(
             if np.any(np.asarray(out["high"]) < np.asarray(out["low"])):
                 _err(source, f"{where}: high must be >= low")
             out["offset"] = bool(d.get("offset", False))
+        elif kind == "truncnormal":
+            if "std" not in d or "mean" not in d:
+                _err(source, f"{where}: kind 'truncnormal' needs 'mean' and 'std'")
+            out["mean"] = _vec_or_scalar(source, f"{where}.mean", d["mean"], length)
+            out["std"] = _vec_or_scalar(source, f"{where}.std", d["std"], length)
+            if np.any(np.asarray(out["std"]) < 0):
+                _err(source, f"{where}.std must be non-negative, got {d['std']!r}")
+            for side in ("low", "high"):  # optional: the key's range alone
+                v = d.get(side)
+                out[side] = (
+                    None if v is None else _vec_or_scalar(source, f"{where}.{side}", v, length)
+                )
+            if np.any(np.asarray(_side(out, "high")) < np.asarray(_side(out, "low"))):
+                _err(source, f"{where}: high must be >= low")
         else:
             vals = d.get("values")
             if not isinstance(vals, list) or not vals:
                 _err(source, f"{where}: kind 'choice' needs a non-empty list 'values'")
             out["values"] = [_vec_or_scalar(source, f"{where}.values", v, length) for v in vals]
+        if scenario_defaults is not None:
+            _check_range(source, where, key, out, base)
         clean[key] = out
     return CampaignSpec(data["scenario"], runs, seed, clean, duration, success, source)
 
@@ -277,7 +384,7 @@ def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> 
         if isinstance(base, bool | str):
             pyval = d["value"] if kind == "fixed" else d["values"][rng.integers(len(d["values"]))]
         else:
-            pyval = _draw(d, base, rng)
+            pyval = _draw(d, base, rng, key)
         node = out
         for part in parts[:-1]:
             node = node.setdefault(part, {})
@@ -285,7 +392,34 @@ def sample_overrides(spec: CampaignSpec, scenario_data: dict, run_seed: int) -> 
     return out
 
 
-def _draw(d: dict, base, rng) -> object:
+def _truncnormal(d: dict, shape, key: str, rng) -> np.ndarray:
+    """``N(mean, std)`` redrawn where outside ``[low, high]`` and the key's valid range."""
+    lo, lo_in, hi, hi_in = _key_bounds(key)
+    mean = np.broadcast_to(np.asarray(d["mean"], float), shape)
+    std = np.broadcast_to(np.asarray(d["std"], float), shape)
+    low = np.broadcast_to(np.asarray(_side(d, "low"), float), shape)
+    high = np.broadcast_to(np.asarray(_side(d, "high"), float), shape)
+
+    def ok(x):
+        good = (x >= low) & (x <= high)
+        if lo is not None:
+            good &= (x >= lo) if lo_in else (x > lo)
+        if hi is not None:
+            good &= (x <= hi) if hi_in else (x < hi)
+        return good
+
+    value = np.array(rng.normal(mean, std), dtype=float)
+    for _ in range(MAX_REDRAWS):
+        bad = ~ok(value)
+        if not bad.any():
+            return value
+        value[bad] = rng.normal(mean, std)[bad] if value.ndim else rng.normal(mean, std)
+    raise CampaignSpecError(
+        f"{key}: truncnormal found no value in its window after {MAX_REDRAWS} draws"
+    )
+
+
+def _draw(d: dict, base, rng, key: str = "") -> object:
     base_arr = np.asarray(base if base is not None else 0.0, dtype=float)
     shape = base_arr.shape
     kind = d["kind"]
@@ -297,6 +431,8 @@ def _draw(d: dict, base, rng) -> object:
     elif kind == "uniform":
         draw = rng.uniform(np.broadcast_to(d["low"], shape), np.broadcast_to(d["high"], shape))
         value = base_arr + draw if d["offset"] else draw
+    elif kind == "truncnormal":
+        value = _truncnormal(d, shape, key, rng)
     else:
         value = np.broadcast_to(
             np.asarray(d["values"][rng.integers(len(d["values"]))], float), shape

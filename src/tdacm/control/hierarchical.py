@@ -34,6 +34,7 @@ from ..lie.euler import euler_rate_matrix
 from ..system.tdacm import TDACM
 from .adaptive import AdaptiveController, AdaptiveGains
 from .allocation import allocate_tensions, allocate_thrusts
+from .config import LAW_DEFAULTS, ControlLawConfig
 from .model import EstimatedModel
 
 
@@ -122,10 +123,10 @@ class TDACMController:
         system: TDACM,
         model: EstimatedModel | None = None,
         gains: AdaptiveGains | None = None,
-        pretension: float = 0.5,
-        max_tilt: float = 0.35,
-        attitude_filter: float = 0.05,
-        max_tilt_rate: float = 1.5,
+        pretension: float = LAW_DEFAULTS.pretension,
+        max_tilt: float = LAW_DEFAULTS.max_tilt,
+        attitude_filter: float = LAW_DEFAULTS.attitude_filter,
+        max_tilt_rate: float = LAW_DEFAULTS.max_tilt_rate,
         min_lift: float = 0.8,
         exact_attitude: bool = False,
     ):
@@ -150,7 +151,7 @@ class TDACMController:
         """The scenario's controller: gains for the desired configuration ``q_star``
         (:func:`default_gains`) and the ``[controller]`` options (``pretension``,
         ``max_tilt``, ``attitude_filter``, ``max_tilt_rate``; missing ones take the defaults)."""
-        keys = ("pretension", "max_tilt", "attitude_filter", "max_tilt_rate")
+        keys = tuple(ControlLawConfig.model_fields)
         return cls(
             system,
             model,

@@ -39,70 +39,25 @@ Missing measurements (dropouts, slower sensors) simply mean predict-only ticks.
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass, fields
 
 import numpy as np
 
 from ..control.model import EstimatedModel
 from ..lie.euler import euler_from_rotation, euler_rate_matrix, rot_zyx
 from ..lie.se3 import adjoint_pair, so3_exp_and_left_jacobian, so3_log
+from ..vision.mounts import tip_camera_pose
 from . import kernels as EK
 from .camera import TargetCamera, TargetViewMeasurement, target_pose_from_view, view_model
+from .config import EstimatorConfig
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     EncoderMeasurement,
     ImuMeasurement,
     PoseMeasurement,
     SensorSuiteConfig,
 )
-
-
-@dataclass(frozen=True)
-class EstimatorConfig:
-    """Filter tuning (scenario section ``[estimation]``, same names). Units: rad, m, rad/m for
-    the strains; noise densities per sqrt(Hz). See ``docs/estimation.md`` for the reasons."""
-
-    rk4_steps: int = 1
-    accel_noise_angular: float = 0.3  # rad/s^2/sqrt(Hz), drone Euler angles
-    accel_noise_linear: float = 0.005  # m/s^2/sqrt(Hz)
-    accel_noise_strain: float = 0.2  # rad/m/s^2/sqrt(Hz) (covers the downwash of test C)
-    disturbance_walk_angular: float = 1.0  # rad/s^3/sqrt(Hz)
-    disturbance_walk_linear: float = 0.02  # m/s^3/sqrt(Hz)
-    disturbance_walk_strain: float = 0.3  # rad/m/s^3/sqrt(Hz)
-    accel_model_error: float = 0.03  # m/s^2, added in quadrature to the accelerometer's noise
-    model_error_fraction: float = 0.1  # relative error of the predicted acceleration
-    initial_attitude_std: float = 0.02  # rad
-    initial_position_std: float = 0.02  # m
-    initial_strain_std: float = 0.3  # rad/m
-    initial_velocity_std: float = 0.1  # rad/s, m/s, rad/m/s
-    initial_disturbance_angular_std: float = 2.0  # rad/s^2
-    initial_disturbance_linear_std: float = 1.5  # m/s^2 (10 % of g: the model's gravity error)
-    initial_disturbance_strain_std: float = 5.0  # rad/m/s^2
-    max_delay: float = 0.2  # s of history kept for late measurements
-
-    def __post_init__(self):
-        if int(self.rk4_steps) != self.rk4_steps or self.rk4_steps < 1:
-            raise ValueError(
-                f"estimation.rk4_steps must be an integer >= 1, got {self.rk4_steps!r}"
-            )
-        for f in fields(self):
-            if f.name == "rk4_steps":
-                continue
-            v = getattr(self, f.name)
-            if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"estimation.{f.name} must be a finite number >= 0, got {v!r}")
-        for name in ("initial_attitude_std", "initial_position_std", "initial_strain_std",
-                     "initial_velocity_std"):  # fmt: skip
-            if getattr(self, name) <= 0:
-                raise ValueError(f"estimation.{name} must be positive")
-
-    @classmethod
-    def from_section(cls, section: dict) -> EstimatorConfig:
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in section.items() if k in names})
 
 
 class _Tick:
@@ -121,7 +76,7 @@ class _Tick:
         self.p_post = p_prior
 
 
-class Estimator:
+class ExtendedKalmanFilter:
     """EKF on the controller's perturbed model (see module docstring).
 
     Parameters
@@ -159,8 +114,8 @@ class Estimator:
         self._m = sysm.model_arrays
         self._loads = sysm.loads.packed().copy()
         self._gravity = sysm.loads.gravity.copy()
-        self._s_m = np.ascontiguousarray(model._s_m)
-        self._s_d = np.ascontiguousarray(model._s_d)
+        self._s_m = np.ascontiguousarray(model.mass_scale)
+        self._s_d = np.ascontiguousarray(model.damping_scale)
         self._k_scale = 1.0 + model.d_k
         self._g_scale = 1.0 + model.d_g
         n = sysm.n
@@ -405,7 +360,7 @@ class Estimator:
     # ------------------------------------------------------------------ the tip camera
     def camera_pose(self, q) -> np.ndarray:
         """World pose of C_L at ``q`` in the filter's model: ``g_L(q) g_{C_L}^L``."""
-        return self.system.tip_pose(q) @ self.camera.tip_mount
+        return tip_camera_pose(self.system, q, self.camera.tip_mount)
 
     def target_pose(self, x=None) -> np.ndarray | None:
         """The filter's target pose (4x4, world) from state ``x`` (default: the latest);
@@ -465,7 +420,9 @@ class Estimator:
         """Fuse one detection of the target (gated; module :mod:`~tdacm.estimation.camera`)."""
         cam = self.camera
         if cam is None:
-            raise ValueError("a TargetViewMeasurement needs an Estimator built with a camera")
+            raise ValueError(
+                "a TargetViewMeasurement needs an ExtendedKalmanFilter built with a camera"
+            )
         pts = np.asarray(meas.points, float)
         if self._anchor is None or meas.t - self._view_ok_t > cam.reinit_after:
             # first view, or every view gated out for a while: (re)start from this one

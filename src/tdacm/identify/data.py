@@ -137,15 +137,9 @@ def model_of_scenario(scenario):
     sc = load_scenario(scenario) if isinstance(scenario, str | Path) else scenario
     world = build_world(sc)
     robot = world.robot
-    offset = _camera_offset(sc)
+    # C_L's offset beyond the tip is the translation of its mount along the backbone
+    offset = float(robot.tip_mount[0, 3])
     return IdentModel(robot.system, robot.tip_mount, offset), world
-
-
-def _camera_offset(sc) -> float:
-    try:
-        return float(sc.data["robot"]["cameras"]["local"]["offset"])
-    except (AttributeError, KeyError, TypeError):
-        return 0.0
 
 
 def load_recording(path, scenario=None, topic_map=None) -> Recording:

@@ -1,13 +1,16 @@
 """The low-level control block (paper, "Model-Based Control"): the adaptive sliding-mode law,
 the hierarchical drone loop and the thrust/tension allocation of
 :class:`~tdacm.control.TDACMController`, behind the :class:`~.protocols.LowLevelController`
-protocol; and the loader of user controllers named in a scenario."""
+protocol (or with the PD + gravity law of :mod:`tdacm.control.pd` in its place); and the loader
+of user controllers named in a scenario."""
 
 from __future__ import annotations
 
 import importlib
+import sys
 
 from ..control import TDACMController
+from ..control.pd import PDGravityLaw
 from .data import ActuatorCommand, ServoCommand, StateEstimate
 from .protocols import ControllerContext, LowLevelController
 
@@ -15,10 +18,16 @@ from .protocols import ControllerContext, LowLevelController
 class AdaptiveLowLevel:
     """The paper's controller (eqs. S2-S10) with the drone loop and allocation."""
 
+    #: Built as ``law_class(model, gains)`` in place of the adaptive law when set.
+    law_class = None
+
     def __init__(self, context: ControllerContext):
         self.controller = TDACMController.from_options(
             context.system, context.model, context.q_star, context.options
         )
+        if self.law_class is not None:
+            c = self.controller
+            c.law = self.law_class(c.model, c.gains)
 
     def reset(self, estimate: StateEstimate) -> None:
         self.controller.reset()
@@ -32,27 +41,48 @@ class AdaptiveLowLevel:
         )
 
 
-def load_class(path: str):
-    """``"package.module:ClassName"`` -> the class (``ValueError`` naming the path if absent)."""
+class PDGravityController(AdaptiveLowLevel):
+    """PD + gravity (:class:`~tdacm.control.pd.PDGravityLaw`) with the same drone loop and
+    allocation: ``controller.class = "tdacm.loop.lowlevel:PDGravityController"``."""
+
+    law_class = PDGravityLaw
+
+
+def load_class(path: str, search: tuple[str, ...] = ()):
+    """``"package.module:ClassName"`` -> the class (``ValueError`` naming the path if absent).
+
+    The module is imported from ``sys.path``, then from the folders of ``search`` (the
+    current folder and the scenario file's folder, see :func:`tdacm.loop.build.build_loop`),
+    so ``mylab/pid.py`` next to where ``tdacm run`` is called is found as ``mylab.pid``, as
+    ``python -m`` would find it; entries of ``sys.path`` come first, so nothing installed is
+    shadowed."""
     mod_name, sep, cls_name = path.partition(":")
     if not sep or not mod_name or not cls_name:
         raise ValueError(f"controller.class must read 'package.module:ClassName', got {path!r}")
+    extra = [p for p in dict.fromkeys(search) if p and p not in sys.path]
+    sys.path.extend(extra)
     try:
         module = importlib.import_module(mod_name)
     except ImportError as exc:
         raise ValueError(f"controller.class {path!r}: cannot import {mod_name!r} ({exc})") from None
+    finally:
+        for p in extra:
+            sys.path.remove(p)
     cls = getattr(module, cls_name, None)
     if cls is None:
         raise ValueError(f"controller.class {path!r}: {mod_name} has no {cls_name!r}")
     return cls
 
 
-def make_low_level(path: str | None, context: ControllerContext) -> LowLevelController:
-    """The scenario's controller: the adaptive one, or ``path`` built as ``cls(context)``."""
+def make_low_level(
+    path: str | None, context: ControllerContext, search: tuple[str, ...] = ()
+) -> LowLevelController:
+    """The scenario's controller: the adaptive one, or ``path`` built as ``cls(context)``
+    (``search``: folders where its module is looked for after ``sys.path``)."""
     if not path:
         return AdaptiveLowLevel(context)
     try:
-        ctl = load_class(path)(context)
+        ctl = load_class(path, search)(context)
     except ValueError:
         raise
     except Exception as exc:  # a user's constructor: report it under the scenario key

@@ -12,7 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..system.kernels import forward_dynamics, rk4_run
+from ..aero.layout import set_wind
+from ..aero.wind import Wind
+from ..system.aero import check_aero
+from ..system.kernels import forward_dynamics, forward_dynamics_aero, rk4_run, rk4_run_aero
 from ..system.tdacm import TDACM, Loads
 from .data import PlantState
 
@@ -64,7 +67,13 @@ class Disturbances:
 class Plant:
     """The simulated TD-ACM. ``advance(u, dt)`` holds ``u`` over ``dt`` and returns the new
     :class:`PlantState`; ``ok`` turns false when the integration fails (singular mass matrix
-    or a non-finite state)."""
+    or a non-finite state).
+
+    ``aero``: the packed aerodynamics of the system (:func:`tdacm.system.aero.aero_array`),
+    integrated inside the kernels (the rotor wake follows the state and the thrusts at every
+    stage); ``wind`` (a :class:`~tdacm.aero.Wind`) sets its uniform wind at the start of every
+    period.  Without ``aero`` the plant is exactly the aerodynamically empty model.
+    """
 
     def __init__(
         self,
@@ -74,7 +83,14 @@ class Plant:
         substeps: int = 4,
         disturbances: Disturbances | None = None,
         rng: np.random.Generator | None = None,
+        aero: np.ndarray | None = None,
+        wind: Wind | None = None,
+        accelerations: bool = False,
     ):
+        if wind is not None and aero is None:
+            raise ValueError("wind needs aero (the packed aerodynamics it acts through)")
+        self.aero = None if aero is None else check_aero(system, aero).copy()
+        self.wind = wind
         self.system = system
         self.substeps = int(substeps)
         self.disturbances = disturbances or Disturbances()
@@ -83,7 +99,7 @@ class Plant:
         self._loads = Loads(gravity=system.loads.gravity.copy())
         self._base = system.loads.packed().copy()
         #: also compute the accelerations at the end of each period (for an IMU)
-        self.accelerations = False
+        self.accelerations = bool(accelerations)
         self.reset(q0, qd0)
 
     def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
@@ -99,18 +115,32 @@ class Plant:
         for name, value in self.disturbances.loads_at(s.t, self.rng, self.system.floating).items():
             getattr(loads, name)[:] = value  # a view into the packed loads
         h = dt / self.substeps
-        qs, qds, ok = rk4_run(
-            s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
-            self.system.model_arrays, loads.packed(),
-        )  # fmt: skip
+        aero = self.aero
+        if aero is None:
+            qs, qds, ok = rk4_run(
+                s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
+                self.system.model_arrays, loads.packed(),
+            )  # fmt: skip
+        else:
+            if self.wind is not None:
+                set_wind(aero, self.wind.velocity(s.t))
+            qs, qds, ok = rk4_run_aero(
+                s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
+                self.system.model_arrays, loads.packed(), aero,
+            )  # fmt: skip
         q, qd = qs[-1].copy(), qds[-1].copy()
         self.ok = bool(ok and np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
         self._k += 1
         qdd = None
         if self.accelerations and self.ok:
-            qdd, ok_a = forward_dynamics(
-                q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed()
-            )
+            if aero is None:
+                qdd, ok_a = forward_dynamics(
+                    q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed()
+                )
+            else:
+                qdd, ok_a = forward_dynamics_aero(
+                    q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed(), aero
+                )
             self.ok = bool(ok_a)
         self.state = PlantState(self._t0 + self._k * dt, q, qd, qdd)
         return self.state

@@ -84,7 +84,7 @@ class ControllerContext:
     ``system`` is the robot's structure (kinematics, limits, ``Gamma``); ``model`` the
     controller's *perturbed* model (:class:`~tdacm.control.EstimatedModel`), the only dynamics
     it may use; ``q_star`` the desired configuration; ``options`` the scenario's
-    ``[controller]`` section."""
+    ``[controller]`` keys of the adaptive law and every key of ``[controller.options]``."""
 
     system: object
     model: object

@@ -12,11 +12,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from .config import SafetyConfig
+
+_D = SafetyConfig()  # the defaults (one place: the [safety] record)
+
 
 class SafetyMonitor:
     """``check(t, rmse)`` is False (and ``reason`` set) when the limit is exceeded."""
 
-    def __init__(self, enabled=True, growth_limit=0.05, min_increase=0.005, grace=0.5):
+    def __init__(
+        self,
+        enabled=_D.enabled,
+        growth_limit=_D.growth_limit,
+        min_increase=_D.min_increase,
+        grace=_D.grace,
+    ):
         self.enabled = bool(enabled)
         self.grace = float(grace)
         self.armed_at = 0.0

@@ -4,7 +4,7 @@ A :class:`CameraSensor` is a camera on a carrier frame (C_L on the rod's tip, C_
 drone's body) together with its front end: either a renderer and the fiducial detector
 (``"planar"``/``"pybullet"``: an image, then ArUco/AprilTag detection, as on the robot) or the
 ``"analytic"`` front end (the target's points projected from the 3-D target: no image, no
-detector; campaigns). The same imperfection models (:class:`SensorModel`, the scenario's
+detector; campaigns). The same imperfection models (:class:`~tdacm.loop.config.SensorModel`, the scenario's
 ``[sensors]`` camera keys: pixel noise, dropped frames, latency, intrinsics error) then apply to
 either, so the two front ends differ only by the renderer's corner error (tested). All their
 randomness comes from one ``numpy.random.Generator`` seeded by the run's seed.
@@ -15,51 +15,17 @@ Sensors read the true :class:`~.data.PlantState`; nothing after them does.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
 from ..vision import TargetDetector
 from ..vision.camera import PinholeCamera, points_in_camera
 from ..vision.detect import NOT_DETECTED, Detection
-from .data import CameraMeasurement, PlantState, SensorReadings
-
-
-@dataclass(frozen=True)
-class SensorModel:
-    """Imperfections of a camera: ``pixel_noise`` (std, px, on every detected feature point
-    and raw corner), ``dropout`` (probability that a frame yields no detection),
-    ``latency_steps`` (the controller sees the result of that many periods ago) and
-    ``intrinsics_error`` (relative std of the controller's ``fx, fy, cx, cy``: images are
-    rendered with the true camera, normalized with the wrong one, :func:`perturbed_camera`)."""
-
-    pixel_noise: float = 0.0
-    dropout: float = 0.0
-    latency_steps: int = 0
-    intrinsics_error: float = 0.0
-
-    def __post_init__(self):
-        if not np.isfinite(self.pixel_noise) or self.pixel_noise < 0:
-            raise ValueError(f"sensors.pixel_noise must be >= 0, got {self.pixel_noise!r}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"sensors.dropout must lie in [0, 1), got {self.dropout!r}")
-        if int(self.latency_steps) != self.latency_steps or self.latency_steps < 0:
-            raise ValueError(
-                f"sensors.latency_steps must be an integer >= 0, got {self.latency_steps!r}"
-            )
-        if not np.isfinite(self.intrinsics_error) or not 0.0 <= self.intrinsics_error < 0.5:
-            raise ValueError(
-                f"sensors.intrinsics_error must lie in [0, 0.5), got {self.intrinsics_error!r}"
-            )
-
-    @property
-    def ideal(self) -> bool:
-        return (
-            self.pixel_noise == 0
-            and self.dropout == 0
-            and self.latency_steps == 0
-            and self.intrinsics_error == 0
-        )
+from ..vision.mounts import tip_camera_pose
+from .config import SensorModel
+from .data import CameraMeasurement, DeferredMeasurement, PlantState, SensorReadings
 
 
 def perturbed_camera(camera, relative_error: float, rng: np.random.Generator):
@@ -203,8 +169,9 @@ class CameraSensor:
 
     def pose(self, q) -> np.ndarray:
         """Inertial pose of the camera at configuration ``q``."""
-        frame = self.system.tip_pose(q) if self.carrier == "tip" else self.system.base_pose(q)
-        return frame @ self.mount  # tdacm.vision.camera_pose, on the model's rigid poses
+        if self.carrier == "tip":
+            return tip_camera_pose(self.system, q, self.mount)
+        return self.system.base_pose(q) @ self.mount
 
     def ideal(self, q) -> tuple[Detection, np.ndarray | None]:
         """Detection (no imperfections) and image (``None`` for the analytic front end)."""
@@ -241,9 +208,11 @@ class CameraSensor:
 
 
 class Sensors:
-    """The sensors block: C_L every period; C_G every ``global_every`` periods (0: never) and
-    whenever the servo asks for it (``request_global``), or every period when ``always_global``
-    (video). ``other`` sensors (name -> object with ``measure(state)``) are read every period."""
+    """The sensors block: C_L every period; C_G offered to the servo every ``global_every``
+    periods (0: never) and whenever the servo asks for it (``request_global``), rendered only if
+    the servo reads it (:class:`~.data.DeferredMeasurement`); C_G rendered for the outputs every
+    ``global_output_every`` periods (0: never), or every period when ``always_global`` (video).
+    ``other`` sensors (name -> object with ``measure(state)``) are read every period."""
 
     def __init__(
         self,
@@ -252,10 +221,12 @@ class Sensors:
         global_every: int = 1,
         always_global: bool = False,
         other: dict | None = None,
+        global_output_every: int = 0,
     ):
         self.local = local
         self.global_ = global_
         self.global_every = int(global_every)
+        self.global_output_every = int(global_output_every)
         self.always_global = bool(always_global)
         self.other = dict(other or {})
         self._k = 0
@@ -280,15 +251,19 @@ class Sensors:
         k = self._k
         self._k += 1
         local = self.local.measure(state)
-        glob = None
-        if self.global_ is not None and (
-            self.always_global
-            or request_global
-            or (self.global_every > 0 and k % self.global_every == 0)
-        ):
-            glob = self.global_.measure(state)
+        glob = out = None
+        g = self.global_
+        if g is not None:
+            every, out_every = self.global_every, self.global_output_every
+            offered = (
+                self.always_global or request_global or (every > 0 and k % every == 0)
+            )  # fmt: skip
+            if offered:
+                glob = DeferredMeasurement(state.t, partial(g.measure, state))
+            if self.always_global or (out_every > 0 and k % out_every == 0):
+                out = glob.value() if glob is not None else g.measure(state)
         other = {name: s.measure(state) for name, s in self.other.items()}
-        return SensorReadings(state.t, local, glob, other)
+        return SensorReadings(state.t, local, glob, other, out)
 
     def close(self) -> None:
         self.local.close()

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from .._extras import require
+from ..vision.mounts import tip_camera_pose
 from .msgdefs import schema_text
 
 log = logging.getLogger(__name__)
@@ -106,7 +107,7 @@ class ExportError(ValueError):
 @dataclass(frozen=True)
 class RunFolder:
     """What the export reads from a ``tdacm run`` folder: the stored series, the summary, the
-    resolved scenario and its robot (:func:`tdacm.loop.build_scene`)."""
+    resolved scenario and its robot (:func:`tdacm.sim.build_world`)."""
 
     arrays: dict
     summary: dict
@@ -118,8 +119,8 @@ class RunFolder:
 
 def load_run_folder(run_dir) -> RunFolder:
     """Read ``run_dir`` (``timeseries.npz``, ``summary.json``, ``scenario.toml``)."""
-    from ..loop import build_scene
     from ..sim import ScenarioError, load_scenario
+    from ..sim.assemble import build_world
 
     run_dir = Path(run_dir)
     npz = run_dir / "timeseries.npz"
@@ -139,7 +140,7 @@ def load_run_folder(run_dir) -> RunFolder:
             sc = load_scenario(summary["scenario"])
         else:
             raise ExportError(f"RUN_DIR {run_dir} has neither scenario.toml nor summary.json")
-        world = build_scene(sc)
+        world = build_world(sc)
     except ScenarioError as exc:
         raise ExportError(f"RUN_DIR {run_dir}: cannot load its scenario: {exc}") from None
     for key in ("t", "q"):
@@ -385,7 +386,7 @@ def export_run(
         if "/tdacm/target/pose" in topics:
             put("/tdacm/target/pose", _pose(ns0, WORLD, run.scene.target_pose), ns0)
         if "/tdacm/goal/camera_pose" in topics:
-            goal = system.tip_pose(run.q_star) @ robot.tip_mount
+            goal = tip_camera_pose(system, run.q_star, robot.tip_mount)
             put("/tdacm/goal/camera_pose", _pose(ns0, WORLD, goal), ns0)
         frames_out = {
             cam: (np.rint(np.asarray(ti, float) * 1e9).astype(np.int64) + int(start_ns), fr)
@@ -470,7 +471,7 @@ def render_images(run: RunFolder, cam: str, every: int):
         frames = []
         for k in idx:
             g = (
-                s.tip_pose(q[k]) @ r.tip_mount
+                tip_camera_pose(s, q[k], r.tip_mount)
                 if cam == "C_L"
                 else s.base_pose(q[k]) @ r.drone_mount
             )

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _validate as V
+from .. import paper_values as PV
 from .basis import StrainBasis
 
 
@@ -43,12 +44,12 @@ class Rod:
     reference_strain : ``xi*`` (6,), constant along the rod
     """
 
-    length: float = 1.0
-    diameter: float = 2e-3
-    density: float = 6.45e3
-    youngs_modulus: float = 5e10
-    poisson_ratio: float = 0.33
-    damping: float = 1e2
+    length: float = PV.ROD_LENGTH
+    diameter: float = PV.ROD_DIAMETER
+    density: float = PV.ROD_DENSITY
+    youngs_modulus: float = PV.ROD_YOUNGS_MODULUS
+    poisson_ratio: float = PV.ROD_POISSON_RATIO
+    damping: float = PV.ROD_DAMPING
     basis: StrainBasis = field(default_factory=StrainBasis)
     n_gauss: int | None = None
     magnus_order: int | None = None

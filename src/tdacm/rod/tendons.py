@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _validate as V
+from .. import paper_values as PV
 
 
 @dataclass
@@ -39,7 +40,7 @@ class Tendons:
     offsets: np.ndarray | None = None
     offset_function: Callable | None = None
     offset_derivative: Callable | None = None
-    max_tension: float = 20.0
+    max_tension: float = PV.TENDON_MAX_TENSION
     ends: np.ndarray | None = None
 
     def __post_init__(self):
@@ -83,7 +84,11 @@ class Tendons:
 
     @classmethod
     def parallel(
-        cls, radius: float = 0.01, count: int = 4, max_tension: float = 20.0, ends=None
+        cls,
+        radius: float = PV.TENDON_RADIUS,
+        count: int = PV.TENDON_COUNT,
+        max_tension: float = PV.TENDON_MAX_TENSION,
+        ends=None,
     ) -> Tendons:
         """``count`` parallel tendons evenly spaced at ``radius``; the first on +y.
 

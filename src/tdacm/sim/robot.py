@@ -1,8 +1,9 @@
 """The robot of a scenario: section ``[robot]`` -> system, cameras and camera mounts.
 
-Subsections and keys are the constructor arguments of the model classes; every key is optional
-and an omitted key takes the paper's value (Table I for the robot, Table II for the cameras), so
-a scenario without ``[robot]`` simulates the paper's TD-ACM:
+Subsections and keys are the constructor arguments of the model classes, declared as the
+records :class:`RobotConfig` and its parts (defaults from :mod:`tdacm.paper_values`); every key
+is optional and an omitted key takes the paper's value (Table I for the robot, Table II for the
+cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
 
 * ``[robot.rod]``: :class:`~tdacm.rod.Rod` (``length, diameter, density, youngs_modulus,
   poisson_ratio, damping, tip_mass, n_gauss, magnus_order``) and ``basis``, a strain basis
@@ -29,61 +30,136 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import paper_values as PV
+from .._config import ConfigModel, Field
 from ..base import FixedBase, Quadrotor
+from ..loop.config import Vec3, Vec6
 from ..rod import Rod, StrainBasis, Tendons
 from ..system.tdacm import TDACM, default_attachment
 from ..vision import GLOBAL_CAMERA, LOCAL_CAMERA, drone_camera_mount, tip_camera_mount
 from ..vision.camera import PinholeCamera
 
-_CAMERA_KEYS = {
-    "width": (int, None),
-    "height": (int, None),
-    "fx": (float, None),
-    "fy": (float, None),
-    "cx": (float, None),
-    "cy": (float, None),
-    "near": (float, None),
-    "far": (float, None),
-}
 
-#: ``[robot]`` subsections: key -> (type, default); ``None`` = the paper's value.
-ROBOT_SCHEMA = {
-    "rod": {
-        "length": (float, 1.0),
-        "diameter": (float, 2e-3),
-        "density": (float, 6.45e3),
-        "youngs_modulus": (float, 5e10),
-        "poisson_ratio": (float, 0.33),
-        "damping": (float, 1e2),
-        "tip_mass": (float, 0.01),
-        "basis": (str, "bending:0"),
-        "n_gauss": (int, None),  # the paper's 5 for its basis, else the Rod default for the basis
-        "magnus_order": (int, None),  # the paper's 2 for its basis, else 4
-    },
-    "tendons": {
-        "offsets": ("points", None),
-        "radius": (float, 0.01),
-        "count": (int, 4),
-        "max_tension": (float, 20.0),
-    },
-    "drone": {
-        "mass": (float, 0.7331),
-        "inertia": ("vec:3", [2.4388e-2, 2.6151e-2, 2.6929e-2]),
-        "arm_length": (float, 0.325),
-        "drag_factor": (float, 0.016),
-        "max_thrust": (float, 15.0),
-    },
-    "base": {"pose_q": ("vec:6", None)},
-    "attachment": {"offset": (float, 0.1)},
-    "cameras": {
-        "local": {**_CAMERA_KEYS, "offset": (float, 0.0)},
-        "global": {
-            **_CAMERA_KEYS,
-            "position": ("vec:3", [0.10, 0.0, -0.06]),
-            "tilt_deg": (float, 10.0),
-        },
-    },
-}
+class RodConfig(ConfigModel):
+    """``[robot.rod]``: the rod (:class:`~tdacm.rod.Rod`); defaults: Table I."""
+
+    length: float = Field(PV.ROD_LENGTH, gt=0, description="m, rod length L")
+    diameter: float = Field(PV.ROD_DIAMETER, gt=0, description="m, rod diameter")
+    density: float = Field(PV.ROD_DENSITY, gt=0, description="kg/m^3")
+    youngs_modulus: float = Field(PV.ROD_YOUNGS_MODULUS, gt=0, description="Pa, Young's modulus E")
+    poisson_ratio: float = Field(PV.ROD_POISSON_RATIO, description="Poisson's ratio")
+    damping: float = Field(PV.ROD_DAMPING, description="Pa s, material damping")
+    tip_mass: float = Field(PV.TIP_MASS, description="kg, point mass at the tip (the camera)")
+    basis: str = Field(
+        PV.ROD_BASIS,
+        description="strain basis: 'bending:P' (both curvatures of order P), 'full:P' (all six "
+        "strains) or 'modes:torsion=1,bending_y=2,...'",
+    )
+    n_gauss: int | None = Field(
+        None,
+        description="Gauss points (unset: the paper's 5 for its basis, else the Rod default)",
+    )
+    magnus_order: int | None = Field(
+        None, description="Magnus order (unset: the paper's 2 for its basis, else 4)"
+    )
+
+
+class TendonsConfig(ConfigModel):
+    """``[robot.tendons]``: :class:`~tdacm.rod.Tendons`, given by ``offsets`` or by ``radius``
+    and ``count`` (evenly spaced, the first on +y)."""
+
+    offsets: list[list[float]] | None = Field(
+        None,
+        min_length=1,
+        description="m, one [y, z] (or [0, y, z]) offset per tendon (unset: radius and count)",
+    )
+    radius: float = Field(PV.TENDON_RADIUS, gt=0, description="m, offset of the parallel tendons")
+    count: int = Field(PV.TENDON_COUNT, ge=1, description="number of parallel tendons")
+    max_tension: float = Field(
+        PV.TENDON_MAX_TENSION, gt=0, description="N, upper bound used by the allocation"
+    )
+
+
+class DroneConfig(ConfigModel):
+    """``[robot.drone]``: :class:`~tdacm.base.Quadrotor`; defaults: Table I."""
+
+    mass: float = Field(PV.DRONE_MASS, gt=0, description="kg")
+    inertia: Vec3 = Field(list(PV.DRONE_INERTIA), description="kg m^2, principal inertias")
+    arm_length: float = Field(PV.DRONE_ARM_LENGTH, gt=0, description="m, centre to motor")
+    drag_factor: float = Field(PV.DRONE_DRAG_FACTOR, description="m, rotor torque/thrust ratio")
+    max_thrust: float = Field(PV.DRONE_MAX_THRUST, gt=0, description="N per motor")
+
+
+class BaseConfig(ConfigModel):
+    """``[robot.base]``: a clamped rod instead of the drone."""
+
+    pose_q: Vec6 | None = Field(
+        None,
+        description="[phi, theta, psi, x, y, z] (rad, m) of the clamp: a fixed base "
+        "(as system.base = 'fixed')",
+    )
+
+
+class AttachmentConfig(ConfigModel):
+    """``[robot.attachment]``."""
+
+    offset: float = Field(
+        PV.ATTACHMENT_OFFSET, ge=0, description="m, the rod's base below the drone's centre of mass"
+    )
+
+
+class CameraIntrinsics(ConfigModel):
+    """Intrinsics of :class:`~tdacm.vision.PinholeCamera`; unset keys take Table II's value."""
+
+    width: int | None = Field(None, description="px (unset: Table II)")
+    height: int | None = Field(None, description="px (unset: Table II)")
+    fx: float | None = Field(None, description="px, focal length (give fx and fy together)")
+    fy: float | None = Field(None, description="px, focal length")
+    cx: float | None = Field(None, description="px, principal point")
+    cy: float | None = Field(None, description="px, principal point")
+    near: float | None = Field(None, description="m, near clipping plane")
+    far: float | None = Field(None, description="m, far clipping plane")
+
+
+class LocalCameraConfig(CameraIntrinsics):
+    """``[robot.cameras.local]``: the tip camera C_L."""
+
+    offset: float = Field(
+        PV.LOCAL_CAMERA_OFFSET, description="m, C_L beyond the tip along the backbone"
+    )
+
+
+class GlobalCameraConfig(CameraIntrinsics):
+    """``[robot.cameras.global]``: the drone camera C_G."""
+
+    position: Vec3 = Field(
+        list(PV.GLOBAL_CAMERA_POSITION), description="m, C_G in the drone's body frame"
+    )
+    tilt_deg: float = Field(
+        PV.GLOBAL_CAMERA_TILT_DEG, description="deg, optical axis tilted forward from straight down"
+    )
+
+
+class RobotCamerasConfig(ConfigModel):
+    """``[robot.cameras]``."""
+
+    local: LocalCameraConfig = LocalCameraConfig()
+    global_: GlobalCameraConfig = Field(GlobalCameraConfig(), alias="global")
+
+
+class RobotConfig(ConfigModel):
+    """Section ``[robot]``: the robot; every key optional, an omitted key takes the paper's
+    value (Table I, Table II), so a scenario without ``[robot]`` simulates the paper's TD-ACM."""
+
+    rod: RodConfig = RodConfig()
+    tendons: TendonsConfig = TendonsConfig()
+    drone: DroneConfig = DroneConfig()
+    base: BaseConfig = BaseConfig()
+    attachment: AttachmentConfig = AttachmentConfig()
+    cameras: RobotCamerasConfig = RobotCamerasConfig()
+
+
+_CAMERA_KEYS = tuple(CameraIntrinsics.model_fields)
 
 
 class RobotError(ValueError):
@@ -141,9 +217,13 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
     says ``system.base = "fixed"``; ``robot.base.pose_q`` does the same."""
     r = robot["rod"]
     basis = parse_basis(r["basis"])
-    paper_basis = basis == StrainBasis.bending(0)
-    n_gauss = r["n_gauss"] if r["n_gauss"] is not None else (5 if paper_basis else None)
-    magnus = r["magnus_order"] if r["magnus_order"] is not None else (2 if paper_basis else None)
+    paper_basis = basis == parse_basis(PV.ROD_BASIS)
+    n_gauss = (
+        r["n_gauss"] if r["n_gauss"] is not None else (PV.ROD_N_GAUSS if paper_basis else None)
+    )
+    magnus = r["magnus_order"]
+    if magnus is None:
+        magnus = PV.ROD_MAGNUS_ORDER if paper_basis else None
     try:
         rod = Rod(
             length=r["length"],

@@ -18,6 +18,11 @@ for a fixed base.  The packed load vector ``loads`` (27,) is
 ``[gravity(3), base wrench in O_b (6), rod wrench density in O_s (6), rod force density in the
 inertial frame (3), tip wrench in O_L (6), tip force in the inertial frame (3)]``.
 
+Aerodynamics (:mod:`tdacm.aero`): the ``*_aero`` kernels take a packed array ``aero`` besides the
+loads; at every Gauss point the drag of the air (rotor wake + wind - section velocity) joins the
+section's wrench density, at the tip the camera's drag, at the drone its rotor and body drag.
+The plain kernels pass an empty array and skip every aerodynamic term (bit-identical results).
+
 Flags: numba compiles a separate specialization of a kernel for each literal flag
 (``True`` / ``False``) it receives from jitted code, besides the one for Python callers (a
 plain ``bool``). The forward dynamics keeps its ``want_c = False`` specialization (the plant's
@@ -33,6 +38,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..aero import layout as AL
+from ..aero.drag import quadratic_drag, rod_force
+from ..aero.wake import rotor_states, wake_at
 from ..lie.blocks import (
     ad_apply,
     adinv_apply,
@@ -338,6 +346,61 @@ def coupled_terms(q, qd, m, loads, want_c):
     after each step the body described by ``m.step_w``, ``m.step_mass`` and ``m.step_load``
     (a Gauss section of the rod, a joint mass, the tip body) adds its inertia and loads.
     """
+    return coupled_terms_aero(q, qd, m, loads, want_c, np.empty(0), np.empty(0))
+
+
+@njit(cache=True)
+def _air_on_body(g, eta, k, tip, aero, nst, rot, ax, ay, az, wake):
+    """Aerodynamic force on the body after Magnus step ``k`` (a Gauss section of the rod, per
+    metre, or the tip body), in its own frame: the air (wind + rotor wake at the body's
+    position) relative to the body's velocity ``eta[3:6]`` (:mod:`tdacm.aero.drag`)."""
+    ux, uy, uz = aero[AL.WIND], aero[AL.WIND + 1], aero[AL.WIND + 2]
+    if wake:
+        sp = wake_at(g[0, 3], g[1, 3], g[2, 3], rot, ax, ay, az, aero)
+        ux += sp * ax
+        uy += sp * ay
+        uz += sp * az
+    v0 = g[0, 0] * ux + g[1, 0] * uy + g[2, 0] * uz - eta[3]
+    v1 = g[0, 1] * ux + g[1, 1] * uy + g[2, 1] * uz - eta[4]
+    v2 = g[0, 2] * ux + g[1, 2] * uy + g[2, 2] * uz - eta[5]
+    rho = aero[AL.RHO]
+    if tip:
+        c = AL.TIP_CDA
+        return quadratic_drag(v0, v1, v2, aero[c], aero[c + 1], aero[c + 2], rho)
+    return rod_force(
+        v0, v1, v2, aero[AL.N_HEADER + k], aero[AL.N_HEADER + nst + k], rho, aero[AL.MU],
+        aero[AL.CD], aero[AL.CF],
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _air_on_drone(gb, eb, aero):
+    """Rotor drag and body drag of the drone (body frame) from the wind and its twist ``eb``."""
+    w0, w1, w2 = aero[AL.WIND], aero[AL.WIND + 1], aero[AL.WIND + 2]
+    v0 = gb[0, 0] * w0 + gb[1, 0] * w1 + gb[2, 0] * w2 - eb[3]
+    v1 = gb[0, 1] * w0 + gb[1, 1] * w1 + gb[2, 1] * w2 - eb[4]
+    v2 = gb[0, 2] * w0 + gb[1, 2] * w1 + gb[2, 2] * w2 - eb[5]
+    c = AL.DRONE_CDA
+    f0, f1, f2 = quadratic_drag(v0, v1, v2, aero[c], aero[c + 1], aero[c + 2], aero[AL.RHO])
+    d = AL.DRONE_D
+    return f0 + aero[d] * v0, f1 + aero[d + 1] * v1, f2 + aero[d + 2] * v2
+
+
+@njit(cache=True)
+def _rotor_setup(q, qd, u, m, gb, aero, rot):
+    """Rotor centres and induced velocities (:func:`tdacm.aero.wake.rotor_states`): the drone's
+    own thrusts ``u[0:4]`` and velocity, or the stand's thrusts for a fixed base."""
+    if m.floating:
+        return rotor_states(gb, qd[3:6], u[0:4], aero, rot)
+    return rotor_states(gb, np.zeros(3), aero[AL.THRUST : AL.THRUST + 4], aero, rot)
+
+
+@njit(cache=True)
+def coupled_terms_aero(q, qd, m, loads, want_c, u, aero):
+    """:func:`coupled_terms` with the aerodynamic wrench densities of the rod sections, the tip
+    body and the drone added to ``tau_ext`` (eq. (16)); ``aero`` is the packed array of
+    :mod:`tdacm.aero.layout` (empty: none) and ``u`` the inputs (the rotor thrusts make the
+    wake).  With an empty ``aero`` the arithmetic is exactly that of :func:`coupled_terms`."""
     floating = m.floating
     n = q.shape[0]
     off = 6 if floating else 0
@@ -348,6 +411,15 @@ def coupled_terms(q, qd, m, loads, want_c):
     grav = loads[0:3]
     gb, jb, jbd = base_state(q, qd, floating, m.g_fixed, n)
     f = np.empty(6)
+    air = aero.shape[0] > 0
+    drone_air = air and floating and aero[AL.DRONE_ON] > 0.0
+    rod_air = air and aero[AL.ROD_ON] > 0.0
+    wake = rod_air and aero[AL.WAKE_ON] > 0.0
+    rot = np.empty((AL.N_ROTORS, AL.ROTOR_STATE))
+    ax = ay = az = 0.0
+    if wake:
+        ax, ay, az = _rotor_setup(q, qd, u, m, gb, aero, rot)
+    nst = m.h.shape[0]
     if floating:
         _add_body(m.mb6, jb, jbd, _matvec(jb, qd), _matvec(jbd, qd), 1.0, want_c, m_out, c_out, cqd)
         for i in range(6):
@@ -355,6 +427,11 @@ def coupled_terms(q, qd, m, loads, want_c):
         for i in range(3):
             for k in range(3):
                 f[3 + i] += m.mb6[3] * gb[k, i] * grav[k]
+        if drone_air:
+            d0, d1, d2 = _air_on_drone(gb, _matvec(jb, qd), aero)
+            f[3] += d0
+            f[4] += d1
+            f[5] += d2
         _tmatvec_add(jb, f, 1.0, tau)
     ws = make_workspace(n, m.bs.shape[3])
     g = np.eye(4)
@@ -390,6 +467,13 @@ def coupled_terms(q, qd, m, loads, want_c):
                 for i in range(3):
                     for kk in range(3):
                         f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
+                if rod_air:
+                    a0, a1, a2 = _air_on_body(
+                        g, eta, k, lo == LOAD_TIP, aero, nst, rot, ax, ay, az, wake
+                    )
+                    f[3] += a0
+                    f[4] += a1
+                    f[5] += a2
             _tmatvec_add(j, f, w, tau)
     return m_out, c_out, cqd, tau, g, j, jd
 
@@ -577,7 +661,14 @@ def input_matrix(q, m):
 def forward_dynamics(q, qd, u, m, loads):
     """``qdd = M^-1 (B u + tau_ext - C qdot - D qdot - K)`` (paper eq. (9)); ``ok`` False when
     ``M`` is not positive definite (Euler singularity)."""
-    mm, _, cqd, tau, _, _, _ = coupled_terms(q, qd, m, loads, False)
+    return forward_dynamics_aero(q, qd, u, m, loads, np.empty(0))
+
+
+@njit(cache=True)
+def forward_dynamics_aero(q, qd, u, m, loads, aero):
+    """:func:`forward_dynamics` with the aerodynamic loads of the packed array ``aero`` (empty:
+    none, bit-identical to :func:`forward_dynamics`)."""
+    mm, _, cqd, tau, _, _, _ = coupled_terms_aero(q, qd, m, loads, False, u, aero)
     rhs = (
         _matvec(input_matrix(q, m), u)
         + tau
@@ -595,6 +686,13 @@ def rk4_run(q0, qd0, u, dt, nsteps, every, m, loads):
     Returns ``(qs, qds, ok)``; ``ok`` is False if the mass matrix became singular, in which case
     the arrays hold the states up to that point.
     """
+    return rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, np.empty(0))
+
+
+@njit(cache=True)
+def rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, aero):
+    """:func:`rk4_run` with the aerodynamic loads of the packed array ``aero`` (held, like the
+    loads, over the call; the wake follows the state at every stage)."""
     n = q0.shape[0]
     nrec = nsteps // every + 1
     qs = np.empty((nrec, n))
@@ -605,12 +703,14 @@ def rk4_run(q0, qd0, u, dt, nsteps, every, m, loads):
     qds[0] = qd
     rec = 1
     for k in range(nsteps):
-        a1, ok1 = forward_dynamics(q, qd, u, m, loads)
-        a2, ok2 = forward_dynamics(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads)
-        a3, ok3 = forward_dynamics(
-            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads
+        a1, ok1 = forward_dynamics_aero(q, qd, u, m, loads, aero)
+        a2, ok2 = forward_dynamics_aero(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, aero)
+        a3, ok3 = forward_dynamics_aero(
+            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads, aero
         )
-        a4, ok4 = forward_dynamics(q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads)
+        a4, ok4 = forward_dynamics_aero(
+            q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, aero
+        )
         if not (ok1 and ok2 and ok3 and ok4):
             return qs[:rec], qds[:rec], False
         q = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)

@@ -2,39 +2,32 @@
 
 from __future__ import annotations
 
+from .. import paper_values as PV
 from ..base import FixedBase, Quadrotor
 from ..rod import Rod, StrainBasis, Tendons
 from .tdacm import TDACM, Loads, default_attachment
 
 #: Values the paper does not give, with the reason for each default.
-PAPER_DEFAULTS_NOT_IN_PAPER = {
-    "arm_length": (0.325, "m, half the 650 mm motor-to-motor diagonal of a Holybro X650 frame"),
-    "drag_factor": (0.016, "m, rotor torque/thrust ratio typical of 15-inch propellers"),
-    "max_thrust": (15.0, "N per motor, a 5010-class motor on 4S with a 15-inch propeller"),
-    "tendon_radius": (0.01, "m, tendon offset on 20 mm spacer disks"),
-    "max_tension": (20.0, "N, a safe load for a 0.3 mm braided tendon"),
-    "tip_mass": (0.01, "kg, a miniature USB camera with its mount"),
-    "attachment_offset": (0.1, "m, the rod base below the drone's centre of mass"),
-}
+PAPER_DEFAULTS_NOT_IN_PAPER = PV.PAPER_DEFAULTS_NOT_IN_PAPER
 
 
 def paper_system(
     *,
-    length: float = 1.0,
-    diameter: float = 2e-3,
-    density: float = 6.45e3,
-    youngs_modulus: float = 5e10,
-    poisson_ratio: float = 0.33,
-    damping: float = 1e2,
-    drone_mass: float = 0.7331,
-    drone_inertia: tuple = (2.4388e-2, 2.6151e-2, 2.6929e-2),
-    arm_length: float = 0.325,
-    drag_factor: float = 0.016,
-    max_thrust: float = 15.0,
-    tendon_radius: float = 0.01,
-    max_tension: float = 20.0,
-    tip_mass: float = 0.01,
-    attachment_offset: float = 0.1,
+    length: float = PV.ROD_LENGTH,
+    diameter: float = PV.ROD_DIAMETER,
+    density: float = PV.ROD_DENSITY,
+    youngs_modulus: float = PV.ROD_YOUNGS_MODULUS,
+    poisson_ratio: float = PV.ROD_POISSON_RATIO,
+    damping: float = PV.ROD_DAMPING,
+    drone_mass: float = PV.DRONE_MASS,
+    drone_inertia: tuple = PV.DRONE_INERTIA,
+    arm_length: float = PV.DRONE_ARM_LENGTH,
+    drag_factor: float = PV.DRONE_DRAG_FACTOR,
+    max_thrust: float = PV.DRONE_MAX_THRUST,
+    tendon_radius: float = PV.TENDON_RADIUS,
+    max_tension: float = PV.TENDON_MAX_TENSION,
+    tip_mass: float = PV.TIP_MASS,
+    attachment_offset: float = PV.ATTACHMENT_OFFSET,
     basis: StrainBasis | None = None,
     n_gauss: int | None = None,
     magnus_order: int | None = None,
@@ -53,8 +46,8 @@ def paper_system(
     (Magnus order 4 and :func:`~tdacm.rod.default_gauss_points`), the accurate choice.
     """
     if basis is None:
-        n_gauss = 5 if n_gauss is None else n_gauss
-        magnus_order = 2 if magnus_order is None else magnus_order
+        n_gauss = PV.ROD_N_GAUSS if n_gauss is None else n_gauss
+        magnus_order = PV.ROD_MAGNUS_ORDER if magnus_order is None else magnus_order
     rod = Rod(
         length=length,
         diameter=diameter,
@@ -67,7 +60,7 @@ def paper_system(
         magnus_order=magnus_order,
         tip_mass=tip_mass,
     )
-    tendons = Tendons.parallel(radius=tendon_radius, count=4, max_tension=max_tension)
+    tendons = Tendons.parallel(radius=tendon_radius, count=PV.TENDON_COUNT, max_tension=max_tension)
     if fixed_base_pose is None:
         base = Quadrotor(
             mass=drone_mass,

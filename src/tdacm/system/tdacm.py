@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _validate as V
+from .. import paper_values as PV
 from ..base import FixedBase, Quadrotor
 from ..lie.euler import SINGULAR_COS
 from ..lie.magnus import MAGNUS_POINTS
@@ -29,7 +30,7 @@ class SingularConfigurationError(ValueError):
     """The ZYX Euler parameterization is singular (``theta = +-90 deg``)."""
 
 
-def default_attachment(offset: float = 0.1) -> np.ndarray:
+def default_attachment(offset: float = PV.ATTACHMENT_OFFSET) -> np.ndarray:
     """``g_a^b``: the rod hangs ``offset`` metres below the drone's centre of mass, its backbone
     (local x) pointing along body -z, local y along body y and local z along body x
     (a rotation of +90 deg about body y)."""

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .. import paper_values as PV
 from . import _checks as C
 
 
@@ -254,7 +255,7 @@ def points_in_camera(p: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 
 #: Paper Table II, local tip camera C_L (1024 x 1024, FoV 60 deg, f = 886.8 px).
-LOCAL_CAMERA = PinholeCamera(1024, 1024, 886.8, 886.8, 512.0, 512.0, 0.5, 10.0, name="C_L")
+LOCAL_CAMERA = PinholeCamera(*PV.LOCAL_CAMERA_INTRINSICS, name="C_L")
 
 #: Paper Table II, global drone camera C_G (500 x 500, FoV 71 deg, f = 350.5 px).
-GLOBAL_CAMERA = PinholeCamera(500, 500, 350.5, 350.5, 250.0, 250.0, 0.01, 20.0, name="C_G")
+GLOBAL_CAMERA = PinholeCamera(*PV.GLOBAL_CAMERA_INTRINSICS, name="C_G")

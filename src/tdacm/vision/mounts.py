@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import paper_values as PV
 from . import _checks as C
 
 
@@ -49,7 +50,7 @@ R_DOWN_CAMERA_IN_BODY = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0,
 DEFAULT_ATTACHMENT_ROTATION = _ry(np.pi / 2)
 
 
-def tip_camera_mount(attachment=None, offset: float = 0.0) -> np.ndarray:
+def tip_camera_mount(attachment=None, offset: float = PV.LOCAL_CAMERA_OFFSET) -> np.ndarray:
     """``g_{C_L}^L``: pose of the tip camera in the tip frame ``O_L`` (4x4).
 
     Parameters
@@ -80,7 +81,9 @@ def tip_camera_mount(attachment=None, offset: float = 0.0) -> np.ndarray:
     return g
 
 
-def drone_camera_mount(position=(0.10, 0.0, -0.06), tilt_deg: float = 10.0) -> np.ndarray:
+def drone_camera_mount(
+    position=PV.GLOBAL_CAMERA_POSITION, tilt_deg: float = PV.GLOBAL_CAMERA_TILT_DEG
+) -> np.ndarray:
     """``g_{C_G}^b``: pose of the drone camera in the body frame (4x4).
 
     Looks straight down (image up = body forward) rotated by ``tilt_deg`` about the camera x
@@ -99,6 +102,13 @@ DEFAULT_TIP_CAMERA_MOUNT = tip_camera_mount()
 
 #: Default ``g_{C_G}^b`` (0.10 m forward, 0.06 m below the CoM, 10 deg forward tilt).
 DEFAULT_DRONE_CAMERA_MOUNT = drone_camera_mount()
+
+
+def tip_camera_pose(system, q, mount) -> np.ndarray:
+    """World pose of the tip camera, ``g_{C_L} = g_L(q) g_{C_L}^L`` (eq. (10)'s chain), from
+    the system's tip pose at ``q`` and the mount. Unchecked (called several times a period):
+    the caller checks the mount once."""
+    return system.tip_pose(q) @ mount
 
 
 def camera_pose(frame_pose, mount) -> np.ndarray:

@@ -31,152 +31,15 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..system.tdacm import TDACM
+from .config import EncoderConfig, ImuConfig, SensorSuiteConfig
 from .kernels import body_rate, specific_force, tendon_lengths_and_jacobian
 
 _EPS_T = 1e-9
-
-
-def _nonneg(name, value, hi=math.inf):
-    v = float(value)
-    if not math.isfinite(v) or v < 0 or v >= hi:
-        bound = "" if hi == math.inf else f" and < {hi}"
-        raise ValueError(f"sensors.{name} must be >= 0{bound}, got {value!r}")
-    return v
-
-
-def _positive(name, value):
-    v = float(value)
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"sensors.{name} must be positive, got {value!r}")
-    return v
-
-
-# ----------------------------------------------------------------------------- configurations
-@dataclass(frozen=True)
-class PoseSensorConfig:
-    """Drone pose (motion capture or VIO); scenario keys ``sensors.pose_*``."""
-
-    enabled: bool = True
-    rate_hz: float = 50.0
-    latency: float = 0.02  # s
-    position_noise: float = 0.003  # m, per axis
-    attitude_noise: float = 0.005  # rad, per body axis (rotation vector)
-    dropout: float = 0.0
-
-    def __post_init__(self):
-        _positive("pose_rate", self.rate_hz)
-        _nonneg("pose_latency", self.latency)
-        _nonneg("pose_position_noise", self.position_noise)
-        _nonneg("pose_attitude_noise", self.attitude_noise)
-        _nonneg("pose_dropout", self.dropout, 1.0)
-
-
-@dataclass(frozen=True)
-class ImuConfig:
-    """IMU at the drone's centre of mass; scenario keys ``sensors.imu_*``, ``gyro_*``,
-    ``accel_*``. Noises are per delivered sample; bias = std of the constant turn-on bias;
-    ``*_bias_walk`` = random-walk density (unit/s/sqrt(s))."""
-
-    enabled: bool = True
-    rate_hz: float = 50.0
-    latency: float = 0.0
-    gyro_noise: float = 0.005  # rad/s
-    gyro_bias: float = 0.005  # rad/s
-    gyro_bias_walk: float = 0.0
-    accel_noise: float = 0.05  # m/s^2
-    accel_bias: float = 0.05  # m/s^2
-    accel_bias_walk: float = 0.0
-    dropout: float = 0.0
-
-    def __post_init__(self):
-        _positive("imu_rate", self.rate_hz)
-        _nonneg("imu_latency", self.latency)
-        for name in (
-            "gyro_noise",
-            "gyro_bias",
-            "gyro_bias_walk",
-            "accel_noise",
-            "accel_bias",
-            "accel_bias_walk",
-        ):
-            _nonneg(name, getattr(self, name))
-        _nonneg("imu_dropout", self.dropout, 1.0)
-
-
-@dataclass(frozen=True)
-class EncoderConfig:
-    """Tendon-motor encoders; scenario keys ``sensors.encoder_*``."""
-
-    enabled: bool = True
-    rate_hz: float = 50.0
-    latency: float = 0.0
-    resolution: float = 1e-5  # m of tendon per count (0 = no quantization)
-    noise: float = 5e-6  # m
-    bias: float = 0.0  # m, std of a constant per-tendon offset (slack/friction)
-    dropout: float = 0.0
-
-    def __post_init__(self):
-        _positive("encoder_rate", self.rate_hz)
-        _nonneg("encoder_latency", self.latency)
-        _nonneg("encoder_resolution", self.resolution)
-        _nonneg("encoder_noise", self.noise)
-        _nonneg("encoder_bias", self.bias)
-        _nonneg("encoder_dropout", self.dropout, 1.0)
-
-    @property
-    def variance(self) -> float:
-        """Noise variance seen by a filter: white noise plus uniform quantization ``res^2/12``."""
-        return self.noise**2 + self.resolution**2 / 12.0
-
-
-@dataclass(frozen=True)
-class SensorSuiteConfig:
-    pose: PoseSensorConfig = field(default_factory=PoseSensorConfig)
-    imu: ImuConfig = field(default_factory=ImuConfig)
-    encoders: EncoderConfig = field(default_factory=EncoderConfig)
-
-    #: scenario key (section ``[sensors]``) -> (sub-config, field)
-    KEYS = {
-        "pose_enabled": ("pose", "enabled"),
-        "pose_rate": ("pose", "rate_hz"),
-        "pose_latency": ("pose", "latency"),
-        "pose_position_noise": ("pose", "position_noise"),
-        "pose_attitude_noise": ("pose", "attitude_noise"),
-        "pose_dropout": ("pose", "dropout"),
-        "imu_enabled": ("imu", "enabled"),
-        "imu_rate": ("imu", "rate_hz"),
-        "imu_latency": ("imu", "latency"),
-        "gyro_noise": ("imu", "gyro_noise"),
-        "gyro_bias": ("imu", "gyro_bias"),
-        "gyro_bias_walk": ("imu", "gyro_bias_walk"),
-        "accel_noise": ("imu", "accel_noise"),
-        "accel_bias": ("imu", "accel_bias"),
-        "accel_bias_walk": ("imu", "accel_bias_walk"),
-        "imu_dropout": ("imu", "dropout"),
-        "encoder_enabled": ("encoders", "enabled"),
-        "encoder_rate": ("encoders", "rate_hz"),
-        "encoder_latency": ("encoders", "latency"),
-        "encoder_resolution": ("encoders", "resolution"),
-        "encoder_noise": ("encoders", "noise"),
-        "encoder_bias": ("encoders", "bias"),
-        "encoder_dropout": ("encoders", "dropout"),
-    }
-
-    @classmethod
-    def from_section(cls, section: dict) -> SensorSuiteConfig:
-        """From a scenario's ``[sensors]`` dict (camera keys are ignored here)."""
-        parts = {"pose": {}, "imu": {}, "encoders": {}}
-        for key, value in section.items():
-            if key in cls.KEYS:
-                sub, name = cls.KEYS[key]
-                parts[sub][name] = value
-        return cls(PoseSensorConfig(**parts["pose"]), ImuConfig(**parts["imu"]),
-                   EncoderConfig(**parts["encoders"]))  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- measurements
@@ -368,4 +231,4 @@ class SensorSuite:
 
 
 def config_fields(cls) -> list[str]:
-    return [f.name for f in fields(cls)]
+    return list(cls.model_fields)
