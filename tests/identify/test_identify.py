@@ -191,7 +191,9 @@ def test_an_mcap_with_a_labs_topic_names_gives_the_same_recording(tmp_path):
     )
     from tdacm.recording import load_topic_map
 
+    (tmp_path / "lab.experiment.toml").write_text("[added]\ntip_mass = 0.02\n")
     got = load_recording(lab, folder / "scenario.toml", load_topic_map(tmp_path / "map.toml"))
+    assert got.added == {"tip_mass": 0.02}
     np.testing.assert_allclose(got.t, ref.t, atol=1e-9)
     np.testing.assert_array_equal(got.u, ref.u)
     np.testing.assert_allclose(got.tip, ref.tip, atol=1e-12)

@@ -9,7 +9,8 @@ A :class:`Recording` holds, at the sample times ``t`` (uniform spacing):
 * ``pixels`` (optional): the tip camera's four target feature points (pixels), with the scene's
   ``target_points`` (4, 3) and the camera;
 * ``added``: known additions to parameters during the experiment (a clip-on calibration mass
-  ``{"tip_mass": 0.02}``), read from an ``experiment.toml`` ``[added]`` table in a run folder.
+  ``{"tip_mass": 0.02}``), read from the ``[added]`` table of ``experiment.toml`` in a run
+  folder or of ``NAME.experiment.toml`` beside ``NAME.mcap``.
 
 The strains are never read: the fit compares poses (and pixels) only.
 
@@ -182,10 +183,7 @@ def _load_folder(path: Path, scenario) -> Recording:
         raise RecordingInputError(
             f"RECORDING {path}: q has {q.shape[1]} columns, the scenario's robot {sysm.n}"
         )
-    added = {}
-    ef = path / "experiment.toml"
-    if ef.is_file():
-        added = {k: float(v) for k, v in tomllib.loads(ef.read_text()).get("added", {}).items()}
+    added = _added(path / "experiment.toml")
     truth = {}
     tf = path / "truth.toml"
     if tf.is_file():
@@ -211,6 +209,19 @@ def _load_folder(path: Path, scenario) -> Recording:
         path.name, t, u, model, tip, drone if sysm.floating else None, pixels,
         world.scene.target_points_world(), world.robot.local_camera, truth, q, added,
     )  # fmt: skip
+
+
+def _added(path: Path) -> dict:
+    """The ``[added]`` table of an experiment file (known additions, e.g. a clip-on mass)."""
+    if not path.is_file():
+        return {}
+    table = tomllib.loads(path.read_text()).get("added", {})
+    from .params import PARAMETERS
+
+    for k in table:
+        if k not in PARAMETERS:
+            raise RecordingInputError(f"{path}: [added] {k!r} is not a parameter")
+    return {k: float(v) for k, v in table.items()}
 
 
 def _load_mcap(path: Path, scenario, topic_map) -> Recording:
@@ -239,9 +250,10 @@ def _load_mcap(path: Path, scenario, topic_map) -> Recording:
         dp = sig["drone_pose"]
         drone = _interp_poses(np.asarray(dp.t, float), pose_matrices(dp), t)
     u = np.hstack(cols)
+    added = _added(path.with_suffix(".experiment.toml"))
     return Recording(
         path.stem, t, u, model, tip, drone, None, world.scene.target_points_world(),
-        world.robot.local_camera,
+        world.robot.local_camera, added=added,
     )  # fmt: skip
 
 
