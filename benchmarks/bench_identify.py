@@ -13,8 +13,6 @@ import statistics
 import time
 from pathlib import Path
 
-import numpy as np
-
 from tdacm.identify import DEFAULT_TRUTH, MAIN_PARAMETERS, synthesize, truth_errors
 from tdacm.identify.fit import identify_staged
 from tdacm.identify.validate import held_out_rms
@@ -73,4 +71,3 @@ if __name__ == "__main__":
             default=float,
         )  # fmt: skip
     )
-    _ = np

@@ -253,3 +253,15 @@ def test_a_run_folder_without_measurements_fits_on_the_poses_of_q(tmp_path, clam
     np.testing.assert_allclose(rec.tip[100], sysm.tip_pose(ref.q[100]), atol=1e-14)
     res = identify(rec, ["E"], start={"E": 1.2 * sysm.rod.youngs_modulus}, max_nfev=20)
     assert res.values["E"] == pytest.approx(sysm.rod.youngs_modulus, rel=1e-6)
+
+
+def test_tendon_friction_is_identified_from_the_steps():
+    truth = {**DEFAULT_TRUTH, "friction": 0.04, "viscous": 0.5}
+    rec = synthesize("tendon-steps", seed=8, duration=8.0, truth=truth, noise={"tension": 0.0})
+    held = {"tip_mass": truth["tip_mass"], "damping": truth["damping"]}
+    res = identify(rec, "E,radius,friction,viscous", start={"E": 5e10, "radius": 0.0115},
+                   fixed=held, decimate=2)  # fmt: skip
+    for k in ("friction", "viscous"):
+        assert abs(res.values[k] - truth[k]) < 4 * res.std[k], (k, res.values[k], res.std[k])
+    assert res.std["friction"] < 0.002 and res.std["viscous"] < 0.2
+    assert abs(res.values["E"] / truth["E"] - 1) < 2e-3

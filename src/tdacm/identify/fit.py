@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from .data import Recording
 from .experiments import NOISE, project_points
-from .params import PARAMETERS
+from .params import PARAMETERS, parse_params
 
 log = logging.getLogger(__name__)
 
@@ -393,7 +393,7 @@ def identify(
     if not (isinstance(decimate, int) and decimate >= 1):
         raise ValueError(f"decimate must be an integer >= 1, got {decimate!r}")
     recs = [r.decimated(decimate) for r in recs]
-    names = list(params)
+    names = parse_params(params)
     nominal = {}
     for n in names:
         carriers = [r for r in recs if n in r.model.nominal]
@@ -413,6 +413,8 @@ def identify(
     for i, n in enumerate(names):
         if not PARAMETERS[n].log:
             lb[i], ub[i] = z0[i] - SEARCH_FACTOR, z0[i] + SEARCH_FACTOR
+            if PARAMETERS[n].nonnegative:
+                lb[i] = max(lb[i], 0.0)  # friction only dissipates
     sol = least_squares(
         prob.residual, z0, jac=prob.jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
         ftol=1e-7, xtol=1e-7, gtol=1e-8, max_nfev=max_nfev,
@@ -462,6 +464,7 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
     clamped = [r for r in recs if not r.model.floating]
     flying = [r for r in recs if r.model.floating]
+    params = parse_params(params)
     drone = [n for n in params if PARAMETERS[n].floating_only]
     rod = [n for n in params if n not in drone]
     if not (clamped and flying and rod and drone):

@@ -33,11 +33,9 @@ def fisher_report(recordings, params, values: dict | None = None, rtol: float = 
     # segment states at the truth: the true states when the recording has them
     for s in prob.setups:
         if s.rec.q is not None:
-            n = s.rec.model.system.n
             qd = np.gradient(s.rec.q, s.rec.dt, axis=0)
             x = np.hstack([s.rec.q[s.starts], qd[s.starts]])
             z[s.offset : s.offset + x.size] = x.ravel()
-            del n
     f = prob.fisher(prob.jacobian(z))
     ev = np.linalg.eigvalsh(f)
     top = max(float(ev.max()), 1e-300)

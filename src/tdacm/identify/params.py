@@ -41,6 +41,7 @@ class Parameter:
     floating_only: bool = False
     camera_only: bool = False
     doc: str = ""
+    nonnegative: bool = False  # a linear parameter that cannot be negative (a friction)
 
 
 PARAMETERS: dict[str, Parameter] = {
@@ -62,6 +63,7 @@ PARAMETERS: dict[str, Parameter] = {
             log=False,
             scale=0.05,
             doc="Coulomb tendon friction coefficient mu (T_eff = T (1 + mu tanh(ldot/v0)))",
+            nonnegative=True,
         ),
         Parameter(
             "viscous",
@@ -70,6 +72,7 @@ PARAMETERS: dict[str, Parameter] = {
             log=False,
             scale=1.0,
             doc="viscous tendon friction c_v (T_eff += c_v ldot)",
+            nonnegative=True,
         ),
         Parameter("drone_mass", ("drone", "mass"), "kg", floating_only=True, doc="drone mass"),
         Parameter(

@@ -6,15 +6,13 @@ import json
 import logging
 from pathlib import Path
 
-import numpy as np
-
 from .fit import Identification
 from .params import PARAMETERS
 
 log = logging.getLogger(__name__)
 
 
-def robot_toml(result: Identification, nominal_radius_count: int | None = None) -> str:
+def robot_toml(result: Identification) -> str:
     """A ``[robot]`` block with the estimates, ready to paste into a scenario.
 
     Keys are those of the scenario's ``[robot]`` section (``[robot.rod] youngs_modulus,
@@ -130,4 +128,3 @@ def truth_errors(result: Identification, truth: dict) -> dict:
 
 
 __all__ = ["correlation_text", "report_figure", "robot_toml", "truth_errors", "write_outputs"]
-_ = np  # numpy kept for callers' type hints
