@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.estimation.harness import nees, run  # noqa: E402
 
 from tdacm.control import EstimatedModel  # noqa: E402
-from tdacm.estimation import Estimator, SensorSuite  # noqa: E402
+from tdacm.estimation import ExtendedKalmanFilter, SensorSuite  # noqa: E402
 from tdacm.sim import build_loop  # noqa: E402
 from tdacm.sim.runner import estimation_summary  # noqa: E402
 from tdacm.sim.scenario import load_scenario  # noqa: E402
@@ -34,8 +34,8 @@ FAST = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
 
 
 def filter_cost(repeats=5, steps=250):
-    """Median wall time of ``Estimator.step`` (default sensors, 20 ms pose latency), measured
-    on pre-recorded measurements; the best median of ``repeats`` (the machine is shared)."""
+    """Median wall time of ``ExtendedKalmanFilter.step`` (default sensors, 20 ms pose latency),
+    measured on pre-recorded measurements; the best median of ``repeats`` (the machine is shared)."""
     r = run(seed=0, duration=steps * 0.02)
     s = r.estimator.system
     suite = SensorSuite(s, seed=0)
@@ -45,7 +45,7 @@ def filter_cost(repeats=5, steps=250):
         meas.append(suite.sample(0.02 * k, q, qd, np.zeros(8) if k else None))
     medians = []
     for _ in range(repeats):
-        est = Estimator(EstimatedModel(s, 0.1, 0))
+        est = ExtendedKalmanFilter(EstimatedModel(s, 0.1, 0))
         est.reset(r.q[0])
         est.step(0.0, None, meas[0])
         w = []

@@ -2,10 +2,9 @@
 
 For each camera preset of the paper's Table II (C_L 1024 x 1024, C_G 500 x 500) and each
 renderer configuration, a camera moving slowly around the reference view (as during
-servoing) is rendered and processed by :class:`tdacm.vision.LocalCameraServo` (detection
-with tracking and edge refinement, planar PnP depths, advanced features, interaction matrix,
-IBVS twist). Reports the median and 90th-percentile wall-clock time per stage and per step,
-the CPU time of the step (all threads of this process; less sensitive than wall time to
+servoing) is rendered and processed as in the closed loop (detection with tracking and edge
+refinement, planar PnP depths, advanced features, interaction matrix, IBVS twist). Reports
+the median and 90th-percentile wall-clock time per stage and per step, the CPU time of the step (all threads of this process; less sensitive than wall time to
 other jobs on a shared machine), and whether the step fits the paper's 20 ms control period. Also reports the success rate of the
 kinematic closed loop (free-flying camera, seeded random initial poses).
 
@@ -33,12 +32,14 @@ from tdacm.vision import (
     GLOBAL_CAMERA,
     LOCAL_CAMERA,
     PAPER_MARKER,
-    LocalCameraServo,
+    IBVSController,
     PlanarRenderer,
     PyBulletRenderer,
     SceneConfig,
+    TargetDetector,
     camera_pose,
     estimate_depths,
+    reference_from_pose,
 )
 from tdacm.vision.kinematic import free_camera_servo, project_points, random_initial_pose
 
@@ -47,8 +48,9 @@ PERIOD_MS = 20.0  # the paper's control period (simulation time step 0.02 s)
 
 def bench_config(renderer, camera, scene, frames: int, ref: np.ndarray) -> dict:
     """Servo ``camera`` from a pose near ``ref`` towards the view of ``ref``."""
-    xd, zd = LocalCameraServo.reference_from_pose(camera, scene.target, scene.target_pose, ref)
-    servo = LocalCameraServo(camera, scene.target, xd, zd, gain=1.0)
+    xd, zd = reference_from_pose(scene.target, scene.target_pose, ref)
+    detector = TargetDetector(scene.target)
+    ibvs = IBVSController(xd, zd, gain=1.0)
     # start 26 deg about the optical axis, a few cm sideways and 0.15 m further forward
     # (for C_G: away from the drone body, which would otherwise fill the view)
     g = ref @ expmap(np.array([0.0, 0.0, 0.45, 0.05, -0.04, 0.15]))
@@ -59,13 +61,13 @@ def bench_config(renderer, camera, scene, frames: int, ref: np.ndarray) -> dict:
         t0 = time.perf_counter()
         img = renderer.render(camera, g)
         t1 = time.perf_counter()
-        det = servo.detector.detect(img)
+        det = detector.detect(img)
         t2 = time.perf_counter()
         if det.found:
-            # the rest of LocalCameraServo.step (normalize, PnP depths, features, J_img, twist)
+            # the rest of the step (normalize, PnP depths, features, J_img, twist)
             xy = camera.normalize(det.points)
             z = estimate_depths(xy, scene.target.feature_points)
-            v = servo.controller.twist(xy, z)
+            v = ibvs.twist(xy, z)
         t3 = time.perf_counter()
         c3 = time.process_time()
         if k >= 2:  # warm-up frames excluded

@@ -66,7 +66,7 @@ def main(seed=3, excursions=(0.05, 0.1, 0.2), level_prior_deg=0.5):
     sim = Simulation(sc, duration=5.0, seed=seed)
     a, s = sim.run()
     servo = sim.loop.servo
-    filt = servo.predictor.filter
+    filt = servo.target_filter
     g_t = sim.assembly.world.scene.target_pose
     poses = [servo.local_camera_pose(q) for q in a["q"]]
     rows = [("flown trajectory", poses), ("all frames at the final pose", [poses[-1]] * len(poses))]
@@ -129,7 +129,7 @@ def campaign_bound(runs, spec_path="examples/campaigns/paper-in-fov-200.toml"):
         sim = Simulation(base.with_overrides(ov, "bound"), duration=spec.duration, seed=seed)
         a, s = sim.run()
         servo, g_t = sim.loop.servo, sim.assembly.world.scene.target_pose
-        filt, g_ref = servo.predictor.filter, servo.local_camera_pose(sim.assembly.world.q_star)
+        filt, g_ref = servo.target_filter, servo.local_camera_pose(sim.assembly.world.q_star)
         poses = [servo.local_camera_pose(q) for q in a["q"]]
         ideal.append(ideal_within(filt.information(g_t, poses), g_t, g_ref))
         ideal_p.append(ideal_within(filt.information(g_t, poses, with_prior=True), g_t, g_ref))

@@ -16,12 +16,17 @@ import time
 import numpy as np
 
 from tdacm.lie.se3 import expmap
+from tdacm.loop.data import CameraMeasurement
+from tdacm.loop.perception import Perception
 from tdacm.vision import (
+    GLOBAL_CAMERA,
     LOCAL_CAMERA,
-    LocalCameraServo,
+    IBVSController,
     PlanarRenderer,
     PyBulletRenderer,
     SceneConfig,
+    TargetDetector,
+    reference_from_pose,
 )
 
 
@@ -39,24 +44,31 @@ def main() -> None:
     else:
         renderer = PyBulletRenderer(scene, arm=None, backend=args.renderer)
     ref = scene.viewing_pose(1.5)
-    xd, zd = LocalCameraServo.reference_from_pose(camera, scene.target, scene.target_pose, ref)
-    servo = LocalCameraServo(camera, scene.target, xd, zd, gain=args.gain)
+    xd, zd = reference_from_pose(scene.target, scene.target_pose, ref)
+    # the closed loop's local-camera chain: detector, perception block, IBVS law
+    detector = TargetDetector(scene.target)
+    perception = Perception(camera, GLOBAL_CAMERA, scene.target)
+    ibvs = IBVSController(xd, zd, gain=args.gain)
 
     g = scene.viewing_pose(1.9, 120.0)
     g[:3, 3] += [0.15, -0.1, 0.0]
     times = []
     for k in range(args.frames):
         t0 = time.perf_counter()
-        step = servo.step(renderer.render(camera, g))
+        det = detector.detect(renderer.render(camera, g))
+        view = perception.local(CameraMeasurement(0.02 * k, det))
+        if view.found:
+            error = ibvs.error(view.points)
+            twist = ibvs.twist(view.points, view.depths, error=error)
         times.append(time.perf_counter() - t0)
-        if not step.found:
+        if not view.found:
             print(f"frame {k}: target lost")
             break
-        g = g @ expmap(0.02 * step.twist)
+        g = g @ expmap(0.02 * twist)
         if k % 10 == 0:
             print(
-                f"frame {k:4d}  |e| = {np.linalg.norm(step.error):.2e}  "
-                f"yaw error {np.degrees(step.error[2]):7.2f} deg  "
+                f"frame {k:4d}  |e| = {np.linalg.norm(error):.2e}  "
+                f"yaw error {np.degrees(error[2]):7.2f} deg  "
                 f"step {1000 * times[-1]:6.1f} ms"
             )
     print(

@@ -15,15 +15,21 @@ import cv2
 import numpy as np
 
 import tdacm
+from tdacm.loop.data import CameraMeasurement
+from tdacm.loop.perception import Perception
 from tdacm.vision import (
     DEFAULT_DRONE_CAMERA_MOUNT,
     DEFAULT_TIP_CAMERA_MOUNT,
     GLOBAL_CAMERA,
     LOCAL_CAMERA,
-    LocalCameraServo,
+    IBVSController,
     PyBulletRenderer,
     SceneConfig,
+    TargetDetector,
+    advanced_features,
     camera_pose,
+    reference_from_pose,
+    virtual_camera_points,
     virtual_camera_transform,
 )
 
@@ -42,10 +48,8 @@ def main() -> None:
 
     # reference snapshot: the target centred in C_L at the final configuration
     g_ref = camera_pose(system.tip_pose(q_final), DEFAULT_TIP_CAMERA_MOUNT)
-    xd, zd = LocalCameraServo.reference_from_pose(
-        LOCAL_CAMERA, scene.target, scene.target_pose, g_ref
-    )
-    servo = LocalCameraServo(LOCAL_CAMERA, scene.target, xd, zd, gain=0.5)
+    xd, zd = reference_from_pose(scene.target, scene.target_pose, g_ref)
+    ibvs = IBVSController(xd, zd, gain=0.5)
 
     with PyBulletRenderer(scene, backend=args.backend) as renderer:
         for name, q in (("final", q_final), ("current", q_now)):
@@ -57,11 +61,17 @@ def main() -> None:
             img_g = renderer.render(GLOBAL_CAMERA, g_cg)
             cv2.imwrite(os.path.join(args.out, f"vision_{name}_CL.png"), img_l[:, :, ::-1])
             cv2.imwrite(os.path.join(args.out, f"vision_{name}_CG.png"), img_g[:, :, ::-1])
-            step = servo.step(img_l, virtual_camera_transform(g_b, g_cl))
-            if step.found:
-                print(f"{name}: features {np.round(step.features, 4)}")
-                print(f"{name}: error    {np.round(step.error, 4)}")
-                print(f"{name}: C_V twist [w; v] {np.round(step.twist, 4)}")
+            # as the closed loop: normalized points and PnP depths of C_L, then C_V (eq. (18))
+            view = Perception(LOCAL_CAMERA, GLOBAL_CAMERA, scene.target).local(
+                CameraMeasurement(0.0, TargetDetector(scene.target).detect(img_l))
+            )
+            if view.found:
+                gv = virtual_camera_transform(g_b, g_cl)
+                xy, z = virtual_camera_points(view.points, gv, view.depths, "exact", True)
+                error = ibvs.error(xy)
+                print(f"{name}: features {np.round(advanced_features(xy), 4)}")
+                print(f"{name}: error    {np.round(error, 4)}")
+                print(f"{name}: C_V twist [w; v] {np.round(ibvs.twist(xy, z, error=error), 4)}")
             else:
                 print(f"{name}: target not detected in C_L")
     print(f"images written to {args.out}/")

@@ -13,7 +13,7 @@ import numpy as np
 
 from tdacm import paper_system
 from tdacm.control import EstimatedModel, TDACMController, default_gains
-from tdacm.estimation import Estimator, EstimatorConfig, SensorSuite, SensorSuiteConfig
+from tdacm.estimation import EstimatorConfig, ExtendedKalmanFilter, SensorSuite, SensorSuiteConfig
 from tdacm.estimation.camera import TargetViewMeasurement
 from tdacm.system import kernels as K
 
@@ -29,7 +29,7 @@ class Run:
     qd_hat: np.ndarray
     P: np.ndarray  # (k, 2n, 2n)
     timings: np.ndarray
-    estimator: Estimator
+    estimator: ExtendedKalmanFilter
 
 
 def strain_reference(t):
@@ -62,7 +62,9 @@ def run(
     model = EstimatedModel(s, level, seed)
     ctl = TDACMController(s, EstimatedModel(s, level, seed), default_gains(s, q0))
     suite = SensorSuite(s, sensors, seed)
-    est = Estimator(model, suite.config, config, camera=None if camera is None else camera[0])
+    est = ExtendedKalmanFilter(
+        model, suite.config, config, camera=None if camera is None else camera[0]
+    )
     view_rng = np.random.default_rng([seed, 77])
     q, qd = np.asarray(q0, float).copy(), np.zeros(n)
     loads = s.loads.packed().copy()

@@ -7,7 +7,7 @@ import pytest
 
 from tdacm import paper_system
 from tdacm.control import EstimatedModel
-from tdacm.estimation import Estimator
+from tdacm.estimation import ExtendedKalmanFilter
 from tdacm.estimation.camera import TargetCamera, TargetViewMeasurement, target_pose_from_view
 from tdacm.lie.se3 import expmap
 from tdacm.vision import PAPER_MARKER
@@ -32,7 +32,7 @@ def _rot(w):
 
 def _estimator(camera=None):
     s = paper_system()
-    return s, Estimator(EstimatedModel(s, 0.1, 0), camera=camera or _camera())
+    return s, ExtendedKalmanFilter(EstimatedModel(s, 0.1, 0), camera=camera or _camera())
 
 
 def test_view_jacobian_against_finite_differences():
@@ -75,7 +75,7 @@ def test_target_pose_from_view_recovers_the_pose_and_picks_the_level_branch():
 
 def test_camera_states_exist_only_with_a_camera():
     s = paper_system()
-    plain = Estimator(EstimatedModel(s, 0.1, 0))
+    plain = ExtendedKalmanFilter(EstimatedModel(s, 0.1, 0))
     assert plain.nx == 3 * s.n + 6 and plain.camera is None
     _, est = _estimator()
     assert est.nx == 3 * s.n + 12 and est.i_target == 3 * s.n + 6

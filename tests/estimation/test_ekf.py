@@ -9,8 +9,8 @@ from tdacm import paper_system
 from tdacm.control import EstimatedModel
 from tdacm.estimation import (
     EncoderMeasurement,
-    Estimator,
     EstimatorConfig,
+    ExtendedKalmanFilter,
     PoseMeasurement,
     PoseSensorConfig,
     SensorSuite,
@@ -85,7 +85,7 @@ def test_sensor_dropout_predicts_and_recovers():
 
 def test_total_dropout_is_pure_prediction():
     s = paper_system()
-    est = Estimator(EstimatedModel(s, 0.1, 0))
+    est = ExtendedKalmanFilter(EstimatedModel(s, 0.1, 0))
     q0 = np.array([0, 0, 0, 0, 0, 3.0, 0.1, -0.1])
     est.reset(q0)
     p0 = est.P_full
@@ -117,7 +117,7 @@ def test_pose_latency_is_compensated():
     encoders = [enc.sample(0.02 * k, qs_[k], qds_[k]) for k in range(len(qs_))]
     runs, hist = {}, None
     for lag in (0, 3):
-        est = Estimator(model, cfg)
+        est = ExtendedKalmanFilter(model, cfg)
         est.reset(q0 + 0.01, t0=0.0)
         out = []
         for k in range(len(qs_)):
@@ -145,7 +145,7 @@ def test_pose_latency_is_compensated():
 
 
 def est_p_on_time(model, cfg, q0, u, encoders, meas, k_end):
-    est = Estimator(model, cfg)
+    est = ExtendedKalmanFilter(model, cfg)
     est.reset(q0 + 0.01, t0=0.0)
     for k in range(k_end + 1):
         est.step(0.02 * k, None if k == 0 else u, [encoders[k], meas[k]])
@@ -154,7 +154,7 @@ def est_p_on_time(model, cfg, q0, u, encoders, meas, k_end):
 
 def test_late_measurement_outside_history_is_counted():
     s = paper_system()
-    est = Estimator(EstimatedModel(s, 0.0, 0), config=EstimatorConfig(max_delay=0.05))
+    est = ExtendedKalmanFilter(EstimatedModel(s, 0.0, 0), config=EstimatorConfig(max_delay=0.05))
     q0 = np.array([0, 0, 0, 0, 0, 3.0, 0, 0])
     est.reset(q0)
     u = np.concatenate([np.full(4, s.total_mass * 9.81 / 4), np.full(4, 0.5)])
@@ -167,7 +167,7 @@ def test_late_measurement_outside_history_is_counted():
 def test_process_model_is_the_controllers_perturbed_model():
     s = paper_system()
     model = EstimatedModel(s, 0.1, 7)
-    est = Estimator(model)
+    est = ExtendedKalmanFilter(model)
     q = np.array([0.05, -0.03, 0.2, 0.1, 0.2, 3.0, 0.3, -0.4])
     qd = np.array([0.1, 0.2, -0.1, 0.3, -0.2, 0.1, 0.5, -0.4])
     u = np.array([2.0, 2.1, 1.9, 2.05, 0.5, 1.0, 0.7, 0.2])
@@ -185,7 +185,7 @@ def test_fixed_base_encoders_only():
     held = np.zeros(8)
     held[5] = 3.0
     s = paper_system(fixed_base_pose=paper_system().base_pose(held))
-    est = Estimator(EstimatedModel(s, 0.1, 0))
+    est = ExtendedKalmanFilter(EstimatedModel(s, 0.1, 0))
     suite = SensorSuite(s, seed=0)
     q, qd = np.array([0.3, -0.4]), np.zeros(2)
     est.reset(q + 0.3)
@@ -201,7 +201,7 @@ def test_fixed_base_encoders_only():
 
 def test_initial_guess_from_measurements():
     s = paper_system()
-    est = Estimator(EstimatedModel(s, 0.1, 0))
+    est = ExtendedKalmanFilter(EstimatedModel(s, 0.1, 0))
     q = np.array([0.05, -0.03, 0.4, 0.1, 0.2, 3.0, 0.3, -0.4])
     cfg = SensorSuiteConfig.from_section({"pose_latency": 0.0, "pose_position_noise": 0.0,
                                           "pose_attitude_noise": 0.0, "encoder_noise": 0.0,

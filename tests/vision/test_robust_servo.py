@@ -6,11 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tdacm.lie.se3 import expmap
+from tdacm.lie.se3 import expmap, rotation_angle
+from tdacm.loop.config import IbvsConfig, RecoveryConfig
+from tdacm.loop.servo import RobustParams, RobustServo
 from tdacm.vision import (
+    GLOBAL_CAMERA,
     LOCAL_CAMERA,
     PAPER_MARKER,
-    PredictiveServo,
     TargetFilter,
     feature_interaction_matrix,
 )
@@ -36,7 +38,7 @@ def _pixels(g_cam, target=PAPER_MARKER):
 
 def _rot_err_deg(g_est):
     r = np.asarray(g_est)[:3, :3]  # against the identity (the target frame)
-    return float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(r) - 1), -1, 1))))
+    return float(np.degrees(rotation_angle(r)))
 
 
 # ---------------------------------------------------------------------- the solve
@@ -244,28 +246,40 @@ def test_exact_pose_covariance_is_the_unweighted_filter():
 
 
 # ---------------------------------------------------------------------- predictive servo
+class _HeldCamera:
+    """A held base whose tip carries the camera (identity mount); the prediction takes the
+    camera pose as an argument, so the tip pose is never asked for."""
+
+    floating = False
+    n = 1
+    n_s = 1
+
+
 def _servo(smoothing=0.0):
     g_des = _camera(1.5)
     xd, zd = project_points(PAPER_MARKER.feature_points, g_des)
-    return PredictiveServo(
-        LOCAL_CAMERA, PAPER_MARKER, xd, zd, gain=1.0, mode="mean", smoothing=smoothing
-    )
+    return RobustServo(
+        _HeldCamera(), LOCAL_CAMERA, GLOBAL_CAMERA, PAPER_MARKER, np.eye(4), np.eye(4), xd, zd,
+        gain=1.0, mode="mean", robust=RobustParams.from_config(
+            IbvsConfig(filter_smoothing=smoothing, target_level_prior_deg=0.0), RecoveryConfig()
+        ),
+    )  # fmt: skip
 
 
 def test_prediction_through_missed_frames():
     """After a few frames the servo keeps predicting the features at the moving camera's
     pose with no detection at all: twist defined and continuous, points exact."""
     servo = _servo()
-    assert not servo.step(_camera(2.0)).valid  # nothing seen yet
+    assert not servo.predicted_view(_camera(2.0)).valid  # nothing seen yet
     for k in range(5):
         g = _camera(2.0, lateral=(0.01 * k, 0.0))
-        assert servo.measure(_FakeDetection(_pixels(g)), g)
-        servo.predict(0.02)
+        assert servo.target_filter.update(_pixels(g), g)
+        servo.predict_target(0.02)
     twists = []
     for k in range(5, 30):  # 25 missed frames while the camera keeps moving
         g = _camera(2.0 - 0.01 * k, lateral=(0.01 * k, 0.0))
-        servo.predict(0.02)
-        st = servo.step(g, g)
+        servo.predict_target(0.02)
+        st = servo.predicted_view(g, g)
         assert st.valid
         xy_true, z_true = project_points(PAPER_MARKER.feature_points, g)
         np.testing.assert_allclose(st.points, xy_true, atol=1e-9)
@@ -281,21 +295,15 @@ def test_smoothing_spreads_estimate_corrections():
     (the target is static, so this adds no lag to the camera's own motion)."""
     servo = _servo(smoothing=0.5)
     g = _camera(2.0)
-    servo.measure(_FakeDetection(_pixels(g)), g)
-    servo.predict(0.02)
+    servo.target_filter.update(_pixels(g), g)
+    servo.predict_target(0.02)
     shift = np.eye(4)
     shift[:3, 3] = [0.05, 0.0, 0.0]
-    servo.filter.pose = shift @ servo.filter.pose  # a 5 cm correction of the estimate
+    servo.target_filter.pose = shift @ servo.target_filter.pose  # a 5 cm correction of the estimate
     for _ in range(25):  # 0.5 s = one time constant
-        servo.predict(0.02)
+        servo.predict_target(0.02)
     moved = servo.target_pose[0, 3]
     assert 0.05 * (1 - np.exp(-1)) * 0.9 < moved < 0.05 * (1 - np.exp(-1)) * 1.1
-
-
-class _FakeDetection:
-    def __init__(self, points):
-        self.points = points
-        self.found = True
 
 
 def test_information_is_the_inverse_of_the_converged_covariance():

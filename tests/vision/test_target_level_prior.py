@@ -159,7 +159,7 @@ def test_scenario_normal_reaches_the_filter():
         }
     )
     loop = build_loop(sc, 0).loop
-    f = loop.servo.predictor.filter
+    f = loop.servo.target_filter
     np.testing.assert_allclose(f.level_normal, [0.0, 0.0, -1.0])
     assert f.level_prior == pytest.approx(np.radians(0.3))
     loop.close()

@@ -22,6 +22,8 @@ from functools import partial
 import numpy as np
 
 from .._log import REPORT
+from .._timing import batch_times
+from ..control import CubicTrajectory, EstimatedModel, TDACMController, default_gains
 from ..rod import StrainBasis
 from ..system import Loads, paper_system, simulate
 from ..system import kernels as K
@@ -47,38 +49,11 @@ def _stats(samples) -> dict:
     }
 
 
-def _batch_times(fn, number, repeats):
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        out.append((time.perf_counter() - t0) / number)
-    return out
-
-
 # ---------------------------------------------------------------------------------- timing
-def _pd_gravity_controller(model, q_des, kp, kd):
-    """Joint-space PD + gravity (and elastic) compensation with a least-squares allocation
-    (the fallback closed loop when :mod:`tdacm.control` is unavailable)."""
-    n_u = model.n_u
-
-    def step(q, qd):
-        t = model.terms(q, qd)
-        tau = t.K - t.tau_ext + kp * (q_des - q) - kd * qd
-        u, *_ = np.linalg.lstsq(t.B, tau, rcond=None)
-        u[n_u - 4 :] = np.maximum(u[n_u - 4 :], 0.0)
-        return u
-
-    return step
-
-
 def _paper_controller(gvs, model, q0, duration):
     """The project's low-level controller (:class:`tdacm.control.TDACMController`, 10 %
     perturbed estimated model) tracking a cubic joint trajectory ``PAPER_Q0 -> PAPER_QD``;
     for the CC run the estimated model's terms come from the CC baseline."""
-    from ..control import CubicTrajectory, EstimatedModel, TDACMController, default_gains
-
     est = EstimatedModel(gvs, level=0.1, seed=0)
     gains = default_gains(gvs, q0)
     if model is not gvs:
@@ -89,41 +64,28 @@ def _paper_controller(gvs, model, q0, duration):
     return ctl, traj
 
 
-class ClosedLoop:
-    """The 50 Hz loop on ``model``: per period the controller, then ``substeps`` RK4 steps
-    with the input held (the Python-level :func:`rk4_step`, or for a GVS model with
-    ``numba=True`` the numba loop :func:`tdacm.system.kernels.rk4_run`).  :meth:`step` runs one
-    period and returns its wall time, so several loops can be advanced in lockstep (the
-    machine's background load then hits all of them alike)."""
+class TimedControlLoop:
+    """What the timing study needs of the closed loop, on any model (GVS or the CC baseline,
+    which the loop's plant cannot hold): per 50 Hz period the low-level controller, then
+    ``substeps`` RK4 steps with the input held (the Python-level :func:`rk4_step`, or for a GVS
+    model with ``numba=True`` the numba loop :func:`tdacm.system.kernels.rk4_run`); no sensors
+    or servo. :meth:`step` runs one period and returns its wall time, so several loops can be
+    advanced in lockstep (the machine's background load then hits all of them alike)."""
 
-    def __init__(self, model, gvs, duration=5.0, period=0.02, substeps=4, law="paper", numba=False):
+    def __init__(self, model, gvs, duration=5.0, period=0.02, substeps=4, numba=False):
         self.model, self.period, self.substeps, self.numba = model, period, substeps, numba
         self.q, self.qd = PAPER_Q0.copy(), np.zeros(8)
         self.k = 0
         self.h = period / substeps
-        self.law = law
-        if law == "paper":
-            ctl, traj = _paper_controller(gvs, model, self.q, duration)
-
-            def control(k, q, qd):
-                qr, qdr, qddr = traj(k * period)
-                return ctl.step(q, qd, qr, qdr, qddr, period).u
-        else:
-            kp = np.array([20.0, 20.0, 5.0, 0.0, 0.0, 20.0, 0.5, 0.5])
-            kd = np.array([3.0, 3.0, 1.0, 0.5, 0.5, 8.0, 0.02, 0.02])
-            pd = _pd_gravity_controller(model, PAPER_QD, kp, kd)
-
-            def control(k, q, qd):
-                return pd(q, qd)
-
-        self.control = control
+        self.controller, self.trajectory = _paper_controller(gvs, model, self.q, duration)
         if numba:
             self._marr, self._loads = model.model_arrays, model.loads.packed()
 
     def step(self) -> float:
         t0 = time.perf_counter()
-        u = self.control(self.k, self.q, self.qd)
         q, qd = self.q, self.qd
+        qr, qdr, qddr = self.trajectory(self.k * self.period)
+        u = self.controller.step(q, qd, qr, qdr, qddr, self.period).u
         if self.numba:
             qs_, qds_, _ = K.rk4_run(
                 q, qd, u, self.h, self.substeps, self.substeps, self._marr, self._loads
@@ -137,11 +99,12 @@ class ClosedLoop:
         return time.perf_counter() - t0
 
 
-def closed_loop(model, gvs, duration=5.0, period=0.02, substeps=4, law="paper", numba=False):
-    """Run one :class:`ClosedLoop` to the end: per-iteration wall times and the final state."""
-    loop = ClosedLoop(model, gvs, duration, period, substeps, law, numba)
+def closed_loop(model, gvs, duration=5.0, period=0.02, substeps=4, numba=False):
+    """Run one :class:`TimedControlLoop` to the end: per-iteration wall times and the final
+    state."""
+    loop = TimedControlLoop(model, gvs, duration, period, substeps, numba)
     times = [loop.step() for _ in range(int(round(duration / period)))]
-    return np.array(times), loop.q, law
+    return np.array(times), loop.q
 
 
 def _paired(fns, numbers, repeats):
@@ -149,10 +112,7 @@ def _paired(fns, numbers, repeats):
     out = [[] for _ in fns]
     for _ in range(repeats):
         for i, (fn, number) in enumerate(zip(fns, numbers, strict=True)):
-            t0 = time.perf_counter()
-            for _ in range(number):
-                fn()
-            out[i].append((time.perf_counter() - t0) / number)
+            out[i] += batch_times(fn, number, 1)
     return [_stats(a) for a in out]
 
 
@@ -206,7 +166,7 @@ def timing_study(repeats=15, duration=5.0, period=0.02, substeps=4) -> dict:
         sg, sc = _paired((fg, fc), (8 * nb, nb), repeats)
         out["model"]["gvs"][key], out["model"]["cc"][key] = sg, sc
     out["model"]["gvs_numba_rk4_step"] = _stats(
-        _batch_times(lambda: K.rk4_run(q, qd, u, h, 1, 1, m, loads), 1000, repeats)
+        batch_times(lambda: K.rk4_run(q, qd, u, h, 1, 1, m, loads), 1000, repeats)
     )
     keys = tuple(pairs)
     out["model"]["ratio_cc_over_gvs"] = {
@@ -217,16 +177,11 @@ def timing_study(repeats=15, duration=5.0, period=0.02, substeps=4) -> dict:
     }
     # closed loop
     loops = {}
-    law = "paper"
-    try:
-        closed_loop(gvs, gvs, duration=0.1, period=period, substeps=substeps, law=law)
-    except Exception as exc:  # the controller package is optional for this study
-        law = "pd"
-        loops["paper_controller_error"] = f"{type(exc).__name__}: {exc}"
+    closed_loop(gvs, gvs, duration=0.1, period=period, substeps=substeps)  # warm-up
     runs = {
-        "gvs": ClosedLoop(gvs, gvs, duration, period, substeps, law),
-        "cc": ClosedLoop(cc, gvs, duration, period, substeps, law),
-        "gvs_numba_rk4": ClosedLoop(gvs, gvs, duration, period, substeps, law, numba=True),
+        "gvs": TimedControlLoop(gvs, gvs, duration, period, substeps),
+        "cc": TimedControlLoop(cc, gvs, duration, period, substeps),
+        "gvs_numba_rk4": TimedControlLoop(gvs, gvs, duration, period, substeps, numba=True),
     }
     times = {k: [] for k in runs}
     for _ in range(int(round(duration / period))):
@@ -237,8 +192,6 @@ def timing_study(repeats=15, duration=5.0, period=0.02, substeps=4) -> dict:
     loops["law"] = (
         "tdacm.control.TDACMController (adaptive, 10 % perturbed model) tracking a cubic joint "
         "trajectory from the paper's initial to its desired state"
-        if law == "paper"
-        else "joint-space PD + gravity/elastic compensation, least-squares allocation"
     )
     loops["period_s"] = period
     loops["rk4_substeps"] = substeps
@@ -408,9 +361,7 @@ def accuracy_study(
             qd = np.zeros_like(q)
             mdl.forward_dynamics(q, qd, u)
             fd = _stats(
-                _batch_times(
-                    lambda mdl=mdl, q=q, qd=qd, u=u: mdl.forward_dynamics(q, qd, u), 200, 5
-                )
+                batch_times(lambda mdl=mdl, q=q, qd=qd, u=u: mdl.forward_dynamics(q, qd, u), 200, 5)
             )
             # same Python-level RK4 for every model
             t0 = time.perf_counter()
@@ -674,8 +625,6 @@ def print_report(timing, scaling, accuracy, elastica) -> None:
         "GVS with its numba RK4; "
         f"final states differ by {cl['final_state_difference']:.2e}"
     )
-    if "paper_controller_error" in cl:
-        report.info(f"  (paper controller unavailable: {cl['paper_controller_error']})")
     report.info(
         "\nGVS forward dynamics vs strain DoFs (floating, numba kernel, median of interleaved batches, us):"
     )

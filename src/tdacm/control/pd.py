@@ -9,8 +9,8 @@ joint error (``A_p^-1`` times the load error), which the visual loop absorbs by 
 image error into ``q_d`` (paper-in-fov: final RMSE 0.0045 against 0.0039 with the adaptive
 law); it shares the hierarchical drone loop and the
 allocation with the adaptive controller. Use it in a scenario with
-``controller.class = "tdacm.control.pd:PDGravityController"``; it is also an example of the
-controller protocol (:mod:`tdacm.loop.protocols`).
+``controller.class = "tdacm.loop.lowlevel:PDGravityController"`` (the low-level block with this
+law in place of the adaptive one).
 """
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from .adaptive import AdaptiveOutput
-from .hierarchical import TDACMController
 
 
 class PDGravityLaw:
-    """The PD + gravity law with the interface :class:`TDACMController` expects of a law."""
+    """The PD + gravity law with the interface :class:`~.hierarchical.TDACMController` expects
+    of a law."""
 
     def __init__(self, model, gains):
         self.model = model
@@ -45,26 +45,3 @@ class PDGravityLaw:
 
     def adapt(self, s, dt: float) -> None:
         pass
-
-
-class PDGravityController:
-    """PD + gravity in the closed loop (implements the low-level controller protocol)."""
-
-    def __init__(self, context):
-        self.controller = TDACMController.from_options(
-            context.system, context.model, context.q_star, context.options
-        )
-        self.controller.law = PDGravityLaw(self.controller.model, self.controller.gains)
-
-    def reset(self, estimate) -> None:
-        self.controller.reset()
-
-    def step(self, estimate, command, dt: float):
-        from ..loop.data import ActuatorCommand
-
-        cs = self.controller.step(
-            estimate.q, estimate.qd, command.q_d, command.qd_d, command.qdd_d, dt
-        )
-        return ActuatorCommand(
-            cs.u, cs.tau, cs.q_ref, cs.V, None, cs.thrust_saturated, cs.tension_saturated
-        )

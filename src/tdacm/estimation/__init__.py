@@ -1,7 +1,7 @@
 """State estimation: proprioceptive sensors and an EKF on the controller's model.
 
 * :mod:`.sensors`: drone pose, IMU and tendon-encoder models (seeded, with latency/dropout);
-* :mod:`.ekf`: :class:`Estimator` (``reset``, ``step(t, u_applied, measurements) ->
+* :mod:`.ekf`: :class:`ExtendedKalmanFilter` (``reset``, ``step(t, u_applied, measurements) ->
   StateEstimate``);
 * :mod:`.inversion`: strains from measured tendon lengths (least squares);
 * :mod:`.camera`: the tip camera's view of the static target as a filter measurement;
@@ -18,9 +18,9 @@ from .config import (
     PoseSensorConfig,
     SensorSuiteConfig,
 )
-from .ekf import Estimator, EstimatorConfig, StateEstimate, euler_from_rotation
+from .ekf import EstimatorConfig, ExtendedKalmanFilter, StateEstimate, euler_from_rotation
 from .inversion import InversionResult, strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     DronePoseSensor,
     EncoderMeasurement,
     Imu,
@@ -35,7 +35,7 @@ __all__ = [
     "DronePoseSensor",
     "EncoderConfig",
     "EncoderMeasurement",
-    "Estimator",
+    "ExtendedKalmanFilter",
     "FilterBlock",
     "EstimatorConfig",
     "Imu",

@@ -1,7 +1,7 @@
 """The estimator as the closed loop's estimation block (``estimation.source = "estimated"``).
 
-:class:`FilterBlock` adapts :class:`~tdacm.estimation.ekf.Estimator` to the loop's protocol
-(:class:`tdacm.loop.protocols.Estimator`): ``reset(t)`` starts the filter from an initial
+:class:`FilterBlock` adapts :class:`~tdacm.estimation.ekf.ExtendedKalmanFilter` to the loop's
+protocol (:class:`tdacm.loop.protocols.Estimator`): ``reset(t)`` starts the filter from an initial
 guess, ``step(readings, u_applied, dt)`` fuses the proprioceptive measurements of
 ``readings.other`` (drone pose, IMU, encoders) with the input applied over the last period.
 It never sees the plant: the initial guess comes either from one reading of the sensors at the
@@ -15,15 +15,15 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import TargetViewMeasurement
-from .ekf import Estimator
-from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
+from .ekf import ExtendedKalmanFilter
+from .proprioception import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
 #: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
 _KNOWN = (PoseMeasurement, ImuMeasurement, EncoderMeasurement)
 
 
 class FilterBlock:
-    """Loop adapter of an :class:`Estimator` (module docstring).
+    """Loop adapter of an :class:`ExtendedKalmanFilter` (module docstring).
 
     Parameters
     ----------
@@ -45,7 +45,7 @@ class FilterBlock:
 
     def __init__(
         self,
-        estimator: Estimator,
+        estimator: ExtendedKalmanFilter,
         initial_measurements=None,
         nominal_q=None,
         strain_error: float = 0.0,

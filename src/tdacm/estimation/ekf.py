@@ -46,12 +46,13 @@ import numpy as np
 from ..control.model import EstimatedModel
 from ..lie.euler import euler_from_rotation, euler_rate_matrix, rot_zyx
 from ..lie.se3 import adjoint_pair, so3_exp_and_left_jacobian, so3_log
+from ..vision.mounts import tip_camera_pose
 from . import kernels as EK
 from .camera import TargetCamera, TargetViewMeasurement, target_pose_from_view, view_model
 from .config import EstimatorConfig
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     EncoderMeasurement,
     ImuMeasurement,
     PoseMeasurement,
@@ -75,7 +76,7 @@ class _Tick:
         self.p_post = p_prior
 
 
-class Estimator:
+class ExtendedKalmanFilter:
     """EKF on the controller's perturbed model (see module docstring).
 
     Parameters
@@ -113,8 +114,8 @@ class Estimator:
         self._m = sysm.model_arrays
         self._loads = sysm.loads.packed().copy()
         self._gravity = sysm.loads.gravity.copy()
-        self._s_m = np.ascontiguousarray(model._s_m)
-        self._s_d = np.ascontiguousarray(model._s_d)
+        self._s_m = np.ascontiguousarray(model.mass_scale)
+        self._s_d = np.ascontiguousarray(model.damping_scale)
         self._k_scale = 1.0 + model.d_k
         self._g_scale = 1.0 + model.d_g
         n = sysm.n
@@ -359,7 +360,7 @@ class Estimator:
     # ------------------------------------------------------------------ the tip camera
     def camera_pose(self, q) -> np.ndarray:
         """World pose of C_L at ``q`` in the filter's model: ``g_L(q) g_{C_L}^L``."""
-        return self.system.tip_pose(q) @ self.camera.tip_mount
+        return tip_camera_pose(self.system, q, self.camera.tip_mount)
 
     def target_pose(self, x=None) -> np.ndarray | None:
         """The filter's target pose (4x4, world) from state ``x`` (default: the latest);
@@ -419,7 +420,9 @@ class Estimator:
         """Fuse one detection of the target (gated; module :mod:`~tdacm.estimation.camera`)."""
         cam = self.camera
         if cam is None:
-            raise ValueError("a TargetViewMeasurement needs an Estimator built with a camera")
+            raise ValueError(
+                "a TargetViewMeasurement needs an ExtendedKalmanFilter built with a camera"
+            )
         pts = np.asarray(meas.points, float)
         if self._anchor is None or meas.t - self._view_ok_t > cam.reinit_after:
             # first view, or every view gated out for a while: (re)start from this one

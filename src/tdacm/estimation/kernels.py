@@ -1,4 +1,5 @@
-"""Numba kernels of the state estimator (the hot path of :class:`~tdacm.estimation.ekf.Estimator`).
+"""Numba kernels of the state estimator (the hot path of
+:class:`~tdacm.estimation.ekf.ExtendedKalmanFilter`).
 
 The filter's process model is the controller's *perturbed* model (paper, "Simulation Results":
 a 10 % multiplicative perturbation of ``M``, ``C``, ``D`` and ``K``; see

@@ -238,6 +238,13 @@ def so3_exp_and_left_jacobian(w):
     return rot, jl
 
 
+def rotation_angle(r) -> float:
+    """Angle (rad, in ``[0, pi]``) of the rotation ``R``: ``arccos((tr R - 1) / 2)``, the
+    argument clipped to ``[-1, 1]``. For reporting errors (logs, summaries): near 0 and pi it
+    keeps half the digits of :func:`so3_log`'s ``atan2`` form, which the kernels use."""
+    return float(np.arccos(np.clip(0.5 * (np.trace(r) - 1.0), -1.0, 1.0)))
+
+
 @njit(cache=True)
 def so3_log(r):
     """Rotation vector ``w`` with ``exp(w~) = R`` (``|w| <= pi``): ``th/(2 sin th) vee(R - R^T)``,

@@ -26,7 +26,7 @@ from .data import (
     StateEstimate,
     Termination,
 )
-from .lowlevel import AdaptiveLowLevel, load_class
+from .lowlevel import AdaptiveLowLevel, PDGravityController, load_class
 from .perception import Perception
 from .plant import Disturbances, Plant
 from .protocols import ControllerContext, Estimator, LowLevelController, Servo
@@ -37,6 +37,7 @@ from .servo import VisualServo, normalized_rmse
 __all__ = [
     "ActuatorCommand",
     "AdaptiveLowLevel",
+    "PDGravityController",
     "AnalyticFrontEnd",
     "CameraMeasurement",
     "CameraSensor",

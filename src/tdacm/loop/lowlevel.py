@@ -1,7 +1,8 @@
 """The low-level control block (paper, "Model-Based Control"): the adaptive sliding-mode law,
 the hierarchical drone loop and the thrust/tension allocation of
 :class:`~tdacm.control.TDACMController`, behind the :class:`~.protocols.LowLevelController`
-protocol; and the loader of user controllers named in a scenario."""
+protocol (or with the PD + gravity law of :mod:`tdacm.control.pd` in its place); and the loader
+of user controllers named in a scenario."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import importlib
 import sys
 
 from ..control import TDACMController
+from ..control.pd import PDGravityLaw
 from .data import ActuatorCommand, ServoCommand, StateEstimate
 from .protocols import ControllerContext, LowLevelController
 
@@ -16,10 +18,16 @@ from .protocols import ControllerContext, LowLevelController
 class AdaptiveLowLevel:
     """The paper's controller (eqs. S2-S10) with the drone loop and allocation."""
 
+    #: Built as ``law_class(model, gains)`` in place of the adaptive law when set.
+    law_class = None
+
     def __init__(self, context: ControllerContext):
         self.controller = TDACMController.from_options(
             context.system, context.model, context.q_star, context.options
         )
+        if self.law_class is not None:
+            c = self.controller
+            c.law = self.law_class(c.model, c.gains)
 
     def reset(self, estimate: StateEstimate) -> None:
         self.controller.reset()
@@ -31,6 +39,13 @@ class AdaptiveLowLevel:
         return ActuatorCommand(
             cs.u, cs.tau, cs.q_ref, cs.V, cs.delta_hat, cs.thrust_saturated, cs.tension_saturated
         )
+
+
+class PDGravityController(AdaptiveLowLevel):
+    """PD + gravity (:class:`~tdacm.control.pd.PDGravityLaw`) with the same drone loop and
+    allocation: ``controller.class = "tdacm.loop.lowlevel:PDGravityController"``."""
+
+    law_class = PDGravityLaw
 
 
 def load_class(path: str, search: tuple[str, ...] = ()):

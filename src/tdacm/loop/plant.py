@@ -85,6 +85,7 @@ class Plant:
         rng: np.random.Generator | None = None,
         aero: np.ndarray | None = None,
         wind: Wind | None = None,
+        accelerations: bool = False,
     ):
         if wind is not None and aero is None:
             raise ValueError("wind needs aero (the packed aerodynamics it acts through)")
@@ -98,7 +99,7 @@ class Plant:
         self._loads = Loads(gravity=system.loads.gravity.copy())
         self._base = system.loads.packed().copy()
         #: also compute the accelerations at the end of each period (for an IMU)
-        self.accelerations = False
+        self.accelerations = bool(accelerations)
         self.reset(q0, qd0)
 
     def reset(self, q0, qd0, t: float = 0.0) -> PlantState:

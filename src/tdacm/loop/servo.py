@@ -26,16 +26,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
-from ..lie.se3 import adjoint_pair
+from .._linalg import solve as _solve
+from ..control import (
+    CubicTrajectory,
+    Mode,
+    ModeSwitch,
+    estimate_target_pose,
+    plan_rod_configuration,
+)
+from ..lie.se3 import adjoint_pair, expmap, so3_log
 from ..vision.features import advanced_features
 from ..vision.ibvs import IBVSController
+from ..vision.mounts import tip_camera_pose
+from ..vision.target_filter import TargetFilter
 from ..vision.tip import rates_from_jacobian
 from ..vision.virtual import virtual_points, virtual_transform
 from .config import IbvsConfig, RecoveryConfig
 from .data import GlobalView, LocalView, ServoCommand, StateEstimate
 
-MODE_CODES = {ModeSwitch.IBVS: 0, ModeSwitch.RECOVERY: 1}
+MODE_CODES = {Mode.IBVS: 0, Mode.RECOVERY: 1}
 
 
 def normalized_rmse(points, desired) -> float:
@@ -95,6 +104,9 @@ class VisualServo:
         The reference snapshot in C_V (C_L for a fixed base).
     gain, mode, compensation:
         IBVS gain ``lambda``, interaction-matrix choice and the virtual-camera form.
+    floor, solver:
+        Singular-value floor of the ``J_img`` solve and its kind
+        (:func:`~tdacm.vision.ibvs.robust_solve`; ``floor = 0``: the plain inverse).
     """
 
     def __init__(
@@ -112,6 +124,8 @@ class VisualServo:
         compensation: str = IbvsConfig().compensation,
         shaping: ShapingParams | None = None,
         recovery: RecoveryParams | None = None,
+        floor: float = IbvsConfig().floor,
+        solver: str = IbvsConfig().solver,
     ):
         self.system = system
         self.local_camera = local_camera
@@ -121,7 +135,10 @@ class VisualServo:
         self.drone_mount = np.asarray(drone_mount, float)
         self.desired_points = np.asarray(desired_points, float)
         self.desired_depths = np.asarray(desired_depths, float)
-        self.ibvs = IBVSController(self.desired_points, self.desired_depths, gain=gain, mode=mode)
+        self.ibvs = IBVSController(
+            self.desired_points, self.desired_depths, gain=gain, mode=mode, floor=floor,
+            solver=solver,
+        )  # fmt: skip
         self.compensation = compensation
         self.shaping = shaping or ShapingParams.from_config(IbvsConfig())
         self.recovery = recovery or RecoveryParams.from_config(RecoveryConfig())
@@ -145,10 +162,9 @@ class VisualServo:
         """Start from configuration ``q0`` (the estimate); the initial mode is IBVS when the
         first C_L view has the target inside the margin, recovery otherwise."""
         s = self.system
-        self.switch.mode = ModeSwitch.RECOVERY
-        self.switch._good = self.switch._bad = 0
-        if first_view is not None and first_view.found and self.switch.inside(first_view.pixels):
-            self.switch.mode = ModeSwitch.IBVS
+        seen = first_view is not None and first_view.found
+        start = Mode.IBVS if seen and self.switch.inside(first_view.pixels) else Mode.RECOVERY
+        self.switch.reset(start)
         self.q_d = np.array(q0, float)
         if s.floating:
             self.q_d[:2] = 0.0
@@ -162,9 +178,9 @@ class VisualServo:
 
     # ------------------------------------------------------------------ pieces
     def local_camera_pose(self, q) -> np.ndarray:
-        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.camera_pose`; the system keeps
+        """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.tip_camera_pose`; the system keeps
         the tip pose of the last configurations, asked for several times a period)."""
-        return self.system.tip_pose(q) @ self.tip_mount
+        return tip_camera_pose(self.system, q, self.tip_mount)
 
     def to_virtual(self, view: LocalView, q):
         """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""
@@ -222,11 +238,11 @@ class VisualServo:
     def transition(self, prev: str, mode: str, t: float) -> str | None:
         """The event of a mode change: IBVS engaging (its ramp restarts; ``q_d`` continues from
         the recovery reference, a continuous error) or the target lost."""
-        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
+        if prev == Mode.RECOVERY and mode == Mode.IBVS:
             self.ibvs_start = t
             self.traj = None
             return "ibvs engaged"
-        if prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
+        if prev == Mode.IBVS and mode == Mode.RECOVERY:
             return "target lost"
         return None
 
@@ -302,36 +318,54 @@ class VisualServo:
     ) -> ServoCommand:
         """One servo period. ``twist`` (optional) replaces the IBVS twist (an external
         command, e.g. a learning agent's action); shaping and the mapping still apply."""
-        n = self.n
+        return self.command(t, dt, est.q, gview, twist, *self.perceive(t, dt, view, est))
+
+    def perceive(self, t: float, dt: float, view: LocalView, est: StateEstimate) -> tuple:
+        """The first part of a period: the mode switch on the view and the view in C_V.
+        Returns ``(mode, event, seen, ibvs_twist, points, features, error, rmse, extra)``
+        for :meth:`command` (``ibvs_twist()`` computes the IBVS twist when it is used)."""
         q = est.q
         prev = self.switch.mode
         mode = self.switch.update(view.pixels if view.found else None)
         event = self.transition(prev, mode, t)
-        out_twist = np.zeros(6)
-        qdd_d = np.zeros(n)
-        points = features = error = None
+        points = depths = features = error = None
         rmse = float("nan")
-        plan_info = None
         if view.found:
             points, depths, features, error, rmse = self.observe(view, q)
-        if mode == ModeSwitch.IBVS and (view.found or twist is not None):
-            if twist is None:
-                twist = self.ibvs.twist(points, depths, error=error)
-            out_twist = np.asarray(twist, float)
-            rates = self.joint_rates(q, out_twist)
-            # qdd_d = 0: IBVS gives rates only (qdd_r = -beta edot)
-            self.shape(rates, t, dt)
-        elif mode == ModeSwitch.RECOVERY:
+        return (
+            mode, event, view.found, lambda: self.ibvs.twist(points, depths, error=error),
+            points, features, error, rmse, {},
+        )  # fmt: skip
+
+    def follow_twist(self, q, twist, t: float, dt: float) -> np.ndarray:
+        """IBVS mode: joint rates of ``twist``, shaped into ``qd_d`` and integrated into
+        ``q_d``; returns ``qdd_d`` (zero: IBVS gives rates only, ``qdd_r = -beta edot``)."""
+        self.shape(self.joint_rates(q, twist), t, dt)
+        return np.zeros(self.n)
+
+    def command(self, t, dt, q, gview, twist, mode, event, seen, ibvs_twist, points, features,
+                error, rmse, extra) -> ServoCommand:  # fmt: skip
+        """The end of a period, the same for both servos: IBVS on ``twist`` (if given) or on
+        ``ibvs_twist()`` when the target is ``seen``, the recovery branch, or a hold while the
+        target is not seen in IBVS mode. ``extra``: fields added to every command."""
+        n = self.n
+        out_twist = np.zeros(6)
+        qdd_d = np.zeros(n)
+        plan_info = None
+        if mode == Mode.IBVS and (seen or twist is not None):
+            out_twist = np.asarray(ibvs_twist() if twist is None else twist, float)
+            qdd_d = self.follow_twist(q, out_twist, t, dt)
+        elif mode == Mode.RECOVERY:
             ended, plan_info, event = self.recovery_branch(
-                t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event
+                t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event, **extra
             )
             if ended is not None:
                 return ended
-        else:  # IBVS mode but the target is not seen this frame: hold
+        else:  # IBVS mode but the target is not seen (or nothing fused yet): hold
             self.qd_d = np.zeros(n)
         return ServoCommand(
             mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features, error, points,
-            rmse, event=event, plan=plan_info,
+            rmse, event=event, plan=plan_info, **extra,
         )  # fmt: skip
 
 
@@ -367,6 +401,25 @@ class RobustParams:
         )
 
 
+@dataclass(frozen=True)
+class PredictedView:
+    """The target's feature points predicted in the servo camera (C_V, or C_L for a held
+    base) from the world-frame estimate, with their features, error and twist (``twist`` is
+    ``None`` before the first frame); ``pixels_local``: the same points predicted in the real
+    camera C_L (pixels), for the field-of-view test of the mode switch."""
+
+    points: np.ndarray | None = None
+    depths: np.ndarray | None = None
+    features: np.ndarray | None = None
+    error: np.ndarray | None = None
+    twist: np.ndarray | None = None
+    pixels_local: np.ndarray | None = None
+
+    @property
+    def valid(self) -> bool:
+        return self.twist is not None
+
+
 class RobustServo(VisualServo):
     """Visual servo on features predicted from a world-frame estimate of the static target
     (docs/control.md, "Robust servo"; the servo protocol of :mod:`tdacm.loop.protocols`).
@@ -388,28 +441,21 @@ class RobustServo(VisualServo):
     """
 
     def __init__(self, *args, robust: RobustParams | None = None, **kwargs):
-        super().__init__(*args, **kwargs)
-        from ..vision.servo import PredictiveServo
-
-        self.robust = r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
-        self.ibvs.floor = r.floor
-        self.ibvs.solver = r.solver
-        self.predictor = PredictiveServo(
+        r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
+        super().__init__(*args, floor=r.floor, solver=r.solver, **kwargs)
+        self.robust = r
+        self.target_filter = TargetFilter(
             self.local_camera,
-            self.target,
-            self.desired_points,
-            self.desired_depths,
-            gain=self.ibvs.gain,
-            mode=self.ibvs.mode,
-            floor=r.floor,
-            solver=r.solver,
+            self.target.feature_points,
             pixel_sigma=r.pixel_sigma,
             window=r.window,
-            smoothing=r.smoothing,
             level_prior=np.radians(r.level_prior_deg),
             level_normal=r.level_normal,
         )
-        self.predictor.controller = self.ibvs
+        if not np.isfinite(r.smoothing) or r.smoothing < 0:
+            raise ValueError(f"smoothing must be >= 0, got {r.smoothing!r}")
+        self.smoothing = float(r.smoothing)
+        self.target_pose = None  # smoothed estimate used by the prediction
         # feed-forward and leak are for the flying base, whose position lags the reference
         # through the attitude loop (measured on paper-in-fov); a held rod tracks directly
         self._flying = bool(self.system.floating)
@@ -417,9 +463,9 @@ class RobustServo(VisualServo):
 
     def reset(self, q0, first_view: LocalView | None = None) -> None:
         super().reset(q0, first_view)
-        if hasattr(self, "predictor"):
-            self.predictor.filter.reset()
-            self.predictor.target_pose = None
+        if hasattr(self, "target_filter"):
+            self.target_filter.reset()
+        self.target_pose = None
         self._poses = {}  # capture time -> C_L pose (from the estimate of that period)
         self._last_fused = -np.inf
         self._last_seen = None
@@ -444,9 +490,48 @@ class RobustServo(VisualServo):
         g_c = self.local_camera_pose(q)
         if not self.system.floating:
             return g_c
-        from ..vision.virtual import _virtual_pose
+        from ..vision.virtual import virtual_pose
 
-        return _virtual_pose(self.system.base_pose(q), g_c)
+        return virtual_pose(self.system.base_pose(q), g_c)
+
+    def predict_target(self, dt: float) -> None:
+        """Advance the smoothed target pose toward the filter's estimate by one period: a
+        first-order filter of time constant ``smoothing`` on SE(3). The target is static, so
+        this adds no lag to the camera's motion (which enters through the exact camera pose);
+        it only spreads the estimate's corrections - large along the weakly observable
+        directions while few frames are fused - over time, so that they do not kick the
+        TD-ACM."""
+        self.target_filter.predict(dt)
+        est = self.target_filter.pose
+        if est is None:  # not seen yet, or the filter restarted: keep the last estimate
+            return
+        if self.target_pose is None or self.smoothing == 0:
+            self.target_pose = est.copy()
+            return
+        a = min(1.0, dt / self.smoothing)
+        d = _solve(self.target_pose, est)  # g_s^-1 g_T
+        w = a * so3_log(np.ascontiguousarray(d[:3, :3]))
+        step = expmap(np.array([w[0], w[1], w[2], 0.0, 0.0, 0.0]))  # rotation by a * log(R)
+        step[:3, 3] = a * d[:3, 3]
+        self.target_pose = self.target_pose @ step
+
+    def predicted_view(self, servo_pose, camera_pose=None) -> PredictedView:
+        """Features, error and twist of the servo camera at ``servo_pose`` (4x4 world pose of
+        C_V, or of C_L for a held base) predicted from the smoothed target estimate;
+        ``camera_pose`` (C_L) adds the predicted C_L pixels."""
+        if self.target_pose is None:
+            if self.target_filter.pose is None:
+                return PredictedView()
+            self.target_pose = self.target_filter.pose.copy()
+        xy, z = self.target_filter.points_in(servo_pose, self.target_pose)
+        if np.any(z <= 0):
+            return PredictedView()
+        pix = None
+        if camera_pose is not None:
+            xl, zl = self.target_filter.points_in(camera_pose, self.target_pose)
+            pix = self.local_camera.denormalize_checked(xl) if np.all(zl > 0) else None
+        f, e, v = self.ibvs.features_error_twist(xy, z)
+        return PredictedView(xy, z, f, e, v, pix)
 
     def camera_pose_covariance(self, q, P) -> np.ndarray | None:
         """Covariance (6 x 6, ``[w; v]`` in C_L) of the C_L pose computed from an estimate
@@ -469,7 +554,7 @@ class RobustServo(VisualServo):
             if pose is None:  # capture before the first period we saw: nearest stored
                 pose = self._poses[min(self._poses, key=lambda k: abs(k - tc))]
             self._last_fused = view.t_capture
-            if self.predictor.filter.update_checked(view.pixels, *pose):
+            if self.target_filter.update_checked(view.pixels, *pose):
                 self._last_seen = view.t_capture
             for k in [k for k in self._poses if k < tc]:
                 del self._poses[k]
@@ -477,22 +562,16 @@ class RobustServo(VisualServo):
             for k in sorted(self._poses)[:-64]:
                 del self._poses[k]
 
-    def step(
-        self,
-        t: float,
-        dt: float,
-        view: LocalView,
-        gview: GlobalView | None,
-        est: StateEstimate,
-        twist: np.ndarray | None = None,
-    ) -> ServoCommand:
-        n = self.n
+    def perceive(self, t: float, dt: float, view: LocalView, est: StateEstimate) -> tuple:
+        """As :meth:`VisualServo.perceive`, on the features predicted from the target
+        estimate (the view is fused first; the mode switch watches the predicted C_L pixels
+        while in IBVS)."""
         q = est.q
         r = self.robust
         self._fuse(t, view, est)
-        self.predictor.predict(dt)
+        self.predict_target(dt)
         g_c = self.local_camera_pose(q)
-        ps = self.predictor.step(self.servo_camera_pose(q), g_c)
+        ps = self.predicted_view(self.servo_camera_pose(q), g_c)
         # what was measured, in C_V (logged only)
         rmse_meas = float("nan")
         if view.found:
@@ -502,7 +581,7 @@ class RobustServo(VisualServo):
             except ValueError:
                 pass
         prev = self.switch.mode
-        if prev == ModeSwitch.IBVS:
+        if prev == Mode.IBVS:
             ok = (
                 ps.valid
                 and self._last_seen is not None
@@ -514,35 +593,26 @@ class RobustServo(VisualServo):
         else:
             mode = self.switch.update(view.pixels if view.found else None)
         event = self.transition(prev, mode, t)
-        out_twist = np.zeros(6)
-        qdd_d = np.zeros(n)
-        points, features, error = ps.points, ps.features, ps.error
-        rmse = normalized_rmse(points, self.desired_points) if ps.valid else float("nan")
-        plan_info = None
-        if mode == ModeSwitch.IBVS and (ps.valid or twist is not None):
-            out_twist = np.asarray(ps.twist if twist is None else twist, float)
-            qd_prev = self.qd_d.copy()
-            self.shape(self.joint_rates(q, out_twist), t, dt)
-            if r.accel_feedforward and self._flying:
-                # the low-level loop follows the deceleration instead of lagging into an
-                # overshoot (paper: qdd_d = 0)
-                qdd_d = (self.qd_d - qd_prev) / dt
-            if r.reference_leak > 0:
-                # q_d is only an integrated rate; the vision loop closes on the actual pose,
-                # so pull q_d toward q_hat (no wind-up while the plant lags)
-                c = self._leak
-                self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
-        elif mode == ModeSwitch.RECOVERY:
-            ended, plan_info, event = self.recovery_branch(
-                t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event,
-                rmse_measured=rmse_meas, target_pose=self.predictor.target_pose,
-            )  # fmt: skip
-            if ended is not None:
-                return ended
-        else:  # IBVS before the first frame was fused: hold
-            self.qd_d = np.zeros(n)
-        return ServoCommand(
-            mode, self.q_d.copy(), self.qd_d.copy(), qdd_d, out_twist, features, error, points,
-            rmse, event=event, plan=plan_info, rmse_measured=rmse_meas,
-            target_pose=self.predictor.target_pose,
+        rmse = normalized_rmse(ps.points, self.desired_points) if ps.valid else float("nan")
+        extra = {"rmse_measured": rmse_meas, "target_pose": self.target_pose}
+        return (
+            mode, event, ps.valid, lambda: ps.twist, ps.points, ps.features, ps.error, rmse, extra,
         )  # fmt: skip
+
+    def follow_twist(self, q, twist, t: float, dt: float) -> np.ndarray:
+        """As :meth:`VisualServo.follow_twist`, plus the acceleration feed-forward of the
+        filtered rate and the leak of ``q_d`` toward ``q_hat``."""
+        r = self.robust
+        qdd_d = np.zeros(self.n)
+        qd_prev = self.qd_d.copy()
+        self.shape(self.joint_rates(q, twist), t, dt)
+        if r.accel_feedforward and self._flying:
+            # the low-level loop follows the deceleration instead of lagging into an
+            # overshoot (paper: qdd_d = 0)
+            qdd_d = (self.qd_d - qd_prev) / dt
+        if r.reference_leak > 0:
+            # q_d is only an integrated rate; the vision loop closes on the actual pose,
+            # so pull q_d toward q_hat (no wind-up while the plant lags)
+            c = self._leak
+            self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
+        return qdd_d

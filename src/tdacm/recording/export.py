@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from .._extras import require
+from ..vision.mounts import tip_camera_pose
 from .msgdefs import schema_text
 
 log = logging.getLogger(__name__)
@@ -385,7 +386,7 @@ def export_run(
         if "/tdacm/target/pose" in topics:
             put("/tdacm/target/pose", _pose(ns0, WORLD, run.scene.target_pose), ns0)
         if "/tdacm/goal/camera_pose" in topics:
-            goal = system.tip_pose(run.q_star) @ robot.tip_mount
+            goal = tip_camera_pose(system, run.q_star, robot.tip_mount)
             put("/tdacm/goal/camera_pose", _pose(ns0, WORLD, goal), ns0)
         frames_out = {
             cam: (np.rint(np.asarray(ti, float) * 1e9).astype(np.int64) + int(start_ns), fr)
@@ -470,7 +471,7 @@ def render_images(run: RunFolder, cam: str, every: int):
         frames = []
         for k in idx:
             g = (
-                s.tip_pose(q[k]) @ r.tip_mount
+                tip_camera_pose(s, q[k], r.tip_mount)
                 if cam == "C_L"
                 else s.base_pose(q[k]) @ r.drone_mount
             )

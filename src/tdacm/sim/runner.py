@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..lie.se3 import rotation_angle
 from ..loop.closed_loop import ClosedLoop
 from ..loop.safety import SafetyMonitor
 from ..loop.sensors import RenderedFrontEnd
@@ -194,18 +195,18 @@ def _last_finite(x):
 def _target_merit(loop: ClosedLoop, world: World) -> dict:
     """Final error of the robust servo's target estimate and its own 1-sigma (worst
     rotation direction), when the servo has one."""
-    pred = getattr(loop.servo, "predictor", None)
-    if pred is None or not pred.filter.initialized:
+    filt = getattr(loop.servo, "target_filter", None)
+    if filt is None or not filt.initialized:
         return {}
     g_t = world.scene.target_pose
-    e = np.linalg.solve(g_t, pred.filter.pose)
-    ang = float(np.degrees(np.arccos(np.clip(0.5 * (np.trace(e[:3, :3]) - 1), -1, 1))))
-    sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(pred.filter.P[:3, :3]).max())))
+    e = np.linalg.solve(g_t, filt.pose)
+    ang = float(np.degrees(rotation_angle(e[:3, :3])))
+    sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(filt.P[:3, :3]).max())))
     return {
         "final_target_estimate_error_m": float(np.linalg.norm(e[:3, 3])),
         "final_target_estimate_error_deg": ang,
         "final_target_estimate_sigma_deg": sig,
-        "target_filter_rejected": int(pred.filter.rejected),
+        "target_filter_rejected": int(filt.rejected),
     }
 
 

@@ -25,6 +25,7 @@ from pydantic import ValidationError
 
 from ..aero.config import WindConfig
 from ..loop.ablation import parse_controller_truth
+from ..vision.mounts import tip_camera_pose
 from .config import SECTIONS, TOP_KEYS, ScenarioConfig, error_line
 from .robot import RobotError, strain_count
 
@@ -213,7 +214,7 @@ def check_with_world(scenario: Scenario, world) -> None:
     except ValueError as exc:
         raise ScenarioError(f"{src}: {exc}") from None
     robot = world.robot
-    g_c = robot.system.tip_pose(world.q_star) @ robot.tip_mount
+    g_c = tip_camera_pose(robot.system, world.q_star, robot.tip_mount)
     pts = world.scene.target_points_world()
     depth = (pts - g_c[:3, 3]) @ g_c[:3, 2]
     if np.any(depth <= 0):

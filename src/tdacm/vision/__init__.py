@@ -3,8 +3,9 @@
 Cameras (:mod:`.camera`, :mod:`.mounts`), targets and scene (:mod:`.targets`, :mod:`.scene`),
 renderers behind one interface (:mod:`.render`), fiducial detection (:mod:`.detect`), the
 virtual camera C_V (:mod:`.virtual`), the advanced features and their interaction matrix
-(:mod:`.features`), the IBVS law (:mod:`.ibvs`), the tip-level mapping (:mod:`.tip`) and one
-local-camera servo step (:mod:`.servo`). See ``docs/vision.md``.
+(:mod:`.features`), the IBVS law (:mod:`.ibvs`), the tip-level mapping (:mod:`.tip`) and the
+estimate of a static target from its detections (:mod:`.target_filter`). The servo that chains
+them in the closed loop is :mod:`tdacm.loop.servo`. See ``docs/vision.md``.
 
 Conventions: camera frames x right, y down, z forward; normalized coordinates
 ``x = X/Z, y = Y/Z``; twists angular-first ``[w; v]`` (as the model), except where a function
@@ -31,11 +32,11 @@ from .mounts import (
     camera_pose,
     drone_camera_mount,
     tip_camera_mount,
+    tip_camera_pose,
 )
 from .render import PlanarRenderer, PyBulletRenderer, Renderer
 from .scene import ArmStyle, SceneConfig
-from .servo import LocalCameraServo, PredictedStep, PredictiveServo, ServoStep
-from .target_filter import TargetEstimate, TargetFilter
+from .target_filter import TargetEstimate, TargetFilter, reference_from_pose
 from .targets import PAPER_MARKER, PAPER_PATTERN, AprilTagPattern, ArucoMarker, FiducialTarget
 from .tip import camera_joint_rates, camera_to_tip_twist, commanded_coordinates, tip_joint_rates
 from .virtual import (
@@ -59,9 +60,6 @@ __all__ = [
     "Detection",
     "FiducialTarget",
     "IBVSController",
-    "LocalCameraServo",
-    "PredictedStep",
-    "PredictiveServo",
     "TargetEstimate",
     "TargetFilter",
     "PinholeCamera",
@@ -69,7 +67,6 @@ __all__ = [
     "PyBulletRenderer",
     "Renderer",
     "SceneConfig",
-    "ServoStep",
     "TargetDetector",
     "advanced_features",
     "camera_joint_rates",
@@ -86,7 +83,9 @@ __all__ = [
     "ibvs_twist",
     "paper_features",
     "point_interaction_matrix",
+    "reference_from_pose",
     "tip_camera_mount",
+    "tip_camera_pose",
     "tip_joint_rates",
     "virtual_camera_points",
     "virtual_camera_pose",

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tdacm.lie.se3 import expmap
-
+from ..lie.se3 import expmap, rotation_angle
 from . import _checks as C
 from .ibvs import IBVSController
+from .mounts import tip_camera_pose
 
 
 @dataclass(frozen=True)
@@ -38,10 +38,6 @@ def project_points(points_target, camera_pose_in_target):
     r, t = g[:3, :3], g[:3, 3]
     pc = (points_target - t) @ r
     return pc[:, :2] / pc[:, 2:3], pc[:, 2]
-
-
-def _rotation_angle(r: np.ndarray) -> float:
-    return float(np.arccos(np.clip(0.5 * (np.trace(r) - 1.0), -1.0, 1.0)))
 
 
 def free_camera_servo(
@@ -79,30 +75,44 @@ def free_camera_servo(
     gd = C.transform("desired_pose", desired_pose)
     xd, zd = project_points(pts, gd)
     ctrl = IBVSController(xd, zd, gain=gain, mode=mode)
-    lost = False
-    converged = False
-    e_norm = np.inf
-    k = 0
-    for k in range(1, int(max_steps) + 1):  # noqa: B007 - k is reported
+
+    def view(g):
         xy, z = project_points(pts, g)
         if np.any(z <= 1e-3):
-            lost = True
-            break
+            return None
         if camera is not None:
             uv = np.column_stack(
                 (camera.fx * xy[:, 0] + camera.cx, camera.fy * xy[:, 1] + camera.cy)
             )
             if not np.all(camera.pixels_in_image(uv, margin)):
-                lost = True
-                break
+                return None
+        return xy, z
+
+    converged, k, e_norm, g, lost = _ibvs_loop(
+        view, ctrl, lambda g, v: g @ expmap(dt * v), g, max_steps, tol
+    )
+    pos = float(np.linalg.norm(g[:3, 3] - gd[:3, 3]))
+    rot = rotation_angle(gd[:3, :3].T @ g[:3, :3])
+    return LoopResult(converged, k, e_norm, pos, rot, lost, g)
+
+
+def _ibvs_loop(view, ctrl, advance, state, max_steps, tol):
+    """The kinematic IBVS loop: ``view(state) -> (xy, z)`` (``None``: the target is lost),
+    ``advance(state, twist) -> state`` for one step, until ``|e| < tol`` or ``max_steps``.
+    Returns ``(converged, steps, |e|, state, lost)``."""
+    e_norm, lost, converged, k = np.inf, False, False, 0
+    for k in range(1, int(max_steps) + 1):  # noqa: B007 - k is reported
+        seen = view(state)
+        if seen is None:
+            lost = True
+            break
+        xy, z = seen
         e_norm = float(np.linalg.norm(ctrl.error(xy)))
         if e_norm < tol:
             converged = True
             break
-        g = g @ expmap(dt * ctrl.twist(xy, z))
-    pos = float(np.linalg.norm(g[:3, 3] - gd[:3, 3]))
-    rot = _rotation_angle(gd[:3, :3].T @ g[:3, :3])
-    return LoopResult(converged and not lost, k, e_norm, pos, rot, lost, g)
+        state = advance(state, ctrl.twist(xy, z))
+    return converged and not lost, k, e_norm, state, lost
 
 
 def random_initial_pose(
@@ -177,7 +187,7 @@ def tdacm_servo(
 
     def view(qq):
         g_b = system.base_pose(qq)
-        g_cl = system.tip_pose(qq) @ mount
+        g_cl = tip_camera_pose(system, qq, mount)
         r, t = g_cl[:3, :3], g_cl[:3, 3]
         pc = (pw - t) @ r
         if np.any(pc[:, 2] <= 1e-3):
@@ -195,19 +205,15 @@ def tdacm_servo(
     if xd is None:
         raise ValueError("the target is behind the camera at q_desired")
     ctrl = IBVSController(xd, zd, gain=gain)
-    e_norm, lost, converged, k = np.inf, False, False, 0
-    for k in range(1, int(max_steps) + 1):  # noqa: B007 - k is reported
-        xy, z, extra = view(q)
-        if xy is None:
-            lost = True
-            break
-        if camera is not None and not camera.all_in_fov(extra[1]):
-            lost = True
-            break
-        e_norm = float(np.linalg.norm(ctrl.error(xy)))
-        if e_norm < tol:
-            converged = True
-            break
-        v = ctrl.twist(xy, z)
-        q = q + dt * camera_joint_rates(system, q, v, mount, jacobian_at=jacobian_at)
-    return ArmLoopResult(converged and not lost, k, e_norm, q, lost)
+
+    def seen(qq):
+        xy, z, extra = view(qq)
+        if xy is None or (camera is not None and not camera.all_in_fov(extra[1])):
+            return None
+        return xy, z
+
+    def advance(qq, v):
+        return qq + dt * camera_joint_rates(system, qq, v, mount, jacobian_at=jacobian_at)
+
+    converged, k, e_norm, q, lost = _ibvs_loop(seen, ctrl, advance, q, max_steps, tol)
+    return ArmLoopResult(converged, k, e_norm, q, lost)

@@ -104,6 +104,13 @@ DEFAULT_TIP_CAMERA_MOUNT = tip_camera_mount()
 DEFAULT_DRONE_CAMERA_MOUNT = drone_camera_mount()
 
 
+def tip_camera_pose(system, q, mount) -> np.ndarray:
+    """World pose of the tip camera, ``g_{C_L} = g_L(q) g_{C_L}^L`` (eq. (10)'s chain), from
+    the system's tip pose at ``q`` and the mount. Unchecked (called several times a period):
+    the caller checks the mount once."""
+    return system.tip_pose(q) @ mount
+
+
 def camera_pose(frame_pose, mount) -> np.ndarray:
     """Inertial camera pose ``g_F @ g_C^F`` from the carrying frame's pose and the mount."""
     return C.transform("frame_pose", frame_pose) @ C.transform("mount", mount)

@@ -118,6 +118,16 @@ def target_in_camera(object_points, camera_pose, target_pose) -> np.ndarray:
     return object_points @ g[:3, :3].T + g[:3, 3]
 
 
+def reference_from_pose(target, target_pose, camera_pose):
+    """Desired normalized points ``(4, 2)`` and depths ``(4,)`` of ``target`` (at world pose
+    ``target_pose``) seen from a camera at world pose ``camera_pose``: the paper's reference
+    snapshot, computed analytically (``ValueError`` if the target is behind the camera)."""
+    pc = target_in_camera(target.feature_points, camera_pose, target_pose)
+    if np.any(pc[:, 2] <= 0):
+        raise ValueError("the target is behind the camera in the reference pose")
+    return pc[:, :2] / pc[:, 2:3], pc[:, 2]
+
+
 @njit(cache=True)
 def _target_points(rt, pt, obj):
     """World coordinates ``(4, 3)`` of the target's points at ``(R_T, p_T)``."""

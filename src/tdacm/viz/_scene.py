@@ -15,6 +15,7 @@ import numpy as np
 
 from ..sim.assemble import build_world
 from ..sim.scenario import ScenarioError, load_scenario
+from ..vision.mounts import tip_camera_pose
 
 
 @dataclass
@@ -30,7 +31,7 @@ class Geometry:
     global_camera: object
 
     def local_pose(self, q):
-        return self.system.tip_pose(q) @ self.tip_mount
+        return tip_camera_pose(self.system, q, self.tip_mount)
 
     def global_pose(self, q):
         return self.system.base_pose(q) @ self.drone_mount

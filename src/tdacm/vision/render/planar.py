@@ -235,18 +235,9 @@ class PlanarRenderer(Renderer):
         k_roi[1, 2] -= y0
         hom = k_roi @ rt @ a
         roi = img[y0:y1, x0:x1]
-        if len(poly) == 4 and np.all(cam_pts[:, 2] >= camera.near):
-            cv2.warpPerspective(
-                tex,
-                hom,
-                (x1 - x0, y1 - y0),
-                dst=roi,
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_TRANSPARENT,
-            )
-            return
-        # partly behind the near plane: warp, then keep only the clipped polygon
-        warped = roi.copy()
+        whole = len(poly) == 4 and np.all(cam_pts[:, 2] >= camera.near)
+        # partly behind the near plane: warp into a copy, then keep only the clipped polygon
+        warped = roi if whole else roi.copy()
         cv2.warpPerspective(
             tex,
             hom,
@@ -255,6 +246,8 @@ class PlanarRenderer(Renderer):
             flags=cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_TRANSPARENT,
         )
+        if whole:
+            return
         mask = np.zeros(roi.shape[:2], np.uint8)
         pts = np.round((uv - [x0, y0]) * (1 << _SHIFT)).astype(np.int32)
         cv2.fillPoly(mask, [pts], 255, shift=_SHIFT)
