@@ -97,11 +97,12 @@ def main(argv=None) -> int:
         print(json.dumps(res))
         return 0
     for name, f in res["forces_in_hover"].items():
-        print(f"hover, rod {name}: rod {1e3 * f['rod_N']:.3g} mN (max {1e3 * f['rod_max_N_per_m']:.3g}"
-              f" mN/m), camera {1e3 * f['camera_N']:.3g} mN")  # fmt: skip
+        rod, peak, cam = (1e3 * f[k] for k in ("rod_N", "rod_max_N_per_m", "camera_N"))
+        print(f"hover, rod {name}: rod {rod:.3g} mN (max {peak:.3g} mN/m), camera {cam:.3g} mN")
     for name, t in res["static_tip"].items():
-        print(f"held arm, tensions (3, 0.5, 0.5, 0.5) N, {name}: q_s = "
-              f"{np.round(t['q_s'], 5).tolist()}, tip shift {t['tip_shift_mm']:.3g} mm")  # fmt: skip
+        q_s = np.round(t["q_s"], 5).tolist()
+        print(f"held arm, tensions (3, 0.5, 0.5, 0.5) N, {name}: q_s = {q_s}, "
+              f"tip shift {t['tip_shift_mm']:.3g} mm")  # fmt: skip
     return 0
 
 

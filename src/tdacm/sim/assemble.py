@@ -185,8 +185,9 @@ class Assembly:
 def reseed(assembly: Assembly, seed: int) -> Assembly:
     """The assembled loop with the random streams of ``seed``, without rebuilding it: the
     controller's model perturbation (drawn from ``seed``), C_L's imperfections (``[seed, 1]``),
-    the disturbances (``seed``) and the turbulence (``[seed, 21]``), as :func:`build_loop` seeds them, so a reseeded loop runs
-    as one built with ``seed`` (tested). Only when :attr:`Assembly.reseedable`."""
+    the disturbances (``seed``) and the turbulence (``[seed, 21]``), as :func:`build_loop` seeds
+    them, so a reseeded loop runs as one built with ``seed`` (tested). Only when
+    :attr:`Assembly.reseedable`."""
     from dataclasses import replace
 
     if not assembly.reseedable:

@@ -4,8 +4,8 @@ Layout (one default per value, imports one way): each block declares the record 
 section it reads next to its code - :mod:`tdacm.loop.config` (``[ibvs]``, ``[recovery]``,
 ``[controller]``, ``[model]``, ``[cameras]``, ``[safety]``, ``[disturbances]``, the camera
 keys of ``[sensors]``), :mod:`tdacm.aero.config` (``[aerodynamics]``, ``[wind]``),
-:mod:`tdacm.estimation.config` (``[estimation]``, the proprioceptive
-keys of ``[sensors]``), :mod:`tdacm.sim.robot` (``[robot]``, defaults from
+:mod:`tdacm.estimation.config` (``[estimation]``, the proprioceptive keys of ``[sensors]``),
+:mod:`tdacm.sim.robot` (``[robot]``, defaults from
 :mod:`tdacm.paper_values`) - and this module composes them with the sections that only the
 simulation reads (``[system]``, ``[initial]``, ``[desired]``, ``[scene]``, ``[expect]``).
 The records are pydantic models (:mod:`tdacm._config`): the same declaration gives the

@@ -16,8 +16,9 @@ cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
   first on +y); ``max_tension``;
 * ``[robot.drone]``: :class:`~tdacm.base.Quadrotor` (``mass, inertia, arm_length,
   drag_factor, max_thrust``) and the rotors' ``rotor_radius`` and ``layout``
-  (:class:`~tdacm.aero.RotorWake`, used by ``[aerodynamics]``), or ``[robot.base]`` with ``pose_q = [phi, theta, psi, x, y, z]``
-  for a rod clamped at that pose (a fixed base, as ``system.base = "fixed"``);
+  (:class:`~tdacm.aero.RotorWake`, used by ``[aerodynamics]``), or ``[robot.base]`` with
+  ``pose_q = [phi, theta, psi, x, y, z]`` for a rod clamped at that pose (a fixed base, as
+  ``system.base = "fixed"``);
 * ``[robot.attachment]``: ``offset`` of the rod's base below the drone's centre of mass;
 * ``[robot.cameras.local]`` and ``[robot.cameras.global]``: the intrinsics of
   :class:`~tdacm.vision.PinholeCamera` (``width, height, fx, fy, cx, cy, near, far``) and the
