@@ -106,6 +106,8 @@ class Plant:
         self.state = PlantState(float(t), np.array(q0, float), np.array(qd0, float))
         self.ok = True
         self._t0, self._k = float(t), 0  # t = t0 + k dt, without accumulated round-off
+        if self.wind is not None:
+            self.wind.reset()  # a seeded wind replays from its start
         return self.state
 
     def advance(self, u: np.ndarray, dt: float) -> PlantState:
