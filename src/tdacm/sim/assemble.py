@@ -253,6 +253,7 @@ def build_loop(
         d["substeps"],
         Disturbances.from_dict(d["disturbances"]),
         np.random.default_rng(seed),
+        **contact_plant_options(d["scene"], s),
     )
     truth = d["estimation"]["controller_truth"]
     if truth:  # ablation: the controller reads these coordinates from the plant
@@ -280,8 +281,40 @@ def build_loop(
         log=RunLog(servo.desired_points, frame_composer, _truth(s, local, world)),
         name=scenario.name,
     )
+    if plant.contact is not None:
+        loop.log.contact = contact_logger(s, plant.contact)
     warm_up(s, world.q0)
     return Assembly(loop, world, seed)
+
+
+def contact_plant_options(scene: dict, system) -> dict:
+    """The :class:`~tdacm.loop.plant.Plant` keywords of ``[scene]``'s obstacles and
+    ``[scene.contact]`` (none without obstacles: the contact-free plant)."""
+    from ..contact.config import ContactConfig, ObstacleConfig, box_obstacle
+    from ..system.contact import contact_array
+
+    cc = ContactConfig(**scene.get("contact", {}))
+    obstacles = [ObstacleConfig(**o).obstacle() for o in scene.get("obstacles", [])]
+    if cc.target_box:
+        obstacles.append(box_obstacle(scene["box_size"], scene["box_xy"]))
+    if not obstacles:
+        return {}
+    return {
+        "contact": contact_array(system, cc.model(obstacles)),
+        "contact_substeps": cc.substeps,
+        "contact_margin": cc.margin,
+    }
+
+
+def contact_logger(system, contact):
+    """``(q, qd) -> (tip force, rod force)`` of the obstacles (inertial, N), for the log."""
+    from ..system.contact import contact_state
+
+    def forces(q, qd):
+        st = contact_state(system, q, qd, contact)
+        return st.tip, st.rod
+
+    return forces
 
 
 def _truth(system, local: CameraSensor, world: World):
