@@ -75,7 +75,7 @@ class ContactConfig(ConfigModel):
     rod: bool = Field(_D["rod"], description="the rod's backbone touches the obstacles")
     tip: bool = Field(_D["tip"], description="the tip sphere touches the obstacles")
     substeps: int = Field(
-        64, ge=1, description="plant RK4 steps per control period near an obstacle"
+        32, ge=1, description="plant RK4 steps per control period near an obstacle"
     )
     margin: float = Field(
         0.01, ge=0, description="m, clearance under which a period counts as near an obstacle"

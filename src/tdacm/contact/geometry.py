@@ -216,3 +216,13 @@ def segment_contact(c, radius, ax, ay, az, bx, by, bz, va, vb, out):
         out[4] += tc * fy
         out[5] += tc * fz
     return hit
+
+
+@njit(cache=True)
+def clearance(c, x, y, z):
+    """The smallest signed distance of the point ``(x, y, z)`` to the obstacles."""
+    n_sh = int(c[CL.N_SHAPES])
+    out = math.inf
+    for i in range(n_sh):
+        out = min(out, sdf(c, c.shape[0] - (n_sh - i) * CL.SHAPE_SIZE, x, y, z)[0])
+    return out
