@@ -338,3 +338,28 @@ def test_plant_contact_steps_agree_with_a_fine_integration(beta):
     d = s.tip_pose(p.state.q)[:3, 3] - tip0
     travel = np.linalg.norm(d - (d @ n) * n)
     assert abs(travel - fine[-1]) < 1e-4
+
+
+def test_force_limit_ends_the_run():
+    """The plant flags a contact force above ``force_limit``; the closed loop ends the run
+    with ``Termination.FORCE_LIMIT`` (checked here on the plant: the hovering arm lowered
+    onto a plane, 0.145 N on its tip)."""
+    from tdacm.loop.data import Termination
+    from tdacm.loop.plant import Plant
+
+    s = paper_system()
+    q = np.zeros(s.n)
+    q[5] = 3.0
+    tip = s.tip_pose(q)[:3, 3]
+    c = contact_array(s, ContactModel(obstacles=(Plane(tuple(tip - [0, 0, 0.0101])),)))
+    u = np.r_[np.full(4, 9.81 * s.total_mass / 4 - 0.02), 0.0, 0.0, 0.0, 0.0]
+    for limit, over in ((0.1, True), (0.3, False)):
+        p = Plant(s, q, np.zeros(s.n), contact=c, force_limit=limit)
+        for _ in range(50):
+            p.advance(u, 0.02)
+            if p.over_limit:
+                break
+        assert p.ok and (p.over_limit is not None) == over
+        if over:
+            assert "above the limit 0.1 N" in p.over_limit
+    assert Termination.FORCE_LIMIT == "force limit"

@@ -80,6 +80,9 @@ class ContactConfig(ConfigModel):
     margin: float = Field(
         0.01, ge=0, description="m, clearance under which a period counts as near an obstacle"
     )
+    force_limit: float | None = Field(
+        None, gt=0, description="N, a contact force above it ends the run (unset: no limit)"
+    )
 
     def model(self, obstacles) -> ContactModel:
         keys = {f.name for f in fields(ContactModel)} - {"obstacles"}

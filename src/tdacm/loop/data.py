@@ -31,6 +31,7 @@ class Termination(StrEnum):
     RECOVERY_FAILED = "recovery failed"  # no C_G view of the target, or planning failed
     PLANT_FAILED = "plant failed"  # the plant's integration failed (singular mass matrix)
     INTERRUPTED = "interrupted"  # Ctrl-C
+    FORCE_LIMIT = "force limit"  # the obstacles pushed on the arm harder than the limit
 
 
 class ServoEvent(StrEnum):

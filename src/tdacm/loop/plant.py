@@ -112,6 +112,7 @@ class Plant:
         contact: np.ndarray | None = None,
         contact_substeps: int = 32,
         contact_margin: float = 0.01,
+        force_limit: float | None = None,
     ):
         if wind is not None and aero is None:
             raise ValueError("wind needs aero (the packed aerodynamics it acts through)")
@@ -120,6 +121,10 @@ class Plant:
         self.contact = None if contact is None else check_contact(system, contact).copy()
         self.contact_substeps = int(contact_substeps)
         self.contact_margin = float(contact_margin)
+        #: N: the largest contact force (tip sphere plus rod, magnitude of the sum) allowed;
+        #: beyond it :attr:`over_limit` says so (the loop ends the run: ``FORCE_LIMIT``)
+        self.force_limit = None if force_limit is None else float(force_limit)
+        self.over_limit: str | None = None
         #: the number of RK4 steps of the last period
         self.last_substeps = int(substeps)
         if self.contact is not None:
@@ -145,6 +150,7 @@ class Plant:
     def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
         self.state = PlantState(float(t), np.array(q0, float), np.array(qd0, float))
         self.ok = True
+        self.over_limit = None
         self._t0, self._k = float(t), 0  # t = t0 + k dt, without accumulated round-off
         return self.state
 
@@ -218,4 +224,12 @@ class Plant:
             qdd, ok_a = forward_dynamics_env(q, qd, u, m, loads.packed(), aero, self.contact)
             self.ok = bool(ok_a)
         self.state = PlantState(self._t0 + self._k * dt, q, qd, qdd)
+        if self.force_limit is not None and self.ok:
+            _, f, _, _, _ = contact_nodes(q, qd, m, self.contact)
+            total = float(np.linalg.norm(f.sum(axis=0)))
+            if total > self.force_limit:
+                self.over_limit = (
+                    f"contact force {total:.3f} N above the limit {self.force_limit:g} N "
+                    f"at t = {self.state.t:.2f} s"
+                )
         return self.state

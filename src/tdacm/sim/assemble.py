@@ -303,6 +303,7 @@ def contact_plant_options(scene: dict, system) -> dict:
         "contact": contact_array(system, cc.model(obstacles)),
         "contact_substeps": cc.substeps,
         "contact_margin": cc.margin,
+        "force_limit": cc.force_limit,
     }
 
 
