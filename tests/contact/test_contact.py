@@ -363,3 +363,29 @@ def test_force_limit_ends_the_run():
         if over:
             assert "above the limit 0.1 N" in p.over_limit
     assert Termination.FORCE_LIMIT == "force limit"
+
+
+def test_plant_with_aerodynamics_and_contact_far_from_the_obstacles():
+    """Aerodynamics and contact through the one environment hook: far from the obstacles the
+    plant is exactly the aerodynamic one; near them both act."""
+    from tdacm.loop.plant import Plant
+    from tdacm.system.aero import aero_array
+
+    s = paper_system()
+    q = np.zeros(s.n)
+    q[5] = 3.0
+    qd = np.r_[0, 0, 0, 0.1, 0, 0, 0.2, -0.1]
+    u = np.r_[np.full(4, 9.81 * s.total_mass / 4), 0.5, 0, 0, 0]
+    air = aero_array(s, wind=[1.0, 0.0, 0.0])
+    far = contact_array(s, ContactModel(obstacles=(Plane((0, 0, 0)),)))
+    a = Plant(s, q, qd, aero=air)
+    b = Plant(s, q, qd, aero=air, contact=far)
+    for _ in range(5):
+        sa, sb = a.advance(u, 0.02), b.advance(u, 0.02)
+    assert np.array_equal(sa.q, sb.q) and np.array_equal(sa.qd, sb.qd)
+    tip = s.tip_pose(q)[:3, 3]
+    near = contact_array(s, ContactModel(obstacles=(Plane(tuple(tip - [0, 0, 0.009])),)))
+    c = Plant(s, q, qd, aero=air, contact=near)
+    a.reset(q, qd)
+    sa, sc = a.advance(u, 0.02), c.advance(u, 0.02)
+    assert c.last_substeps == 32 and not np.allclose(sa.q, sc.q)
