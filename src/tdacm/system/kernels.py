@@ -23,6 +23,13 @@ loads; at every Gauss point the drag of the air (rotor wake + wind - section vel
 section's wrench density, at the tip the camera's drag, at the drone its rotor and body drag.
 The plain kernels pass an empty array and skip every aerodynamic term (bit-identical results).
 
+Contact (:mod:`tdacm.contact`): the environment kernels ``coupled_terms_env``,
+``forward_dynamics_env`` and ``rk4_run_env`` take the packed aerodynamics and the packed contact
+scene; the rod is a chain of capsules between its nodes (rod base, Gauss points, tip) and the tip
+body a sphere; the obstacles' forces at the nodes add ``J^T [0; R^T f]`` to ``tau_ext`` with the
+node Jacobians of the same recursion (the previous node's kept for the capsule's share).  The
+``*_aero`` kernels are these with an empty contact array, the plain ones with both empty.
+
 Flags: numba compiles a separate specialization of a kernel for each literal flag
 (``True`` / ``False``) it receives from jitted code, besides the one for Python callers (a
 plain ``bool``). The forward dynamics keeps its ``want_c = False`` specialization (the plant's
