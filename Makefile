@@ -16,7 +16,8 @@ demo: $(STAMP)
 	$(VENV)/bin/tdacm run paper-in-fov --out out/demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q   # includes tests/test_docs.py: mkdocs build --strict
+	$(VENV)/bin/lint-imports --no-cache   # the layers of [tool.importlinter] in pyproject.toml
+	$(PY) -m pytest -q   # includes the strict docs build (tests/test_docs.py) and the layers
 
 docs: $(STAMP)
 	$(PY) -m mkdocs build --strict -d site

@@ -19,3 +19,15 @@ def test_compiled_share_finds_the_kernels_and_bounds_the_real_time_factor():
         abs(sum(v["ms_per_period"] for v in top.values()) - c["compiled_ms"])
         < 0.5 * c["compiled_ms"]
     )
+
+
+def test_env_bench_reports_medians_and_ratios_to_the_targets():
+    from tdacm.bench.env import TARGETS, env_bench
+
+    e = env_bench(steps=40, repeats=1, progress=lambda *_: None)
+    for k in ("single_steps_per_s", "async2_steps_per_s", "reset_ms"):
+        assert e[k] > 0
+    assert (
+        e["ratios"]["single_steps_per_s"] == e["single_steps_per_s"] / TARGETS["single_steps_per_s"]
+    )
+    assert e["ratios"]["reset_ms"] == TARGETS["reset_ms"] / e["reset_ms"]

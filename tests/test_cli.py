@@ -21,7 +21,18 @@ def test_help_lists_commands():
     out = subprocess.run(
         [sys.executable, "-m", "tdacm.cli", "--help"], capture_output=True, text=True, check=True
     )
-    for cmd in ("info", "demo", "bench", "run", "plot", "replay", "campaign", "export", "import"):
+    for cmd in (
+        "info",
+        "demo",
+        "bench",
+        "run",
+        "plot",
+        "replay",
+        "campaign",
+        "export",
+        "import",
+        "identify",
+    ):
         assert cmd in out.stdout
 
 

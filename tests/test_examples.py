@@ -31,3 +31,16 @@ def test_target_information_bounds(capsys):
     prior = np.array(bounds["flown + level prior 0.5 deg"])
     np.testing.assert_allclose(prior, 1 / np.sqrt(1 / flown**2 + 1 / 0.5**2), rtol=0.02)
     assert "Cramer-Rao" in capsys.readouterr().out
+
+
+def test_train_ppo_smoke(tmp_path):
+    """examples/train_ppo.py end to end on a tiny budget (one rollout, one held-out episode per
+    policy): the figure and the results are written and the IBVS expert succeeds."""
+    import pytest
+
+    pytest.importorskip("stable_baselines3")
+    res = _load("train_ppo").main(timesteps=1024, eval_episodes=1, out=tmp_path)
+    assert (tmp_path / "learning_curve.png").is_file()
+    assert (tmp_path / "results.json").is_file()
+    assert res["ibvs"]["success_rate"] == 1.0 and res["zero_twist"]["success_rate"] == 0.0
+    assert set(res) >= {"ppo", "zero_twist", "ibvs"}

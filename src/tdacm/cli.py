@@ -1,5 +1,6 @@
 """Command-line interface: ``tdacm info``, ``demo``, ``bench``, ``run``, ``plot``, ``scenarios``,
-``campaign``, ``replay``, ``export`` (MCAP), ``import`` (MCAP through a topic map).
+``campaign``, ``replay``, ``export`` (MCAP), ``import`` (MCAP through a topic map), ``identify``
+(parameters from recordings).
 
 Conventions: stdout carries only the program's own output (``tdacm run`` prints the summary JSON
 alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress lines and "written
@@ -466,6 +467,84 @@ def _cmd_import(args) -> int:
     return 0
 
 
+def _parse_start(text: str) -> dict:
+    out = {}
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        key, eq, val = item.partition("=")
+        if not eq:
+            raise ValueError(f"write NAME=VALUE, got {item!r}")
+        v = float(val)
+        if not math.isfinite(v):
+            raise ValueError(f"{key.strip()} must be finite, got {val!r}")
+        out[key.strip()] = v
+    return out
+
+
+def _cmd_identify(args) -> int:
+    from .identify import PARAMETERS, RecordingInputError, load_recording, parse_params
+    from .identify.fit import identify_staged
+    from .identify.report import correlation_text, robot_toml, write_outputs
+
+    try:
+        names = parse_params(args.params)
+    except ValueError as exc:
+        return _err(f"--params: {exc}")
+    try:
+        start = _parse_start(args.start) if args.start else {}
+    except ValueError as exc:
+        return _err(f"--start: {exc}")
+    for k in start:
+        if k not in names:
+            return _err(f"--start: {k!r} is not among --params ({', '.join(names)})")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        return _err(f"--out {out} is a file, not a folder")
+    if args.topic_map is not None and not Path(args.topic_map).is_file():
+        return _err(f"--topic-map {args.topic_map} does not exist or is not a file")
+    tmap = None
+    if args.topic_map is not None:
+        from .recording import RecordingError, load_topic_map
+
+        try:
+            tmap = load_topic_map(args.topic_map)
+        except RecordingError as exc:
+            return _err(_topic_map_error(exc))
+    _compile_notice()
+    recs = []
+    for path in args.recording:
+        try:
+            recs.append(load_recording(path, args.scenario, tmap))
+        except RecordingInputError as exc:
+            return _err(str(exc))
+        except ValueError as exc:  # a scenario or topic-map error
+            return _err(f"RECORDING {path}: {exc}")
+    flying = any(r.model.floating for r in recs)
+    for n in names:
+        if PARAMETERS[n].floating_only and not flying:
+            return _err(f"--params: {n} needs a recording with a flying base")
+        if PARAMETERS[n].camera_only and args.use != "camera":
+            return _err(f"--params: {n} is seen by the tip camera only (add --use camera)")
+    if args.use == "camera" and any(r.pixels is None for r in recs):
+        return _err("--use camera: a recording has no camera pixels")
+    try:
+        res = identify_staged(
+            recs, names, start, segment=args.segment, use=args.use, decimate=args.decimate
+        )
+    except ValueError as exc:
+        return _err(str(exc))
+    print(res.table())
+    print()
+    print(correlation_text(res))
+    print()
+    print(robot_toml(res), end="")
+    paths = write_outputs(res, out)
+    _note(f"identification ({res.seconds:.1f} s, residual variance {res.residual_variance:.2f}) "
+          f"written to {out.resolve()}/ ({', '.join(p.name for p in paths)})")  # fmt: skip
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .recording.export import DEFAULT_SECTIONS
@@ -610,6 +689,43 @@ def build_parser() -> argparse.ArgumentParser:
         "--relative", action="store_true", help="times from the recording's first message"
     )
     s.set_defaults(func=_cmd_import)
+    s = sub.add_parser(
+        "identify",
+        help="estimate physical parameters from recordings (motion capture, tensions)",
+        description="Fit the model's simulated motion to recorded trajectories (multiple "
+        "shooting, least squares; see docs/identify.md) and write identification.json, "
+        "robot.toml (a [robot] block for a scenario) and identification.png.",
+    )
+    s.add_argument("recording", nargs="+", help="run folders (timeseries.npz) or .mcap recordings")
+    s.add_argument(
+        "--params",
+        required=True,
+        help="comma-separated: E, damping, tip_mass, radius, friction, viscous, drone_mass, "
+        "inertia (or inertia_x, ...), thrust, camera_offset",
+    )
+    s.add_argument("--out", default="out/identify", help="output folder (default out/identify)")
+    s.add_argument(
+        "--scenario", help="scenario of the robot (default: scenario.toml beside the recording)"
+    )
+    s.add_argument("--topic-map", metavar="MAP.toml", help="topic map of an .mcap recording")
+    s.add_argument("--start", metavar="NAME=V,...", help="starting values (default: nominal)")
+    s.add_argument(
+        "--segment", type=_positive_float, help="multiple-shooting window (s; default 2, flying 1)"
+    )
+    s.add_argument(
+        "--use",
+        choices=("auto", "mocap", "camera", "all"),
+        default="auto",
+        help="measurements fitted: poses (mocap), tip-camera pixels (camera), or both",
+    )
+    s.add_argument(
+        "--decimate",
+        type=_positive_int,
+        default=1,
+        metavar="K",
+        help="fit every K-th sample with RK4 steps of K sample periods (default 1)",
+    )
+    s.set_defaults(func=_cmd_identify)
     return p
 
 

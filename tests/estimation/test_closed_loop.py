@@ -118,7 +118,8 @@ def test_gymnasium_env_on_estimates():
     for _ in range(3):
         obs, reward, term, trunc, info = env.step(np.zeros(env.action_space.shape))
         assert np.all(np.isfinite(obs))
-    q_hat = obs[15 : 15 + env.n]
+    q_hat = obs[15 : 15 + env.n] * env.q_scale + env.world.q_star  # the scaled offset
+    assert np.allclose(q_hat, env._sensed.estimate.q, rtol=0, atol=1e-5)
     assert not np.allclose(q_hat, env.loop.plant.state.q, rtol=0, atol=1e-5)  # the estimate
     env.close()
 

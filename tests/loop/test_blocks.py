@@ -120,6 +120,35 @@ def test_sensors_read_global_camera_when_due_or_requested(world):
     assert got == [True, False, False, True, False, False]
 
 
+def test_global_camera_renders_only_when_read_or_due_for_outputs(world):
+    """C_G offered every period is measured only when read (the servo's snapshot), and then
+    gives the frame an eager read gives; ``global_output_every`` renders it for the outputs."""
+    r = world.robot
+    fe = AnalyticFrontEnd(r.local_camera, world.target, world.scene.target_pose)
+    fg = AnalyticFrontEnd(r.global_camera, world.target, world.scene.target_pose)
+    calls = []
+    detect = fg.detect_at
+    fg.detect_at = lambda pose: calls.append(1) or detect(pose)
+    local = CameraSensor(r.system, "tip", r.tip_mount, fe)
+    glob = CameraSensor(r.system, "base", r.drone_mount, fg)
+    st = PlantState(0.0, world.q0, world.qd0)
+    lazy = Sensors(local, glob, global_every=1)
+    readings = [lazy.read(st) for _ in range(4)]
+    assert calls == [] and all(rd.global_ is not None for rd in readings)
+    assert all(rd.global_rendered is None for rd in readings)
+    eager = glob.measure(st)
+    calls.clear()
+    view = Perception(r.local_camera, r.global_camera, world.target).global_(readings[2].global_)
+    assert calls == []  # the view defers too
+    assert view.found and np.array_equal(view.detection.points, eager.detection.points)
+    assert len(calls) == 1 and readings[2].global_rendered is not None
+    calls.clear()
+    out = Sensors(local, glob, global_every=0, global_output_every=2)
+    got = [out.read(st) for _ in range(4)]
+    assert len(calls) == 2 and [g.global_ for g in got] == [None] * 4
+    assert [g.global_output is not None for g in got] == [True, False, True, False]
+
+
 # ---------------------------------------------------------------------- perception
 def test_perception_normalizes_with_the_controllers_camera_and_estimates_depths(world):
     r = world.robot
@@ -373,3 +402,49 @@ def test_logger_comparison_columns_match_their_definitions():
     # repeatable: a second call returns the same arrays
     again = log.arrays()
     assert all(np.array_equal(again[k], a[k], equal_nan=True) for k in a if a[k].dtype != object)
+
+
+def test_a_point_behind_the_virtual_camera_ends_the_run_as_an_outcome():
+    """Eq. (18) has no image for a point behind C_V (the drone tilted beyond what C_V can
+    see): the loop ends the run with Termination.BEHIND_CAMERA instead of raising."""
+    from tdacm.loop.data import Termination
+    from tdacm.vision.virtual import BehindVirtualCamera, virtual_points
+
+    with pytest.raises(BehindVirtualCamera):  # still a ValueError for direct callers
+        g = np.eye(4)
+        g[2, 3] = -10.0
+        virtual_points(np.zeros((4, 2)), g, np.ones(4))
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
+    )
+    loop = build_loop(sc, 0).loop
+    step = loop.servo.step
+    calls = []
+
+    def tumbling(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise BehindVirtualCamera("a point lies behind the virtual camera")
+        return step(*args, **kwargs)
+
+    loop.servo.step = tumbling
+    res = loop.run(1.0)
+    assert res.terminated and res.termination == Termination.BEHIND_CAMERA
+    assert "behind the virtual camera" in res.reason and len(res.arrays["t"]) == 4
+
+
+def test_rendering_global_camera_for_outputs_leaves_the_run_unchanged():
+    """paper-out-of-fov starts in recovery: the servo reads C_G's snapshot. Rendering C_G
+    every period for the outputs (the former default) changes nothing but the logged
+    detected_global, which then holds every period's detection."""
+    sc = load_scenario("paper-out-of-fov").with_overrides(
+        {"cameras": {"global_renderer": "planar"}}
+    )
+    lazy = build_loop(sc, 0).loop.run(0.6).arrays
+    eager_sc = sc.with_overrides({"cameras": {"global_output_every": 1}})
+    eager = build_loop(eager_sc, 0).loop.run(0.6).arrays
+    for k in lazy:
+        if k != "detected_global":
+            assert np.array_equal(lazy[k], eager[k], equal_nan=True), k
+    assert lazy["detected_global"].sum() == 1  # the snapshot, read once
+    assert eager["detected_global"].sum() > 0.9 * len(eager["t"])

@@ -1,5 +1,8 @@
 """Closed-loop timings (``tdacm bench`` section ``loop``; ``benchmarks/bench_loop.py``).
 
+* ``shipped``: ``tdacm run paper-in-fov`` as shipped (the main job: C_L rendered and
+  detected every period, C_G offered every period but rendered only if the servo reads it),
+  its real-time factor against the target :data:`MAIN_JOB_TARGET`;
 * ``rendered``: ``paper-in-fov`` for 5 s, C_L rendered (planar renderer) and detected every
   period, C_G only when the servo needs it (``cameras.global_every = 0``);
 * ``analytic``: the same with ``cameras.local_renderer = "analytic"`` (campaigns);
@@ -26,6 +29,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+#: Real-time factor the main job (``tdacm run paper-in-fov``) should reach once compiled.
+MAIN_JOB_TARGET = 3.0
 
 LOOP_CASES = {
     "rendered": {"cameras": {"global_every": 0}},
@@ -175,6 +181,11 @@ def loop_bench(repeats: int = 5, cold: bool = True, progress=print, cold_ab: int
     """All closed-loop figures (the ``loop`` section of ``bench.json``); ``cold_ab`` rounds
     of :func:`cold_start_ab` (0: none)."""
     res = {}
+    progress(f"closed loop, paper-in-fov as shipped ({repeats} + 1 runs of 5 s)...")
+    res["shipped"] = time_loop({}, repeats=repeats)
+    res["shipped"]["target_real_time_factor"] = MAIN_JOB_TARGET
+    res["shipped"]["ratio_to_target"] = res["shipped"]["real_time_factor"] / MAIN_JOB_TARGET
+    progress(f"  {res['shipped']['real_time_factor']:.1f}x real time")
     for name, ov in LOOP_CASES.items():
         progress(f"closed loop, {name} C_L ({repeats} + 1 runs of 5 s)...")
         res[name] = time_loop(ov, repeats=repeats)

@@ -231,11 +231,19 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
             f"{name + ' C_L':38s} {r['wall_per_sim_second']:10.3f} {r['real_time_factor']:7.1f}x"
             + extra
         )
+    r = loop["shipped"]
+    report.info(
+        f"{'tdacm run paper-in-fov (as shipped)':38s} {r['wall_per_sim_second']:10.3f} "
+        f"{r['real_time_factor']:7.1f}x (target >= {r['target_real_time_factor']:.0f}x: "
+        f"ratio {r['ratio_to_target']:.2f})"
+    )
+    env = _env_section()
     load = open("/proc/loadavg").read().split()[:3] if Path("/proc/loadavg").exists() else []
     result = {
         "model": rows,
         "stiff": stiff,
         "loop": loop,
+        "env": env,
         "load_average": load,
         "machine_note": "medians; IQR in *_iqr_us",
     }
@@ -245,6 +253,26 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
     (path / "bench.json").write_text(json.dumps(result, indent=2))
     log.info(f"written {path.resolve() / 'bench.json'}")
     return result
+
+
+def _env_section() -> dict | None:
+    """The env figures (:mod:`.env`), ``None`` without the ``env`` extra."""
+    try:
+        import gymnasium  # noqa: F401
+    except ImportError:
+        return None
+    from .env import env_bench
+
+    _stage("env (tdacm/TipServo-v0): one env, reset, 2 async envs")
+    e = env_bench(progress=_stage)
+    q = e["ratios"]
+    report.info(
+        f"\n{'env tdacm/TipServo-v0':38s} one env {e['single_steps_per_s']:.0f} steps/s "
+        f"(ratio {q['single_steps_per_s']:.2f}), 2 async {e['async2_steps_per_s']:.0f} "
+        f"env-steps/s (ratio {q['async2_steps_per_s']:.2f}), reset {e['reset_ms']:.2f} ms "
+        f"(ratio {q['reset_ms']:.1f})"
+    )
+    return e
 
 
 def run_full_bench(out="out/bench", repeats=7, accuracy=True, scaling=True) -> dict:

@@ -25,6 +25,7 @@ from .allocation import (
 from .hierarchical import ControlStep, TDACMController, attitude_from_force, default_gains
 from .model import EstimatedModel, EstimatedTerms
 from .planner import (
+    Mode,
     ModeSwitch,
     PlanResult,
     estimate_target_pose,
@@ -42,6 +43,7 @@ __all__ = [
     "EstimatedModel",
     "EstimatedTerms",
     "GainConditionError",
+    "Mode",
     "ModeSwitch",
     "PlanResult",
     "TDACMController",

@@ -75,18 +75,25 @@ class EstimatedModel:
             system.attachment,
             Loads(gravity=system.loads.gravity.copy()),
         )
-        n = system.n
+        self.n = system.n
+        self.reseed(self.seed)
+
+    def reseed(self, seed: int) -> None:
+        """Draw the parameter errors of ``seed`` (what a model built with that seed has)."""
+        self.seed = int(seed)
+        n, level = self.n, self.level
         rng = np.random.default_rng(self.seed)
         draw = lambda: rng.uniform(-level, level, n)  # noqa: E731
         self.d_m, self.d_d, self.d_k, self.d_g = draw(), draw(), draw(), draw()
-        self._s_m = np.sqrt(1.0 + self.d_m)
-        self._s_d = np.sqrt(1.0 + self.d_d)
-        self.n = n
+        # M_hat = S_m M S_m, D_hat = S_d D S_d with S = diag(sqrt(1 + d)): symmetric and
+        # positive definite like the true matrices
+        self.mass_scale = np.sqrt(1.0 + self.d_m)
+        self.damping_scale = np.sqrt(1.0 + self.d_d)
 
     def terms(self, q, qd) -> EstimatedTerms:
         """Estimated ``M, C, D, K`` at ``(q, qdot)``."""
         t = self.system.terms(q, qd)
-        sm, sd = self._s_m, self._s_d
+        sm, sd = self.mass_scale, self.damping_scale
         m_hat = sm[:, None] * t.M * sm[None, :]
         c_hat = sm[:, None] * t.C * sm[None, :]
         d_hat = sd[:, None] * t.D * sd[None, :]

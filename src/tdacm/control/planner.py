@@ -18,6 +18,7 @@ Trajectory Tracking").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import cv2
 import numpy as np
@@ -125,11 +126,15 @@ def plan_rod_configuration(
     return PlanResult(np.asarray(x), p, c, bool(not infeasible and c < 1e-3))
 
 
-class ModeSwitch:
-    """IBVS / recovery switching with a margin and hysteresis (module docstring)."""
+class Mode(StrEnum):
+    """The servo's mode: IBVS on C_L, or recovery from one C_G snapshot."""
 
     IBVS = "ibvs"
     RECOVERY = "recovery"
+
+
+class ModeSwitch:
+    """IBVS / recovery switching with a margin and hysteresis (module docstring)."""
 
     def __init__(
         self,
@@ -137,15 +142,20 @@ class ModeSwitch:
         margin_px: float = 20.0,
         confirm: int = 2,
         lose: int = 5,
-        initial: str = RECOVERY,
+        initial: Mode | str = Mode.RECOVERY,
     ):
-        if initial not in (self.IBVS, self.RECOVERY):
-            raise ValueError(f"initial mode must be 'ibvs' or 'recovery', got {initial!r}")
         self.camera = camera
         self.margin_px = float(margin_px)
         self.confirm = int(confirm)
         self.lose = int(lose)
-        self.mode = initial
+        self.reset(initial)
+
+    def reset(self, mode: Mode | str = Mode.RECOVERY) -> None:
+        """Start in ``mode`` with the hysteresis counters cleared."""
+        try:
+            self.mode = Mode(mode)
+        except ValueError:
+            raise ValueError(f"initial mode must be 'ibvs' or 'recovery', got {mode!r}") from None
         self._good = 0
         self._bad = 0
 
@@ -154,15 +164,15 @@ class ModeSwitch:
             return False
         return bool(np.all(self.camera.pixels_in_image(pixels, self.margin_px)))
 
-    def update(self, pixels) -> str:
+    def update(self, pixels) -> Mode:
         """Feed the detected pixels (``None`` when not detected); returns the mode."""
         found = pixels is not None
-        if self.mode == self.RECOVERY:
+        if self.mode == Mode.RECOVERY:
             self._good = self._good + 1 if self.inside(pixels) else 0
             if self._good >= self.confirm:
-                self.mode, self._bad = self.IBVS, 0
+                self.mode, self._bad = Mode.IBVS, 0
         else:
             self._bad = 0 if found else self._bad + 1
             if self._bad >= self.lose:
-                self.mode, self._good = self.RECOVERY, 0
+                self.mode, self._good = Mode.RECOVERY, 0
         return self.mode

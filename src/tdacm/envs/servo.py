@@ -5,6 +5,15 @@ every scenario option applies: the robot, the sensor imperfections, the disturba
 command shaping, the estimator. Each step is one control period (paper: 20 ms): the action is
 applied through the loop's blocks, the plant advances, and the new C_L view is observed.
 
+Cameras: unless ``overrides`` say otherwise, both cameras are the analytic front end (the
+target's corners projected, no image: what the campaigns use; C_G is read only for a recovery
+snapshot), so no renderer runs inside ``step`` and none is initialized in the process
+(fork-safe under ``AsyncVectorEnv``). With PyBullet for C_G (``overrides``), a process forked
+after its parent loaded EGL renders with PyBullet's TinyRenderer instead. The servo works on the
+measured points (``ibvs.features = "measured"``): the robust servo's target filter predicts
+features for its own IBVS twist, which a twist action replaces (about 40 % of a step). ``render()`` draws C_L's view with the planar renderer, created on the
+first call in the calling process.
+
 Actions (``action_type``):
 
 * ``"twist"`` (default): the virtual-camera twist ``[w; v]`` (angular first, in C_V, or in C_L
@@ -14,21 +23,71 @@ Actions (``action_type``):
 * ``"actuators"``: raw inputs in ``[0, 1]`` scaled to ``[0, max_thrust]`` per motor and
   ``[0, max_tension]`` per tendon (fixed base: tensions only); no controller.
 
-Observation (float32): the advanced-feature error ``p* - p*_d`` (6), the normalized image
-points in C_V (8, zeros when not detected), a detection flag (1), then the state estimate
-``q_hat``, ``qdot_hat`` (2 n; the true state when ``estimation.source = "true"``). Reward:
-``-RMSE`` of the normalized points (``-lost_penalty`` when the target is not detected), plus
-``success_bonus`` when the RMSE falls below ``success_rmse``, which ends the episode. The episode
-also ends when the target stays lost for ``max_lost`` steps, when the loop terminates (plant
-failure; the safety monitor too if ``safety=True``) or the state leaves a sane envelope; it is
-truncated after ``max_steps``.
+Observation (float32, size ``15 + 2 n`` for a robot of ``n`` coordinates, each entry clipped to
+``[-OBS_CLIP, OBS_CLIP]``; :data:`OBSERVATION_SCALES`):
+
+* ``[0:6]`` the advanced-feature error ``p* - p*_d`` divided by ``FEATURE_SCALE``;
+* ``[6:14]`` the four normalized image points in C_V (C_L for a fixed base), divided by C_L's
+  half-extent in normalized coordinates (``cx / fx``, ``cy / fy``): +-1 is the image border
+  (zeros when the target is not detected);
+* ``[14]`` the detection flag (0 or 1);
+* ``[15:15+n]`` the state estimate's offset from the desired configuration,
+  ``(q_hat - q*) / q_scale`` (q_scale: ``ANGLE_SCALE`` rad for the drone's angles,
+  ``POSITION_SCALE`` m for its position, ``STRAIN_SCALE`` 1/m for the strain coefficients);
+* ``[15+n:]`` the velocity estimate ``qdot_hat / q_scale`` (per second).
+
+Reward per step: ``-rmse``, minus the normalized RMSE of the four points to the reference
+snapshot (C_V); ``-lost_penalty`` when the target is not detected. Success (``rmse <=
+success_rmse``) adds ``success_bonus`` and ends the episode. A failure ending (the target lost
+for ``max_lost`` steps, the state out of its envelope, the loop's own termination) gives
+``-lost_penalty`` for each step left until ``max_steps``, as if the target had stayed lost: a
+failure never pays better than servoing badly. ``info["termination"]`` names why an episode
+ended (:class:`tdacm.loop.data.Termination`; ``None`` while it runs and on truncation).
+
+``reset`` reuses the assembled loop: the plant state, the blocks and the random streams are
+reset; a ``seed`` draws the loop's seed from the env's generator and gives the loop the model
+perturbation, sensor noise and disturbances of that seed (:func:`tdacm.sim.assemble.reseed`;
+scenarios with an intrinsics error or the estimator are rebuilt instead).
 """
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+
+from ..loop.data import Termination
+from ..vision.virtual import BehindVirtualCamera
+
+#: Observation scaling (module docstring).
+FEATURE_SCALE = 0.5
+ANGLE_SCALE = 0.5  # rad
+POSITION_SCALE = 1.0  # m
+STRAIN_SCALE = 1.0  # 1/m
+OBS_CLIP = 5.0
+OBSERVATION_SCALES = {
+    "feature_error": FEATURE_SCALE,
+    "angle": ANGLE_SCALE,
+    "position": POSITION_SCALE,
+    "strain": STRAIN_SCALE,
+    "clip": OBS_CLIP,
+}
+#: Roll/pitch (rad) beyond which the episode ends (Termination.OUT_OF_ENVELOPE).
+MAX_TILT = 1.2
+#: The env's scenario defaults (module docstring), under the user's overrides.
+ENV_DEFAULTS = {
+    "cameras": {"local_renderer": "analytic", "global_renderer": "planar"},
+    "ibvs": {"features": "measured"},
+}
+
+
+def _merge(a: dict, b: dict) -> dict:
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in a.items()}
+    for k, v in b.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 class TipServoEnv(gym.Env):
@@ -50,6 +109,7 @@ class TipServoEnv(gym.Env):
         safety: bool = False,
         render_mode: str | None = None,
     ):
+        from ..sim.assemble import build_loop
         from ..sim.scenario import load_scenario
 
         if action_type not in ("twist", "actuators"):
@@ -59,10 +119,10 @@ class TipServoEnv(gym.Env):
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps!r}")
         sc = load_scenario(scenario)
-        if overrides:
-            sc = sc.with_overrides(overrides, "env overrides")
+        ov = _merge(ENV_DEFAULTS, overrides or {})
         if not safety:
-            sc = sc.with_overrides({"safety": {"enabled": False}}, "env")
+            ov = _merge(ov, {"safety": {"enabled": False}})
+        sc = sc.with_overrides(ov, "env overrides")
         self.scenario = sc
         self.action_type = action_type
         self.max_steps = int(max_steps)
@@ -73,10 +133,13 @@ class TipServoEnv(gym.Env):
         self.max_lost = int(max_lost)
         self.scale = np.array([max_angular] * 3 + [max_linear] * 3)
         self.render_mode = render_mode
-        self.loop = None
-        self._build(int(sc["seed"]))
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.data["dt"])))
+        self._renderer = None
+        self.assembly = build_loop(sc, int(sc["seed"]))
+        self.loop, self.world = self.assembly.loop, self.assembly.world
+        self._quiet_log()
         s = self.loop.plant.system
-        self.n = s.n
+        self.n = n = s.n
         if action_type == "twist":
             self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
         else:
@@ -85,26 +148,36 @@ class TipServoEnv(gym.Env):
                 np.full(4, s.base.max_thrust) if s.floating else [],
                 np.full(s.n_a, s.tendons.max_tension),
             ]
-        # finite bounds (observations are clipped to them): feature errors, normalized points,
-        # detection flag, q (angles, positions, strains), qdot
-        high = np.concatenate(
-            [np.full(6, 10.0), np.full(8, 5.0), [1.0], np.full(self.n, 100.0),
-             np.full(self.n, 1000.0)]
-        )  # fmt: skip
+        cam = self.loop.perception.local_camera
+        self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
+        q_scale = np.full(n, STRAIN_SCALE)
+        if s.floating:
+            q_scale[:3] = ANGLE_SCALE
+            q_scale[3:6] = POSITION_SCALE
+        self.q_scale = q_scale
+        high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
         low = -high
-        low[14] = 0.0
-        self.observation_space = spaces.Box(
-            low.astype(np.float32), high.astype(np.float32), dtype=np.float32
-        )
+        high[14], low[14] = 1.0, 0.0
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self._seed = int(sc["seed"])
+        self._sensed = None
 
-    def _build(self, seed: int) -> None:
-        from ..sim.assemble import build_loop
+    def _quiet_log(self) -> None:
+        """No logging in the env, and the servo's ``observe`` (pure) computed once per view:
+        the env observes the view it then hands to the servo's step."""
+        from ..loop.logger import NullLog
 
-        if self.loop is not None:
-            self.loop.close()
-        assembly = build_loop(self.scenario, seed, video=self.render_mode == "rgb_array")
-        self.loop, self.world = assembly.loop, assembly.world
-        self._seed = seed
+        loop = self.loop
+        loop.log = NullLog(loop.servo.desired_points)
+        observe = type(loop.servo).observe.__get__(loop.servo)
+        memo = [None, None, None]
+
+        def observe_once(view, q):
+            if memo[0] is not view or memo[1] is not q:
+                memo[:] = view, q, observe(view, q)
+            return memo[2]
+
+        loop.servo.observe = observe_once
 
     @property
     def desired_points(self) -> np.ndarray:
@@ -117,27 +190,35 @@ class TipServoEnv(gym.Env):
 
     # ------------------------------------------------------------------ helpers
     def _observe(self):
-        sensed = self.loop.sense()
-        self._sensed = sensed
+        """``(observation, view, points, rmse, behind)`` at the loop's current state."""
+        sensed = self._sensed = self.loop.sense()
         view, est = sensed.view, sensed.estimate
-        obs = np.zeros(self.observation_space.shape, dtype=np.float32)
-        rmse = float("nan")
+        n = self.n
+        obs = np.zeros(15 + 2 * n)
+        rmse = math.nan
+        points = None
+        behind = False
         if view.found:
-            points, _, _, error, rmse = self.loop.servo.observe(view, est.q)
-            obs[:6] = error
-            obs[6:14] = np.asarray(points).ravel()
-            obs[14] = 1.0
-        obs[15 : 15 + self.n] = est.q
-        obs[15 + self.n :] = est.qd
-        np.clip(obs, self.observation_space.low, self.observation_space.high, out=obs)
-        return obs, view, rmse
+            try:
+                points, _, _, error, rmse = self.loop.servo.observe(view, est.q)
+            except BehindVirtualCamera:
+                behind = True
+            else:
+                obs[:6] = error / FEATURE_SCALE
+                obs[6:14] = (np.asarray(points) / self.point_scale).ravel()
+                obs[14] = 1.0
+        obs[15 : 15 + n] = (est.q - self.world.q_star) / self.q_scale
+        obs[15 + n :] = est.qd / self.q_scale
+        if not np.isfinite(obs).all():
+            np.nan_to_num(obs, copy=False, nan=0.0)
+        np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
+        return obs.astype(np.float32), view, points, rmse, behind
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         if seed is not None:  # a new model perturbation and sensor-noise stream
-            self._build(int(self.np_random.integers(2**31)))
-        loop = self.loop
-        w = self.world
+            self._reseed(int(self.np_random.integers(2**31)))
+        loop, w = self.loop, self.world
         q = w.q0 + self.np_random.normal(0.0, self.init_noise, size=self.n)
         if loop.plant.system.floating:
             q[:2] = w.q0[:2]  # roll/pitch are not free: start level as the scenario
@@ -145,8 +226,20 @@ class TipServoEnv(gym.Env):
         loop.reset()
         self.steps = 0
         self.lost = 0
-        obs, view, rmse = self._observe()
-        return obs, {"rmse": rmse, "detected": bool(view.found)}
+        obs, view, _, rmse, _ = self._observe()
+        return obs, {"rmse": rmse, "detected": bool(view.found), "loop_seed": self._seed}
+
+    def _reseed(self, seed: int) -> None:
+        from ..sim.assemble import build_loop, reseed
+
+        if self.assembly.reseedable:
+            self.assembly = reseed(self.assembly, seed)
+        else:
+            self.loop.close()
+            self.assembly = build_loop(self.scenario, seed)
+            self.loop = self.assembly.loop
+            self._quiet_log()
+        self._seed = seed
 
     def step(self, action):
         a = np.asarray(action, dtype=float)
@@ -161,33 +254,58 @@ class TipServoEnv(gym.Env):
             st = self.loop.act(self._sensed, u=a * self._top)
         self.steps += 1
         q = self.loop.plant.state.q
-        diverged = bool(
-            (st.done and st.reason is not None)
-            or not np.all(np.isfinite(q))
-            or (self.loop.plant.system.floating and np.max(np.abs(q[:2])) > 1.2)
-        )
-        obs, view, rmse = self._observe()
-        self.lost = 0 if view.found else self.lost + 1
-        success = bool(view.found and rmse <= self.success_rmse)
-        reward = -rmse if view.found else -self.lost_penalty
+        termination = st.termination if st.done else None
+        if termination is None and (
+            not np.all(np.isfinite(q))
+            or (self.loop.plant.system.floating and np.max(np.abs(q[:2])) > MAX_TILT)
+        ):
+            termination = Termination.OUT_OF_ENVELOPE
+        obs, view, _, rmse, behind = self._observe()
+        if behind and termination is None:
+            termination = Termination.BEHIND_CAMERA
+        seen = bool(view.found and not behind)
+        self.lost = 0 if seen else self.lost + 1
+        if termination is None and self.lost >= self.max_lost:
+            termination = Termination.TARGET_LOST
+        success = termination is None and seen and rmse <= self.success_rmse
+        if success:
+            termination = Termination.SUCCESS
+        reward = -rmse if seen else -self.lost_penalty
         if success:
             reward += self.success_bonus
-        terminated = success or diverged or self.lost >= self.max_lost
+        elif termination is not None:  # a failure: the steps left count as lost
+            reward -= self.lost_penalty * (self.max_steps - self.steps)
+        terminated = termination is not None
+        reason = st.reason
+        if reason is None and terminated:
+            reason = {
+                Termination.SUCCESS: f"rmse {rmse:.4g} <= {self.success_rmse}",
+                Termination.TARGET_LOST: f"target not detected for {self.lost} steps",
+                Termination.OUT_OF_ENVELOPE: f"roll/pitch beyond {MAX_TILT} rad or not finite",
+                Termination.BEHIND_CAMERA: "a detected point maps behind the virtual camera",
+            }.get(termination, str(termination))
         truncated = (not terminated) and self.steps >= self.max_steps
         info = {
             "rmse": rmse,
-            "detected": bool(view.found),
-            "success": success,
-            "diverged": diverged,
-            "reason": st.reason,
-            "termination": st.termination,
+            "detected": seen,
+            "success": bool(success),
+            "termination": termination,
+            "reason": reason,
         }
-        return obs, float(reward), bool(terminated), bool(truncated), info
+        return obs, float(reward), terminated, bool(truncated), info
 
     def render(self):
-        if self.render_mode == "rgb_array":
-            return self._sensed.readings.local.image
-        return None
+        """C_L's view at the current state, an RGB array ``(H, W, 3)`` (``render_mode =
+        "rgb_array"``; the planar renderer, created on the first call)."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            from ..vision import PlanarRenderer
+
+            self._renderer = PlanarRenderer(self.world.scene)
+        local = self.loop.sensors.local
+        q = self.loop.plant.state.q
+        return np.ascontiguousarray(self._renderer.render(local.camera, local.pose(q))[:, :, :3])
 
     def close(self):
         if self.loop is not None:

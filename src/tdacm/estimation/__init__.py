@@ -20,7 +20,7 @@ from .config import (
 )
 from .ekf import EstimatorConfig, ExtendedKalmanFilter, StateEstimate, euler_from_rotation
 from .inversion import InversionResult, strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     DronePoseSensor,
     EncoderMeasurement,
     Imu,

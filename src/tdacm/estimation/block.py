@@ -16,7 +16,7 @@ import numpy as np
 
 from .camera import TargetViewMeasurement
 from .ekf import ExtendedKalmanFilter
-from .sensors import EncoderMeasurement, ImuMeasurement, PoseMeasurement
+from .proprioception import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
 #: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
 _KNOWN = (PoseMeasurement, ImuMeasurement, EncoderMeasurement)

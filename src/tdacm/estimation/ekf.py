@@ -52,7 +52,7 @@ from .camera import TargetCamera, TargetViewMeasurement, target_pose_from_view, 
 from .config import EstimatorConfig
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
-from .sensors import (
+from .proprioception import (
     EncoderMeasurement,
     ImuMeasurement,
     PoseMeasurement,
@@ -114,8 +114,8 @@ class ExtendedKalmanFilter:
         self._m = sysm.model_arrays
         self._loads = sysm.loads.packed().copy()
         self._gravity = sysm.loads.gravity.copy()
-        self._s_m = np.ascontiguousarray(model._s_m)
-        self._s_d = np.ascontiguousarray(model._s_d)
+        self._s_m = np.ascontiguousarray(model.mass_scale)
+        self._s_d = np.ascontiguousarray(model.damping_scale)
         self._k_scale = 1.0 + model.d_k
         self._g_scale = 1.0 + model.d_g
         n = sysm.n

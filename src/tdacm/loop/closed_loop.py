@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..control import ModeSwitch
+from ..control import Mode
+from ..vision.virtual import BehindVirtualCamera
 from .data import (
     ActuatorCommand,
     GlobalView,
@@ -138,7 +139,7 @@ class ClosedLoop:
         self.servo.reset(est.q, first)
         self.controller.reset(est)
         self._u = None
-        self._request_global = self.servo.mode == ModeSwitch.RECOVERY
+        self._request_global = self.servo.mode == Mode.RECOVERY
         self.switch_time = None
         self.plan = None
         self.log.rows = {k: [] for k in self.log.rows}
@@ -161,7 +162,15 @@ class ClosedLoop:
         state = plant.state
         t = state.t
         est, view = sensed.estimate, sensed.view
-        cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        try:
+            cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+        except BehindVirtualCamera as exc:  # eq. (18) undefined: the run ends, as an outcome
+            n = len(est.q)
+            z = np.zeros(n)
+            cmd = ServoCommand(self.servo.mode, np.array(est.q, float), z, z, np.zeros(6))
+            return LoopStep(
+                t, view, est, cmd, _hold(est), True, f"servo: {exc}", Termination.BEHIND_CAMERA
+            )
         self._request_global = cmd.request_global
         if cmd.event == ServoEvent.IBVS_ENGAGED:
             if self.switch_time is None:
@@ -179,7 +188,7 @@ class ClosedLoop:
             act = ActuatorCommand(np.asarray(u, float), np.zeros(len(est.q)), cmd.q_d)
         self.log.record(state, sensed.readings, view, est, cmd, act)
         self._u = act.u
-        if cmd.mode == ModeSwitch.IBVS and not self.safety.check(t, cmd.rmse):
+        if cmd.mode == Mode.IBVS and not self.safety.check(t, cmd.rmse):
             return LoopStep(t, view, est, cmd, act, True, self.safety.reason, Termination.SAFETY)
         if last:
             return LoopStep(t, view, est, cmd, act, True, None)

@@ -150,7 +150,18 @@ class CamerasConfig(ConfigModel):
     local_renderer: Literal["planar", "analytic"] = Field(
         "planar", description="C_L: 'planar' (rendered image + detector) or 'analytic' projection"
     )
-    global_every: int = Field(1, ge=0, description="C_G frame every this many periods")
+    global_every: int = Field(
+        1,
+        ge=0,
+        description="C_G frame offered to the servo every this many periods (0: only on its "
+        "request); rendered only when the servo reads it (a recovery snapshot)",
+    )
+    global_output_every: int = Field(
+        0,
+        ge=0,
+        description="C_G rendered for the outputs (the logged detected_global) every this many "
+        "periods (0: only when the servo reads it; a video renders every period)",
+    )
     global_renderer: Literal["pybullet", "planar"] = Field("pybullet", description="C_G renderer")
     global_backend: Literal["auto", "egl", "tiny"] = Field(
         "auto", description="PyBullet backend: 'auto' (EGL if available), 'egl', 'tiny'"

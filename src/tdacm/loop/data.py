@@ -31,6 +31,10 @@ class Termination(StrEnum):
     RECOVERY_FAILED = "recovery failed"  # no C_G view of the target, or planning failed
     PLANT_FAILED = "plant failed"  # the plant's integration failed (singular mass matrix)
     INTERRUPTED = "interrupted"  # Ctrl-C
+    BEHIND_CAMERA = "behind camera"  # a detected point maps behind the virtual camera C_V
+    TARGET_LOST = "target lost"  # env: the target not detected for max_lost periods
+    OUT_OF_ENVELOPE = "out of envelope"  # env: roll/pitch beyond its limit or a non-finite state
+    SUCCESS = "success"  # env: the image error fell below the success threshold
     FORCE_LIMIT = "force limit"  # the obstacles pushed on the arm harder than the limit
 
 
@@ -71,16 +75,70 @@ class CameraMeasurement:
 NO_MEASUREMENT = CameraMeasurement(float("nan"))
 
 
+class DeferredMeasurement:
+    """A camera measurement offered for one period but taken only when read: ``take`` (an
+    argument-free callable, e.g. the sensor's ``measure`` bound to this period's state) runs on
+    the first access to :attr:`detection`, :attr:`image` or :attr:`found`, then its result is
+    kept. C_G is offered every ``cameras.global_every`` periods, but rendering it (PyBullet,
+    ~70 ms) is paid only when the servo looks (a recovery snapshot) or an output asks for it.
+    The camera's measurement depends on the period's state only (no noise drawn, no tracking),
+    so taking it late gives the frame an eager read would have given."""
+
+    __slots__ = ("t_capture", "_take", "_value")
+
+    def __init__(self, t_capture: float, take):
+        self.t_capture = float(t_capture)
+        self._take = take
+        self._value: CameraMeasurement | None = None
+
+    @property
+    def taken(self) -> bool:
+        """Whether the measurement was made (the camera rendered this period)."""
+        return self._value is not None
+
+    def value(self) -> CameraMeasurement:
+        if self._value is None:
+            self._value = self._take()
+            self._take = None
+        return self._value
+
+    @property
+    def detection(self) -> Detection:
+        return self.value().detection
+
+    @property
+    def image(self) -> np.ndarray | None:
+        return self.value().image
+
+    @property
+    def found(self) -> bool:
+        return self.value().found
+
+
 @dataclass(frozen=True)
 class SensorReadings:
-    """Everything the sensors produced in one period. ``global_`` is ``None`` when C_G was not
-    read this period (it is read on request of the servo, or every ``global_every`` periods);
-    ``other`` holds the measurements of further sensors by name (drone pose, IMU, encoders)."""
+    """Everything the sensors produced in one period. ``global_`` is the C_G measurement
+    offered to the servo (on its request, or every ``cameras.global_every`` periods; ``None``
+    otherwise), a :class:`DeferredMeasurement` rendered only if read. ``global_output`` is the
+    C_G frame rendered for the outputs (every ``cameras.global_output_every`` periods, or every
+    period for a video; ``None`` otherwise). ``other`` holds the measurements of further
+    sensors by name (drone pose, IMU, encoders)."""
 
     t: float
     local: CameraMeasurement
-    global_: CameraMeasurement | None = None
+    global_: CameraMeasurement | DeferredMeasurement | None = None
     other: dict = field(default_factory=dict)
+    global_output: CameraMeasurement | None = None
+
+    @property
+    def global_rendered(self) -> CameraMeasurement | None:
+        """The C_G frame rendered this period, for whatever consumer (``None``: not rendered)."""
+        if self.global_output is not None:
+            return self.global_output
+        g = self.global_
+        if isinstance(g, DeferredMeasurement):
+            return g.value() if g.taken else None
+        return g
 
 
 @dataclass(frozen=True)
@@ -99,12 +157,29 @@ class LocalView:
 NOT_SEEN = LocalView(float("nan"))
 
 
-@dataclass(frozen=True)
 class GlobalView:
-    """Perception of C_G: the detection the recovery planner needs (target pose by IPPE)."""
+    """Perception of C_G: the detection the recovery planner needs (target pose by IPPE).
+    ``detection`` may be a :class:`DeferredMeasurement` (:meth:`deferred`): then C_G renders
+    only if the servo reads the view."""
 
-    t_capture: float
-    detection: Detection = NOT_DETECTED
+    __slots__ = ("t_capture", "_detection", "_source")
+
+    def __init__(self, t_capture: float, detection: Detection = NOT_DETECTED):
+        self.t_capture = float(t_capture)
+        self._detection = detection
+        self._source = None
+
+    @classmethod
+    def deferred(cls, m: DeferredMeasurement) -> GlobalView:
+        view = cls(m.t_capture, None)
+        view._source = m
+        return view
+
+    @property
+    def detection(self) -> Detection:
+        if self._detection is None:
+            self._detection = self._source.detection
+        return self._detection
 
     @property
     def found(self) -> bool:

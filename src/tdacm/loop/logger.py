@@ -81,7 +81,11 @@ SERIES_INFO = {
     "mode": ("-", "0 = IBVS, 1 = recovery (trajectory planned from one C_G snapshot)"),
     "V": ("J", "Lyapunov function of the adaptive controller (known part)"),
     "detected_local": ("-", "1 if the target was detected in C_L"),
-    "detected_global": ("-", "1 if the target was detected in C_G (when rendered)"),
+    "detected_global": (
+        "-",
+        "1 if the target was detected in C_G (0 when C_G was not rendered: it renders for the "
+        "servo's recovery snapshot, every cameras.global_output_every periods and for a video)",
+    ),
     "thrust_saturated": ("-", "1 if a rotor thrust hit its limit"),
     "tension_saturated": ("-", "1 if a tendon tension hit its limit"),
     "q_hat": ("q", "state estimate used after the sensors (= q for estimation.source = true)"),
@@ -152,7 +156,7 @@ class RunLog:
         r["mode"].append(MODE_CODES[cmd.mode])
         r["V"].append(act.V)
         r["detected_local"].append(bool(view.found))
-        g = readings.global_
+        g = readings.global_rendered  # not rendered this period: logged as not detected
         r["detected_global"].append(bool(g.found) if g is not None else False)
         r["thrust_saturated"].append(bool(act.thrust_saturated))
         r["tension_saturated"].append(bool(act.tension_saturated))
@@ -174,3 +178,11 @@ class RunLog:
 
     def arrays(self) -> dict:
         return {k: np.asarray(v) for k, v in self.rows.items()}
+
+
+class NullLog(RunLog):
+    """A logger that keeps nothing (the Gymnasium env: an episode's rows are not needed, and
+    recording them costs about a tenth of a period)."""
+
+    def record(self, *args, **kwargs) -> None:
+        pass

@@ -11,7 +11,7 @@ from __future__ import annotations
 from ..vision import _checks as C
 from ..vision.camera import PinholeCamera
 from ..vision.features import _estimate_depths
-from .data import CameraMeasurement, GlobalView, LocalView
+from .data import CameraMeasurement, DeferredMeasurement, GlobalView, LocalView
 
 
 class Perception:
@@ -36,7 +36,9 @@ class Perception:
         z = _estimate_depths(xy, self._object)
         return LocalView(m.t_capture, True, uv, xy, z)
 
-    def global_(self, m: CameraMeasurement | None) -> GlobalView | None:
+    def global_(self, m: CameraMeasurement | DeferredMeasurement | None) -> GlobalView | None:
         if m is None:
             return None
+        if isinstance(m, DeferredMeasurement):
+            return GlobalView.deferred(m)  # C_G renders only if the servo reads the view
         return GlobalView(m.t_capture, m.detection)

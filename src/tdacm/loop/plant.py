@@ -109,6 +109,7 @@ class Plant:
         rng: np.random.Generator | None = None,
         aero: np.ndarray | None = None,
         wind: Wind | None = None,
+        accelerations: bool = False,
         contact: np.ndarray | None = None,
         contact_substeps: int = 32,
         contact_margin: float = 0.01,
@@ -144,7 +145,7 @@ class Plant:
         self._loads = Loads(gravity=system.loads.gravity.copy())
         self._base = system.loads.packed().copy()
         #: also compute the accelerations at the end of each period (for an IMU)
-        self.accelerations = False
+        self.accelerations = bool(accelerations)
         self.reset(q0, qd0)
 
     def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
@@ -210,8 +211,8 @@ class Plant:
         aero = np.empty(0) if self.aero is None else self.aero
         if self.aero is not None and self.wind is not None:
             set_wind(aero, self.wind.velocity(s.t))
-        _, _, _, clearance, speed = contact_nodes(s.q, s.qd, m, self.contact)
-        near = clearance < self.contact_margin + 2.0 * speed * dt
+        _, _, _, gap, speed = contact_nodes(s.q, s.qd, m, self.contact)
+        near = gap < self.contact_margin + 2.0 * speed * dt
         n = self.contact_substeps if near else self.substeps
         self.last_substeps = n
         u = np.asarray(u, float)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -24,7 +25,7 @@ from ..vision.camera import PinholeCamera, points_in_camera
 from ..vision.detect import NOT_DETECTED, Detection
 from ..vision.mounts import tip_camera_pose
 from .config import SensorModel
-from .data import CameraMeasurement, PlantState, SensorReadings
+from .data import CameraMeasurement, DeferredMeasurement, PlantState, SensorReadings
 
 
 def perturbed_camera(camera, relative_error: float, rng: np.random.Generator):
@@ -207,9 +208,11 @@ class CameraSensor:
 
 
 class Sensors:
-    """The sensors block: C_L every period; C_G every ``global_every`` periods (0: never) and
-    whenever the servo asks for it (``request_global``), or every period when ``always_global``
-    (video). ``other`` sensors (name -> object with ``measure(state)``) are read every period."""
+    """The sensors block: C_L every period; C_G offered to the servo every ``global_every``
+    periods (0: never) and whenever the servo asks for it (``request_global``), rendered only if
+    the servo reads it (:class:`~.data.DeferredMeasurement`); C_G rendered for the outputs every
+    ``global_output_every`` periods (0: never), or every period when ``always_global`` (video).
+    ``other`` sensors (name -> object with ``measure(state)``) are read every period."""
 
     def __init__(
         self,
@@ -218,10 +221,12 @@ class Sensors:
         global_every: int = 1,
         always_global: bool = False,
         other: dict | None = None,
+        global_output_every: int = 0,
     ):
         self.local = local
         self.global_ = global_
         self.global_every = int(global_every)
+        self.global_output_every = int(global_output_every)
         self.always_global = bool(always_global)
         self.other = dict(other or {})
         self._k = 0
@@ -246,15 +251,19 @@ class Sensors:
         k = self._k
         self._k += 1
         local = self.local.measure(state)
-        glob = None
-        if self.global_ is not None and (
-            self.always_global
-            or request_global
-            or (self.global_every > 0 and k % self.global_every == 0)
-        ):
-            glob = self.global_.measure(state)
+        glob = out = None
+        g = self.global_
+        if g is not None:
+            every, out_every = self.global_every, self.global_output_every
+            offered = (
+                self.always_global or request_global or (every > 0 and k % every == 0)
+            )  # fmt: skip
+            if offered:
+                glob = DeferredMeasurement(state.t, partial(g.measure, state))
+            if self.always_global or (out_every > 0 and k % out_every == 0):
+                out = glob.value() if glob is not None else g.measure(state)
         other = {name: s.measure(state) for name, s in self.other.items()}
-        return SensorReadings(state.t, local, glob, other)
+        return SensorReadings(state.t, local, glob, other, out)
 
     def close(self) -> None:
         self.local.close()

@@ -27,7 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._linalg import solve as _solve
-from ..control import CubicTrajectory, ModeSwitch, estimate_target_pose, plan_rod_configuration
+from ..control import (
+    CubicTrajectory,
+    Mode,
+    ModeSwitch,
+    estimate_target_pose,
+    plan_rod_configuration,
+)
 from ..lie.se3 import adjoint_pair, expmap, so3_log
 from ..vision.features import advanced_features
 from ..vision.ibvs import IBVSController
@@ -38,7 +44,7 @@ from ..vision.virtual import virtual_points, virtual_transform
 from .config import IbvsConfig, RecoveryConfig
 from .data import GlobalView, LocalView, ServoCommand, StateEstimate
 
-MODE_CODES = {ModeSwitch.IBVS: 0, ModeSwitch.RECOVERY: 1}
+MODE_CODES = {Mode.IBVS: 0, Mode.RECOVERY: 1}
 
 
 def normalized_rmse(points, desired) -> float:
@@ -98,6 +104,9 @@ class VisualServo:
         The reference snapshot in C_V (C_L for a fixed base).
     gain, mode, compensation:
         IBVS gain ``lambda``, interaction-matrix choice and the virtual-camera form.
+    floor, solver:
+        Singular-value floor of the ``J_img`` solve and its kind
+        (:func:`~tdacm.vision.ibvs.robust_solve`; ``floor = 0``: the plain inverse).
     """
 
     def __init__(
@@ -115,6 +124,8 @@ class VisualServo:
         compensation: str = IbvsConfig().compensation,
         shaping: ShapingParams | None = None,
         recovery: RecoveryParams | None = None,
+        floor: float = IbvsConfig().floor,
+        solver: str = IbvsConfig().solver,
     ):
         self.system = system
         self.local_camera = local_camera
@@ -124,7 +135,10 @@ class VisualServo:
         self.drone_mount = np.asarray(drone_mount, float)
         self.desired_points = np.asarray(desired_points, float)
         self.desired_depths = np.asarray(desired_depths, float)
-        self.ibvs = IBVSController(self.desired_points, self.desired_depths, gain=gain, mode=mode)
+        self.ibvs = IBVSController(
+            self.desired_points, self.desired_depths, gain=gain, mode=mode, floor=floor,
+            solver=solver,
+        )  # fmt: skip
         self.compensation = compensation
         self.shaping = shaping or ShapingParams.from_config(IbvsConfig())
         self.recovery = recovery or RecoveryParams.from_config(RecoveryConfig())
@@ -148,10 +162,9 @@ class VisualServo:
         """Start from configuration ``q0`` (the estimate); the initial mode is IBVS when the
         first C_L view has the target inside the margin, recovery otherwise."""
         s = self.system
-        self.switch.mode = ModeSwitch.RECOVERY
-        self.switch._good = self.switch._bad = 0
-        if first_view is not None and first_view.found and self.switch.inside(first_view.pixels):
-            self.switch.mode = ModeSwitch.IBVS
+        seen = first_view is not None and first_view.found
+        start = Mode.IBVS if seen and self.switch.inside(first_view.pixels) else Mode.RECOVERY
+        self.switch.reset(start)
         self.q_d = np.array(q0, float)
         if s.floating:
             self.q_d[:2] = 0.0
@@ -225,11 +238,11 @@ class VisualServo:
     def transition(self, prev: str, mode: str, t: float) -> str | None:
         """The event of a mode change: IBVS engaging (its ramp restarts; ``q_d`` continues from
         the recovery reference, a continuous error) or the target lost."""
-        if prev == ModeSwitch.RECOVERY and mode == ModeSwitch.IBVS:
+        if prev == Mode.RECOVERY and mode == Mode.IBVS:
             self.ibvs_start = t
             self.traj = None
             return "ibvs engaged"
-        if prev == ModeSwitch.IBVS and mode == ModeSwitch.RECOVERY:
+        if prev == Mode.IBVS and mode == Mode.RECOVERY:
             return "target lost"
         return None
 
@@ -339,10 +352,10 @@ class VisualServo:
         out_twist = np.zeros(6)
         qdd_d = np.zeros(n)
         plan_info = None
-        if mode == ModeSwitch.IBVS and (seen or twist is not None):
+        if mode == Mode.IBVS and (seen or twist is not None):
             out_twist = np.asarray(ibvs_twist() if twist is None else twist, float)
             qdd_d = self.follow_twist(q, out_twist, t, dt)
-        elif mode == ModeSwitch.RECOVERY:
+        elif mode == Mode.RECOVERY:
             ended, plan_info, event = self.recovery_branch(
                 t, q, gview, mode, qdd_d, out_twist, features, error, points, rmse, event, **extra
             )
@@ -428,10 +441,9 @@ class RobustServo(VisualServo):
     """
 
     def __init__(self, *args, robust: RobustParams | None = None, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.robust = r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
-        self.ibvs.floor = r.floor
-        self.ibvs.solver = r.solver
+        r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
+        super().__init__(*args, floor=r.floor, solver=r.solver, **kwargs)
+        self.robust = r
         self.target_filter = TargetFilter(
             self.local_camera,
             self.target.feature_points,
@@ -478,9 +490,9 @@ class RobustServo(VisualServo):
         g_c = self.local_camera_pose(q)
         if not self.system.floating:
             return g_c
-        from ..vision.virtual import _virtual_pose
+        from ..vision.virtual import virtual_pose
 
-        return _virtual_pose(self.system.base_pose(q), g_c)
+        return virtual_pose(self.system.base_pose(q), g_c)
 
     def predict_target(self, dt: float) -> None:
         """Advance the smoothed target pose toward the filter's estimate by one period: a
@@ -569,7 +581,7 @@ class RobustServo(VisualServo):
             except ValueError:
                 pass
         prev = self.switch.mode
-        if prev == ModeSwitch.IBVS:
+        if prev == Mode.IBVS:
             ok = (
                 ps.valid
                 and self._last_seen is not None

@@ -12,19 +12,31 @@ run is reproducible from its seed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .._linalg import solve as _solve
 from ..control import EstimatedModel
+from ..control.allocation import box_least_squares
+from ..estimation import (
+    EstimatorConfig,
+    ExtendedKalmanFilter,
+    FilterBlock,
+    SensorSuite,
+    SensorSuiteConfig,
+)
+from ..estimation.camera import TargetCamera
 from ..lie.se3 import rotation_angle
+from ..loop.ablation import TruthAblation, parse_controller_truth
 from ..loop.closed_loop import ClosedLoop
 from ..loop.config import ControllerConfig, IbvsConfig, RecoveryConfig, SafetyConfig, SensorModel
 from ..loop.logger import RunLog
 from ..loop.lowlevel import make_low_level
 from ..loop.perception import Perception
 from ..loop.plant import Disturbances, Plant
+from ..loop.precompile import wait
 from ..loop.protocols import ControllerContext
 from ..loop.safety import SafetyMonitor
 from ..loop.sensors import (
@@ -35,10 +47,11 @@ from ..loop.sensors import (
     perturbed_camera,
 )
 from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
+from ..system.kernels import rk4_run
 from ..vision import PAPER_MARKER, PAPER_PATTERN, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
 from ..vision.target_filter import reference_from_pose
-from ..vision.virtual import virtual_camera_points, virtual_camera_transform
+from ..vision.virtual import virtual_camera_points, virtual_camera_transform, virtual_pose
 from .robot import Robot, build_robot
 from .scenario import Scenario, ScenarioError, check_with_world
 
@@ -57,9 +70,6 @@ def apply_profile(scenario: Scenario) -> Scenario:
     """The scenario with its ``controller.profile`` applied (unchanged for "default")."""
     if scenario.data["controller"]["profile"] != "paper":
         return scenario
-    import copy
-    from dataclasses import replace
-
     d = copy.deepcopy(scenario.data)
     for sec, kv in PAPER_PROFILE.items():
         d[sec].update(kv)
@@ -149,6 +159,41 @@ class Assembly:
     loop: ClosedLoop
     world: World
     seed: int
+    model: EstimatedModel | None = None  # the controller's model (perturbation drawn from seed)
+    scenario: Scenario | None = None  # as assembled (profile applied)
+
+    @property
+    def reseedable(self) -> bool:
+        """Whether :func:`reseed` can give this loop another seed's random streams in place:
+        not with an intrinsics error (the controller's camera, hence the reference snapshot,
+        depends on the seed), with the estimator (its sensors and filter are seeded when
+        built) or with a user controller (it may copy the model when built); those need
+        :func:`build_loop` again."""
+        d = self.scenario.data if self.scenario is not None else None
+        return (
+            d is not None
+            and self.model is not None
+            and d["sensors"]["intrinsics_error"] == 0
+            and d["estimation"]["source"] == "true"
+            and not d["controller"]["class"]
+        )
+
+
+def reseed(assembly: Assembly, seed: int) -> Assembly:
+    """The assembled loop with the random streams of ``seed``, without rebuilding it: the
+    controller's model perturbation (drawn from ``seed``), C_L's imperfections (``[seed, 1]``)
+    and the disturbances (``seed``), as :func:`build_loop` seeds them, so a reseeded loop runs
+    as one built with ``seed`` (tested). Only when :attr:`Assembly.reseedable`."""
+    from dataclasses import replace
+
+    if not assembly.reseedable:
+        raise ValueError("this loop cannot be reseeded in place (see Assembly.reseedable)")
+    seed = int(seed)
+    loop = assembly.loop
+    assembly.model.reseed(seed)
+    loop.sensors.local.rng = np.random.default_rng([seed, 1])
+    loop.plant.rng = np.random.default_rng(seed)
+    return replace(assembly, seed=seed)
 
 
 def build_loop(
@@ -193,7 +238,18 @@ def build_loop(
         _front_end(g_kind, robot.global_camera, world.scene, world.target, cams["global_backend"]),
         keep_images=video,
     )
-    sensors = Sensors(local, glob, cams["global_every"], always_global=video)
+    # the proprioceptive sensors of the EKF (estimation.source = "estimated"), read every period
+    suite = None
+    if estimator is None and d["estimation"]["source"] == "estimated":
+        suite = proprioceptive_sensors(d, s, seed)
+    sensors = Sensors(
+        local,
+        glob,
+        cams["global_every"],
+        always_global=video,
+        other=suite.named if suite is not None else None,
+        global_output_every=cams["global_output_every"],
+    )
     # the controller's model of C_L (intrinsics error drawn after nothing else: reproducible)
     ctl_camera = perturbed_camera(robot.local_camera, sensor_model.intrinsics_error, sensor_rng)
     perception = Perception(ctl_camera, robot.global_camera, world.target)
@@ -232,9 +288,7 @@ def build_loop(
         if ib.features == "predicted":
             servo = RobustServo(*args, robust=RobustParams.from_config(ib, rc), **kwargs)
         else:
-            servo = VisualServo(*args, **kwargs)
-            servo.ibvs.floor = ib.floor
-            servo.ibvs.solver = ib.solver
+            servo = VisualServo(*args, floor=ib.floor, solver=ib.solver, **kwargs)
     m = d["model"]
     model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
     if controller is None:
@@ -253,22 +307,20 @@ def build_loop(
         d["substeps"],
         Disturbances.from_dict(d["disturbances"]),
         np.random.default_rng(seed),
+        accelerations=suite is not None,  # the accelerometer senses qdd
         **contact_plant_options(d["scene"], s),
     )
     truth = d["estimation"]["controller_truth"]
     if truth:  # ablation: the controller reads these coordinates from the plant
-        from ..loop.ablation import TruthAblation, parse_controller_truth
-
         try:
             q_idx, qd_idx = parse_controller_truth(truth, s.n)
         except ValueError as exc:
             raise ScenarioError(f"{scenario.source}: {exc}") from None
         controller = TruthAblation(controller, plant, q_idx, qd_idx)
-    if estimator is None and d["estimation"]["source"] == "estimated":
+    if suite is not None:
         estimator = estimation_block(
-            d, s, seed, plant, sensors, world.q0, model, robot.tip_mount, world.target,
-            ctl_camera,
-        )  # fmt: skip
+            d, s, seed, plant, suite, world.q0, model, robot.tip_mount, world.target, ctl_camera
+        )
     loop = ClosedLoop(
         plant,
         sensors,
@@ -284,7 +336,7 @@ def build_loop(
     if plant.contact is not None:
         loop.log.contact = contact_logger(s, plant.contact)
     warm_up(s, world.q0)
-    return Assembly(loop, world, seed)
+    return Assembly(loop, world, seed, model, scenario)
 
 
 def contact_plant_options(scene: dict, system) -> dict:
@@ -321,15 +373,13 @@ def contact_logger(system, contact):
 def _truth(system, local: CameraSensor, world: World):
     """``q -> (true points of the target in the servo camera, true target pose)`` for the
     logger (C_V for a floating base, C_L for a fixed one)."""
-    from ..vision.virtual import _virtual_pose
-
     g_t = world.scene.target_pose
     obj = world.target.feature_points
 
     def truth(q):
         g = local.pose(q)
         if system.floating:
-            g = _virtual_pose(system.base_pose(q), g)
+            g = virtual_pose(system.base_pose(q), g)
         r = _solve(g, g_t)
         pc = obj @ r[:3, :3].T + r[:3, 3]
         return pc[:, :2] / pc[:, 2:3], g_t
@@ -337,32 +387,26 @@ def _truth(system, local: CameraSensor, world: World):
     return truth
 
 
+def proprioceptive_sensors(d: dict, system, seed: int):
+    """The drone pose, IMU and tendon-encoder sensors of ``[sensors]`` (a
+    :class:`~tdacm.estimation.SensorSuite` seeded by ``[seed, 11..13]``): the sensors block
+    reads them every period for the EKF."""
+    return SensorSuite(system, SensorSuiteConfig.from_section(d["sensors"]), seed)
+
+
 def estimation_block(
-    d: dict, system, seed: int, plant: Plant, sensors: Sensors, q_nominal, model,
-    tip_mount, target, camera,
-):  # fmt: skip
-    """``estimation.source = "estimated"``: the proprioceptive sensors (drone pose, IMU,
-    tendon encoders; ``[sensors]``, seeded by ``[seed, 11..13]``) join ``sensors.other`` and
-    the EKF (``[estimation]``) runs on the controller's perturbed ``model``. The initial guess
+    d: dict, system, seed: int, plant: Plant, suite, q_nominal, model, tip_mount, target, camera
+):
+    """``estimation.source = "estimated"``: the EKF (``[estimation]``) on the controller's
+    perturbed ``model``, fusing the proprioceptive sensors ``suite``
+    (:func:`proprioceptive_sensors`, read by the sensors block). The initial guess
     (``initial_guess = "measured"``) comes from one start-up reading of an independent copy of
     the sensors (no latency, no dropout: taken before the run starts). With
     ``estimation.fuse_local_camera`` the filter also fuses C_L's detections of the static
     target (:mod:`tdacm.estimation.camera`): ``tip_mount``, ``target`` and ``camera`` are
     C_L's mount, the target and the controller's model of C_L."""
-    from ..estimation import (
-        EstimatorConfig,
-        ExtendedKalmanFilter,
-        FilterBlock,
-        SensorSuite,
-        SensorSuiteConfig,
-    )
-    from ..estimation.camera import TargetCamera
-
     est = d["estimation"]
-    cfg = SensorSuiteConfig.from_section(d["sensors"])
-    suite = SensorSuite(system, cfg, seed)
-    sensors.other.update(suite.named)
-    plant.accelerations = True  # the accelerometer senses qdd
+    cfg = suite.config
     init = None
     if est["initial_guess"] == "measured":
         start = cfg.model_copy(
@@ -402,10 +446,6 @@ def estimation_block(
 def warm_up(system, q) -> None:
     """Call the numba kernels of one period once, so that their first-use compilation (or
     loading from the on-disk cache) happens before the run, not inside its first step."""
-    from ..control.allocation import box_least_squares
-    from ..loop.precompile import wait
-    from ..system.kernels import rk4_run
-
     q = np.asarray(q, float)
     qd = np.zeros(system.n)
     system.terms(q, qd)

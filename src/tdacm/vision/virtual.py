@@ -61,12 +61,13 @@ def _yaw_only_pose(g: np.ndarray) -> np.ndarray:
 def virtual_camera_pose(base_pose, camera_pose) -> np.ndarray:
     """``g_{C_V} = g_psi g_{C_L}^b`` (inertial), from the inertial drone pose ``g_b`` and
     the inertial pose of the real camera ``g_{C_L}``."""
-    return _virtual_pose(
+    return virtual_pose(
         C.transform("base_pose", base_pose), C.transform("camera_pose", camera_pose)
     )
 
 
-def _virtual_pose(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
+def virtual_pose(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
+    """:func:`virtual_camera_pose` of transforms already known to be rigid (no checks)."""
     return _yaw_only_pose(g_b) @ inv_se3(g_b) @ g_c
 
 
@@ -82,7 +83,7 @@ def virtual_camera_transform(base_pose, camera_pose) -> np.ndarray:
 def virtual_transform(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
     """:func:`virtual_camera_transform` of transforms already known to be rigid (the model's
     poses; no checks: the closed loop's per-period path)."""
-    return inv_se3(_virtual_pose(g_b, g_c)) @ g_c
+    return inv_se3(virtual_pose(g_b, g_c)) @ g_c
 
 
 def virtual_camera_points(
@@ -126,6 +127,11 @@ def virtual_camera_points(
     return virtual_points(p, g, z, method, return_depths)
 
 
+class BehindVirtualCamera(ValueError):
+    """A point maps behind the virtual camera (the drone tilted so far that C_V cannot see
+    what C_L sees): the closed loop ends the run with a named termination."""
+
+
 def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
     """:func:`virtual_camera_points` on checked inputs (``(N, 2)`` points, a rigid 4x4
     ``g_{C_L}^{C_V}``, positive depths for ``"exact"``); the closed loop's per-period path."""
@@ -134,13 +140,13 @@ def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
     if method == "exact":
         rv = (h * z[:, None]) @ r.T + tr
         if np.any(rv[:, 2] <= 0.0):
-            raise ValueError("a point lies behind the virtual camera")
+            raise BehindVirtualCamera("a point lies behind the virtual camera")
         out = rv[:, :2] / rv[:, 2:3]
         return (out, rv[:, 2]) if return_depths else out
     rp = h @ r.T
     if method == "rotation":
         if np.any(rp[:, 2] <= 0.0):
-            raise ValueError("a point lies behind the virtual camera")
+            raise BehindVirtualCamera("a point lies behind the virtual camera")
         out = rp[:, :2] / rp[:, 2:3]
         return (out, rp[:, 2]) if return_depths else out
     out = rp[:, :2].copy()

@@ -216,7 +216,7 @@ class CaptionedFrames:
         img_l = loc.image if loc is not None and loc.image is not None else None
         if img_l is None:
             img_l = np.zeros((TILE, TILE, 3), np.uint8)
-        g = readings.global_
+        g = readings.global_rendered
         img_g = g.image if g is not None else None
         det_g = g.detection.points if g is not None and g.found else None
         return compose_frame(

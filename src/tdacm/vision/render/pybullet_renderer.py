@@ -66,6 +66,10 @@ EGL_MIN_NEAR = 0.1
 LIGHT_DIRECTION = (0.3, 0.2, 1.0)
 
 
+#: The process that loaded the EGL plugin (a forked child sees its parent's id here).
+_egl_pid: int | None = None
+
+
 def projection_matrix(camera: PinholeCamera, du: float = 0.5, dv: float = 0.5) -> np.ndarray:
     """4x4 OpenGL projection (row-major) of ``camera``, principal point shifted by
     ``(du, dv)`` pixels (0.5 converts OpenCV to OpenGL pixel centres)."""
@@ -203,6 +207,17 @@ class PyBulletRenderer(Renderer):
                     "first (two live EGL clients crash pybullet when one disconnects)"
                 )
             backend = "tiny"
+        if backend in ("egl", "auto") and _egl_pid not in (None, os.getpid()):
+            # EGL (Mesa) was loaded by a parent of this forked process: Mesa's state crossed
+            # the fork without its threads, and loading it again here can deadlock
+            if backend == "egl":
+                self.close()
+                raise RuntimeError(
+                    "the EGL renderer was loaded before this process was forked; use the "
+                    "'tiny' backend or the 'spawn' start method (e.g. AsyncVectorEnv(..., "
+                    "context='spawn'))"
+                )
+            backend = "tiny"
         if backend in ("egl", "auto"):
             ok = self._load_egl()
             if not ok and backend == "egl":
@@ -230,6 +245,8 @@ class PyBulletRenderer(Renderer):
             return False
         self._plugin = plugin
         PyBulletRenderer._egl_owner = id(self)
+        global _egl_pid
+        _egl_pid = os.getpid()
         return True
 
     def _build_static(self):

@@ -1,0 +1,117 @@
+"""Numba kernels of the identification: segment-wise shooting and the measured poses.
+
+:func:`shoot` integrates every multiple-shooting segment from its own initial state with the
+recorded inputs held over each sample interval (a zero-order hold), using the classical RK4
+update of :func:`tdacm.system.kernels.rk4_run` (the same formula, so the fit sees the model a
+closed-loop run integrates) and :func:`tdacm.system.kernels.forward_dynamics`. Two effects the
+system model does not carry are applied to the input before each stage:
+
+* the thrust constant: the motor thrusts act as ``k_T u_thrust`` (``k_T = 1`` is the model);
+* tendon friction (Coulomb + viscous, on the tension delivered to the rod, see
+  :mod:`tdacm.identify.params`): ``T_eff = T (1 + mu tanh(ldot / v0)) + c_v ldot``, clipped at
+  0, with ``ldot = -B_s(q)^T qdot_s`` the tendon length rate (``B_s = -dl/dq_s``, eq. (13)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..system import kernels as K
+
+#: A state beyond this magnitude ends its segment (the fit's trial models may be unstable).
+BLOWUP = 1e4
+
+
+@njit(cache=True)
+def effective_input(q, qd, u, m, thrust_k, mu, cv, v0):
+    """The input the rod and drone feel: thrust constant and tendon friction applied."""
+    ue = u.copy()
+    nu = u.shape[0]
+    na = m.tendon_d.shape[1]
+    if m.floating:
+        for i in range(4):
+            ue[i] = thrust_k * u[i]
+    if mu != 0.0 or cv != 0.0:
+        off = 6 if m.floating else 0
+        bs = K.tendon_matrix(q[off:], m)
+        ns = bs.shape[0]
+        for i in range(na):
+            ld = 0.0
+            for c in range(ns):
+                ld -= bs[c, i] * qd[off + c]
+            t = u[nu - na + i]
+            te = t * (1.0 + mu * np.tanh(ld / v0)) + cv * ld
+            ue[nu - na + i] = te if te > 0.0 else 0.0
+    return ue
+
+
+@njit(cache=True)
+def _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0):
+    return K.forward_dynamics(q, qd, effective_input(q, qd, u, m, thrust_k, mu, cv, v0), m, loads)
+
+
+@njit(cache=True)
+def shoot(q0s, qd0s, starts, ends, us, substeps, dt, m, loads, thrust_k, mu, cv, v0):
+    """States at every sample of every segment.
+
+    Segment ``i`` holds samples ``starts[i] <= k < ends[i]``; it starts at ``(q0s[i], qd0s[i])``
+    on sample ``starts[i]`` and reaches sample ``k + 1`` from ``k`` with ``us[k]`` held, in
+    ``substeps`` RK4 steps of ``dt``. Returns ``(q, qd, ok)`` of shape (T, n); a segment whose
+    mass matrix turns singular (or whose state leaves ``|x| < BLOWUP``) keeps its last state and
+    ``ok`` becomes False.
+    """
+    n = q0s.shape[1]
+    total = ends[-1]
+    qs = np.zeros((total, n))
+    qds = np.zeros((total, n))
+    ok_all = True
+    for i in range(starts.shape[0]):
+        q = q0s[i].copy()
+        qd = qd0s[i].copy()
+        alive = True
+        for k in range(starts[i], ends[i]):
+            qs[k] = q
+            qds[k] = qd
+            if k + 1 == ends[i] or not alive:
+                continue
+            u = us[k]
+            for _ in range(substeps):
+                a1, ok1 = _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0)
+                a2, ok2 = _acc(
+                    q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, thrust_k, mu, cv, v0
+                )
+                a3, ok3 = _acc(
+                    q + 0.5 * dt * (qd + 0.5 * dt * a1),
+                    qd + 0.5 * dt * a2,
+                    u, m, loads, thrust_k, mu, cv, v0,
+                )  # fmt: skip
+                a4, ok4 = _acc(
+                    q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, thrust_k, mu, cv, v0
+                )
+                if not (ok1 and ok2 and ok3 and ok4):
+                    alive = False
+                    break
+                q1 = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)
+                qd1 = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+                if not (np.all(np.abs(q1) < BLOWUP) and np.all(np.abs(qd1) < BLOWUP)):
+                    alive = False
+                    break
+                q = q1
+                qd = qd1
+            if not alive:
+                ok_all = False
+    return qs, qds, ok_all
+
+
+@njit(cache=True)
+def poses(qs, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
+    """Drone (base) pose and tip pose ``g_L`` at every row of ``qs``: two (T, 4, 4) arrays."""
+    total = qs.shape[0]
+    base = np.empty((total, 4, 4))
+    tip = np.empty((total, 4, 4))
+    for k in range(total):
+        out, _, gb = K.chain_poses(qs[k], floating, g_fixed, g_att, h, xi0s, bs, cols, ncs)
+        base[k] = gb
+        tip[k] = out[out.shape[0] - 1]
+    return base, tip

@@ -1,0 +1,150 @@
+"""The model the fit adjusts: a TD-ACM rebuilt from parameter values, simulated segment-wise.
+
+:class:`IdentModel` keeps the structure of a recording's robot (rod geometry and basis, tendon
+routing, base, attachment, gravity) and rebuilds the :class:`~tdacm.system.TDACM` for any
+values of the :data:`~tdacm.identify.params.PARAMETERS`; :meth:`IdentModel.simulate` runs the
+segments of a multiple-shooting fit and returns the measured poses (drone and tip).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..rod import Rod, Tendons
+from ..system import TDACM, Loads
+from . import kernels as IK
+from .params import FRICTION_V0, PARAMETERS
+
+
+@dataclass
+class Prediction:
+    """States and poses of every sample of every segment (T rows), ``ok`` False when a segment
+    hit a singular mass matrix or a non-finite state."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    base: np.ndarray  # (T, 4, 4)
+    tip: np.ndarray  # (T, 4, 4)
+    ok: bool
+
+
+class IdentModel:
+    """A single-rod TD-ACM whose physical parameters can be replaced.
+
+    ``system`` gives the structure and the nominal values; ``tip_mount`` (``g_{C_L}^L``) and the
+    camera offset are used by camera measurements only.
+    """
+
+    def __init__(self, system: TDACM, tip_mount: np.ndarray | None = None, camera_offset=0.0):
+        if system.n_rods != 1 or not isinstance(system.rod, Rod):
+            raise ValueError("identification supports one uniform rod (a Rod, not sectioned)")
+        t = system.tendons
+        if t.offset_function is not None:
+            raise ValueError("identification supports parallel tendons (constant offsets)")
+        self.system = system
+        self.floating = system.floating
+        self.tip_mount = np.eye(4) if tip_mount is None else np.asarray(tip_mount, float)
+        radius = float(np.max(np.linalg.norm(t.offsets, axis=1)))
+        base = system.base
+        self.nominal = {
+            "E": system.rod.youngs_modulus,
+            "damping": system.rod.damping,
+            "tip_mass": system.rod.tip_mass,
+            "radius": radius,
+            "friction": 0.0,
+            "viscous": 0.0,
+            "camera_offset": float(camera_offset),
+        }
+        if self.floating:
+            self.nominal.update(
+                drone_mass=base.mass,
+                inertia_x=base.inertia[0],
+                inertia_y=base.inertia[1],
+                inertia_z=base.inertia[2],
+                thrust=1.0,
+            )
+        self._cache_key = None
+        self._cache = None
+
+    def check(self, names) -> None:
+        for n in names:
+            if PARAMETERS[n].floating_only and not self.floating:
+                raise ValueError(f"{n} needs a flying base; this recording's base is fixed")
+
+    def values(self, overrides: dict | None = None) -> dict:
+        v = dict(self.nominal)
+        v.update(overrides or {})
+        return v
+
+    def build(self, overrides: dict | None = None) -> TDACM:
+        """The system with ``overrides`` (parameter name -> value) replacing the nominal ones."""
+        v = self.values(overrides)
+        key = tuple(sorted((k, float(x)) for k, x in v.items()))
+        if key == self._cache_key:
+            return self._cache
+        s = self.system
+        rod = replace(s.rod, youngs_modulus=v["E"], damping=v["damping"], tip_mass=v["tip_mass"])
+        t = s.tendons
+        scale = v["radius"] / self.nominal["radius"]
+        tendons = Tendons(offsets=t.offsets * scale, max_tension=t.max_tension, ends=t.ends)
+        base = s.base
+        if self.floating:
+            base = replace(
+                base,
+                mass=v["drone_mass"],
+                inertia=(v["inertia_x"], v["inertia_y"], v["inertia_z"]),
+            )
+        loads = Loads(gravity=s.loads.gravity.copy())
+        sysnew = TDACM(rod, tendons, base, s.attachment, loads)
+        self._cache_key, self._cache = key, sysnew
+        return sysnew
+
+    def simulate(self, values: dict, q0s, qd0s, starts, ends, u, dt_sample, substeps=1):
+        """Run the segments (see :func:`tdacm.identify.kernels.shoot`) with parameters
+        ``values`` and return their :class:`Prediction`."""
+        v = self.values(values)
+        sysm = self.build(v)
+        m = sysm.model_arrays
+        dt = dt_sample / substeps
+        q, qd, ok = IK.shoot(
+            np.ascontiguousarray(q0s, dtype=float),
+            np.ascontiguousarray(qd0s, dtype=float),
+            np.asarray(starts, dtype=np.int64),
+            np.asarray(ends, dtype=np.int64),
+            np.ascontiguousarray(u, dtype=float),
+            int(substeps),
+            float(dt),
+            m,
+            sysm.loads.packed(),
+            float(v.get("thrust", 1.0)),
+            float(v["friction"]),
+            float(v["viscous"]),
+            FRICTION_V0,
+        )
+        base, tip = self.poses(sysm, q)
+        return Prediction(q, qd, base, tip, bool(ok))
+
+    def camera_mount(self, offset=None) -> np.ndarray:
+        """``g_{C_L}^L`` with the optical centre ``offset`` beyond the tip (default nominal)."""
+        g = self.tip_mount.copy()
+        g[:3, 3] = [self.nominal["camera_offset"] if offset is None else offset, 0.0, 0.0]
+        return g
+
+    @staticmethod
+    def poses(system: TDACM, q: np.ndarray):
+        """Drone and tip poses (T, 4, 4) of the rows of ``q``."""
+        m = system.model_arrays
+        lo, hi = system._rod_steps[0], system._rod_steps[1]
+        return IK.poses(
+            np.ascontiguousarray(q, dtype=float),
+            m.floating,
+            m.g_fixed,
+            m.g_att[0],
+            m.h[lo:hi],
+            m.xi0s[lo:hi],
+            m.bs[lo:hi],
+            m.step_col[lo:hi],
+            m.step_nc[lo:hi],
+        )
