@@ -254,3 +254,38 @@ def test_spec_samples_nested_robot_keys_and_fixes_text_keys():
     ]:
         with pytest.raises(CampaignSpecError, match=match):
             parse_spec(head + bad, "t", sc.data)
+
+
+def test_success_window_criterion(scenario_data):
+    """success_window judges the RMS of the last seconds, not the last sample; unset keeps
+    the last-sample criterion and the fingerprint of older specs."""
+    from tdacm.campaign.runner import succeeded
+    from tdacm.sim.runner import late_rmse
+
+    base = 'scenario = "paper-in-fov"\nruns = 2\nduration = 3.0\n'
+    plain = parse_spec(base, "s", scenario_data)
+    windowed = parse_spec(base + "success_window = 1.0\n", "s", scenario_data)
+    assert plain.success_window is None and windowed.success_window == 1.0
+    assert "success_window" not in plain.as_dict()
+    assert plain.fingerprint() != windowed.fingerprint()
+    t = np.arange(0.0, 3.0 + 1e-9, 0.02)
+    # settled at 0.005 but one last sample at 0.012: a failure by the sample, not by the window
+    rmse = np.full(t.size, 0.005)
+    rmse[-1] = 0.012
+    arrays = {"t": t, "rmse": rmse}
+    summary = {"final_rmse": 0.012, "terminated": False}
+    assert not succeeded(plain, arrays, summary)
+    assert succeeded(windowed, arrays, summary)
+    last = rmse[t >= 2.0 - 1e-9]
+    assert late_rmse(t, rmse, 1.0) == pytest.approx(np.sqrt(np.mean(last**2)), rel=1e-15)
+    # oscillating through 0.01 in the last second: the window fails even if the end is low
+    rmse2 = 0.005 + 0.012 * np.abs(np.sin(2 * np.pi * 3 * t))
+    rmse2[-1] = 0.004
+    arrays2 = {"t": t, "rmse": rmse2}
+    summary2 = {"final_rmse": 0.004, "terminated": False}
+    assert succeeded(plain, arrays2, summary2) and not succeeded(windowed, arrays2, summary2)
+    assert not succeeded(windowed, arrays, {**summary, "terminated": True})
+    for bad, match in (("success_window = 0.0", "success_window must be positive"),
+                       ("success_window = 5.0", "must not exceed duration")):  # fmt: skip
+        with pytest.raises(CampaignSpecError, match=match):
+            parse_spec(base + bad, "s", scenario_data)

@@ -174,9 +174,22 @@ def test_async_vector_after_the_parent_used_an_env(renderer):
 
 
 def test_env_has_the_scenario_disturbances():
-    """flight-test-c's vibrating base wrench and downwash act in the env's plant."""
-    e = gym.make("tdacm/TipServo-v0", scenario="flight-test-c").unwrapped
+    """flight-test-c's aerodynamics and turbulence, and the vibrating base wrench and downwash
+    of an ablation, act in the env's plant."""
+    e = gym.make(
+        "tdacm/TipServo-v0",
+        scenario="flight-test-c",
+        overrides={
+            "disturbances": {
+                "base_wrench_amplitude": [0.01, 0.01, 0.005, 0.2, 0.2, 0.3],
+                "base_wrench_frequency": 8.0,
+                "downwash": [0.0, 0.0, -0.1],
+                "downwash_noise": 0.02,
+            },
+        },
+    ).unwrapped
     try:
+        assert e.loop.plant.aero is not None and e.loop.plant.wind is not None
         assert e.loop.plant.disturbances.active
         e.reset(seed=0)
         loads = e.loop.plant.disturbances.loads_at(1 / 32, e.loop.plant.rng, True)

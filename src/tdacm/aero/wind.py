@@ -45,10 +45,17 @@ class Wind:
     def __add__(self, other: Wind) -> Wind:
         return _Sum((self, other))
 
+    def reset(self) -> None:
+        """Restart a random wind's sequence (same seed, same samples); nothing for the others."""
+
 
 class _Sum(Wind):
     def __init__(self, parts):
         self.parts = tuple(parts)
+
+    def reset(self) -> None:
+        for w in self.parts:
+            w.reset()
 
     def velocity(self, t, p=None):
         return sum((w.velocity(t, p) for w in self.parts), np.zeros(3))

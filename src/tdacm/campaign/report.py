@@ -53,6 +53,7 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
         "runs_stored": n,
         "complete": n == spec.runs,
         "success_rmse": spec.success_rmse,
+        "success_window": spec.success_window,
         "successes": ok,
         "success_rate": ok / n if n else None,
         "success_rate_ci95": [lo, hi],
@@ -108,8 +109,14 @@ def _write_markdown(report, out: Path):
     lines.append(f"- runs stored: {report['runs_stored']} / {report['runs_requested']}")
     if report["success_rate"] is not None:
         lo, hi = report["success_rate_ci95"]
+        w = report.get("success_window")
+        what = (
+            "final normalized RMSE"
+            if w is None
+            else f"RMS of the normalized RMSE over the last {w:g} s"
+        )
         lines.append(
-            f"- success (final normalized RMSE <= {report['success_rmse']}, not terminated): "
+            f"- success ({what} <= {report['success_rmse']}, not terminated): "
             f"{report['successes']}/{report['runs_stored']} = {100 * report['success_rate']:.1f} % "
             f"(95 % Wilson CI {100 * lo:.1f}-{100 * hi:.1f} %)"
         )

@@ -45,16 +45,10 @@ def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
         overrides = sample_overrides(spec, base.data, seed)
         row["overrides"] = json.dumps(overrides, sort_keys=True)
         scenario = base.with_overrides(overrides, f"campaign run {index}")
-        _, summary = Simulation(scenario, duration=spec.duration, seed=int(seed)).run(None)
+        arrays, summary = Simulation(scenario, duration=spec.duration, seed=int(seed)).run(None)
         for k in ROW_FIELDS:
             row[k] = summary.get(k)
-        final = summary.get("final_rmse")
-        row["success"] = bool(
-            final is not None
-            and np.isfinite(final)
-            and final <= spec.success_rmse
-            and not summary.get("terminated")
-        )
+        row["success"] = succeeded(spec, arrays, summary)
     except Exception as exc:  # a failing run is data, not the end of the campaign
         row["status"] = "error"
         row["error"] = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}"
@@ -62,6 +56,22 @@ def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
         row.setdefault("overrides", "")
     row["run_wall_s"] = time.perf_counter() - t0
     return row
+
+
+def succeeded(spec: CampaignSpec, arrays: dict, summary: dict) -> bool:
+    """A run's success: not terminated by the safety monitor and its normalized RMSE at or
+    below ``spec.success_rmse``, either its last sample or, with ``spec.success_window``, the
+    RMS of the samples of its last ``success_window`` seconds (a criterion that the wandering
+    of the RMSE after convergence does not decide by one sample)."""
+    if summary.get("terminated"):
+        return False
+    if spec.success_window is None:
+        value = summary.get("final_rmse")
+    else:
+        from ..sim.runner import late_rmse
+
+        value = late_rmse(arrays["t"], arrays["rmse"], spec.success_window)
+    return bool(value is not None and np.isfinite(value) and value <= spec.success_rmse)
 
 
 def _silence_distributed() -> None:

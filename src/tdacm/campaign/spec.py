@@ -7,6 +7,8 @@ A spec is a TOML file::
     seed = 2026                   # master seed: run i gets its own seed from SeedSequence(seed)
     duration = 5.0                # optional, overrides the scenario's
     success_rmse = 0.01           # a run succeeds if it ends at or below this normalized RMSE
+    success_window = 1.0          # optional: ... if the RMS of the normalized RMSE over its
+                                  # last 1 s is at or below success_rmse (unset: the last sample)
 
     [distributions]
     # keys are "section.key" paths into the scenario (docs/scenario-reference.md)
@@ -68,9 +70,12 @@ class CampaignSpec:
     duration: float | None = None
     success_rmse: float = 0.01
     source: str = "<spec>"
+    #: s: judge a run on the RMS of its normalized RMSE over its last ``success_window``
+    #: seconds (:func:`tdacm.sim.runner.late_rmse`); ``None``: on its last sample
+    success_window: float | None = None
 
     def as_dict(self) -> dict:
-        return {
+        out = {
             "scenario": self.scenario,
             "runs": self.runs,
             "seed": self.seed,
@@ -78,6 +83,9 @@ class CampaignSpec:
             "success_rmse": self.success_rmse,
             "distributions": self.distributions,
         }
+        if self.success_window is not None:  # (absent: the fingerprints of older specs hold)
+            out["success_window"] = self.success_window
+        return out
 
     def fingerprint(self) -> str:
         """Hash of everything that determines the runs (to refuse resuming another spec)."""
@@ -199,7 +207,8 @@ def parse_spec(
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CampaignSpecError(f"{source}: invalid TOML: {exc}") from None
-    known = {"scenario", "runs", "seed", "duration", "success_rmse", "distributions"}
+    known = {"scenario", "runs", "seed", "duration", "success_rmse", "success_window",
+             "distributions"}  # fmt: skip
     unknown = set(data) - known
     if unknown:
         _err(source, f"unknown keys {sorted(unknown)} (known: {sorted(known)})")
@@ -219,6 +228,13 @@ def parse_spec(
     success = _num(source, "success_rmse", data.get("success_rmse", 0.01))
     if success <= 0:
         _err(source, f"success_rmse must be positive, got {success}")
+    window = data.get("success_window")
+    if window is not None:
+        window = _num(source, "success_window", window)
+        if window <= 0:
+            _err(source, f"success_window must be positive (s), got {window}")
+        if duration is not None and window > duration:
+            _err(source, f"success_window ({window} s) must not exceed duration ({duration} s)")
     dists = data.get("distributions", {})
     if not isinstance(dists, dict):
         _err(source, "[distributions] must be a table")
@@ -324,7 +340,9 @@ def parse_spec(
         if scenario_defaults is not None:
             _check_range(source, where, key, out, base)
         clean[key] = out
-    return CampaignSpec(data["scenario"], runs, seed, clean, duration, success, source)
+    return CampaignSpec(
+        data["scenario"], runs, seed, clean, duration, success, source, success_window=window
+    )
 
 
 def resolve_scenario(ref: str, spec_path: Path) -> str:

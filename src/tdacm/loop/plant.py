@@ -153,6 +153,8 @@ class Plant:
         self.ok = True
         self.over_limit = None
         self._t0, self._k = float(t), 0  # t = t0 + k dt, without accumulated round-off
+        if self.wind is not None:
+            self.wind.reset()  # a seeded wind replays from its start
         return self.state
 
     def advance(self, u: np.ndarray, dt: float) -> PlantState:

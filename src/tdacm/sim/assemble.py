@@ -5,9 +5,10 @@
 from and its seed. The loop is made of the robot of its ``[robot]`` section, the scene, the cameras
 and their imperfections (``[cameras]``, ``[sensors]``), the reference snapshot, the servo
 (``[ibvs]``, ``[recovery]``), the controller (``[model]``, ``[controller]``, or a user class),
-the disturbances and the safety monitor. Randomness: the model perturbation is drawn from the
-run's seed, the sensor imperfections from ``[seed, 1]`` and the disturbances from ``seed``, so a
-run is reproducible from its seed.
+the disturbances, the aerodynamics and wind (``[aerodynamics]``, ``[wind]``) and the safety
+monitor. Randomness: the model perturbation is drawn from the run's seed, the sensor
+imperfections from ``[seed, 1]``, the disturbances from ``seed`` and the turbulence from
+``[seed, 21]``, so a run is reproducible from its seed.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .._linalg import solve as _solve
+from ..aero.config import AerodynamicsConfig, WindConfig
 from ..control import EstimatedModel
 from ..control.allocation import box_least_squares
 from ..estimation import (
@@ -47,6 +49,7 @@ from ..loop.sensors import (
     perturbed_camera,
 )
 from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
+from ..system.aero import aero_array
 from ..system.kernels import rk4_run
 from ..vision import PAPER_MARKER, PAPER_PATTERN, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
@@ -181,9 +184,10 @@ class Assembly:
 
 def reseed(assembly: Assembly, seed: int) -> Assembly:
     """The assembled loop with the random streams of ``seed``, without rebuilding it: the
-    controller's model perturbation (drawn from ``seed``), C_L's imperfections (``[seed, 1]``)
-    and the disturbances (``seed``), as :func:`build_loop` seeds them, so a reseeded loop runs
-    as one built with ``seed`` (tested). Only when :attr:`Assembly.reseedable`."""
+    controller's model perturbation (drawn from ``seed``), C_L's imperfections (``[seed, 1]``),
+    the disturbances (``seed``) and the turbulence (``[seed, 21]``), as :func:`build_loop` seeds
+    them, so a reseeded loop runs as one built with ``seed`` (tested). Only when
+    :attr:`Assembly.reseedable`."""
     from dataclasses import replace
 
     if not assembly.reseedable:
@@ -193,6 +197,8 @@ def reseed(assembly: Assembly, seed: int) -> Assembly:
     assembly.model.reseed(seed)
     loop.sensors.local.rng = np.random.default_rng([seed, 1])
     loop.plant.rng = np.random.default_rng(seed)
+    if loop.plant.wind is not None:  # the turbulence of [seed, WIND_STREAM]
+        loop.plant.wind = air_of(assembly.scenario, assembly.world, seed)[1]
     return replace(assembly, seed=seed)
 
 
@@ -300,6 +306,7 @@ def build_loop(
             controller = make_low_level(ctl.class_, ctx, search=_folders(scenario))
         except ValueError as exc:
             raise ScenarioError(f"{scenario.source}: {exc}") from None
+    aero, wind = air_of(scenario, world, seed)
     plant = Plant(
         s,
         world.q0,
@@ -308,6 +315,8 @@ def build_loop(
         Disturbances.from_dict(d["disturbances"]),
         np.random.default_rng(seed),
         accelerations=suite is not None,  # the accelerometer senses qdd
+        aero=aero,
+        wind=wind,
         **contact_plant_options(d["scene"], s),
     )
     truth = d["estimation"]["controller_truth"]
@@ -368,6 +377,27 @@ def contact_logger(system, contact):
         return st.tip, st.rod
 
     return forces
+
+
+def air_of(scenario: Scenario, world: World, seed: int):
+    """``(aero, wind)`` of the plant: the packed aerodynamics of ``[aerodynamics]`` with the
+    rotors of ``[robot.drone]`` (:func:`tdacm.system.aero.aero_array`) and the
+    :class:`~tdacm.aero.Wind` of ``[wind]`` (turbulence from its own stream of ``seed``, sampled
+    every control period, its scales at the drone's initial height); ``(None, None)`` when
+    ``aerodynamics.enabled`` is false (the aerodynamically empty plant)."""
+    d = scenario.data
+    cfg = AerodynamicsConfig(**d["aerodynamics"])
+    if not cfg.enabled:
+        return None, None
+    s = world.robot.system
+    drone = d["robot"]["drone"]
+    try:
+        record = cfg.record(drone["rotor_radius"], drone["layout"], drone["arm_length"])
+        height = float(s.base_pose(world.q0)[2, 3])
+        wind = WindConfig(**d["wind"]).build(d["dt"], seed, height)
+    except ValueError as exc:
+        raise ScenarioError(f"{scenario.source}: [aerodynamics]/[wind]: {exc}") from None
+    return aero_array(s, record), wind
 
 
 def _truth(system, local: CameraSensor, world: World):

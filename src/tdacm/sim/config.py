@@ -3,8 +3,9 @@
 Layout (one default per value, imports one way): each block declares the record of the
 section it reads next to its code - :mod:`tdacm.loop.config` (``[ibvs]``, ``[recovery]``,
 ``[controller]``, ``[model]``, ``[cameras]``, ``[safety]``, ``[disturbances]``, the camera
-keys of ``[sensors]``), :mod:`tdacm.estimation.config` (``[estimation]``, the proprioceptive
-keys of ``[sensors]``), :mod:`tdacm.sim.robot` (``[robot]``, defaults from
+keys of ``[sensors]``), :mod:`tdacm.aero.config` (``[aerodynamics]``, ``[wind]``),
+:mod:`tdacm.estimation.config` (``[estimation]``, the proprioceptive keys of ``[sensors]``),
+:mod:`tdacm.sim.robot` (``[robot]``, defaults from
 :mod:`tdacm.paper_values`) - and this module composes them with the sections that only the
 simulation reads (``[system]``, ``[initial]``, ``[desired]``, ``[scene]``, ``[expect]``).
 The records are pydantic models (:mod:`tdacm._config`): the same declaration gives the
@@ -24,6 +25,7 @@ from typing import Literal
 from pydantic import BaseModel, ValidationError, create_model, field_validator
 
 from .._config import ConfigModel, Field
+from ..aero.config import AerodynamicsConfig, WindConfig
 from ..contact.config import ContactConfig, ObstacleConfig
 from ..estimation.config import EstimationConfig, ProprioceptiveSensors
 from ..loop.config import (
@@ -140,6 +142,8 @@ class ScenarioConfig(ConfigModel):
     cameras: CamerasConfig = CamerasConfig()
     safety: SafetyConfig = SafetyConfig()
     disturbances: DisturbancesConfig = DisturbancesConfig()
+    aerodynamics: AerodynamicsConfig = AerodynamicsConfig()
+    wind: WindConfig = WindConfig()
     sensors: SensorsConfig = SensorsConfig()  # type: ignore[valid-type]
     estimation: EstimationConfig = EstimationConfig()
     expect: ExpectConfig = ExpectConfig()

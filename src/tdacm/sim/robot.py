@@ -15,8 +15,10 @@ cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
   ``[0, y, z]`` offset per tendon, metres) or ``radius`` and ``count`` (evenly spaced, the
   first on +y); ``max_tension``;
 * ``[robot.drone]``: :class:`~tdacm.base.Quadrotor` (``mass, inertia, arm_length,
-  drag_factor, max_thrust``), or ``[robot.base]`` with ``pose_q = [phi, theta, psi, x, y, z]``
-  for a rod clamped at that pose (a fixed base, as ``system.base = "fixed"``);
+  drag_factor, max_thrust``) and the rotors' ``rotor_radius`` and ``layout``
+  (:class:`~tdacm.aero.RotorWake`, used by ``[aerodynamics]``), or ``[robot.base]`` with
+  ``pose_q = [phi, theta, psi, x, y, z]`` for a rod clamped at that pose (a fixed base, as
+  ``system.base = "fixed"``);
 * ``[robot.attachment]``: ``offset`` of the rod's base below the drone's centre of mass;
 * ``[robot.cameras.local]`` and ``[robot.cameras.global]``: the intrinsics of
   :class:`~tdacm.vision.PinholeCamera` (``width, height, fx, fy, cx, cy, near, far``) and the
@@ -26,12 +28,16 @@ cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
+from pydantic import model_validator
 
 from .. import paper_values as PV
 from .._config import ConfigModel, Field
+from ..aero.params import LAYOUTS, RotorWake
 from ..base import FixedBase, Quadrotor
 from ..loop.config import Vec3, Vec6
 from ..rod import Rod, StrainBasis, Tendons
@@ -80,6 +86,9 @@ class TendonsConfig(ConfigModel):
     )
 
 
+_ROTOR = RotorWake()  # the rotor geometry's defaults (one source: tdacm.aero.params)
+
+
 class DroneConfig(ConfigModel):
     """``[robot.drone]``: :class:`~tdacm.base.Quadrotor`; defaults: Table I."""
 
@@ -88,6 +97,26 @@ class DroneConfig(ConfigModel):
     arm_length: float = Field(PV.DRONE_ARM_LENGTH, gt=0, description="m, centre to motor")
     drag_factor: float = Field(PV.DRONE_DRAG_FACTOR, description="m, rotor torque/thrust ratio")
     max_thrust: float = Field(PV.DRONE_MAX_THRUST, gt=0, description="N per motor")
+    rotor_radius: float = Field(
+        _ROTOR.rotor_radius,
+        gt=0,
+        description="m, propeller radius (the rotor wake, [aerodynamics]): a 15-inch propeller",
+    )
+    layout: Literal[tuple(LAYOUTS)] = Field(  # type: ignore[valid-type]
+        _ROTOR.layout,
+        description="rotor positions of the wake: '+' (rotor 0 on body +x, the motor order of "
+        "Gamma in eq. (15)) or 'x' (rotor 0 at +45 deg)",
+    )
+
+    @model_validator(mode="after")
+    def _rotors_apart(self):
+        # neighbouring rotors are arm_length * sqrt(2) apart in either layout
+        if 2.0 * self.rotor_radius >= math.sqrt(2.0) * self.arm_length:
+            raise ValueError(
+                f"rotor_radius = {self.rotor_radius} m: the rotors overlap (must be below "
+                f"arm_length / sqrt(2) = {self.arm_length / math.sqrt(2.0):.4g} m)"
+            )
+        return self
 
 
 class BaseConfig(ConfigModel):

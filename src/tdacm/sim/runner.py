@@ -116,12 +116,9 @@ class Simulation:
             idx = np.flatnonzero(finite & (rmse <= level))
             return float(t[idx[0]]) if idx.size else None
 
-        def window(seconds):  # the finite RMSE samples of the last `seconds` of the run
-            return rmse[finite & (t >= t[-1] - seconds - 1e-9)] if t.size else rmse[:0]
-
         # after convergence the RMSE wanders (docs/estimation.md, "What limits test C"): the last
-        # sample alone (final_rmse, the campaigns' criterion) ranks runs noisily
-        last1, last2 = window(1.0), window(2.0)
+        # sample alone (final_rmse) ranks runs noisily; late_rmse_1s is the windowed criterion
+        last2 = _window(t, rmse, 2.0)
 
         u = a["u"]
         na = s.n_a
@@ -142,7 +139,7 @@ class Simulation:
             "initial_rmse": initial,
             "final_rmse": final,
             "min_rmse": float(np.nanmin(rmse)) if finite.any() else None,
-            "late_rmse_1s": float(np.sqrt(np.mean(last1**2))) if last1.size else None,
+            "late_rmse_1s": late_rmse(t, rmse, 1.0),
             "within_0.01_last_2s": float(np.mean(last2 <= 0.01)) if last2.size else None,
             "time_to_0.01": reach(0.01),
             "time_to_0.001": reach(0.001),
@@ -172,6 +169,19 @@ class Simulation:
             **_target_merit(loop, assembly.world),
             **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
+
+
+def _window(t, rmse, seconds):
+    """The finite samples of ``rmse`` in the last ``seconds`` of the run."""
+    finite = np.isfinite(rmse)
+    return rmse[finite & (t >= t[-1] - seconds - 1e-9)] if t.size else rmse[:0]
+
+
+def late_rmse(t, rmse, seconds: float = 1.0):
+    """The RMS of the normalized feature RMSE over the last ``seconds`` of a run (its finite
+    samples; ``None`` if there is none): the campaigns' windowed success criterion."""
+    last = _window(np.asarray(t), np.asarray(rmse), seconds)
+    return float(np.sqrt(np.mean(last**2))) if last.size else None
 
 
 def _last_finite(x):

@@ -23,6 +23,7 @@ import numpy as np
 import tomli_w
 from pydantic import ValidationError
 
+from ..aero.config import WindConfig
 from ..loop.ablation import parse_controller_truth
 from ..vision.mounts import tip_camera_pose
 from .config import SECTIONS, TOP_KEYS, ScenarioConfig, error_line
@@ -140,6 +141,16 @@ def validate(d: dict, source: str) -> Scenario:
     qd = d["initial"]["qd"]
     if qd is not None and len(qd) != n:
         raise ScenarioError(f"{source}: initial.qd must have {n} entries, got {len(qd)}")
+    aero, wind = d["aerodynamics"], d["wind"]
+    if not aero["enabled"] and WindConfig(**wind).active:
+        raise ScenarioError(
+            f"{source}: [wind] acts through the drag: set aerodynamics.enabled = true"
+        )
+    if aero["enabled"] and aero["fixed_thrusts"] is not None and base == "floating":
+        raise ScenarioError(
+            f"{source}: aerodynamics.fixed_thrusts is for a fixed base (a floating drone's "
+            "wake follows its own thrusts)"
+        )
     est = d["estimation"]
     try:
         truth = parse_controller_truth(est["controller_truth"])
