@@ -196,6 +196,8 @@ class ClosedLoop:
         if not plant.ok:
             reason = "plant integration failed (singular mass matrix)"
             return LoopStep(t, view, est, cmd, act, True, reason, Termination.PLANT_FAILED)
+        if getattr(plant, "over_limit", None) is not None:
+            return LoopStep(t, view, est, cmd, act, True, plant.over_limit, Termination.FORCE_LIMIT)
         return LoopStep(t, view, est, cmd, act, False, None)
 
     def step(self, twist=None, u=None, last: bool = False) -> LoopStep:
