@@ -218,6 +218,8 @@ class ClosedLoop:
             reason = (f"drone tumbled: roll {np.degrees(q[0]):.0f} deg, pitch "
                       f"{np.degrees(q[1]):.0f} deg at t = {plant.state.t:.2f} s")  # fmt: skip
             return LoopStep(t, view, est, cmd, act, True, reason, Termination.TUMBLED)
+        if getattr(plant, "over_limit", None) is not None:
+            return LoopStep(t, view, est, cmd, act, True, plant.over_limit, Termination.FORCE_LIMIT)
         return LoopStep(t, view, est, cmd, act, False, None)
 
     def step(self, twist=None, u=None, last: bool = False) -> LoopStep:

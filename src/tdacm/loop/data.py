@@ -35,6 +35,7 @@ class Termination(StrEnum):
     TARGET_LOST = "target lost"  # env: the target not detected for max_lost periods
     OUT_OF_ENVELOPE = "out of envelope"  # env: roll/pitch beyond its limit or a non-finite state
     SUCCESS = "success"  # env: the image error fell below the success threshold
+    FORCE_LIMIT = "force limit"  # the obstacles pushed on the arm harder than the limit
     TUMBLED = "tumbled"  # the drone's roll or pitch beyond plant.MAX_TILT_RAD
     ESTIMATOR_FAILED = "estimator failed"  # the filter diverged (non-finite or singular model)
     NON_FINITE = "non-finite command"  # a twist or actuator command with NaN or inf

@@ -56,6 +56,8 @@ VECTOR_SERIES = (
     "P_diag",  # diagonal of its covariance [q, qd] (NaN for the true state)
 )
 LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
+#: Logged only when the plant has obstacles (:attr:`RunLog.contact` set).
+CONTACT_SERIES = ("contact_tip", "contact_rod")
 
 #: series -> (unit, meaning). Units of configuration-space series depend on the coordinate:
 #: "q" means rad (angles), m (positions), 1/m (strains); "qd" their rates; "tau" N m, N, N m^2.
@@ -89,6 +91,8 @@ SERIES_INFO = {
     "q_hat": ("q", "state estimate used after the sensors (= q for estimation.source = true)"),
     "qd_hat": ("qd", "generalized-velocity estimate used after the sensors"),
     "P_diag": ("var", "variances of the estimate [q_hat, qd_hat] (NaN for the true state)"),
+    "contact_tip": ("N", "contact force of the obstacles on the tip sphere (inertial x, y, z)"),
+    "contact_rod": ("N", "total contact force of the obstacles on the rod (inertial x, y, z)"),
 }
 
 _NAN4 = np.full((4, 2), np.nan)
@@ -106,6 +110,8 @@ class RunLog:
         self.rows = {k: [] for k in LOG_KEYS}
         self.frames = []
         self.frame_composer = frame_composer
+        #: ``(q, qd) -> (tip force, rod force)`` of the obstacles: adds :data:`CONTACT_SERIES`
+        self.contact = None
 
     def __len__(self) -> int:
         return len(self.rows["t"])
@@ -163,6 +169,10 @@ class RunLog:
         r["P_diag"].append(
             np.diag(estimate.P).copy() if estimate.P is not None else np.full(n2, np.nan)
         )
+        if self.contact is not None:
+            tip, rod = self.contact(plant.q, plant.qd)
+            r.setdefault("contact_tip", []).append(tip)
+            r.setdefault("contact_rod", []).append(rod)
         if self.frame_composer is not None:
             self.frames.append(self.frame_composer(readings, view, cmd, plant.t))
 

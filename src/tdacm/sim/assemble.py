@@ -321,6 +321,7 @@ def build_loop(
         accelerations=suite is not None,  # the accelerometer senses qdd
         aero=aero,
         wind=wind,
+        **contact_plant_options(d["scene"], s),
     )
     truth = d["estimation"]["controller_truth"]
     if truth:  # ablation: the controller reads these coordinates from the plant
@@ -345,8 +346,41 @@ def build_loop(
         log=RunLog(servo.desired_points, frame_composer, _truth(s, local, world)),
         name=scenario.name,
     )
+    if plant.contact is not None:
+        loop.log.contact = contact_logger(s, plant.contact)
     warm_up(s, world.q0)
     return Assembly(loop, world, seed, model, scenario)
+
+
+def contact_plant_options(scene: dict, system) -> dict:
+    """The :class:`~tdacm.loop.plant.Plant` keywords of ``[scene]``'s obstacles and
+    ``[scene.contact]`` (none without obstacles: the contact-free plant)."""
+    from ..contact.config import ContactConfig, ObstacleConfig, box_obstacle
+    from ..system.contact import contact_array
+
+    cc = ContactConfig(**scene.get("contact", {}))
+    obstacles = [ObstacleConfig(**o).obstacle() for o in scene.get("obstacles", [])]
+    if cc.target_box:
+        obstacles.append(box_obstacle(scene["box_size"], scene["box_xy"]))
+    if not obstacles:
+        return {}
+    return {
+        "contact": contact_array(system, cc.model(obstacles)),
+        "contact_substeps": cc.substeps,
+        "contact_margin": cc.margin,
+        "force_limit": cc.force_limit,
+    }
+
+
+def contact_logger(system, contact):
+    """``(q, qd) -> (tip force, rod force)`` of the obstacles (inertial, N), for the log."""
+    from ..system.contact import contact_state
+
+    def forces(q, qd):
+        st = contact_state(system, q, qd, contact)
+        return st.tip, st.rod
+
+    return forces
 
 
 def air_of(scenario: Scenario, world: World, seed: int):

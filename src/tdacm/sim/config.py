@@ -26,6 +26,7 @@ from pydantic import BaseModel, ValidationError, create_model, field_validator
 
 from .._config import ConfigModel, Field
 from ..aero.config import AerodynamicsConfig, WindConfig
+from ..contact.config import ContactConfig, ObstacleConfig
 from ..estimation.config import EstimationConfig, ProprioceptiveSensors
 from ..loop.config import (
     CamerasConfig,
@@ -78,7 +79,7 @@ class DesiredConfig(ConfigModel):
 
 
 class SceneSection(ConfigModel):
-    """Section ``[scene]``: the target on its box."""
+    """Section ``[scene]``: the target on its box, and the obstacles the arm touches."""
 
     target: Literal["aruco", "apriltag"] = Field("aruco", description="fiducial target")
     box_size: float = Field(0.4, gt=0, description="m, edge of the box the target lies on")
@@ -87,6 +88,10 @@ class SceneSection(ConfigModel):
     target_tilt_deg: Vec2 = Field(
         [0.0, 0.0], description="deg, the target's tilt about world x, y (within +-30)"
     )
+    obstacles: list[ObstacleConfig] = Field(
+        [], description="[[scene.obstacles]]: planes, spheres, boxes, cylinders the arm touches"
+    )
+    contact: ContactConfig = ContactConfig()
 
     @field_validator("target_tilt_deg")
     @classmethod
@@ -146,9 +151,22 @@ class ScenarioConfig(ConfigModel):
 
 # ----------------------------------------------------------------------------- introspection
 def _model_of(annotation):
-    """The record class a field holds, or ``None`` for a leaf value."""
+    """The record class a field holds (or the item record of an array of tables), or ``None``
+    for a leaf value."""
+    if _is_table_array(annotation):
+        annotation = annotation.__args__[0]
     return (
         annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+    )
+
+
+def _is_table_array(annotation) -> bool:
+    """``list[Record]``: an array of tables (``[[section.key]]``)."""
+    args = getattr(annotation, "__args__", ())
+    return (
+        getattr(annotation, "__origin__", None) is list
+        and len(args) == 1
+        and (isinstance(args[0], type) and issubclass(args[0], BaseModel))
     )
 
 
@@ -329,9 +347,11 @@ def _md_table(prefix: str, model, lines: list, first: bool = True) -> None:
     for key, f in _by_key(model).items():
         sub = _model_of(f.annotation)
         if sub is not None:
-            subs.append((f"{prefix}.{key}" if prefix else key, sub))
+            name = f"{prefix}.{key}" if prefix else key
+            subs.append((f"[{name}]" if _is_table_array(f.annotation) else name, sub))
             continue
-        rng = range_text(f"{prefix}.{key}" if prefix else key) if f.metadata else ""
+        path = (prefix.strip("[]") + "." + key) if prefix else key
+        rng = range_text(path) if f.metadata else ""
         desc = (f.description or "").replace("|", "\\|")
         rows.append(f"| `{key}` | {_field_type(f)} | {_default_text(f)} | {rng} | {desc} |")
     if rows:

@@ -38,7 +38,15 @@ _NUM = (int, float)
 
 
 def _drop_none(d: dict) -> dict:
-    return {k: _drop_none(v) if isinstance(v, dict) else v for k, v in d.items() if v is not None}
+    return {k: _drop_none_value(v) for k, v in d.items() if v is not None}
+
+
+def _drop_none_value(v):
+    if isinstance(v, dict):
+        return _drop_none(v)
+    if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):  # array of tables
+        return [_drop_none(x) for x in v]
+    return v
 
 
 def _deep_merge(base: dict, over: dict) -> dict:

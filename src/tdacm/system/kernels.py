@@ -23,6 +23,13 @@ loads; at every Gauss point the drag of the air (rotor wake + wind - section vel
 section's wrench density, at the tip the camera's drag, at the drone its rotor and body drag.
 The plain kernels pass an empty array and skip every aerodynamic term (bit-identical results).
 
+Contact (:mod:`tdacm.contact`): the environment kernels ``coupled_terms_env``,
+``forward_dynamics_env`` and ``rk4_run_env`` take the packed aerodynamics and the packed contact
+scene; the rod is a chain of capsules between its nodes (rod base, Gauss points, tip) and the tip
+body a sphere; the obstacles' forces at the nodes add ``J^T [0; R^T f]`` to ``tau_ext`` with the
+node Jacobians of the same recursion (the previous node's kept for the capsule's share).  The
+``*_aero`` kernels are these with an empty contact array, the plain ones with both empty.
+
 Flags: numba compiles a separate specialization of a kernel for each literal flag
 (``True`` / ``False``) it receives from jitted code, besides the one for Python callers (a
 plain ``bool``). The forward dynamics keeps its ``want_c = False`` specialization (the plant's
@@ -41,6 +48,8 @@ from numba import njit
 from ..aero import layout as AL
 from ..aero.drag import quadratic_drag, rod_force
 from ..aero.wake import rotor_states, wake_at
+from ..contact import layout as CL
+from ..contact.geometry import point_contact, sdf, segment_contact
 from ..lie.blocks import (
     ad_apply,
     adinv_apply,
@@ -401,6 +410,80 @@ def coupled_terms_aero(q, qd, m, loads, want_c, u, aero):
     body and the drone added to ``tau_ext`` (eq. (16)); ``aero`` is the packed array of
     :mod:`tdacm.aero.layout` (empty: none) and ``u`` the inputs (the rotor thrusts make the
     wake).  With an empty ``aero`` the arithmetic is exactly that of :func:`coupled_terms`."""
+    return coupled_terms_env(q, qd, m, loads, want_c, u, aero, np.empty(0))
+
+
+@njit(cache=True)
+def _node_contact(contact, k, g, eta, prev, fa, fb):
+    """Contact forces of the rod node after Magnus step ``k`` (a Gauss section or the tip):
+    the capsule from the previous node ``prev`` (``[p, v]``, inertial) to this one, and, at the
+    tip, the tip sphere.  Sets ``fa[0:3]`` (force on the previous node) and ``fb`` (on this
+    node), inertial; returns ``(hit_a, hit_b)``; moves ``prev`` to this node."""
+    px, py, pz = g[0, 3], g[1, 3], g[2, 3]
+    vb = np.empty(3)
+    for i in range(3):
+        vb[i] = g[i, 0] * eta[3] + g[i, 1] * eta[4] + g[i, 2] * eta[5]
+    for i in range(6):
+        fa[i] = 0.0
+    hit_a = False
+    hit_b = False
+    r = contact[CL.N_HEADER + k]
+    if contact[CL.ROD_ON] > 0.0 and r > 0.0:
+        hit_a = segment_contact(
+            contact, r, prev[0], prev[1], prev[2], px, py, pz, prev[3:6], vb, fa
+        )
+        hit_b = hit_a
+    for i in range(3):
+        fb[i] = fa[3 + i]
+    prev[0], prev[1], prev[2] = px, py, pz
+    prev[3], prev[4], prev[5] = vb[0], vb[1], vb[2]
+    return hit_a, hit_b
+
+
+@njit(cache=True)
+def _tip_contact(contact, g, eta, fb):
+    """Adds the tip sphere's contact force (inertial) to ``fb``; True when touching."""
+    if contact[CL.TIP_ON] <= 0.0:
+        return False
+    v0 = g[0, 0] * eta[3] + g[0, 1] * eta[4] + g[0, 2] * eta[5]
+    v1 = g[1, 0] * eta[3] + g[1, 1] * eta[4] + g[1, 2] * eta[5]
+    v2 = g[2, 0] * eta[3] + g[2, 1] * eta[4] + g[2, 2] * eta[5]
+    t0, t1, t2 = point_contact(
+        contact, contact[CL.TIP_RADIUS], g[0, 3], g[1, 3], g[2, 3], v0, v1, v2
+    )
+    if t0 == 0.0 and t1 == 0.0 and t2 == 0.0:
+        return False
+    fb[0] += t0
+    fb[1] += t1
+    fb[2] += t2
+    return True
+
+
+@njit(cache=True)
+def _rod_base_node(g, eta, prev):
+    """The rod base as the first node of the capsule chain (``prev = [p, v]``)."""
+    for i in range(3):
+        prev[i] = g[i, 3]
+        prev[3 + i] = g[i, 0] * eta[3] + g[i, 1] * eta[4] + g[i, 2] * eta[5]
+
+
+@njit(cache=True)
+def _add_point_force(j, g, fx, fy, fz, tau):
+    """``tau += J^T [0; R^T f]``: an inertial force ``f`` at the origin of the frame ``g``."""
+    f = np.zeros(6)
+    for i in range(3):
+        f[3 + i] = g[0, i] * fx + g[1, i] * fy + g[2, i] * fz
+    _tmatvec_add(j, f, 1.0, tau)
+
+
+@njit(cache=True)
+def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
+    """:func:`coupled_terms` with the loads of the environment: the aerodynamics of the packed
+    array ``aero`` (:func:`coupled_terms_aero`) and the contact of the rod's backbone and tip
+    body with the obstacles of the packed array ``contact`` (:mod:`tdacm.contact.layout`), as
+    forces at the rod's nodes (the rod base, its Gauss points and its tip) entering
+    ``tau_ext`` through the node Jacobians (eq. (16)).  Empty arrays: none (the arithmetic of
+    :func:`coupled_terms`)."""
     floating = m.floating
     n = q.shape[0]
     off = 6 if floating else 0
@@ -437,9 +520,19 @@ def coupled_terms_aero(q, qd, m, loads, want_c, u, aero):
     g = np.eye(4)
     j = np.zeros((6, n))
     jd = np.zeros((6, n))
+    cont = contact.shape[0] > 0
+    prev = np.empty(6)
+    fa = np.empty(6)
+    fb = np.empty(3)
+    g_prev = np.eye(4)
+    j_prev = np.zeros((6, n))
     for rod in range(m.rod_steps.shape[0] - 1):
         g, j, jd, jdq = rod_start(gb, jb, jbd, qd, m.g_att[rod])
         eta = _matvec(j, qd)
+        if cont:
+            _rod_base_node(g, eta, prev)
+            g_prev[:] = g
+            j_prev[:] = j
         for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
             c0 = off + m.step_col[k]
             c1 = c0 + m.step_nc[k]
@@ -475,6 +568,16 @@ def coupled_terms_aero(q, qd, m, loads, want_c, u, aero):
                     f[4] += a1
                     f[5] += a2
             _tmatvec_add(j, f, w, tau)
+            if cont and lo != LOAD_GRAVITY:
+                hit_a, hit_b = _node_contact(contact, k, g, eta, prev, fa, fb)
+                if lo == LOAD_TIP and _tip_contact(contact, g, eta, fb):
+                    hit_b = True
+                if hit_a:
+                    _add_point_force(j_prev, g_prev, fa[0], fa[1], fa[2], tau)
+                if hit_b:
+                    _add_point_force(j, g, fb[0], fb[1], fb[2], tau)
+                g_prev[:] = g
+                j_prev[:] = j
     return m_out, c_out, cqd, tau, g, j, jd
 
 
@@ -668,7 +771,14 @@ def forward_dynamics(q, qd, u, m, loads):
 def forward_dynamics_aero(q, qd, u, m, loads, aero):
     """:func:`forward_dynamics` with the aerodynamic loads of the packed array ``aero`` (empty:
     none, bit-identical to :func:`forward_dynamics`)."""
-    mm, _, cqd, tau, _, _, _ = coupled_terms_aero(q, qd, m, loads, False, u, aero)
+    return forward_dynamics_env(q, qd, u, m, loads, aero, np.empty(0))
+
+
+@njit(cache=True)
+def forward_dynamics_env(q, qd, u, m, loads, aero, contact):
+    """:func:`forward_dynamics` with the environment's loads (:func:`coupled_terms_env`:
+    aerodynamics and contact; empty arrays: none, bit-identical)."""
+    mm, _, cqd, tau, _, _, _ = coupled_terms_env(q, qd, m, loads, False, u, aero, contact)
     rhs = (
         _matvec(input_matrix(q, m), u)
         + tau
@@ -693,6 +803,13 @@ def rk4_run(q0, qd0, u, dt, nsteps, every, m, loads):
 def rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, aero):
     """:func:`rk4_run` with the aerodynamic loads of the packed array ``aero`` (held, like the
     loads, over the call; the wake follows the state at every stage)."""
+    return rk4_run_env(q0, qd0, u, dt, nsteps, every, m, loads, aero, np.empty(0))
+
+
+@njit(cache=True)
+def rk4_run_env(q0, qd0, u, dt, nsteps, every, m, loads, aero, contact):
+    """:func:`rk4_run` with the environment's loads (:func:`forward_dynamics_env`: the packed
+    aerodynamics and contact arrays, held over the call; empty: none)."""
     n = q0.shape[0]
     nrec = nsteps // every + 1
     qs = np.empty((nrec, n))
@@ -703,13 +820,15 @@ def rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, aero):
     qds[0] = qd
     rec = 1
     for k in range(nsteps):
-        a1, ok1 = forward_dynamics_aero(q, qd, u, m, loads, aero)
-        a2, ok2 = forward_dynamics_aero(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, aero)
-        a3, ok3 = forward_dynamics_aero(
-            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads, aero
+        a1, ok1 = forward_dynamics_env(q, qd, u, m, loads, aero, contact)
+        a2, ok2 = forward_dynamics_env(
+            q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, aero, contact
         )
-        a4, ok4 = forward_dynamics_aero(
-            q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, aero
+        a3, ok3 = forward_dynamics_env(
+            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads, aero, contact
+        )
+        a4, ok4 = forward_dynamics_env(
+            q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, aero, contact
         )
         if not (ok1 and ok2 and ok3 and ok4):
             return qs[:rec], qds[:rec], False
@@ -720,3 +839,73 @@ def rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, aero):
             qds[rec] = qd
             rec += 1
     return qs[:rec], qds[:rec], True
+
+
+@njit(cache=True)
+def contact_nodes(q, qd, m, contact):
+    """The contact state of every rod node (the rod bases, Gauss points and tips, in order):
+    ``(points (N, 3), forces (N, 3), tip_force (3,), clearance, speed)`` with the inertial
+    forces the obstacles apply on the nodes (the capsules' shares and, at the last rod's tip,
+    the tip sphere's, which is also ``tip_force``), the smallest clearance ``sdf - radius``
+    of a node sphere (rod radius, or the tip sphere) over the obstacles, and the largest node
+    speed.  The same arithmetic as :func:`coupled_terms_env`."""
+    off = 6 if m.floating else 0
+    n = q.shape[0]
+    nrod = m.rod_steps.shape[0] - 1
+    count = nrod
+    for k in range(m.h.shape[0]):
+        if m.step_w[k] != 0.0 and m.step_load[k] != LOAD_GRAVITY:
+            count += 1
+    points = np.zeros((count, 3))
+    forces = np.zeros((count, 3))
+    tip = np.zeros(3)
+    clearance = np.inf
+    speed = 0.0
+    gb, jb, jbd = base_state(q, qd, m.floating, m.g_fixed, n)
+    ws = make_workspace(n, m.bs.shape[3])
+    prev = np.empty(6)
+    fa = np.empty(6)
+    fb = np.empty(3)
+    nsh = int(contact[CL.N_SHAPES])
+    node = 0
+    for rod in range(nrod):
+        g, j, jd, jdq = rod_start(gb, jb, jbd, qd, m.g_att[rod])
+        eta = _matvec(j, qd)
+        _rod_base_node(g, eta, prev)
+        points[node] = prev[0:3]
+        node += 1
+        for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
+            c0 = off + m.step_col[k]
+            c1 = c0 + m.step_nc[k]
+            rod_step(
+                m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, jd, eta, jdq, False, ws
+            )
+            lo = m.step_load[k]
+            if m.step_w[k] == 0.0 or lo == LOAD_GRAVITY:
+                continue
+            _node_contact(contact, k, g, eta, prev, fa, fb)
+            for i in range(3):
+                forces[node - 1, i] += fa[i]
+            if lo == LOAD_TIP:
+                t0 = fb[0]
+                t1 = fb[1]
+                t2 = fb[2]
+                if _tip_contact(contact, g, eta, fb):
+                    tip[0] = fb[0] - t0
+                    tip[1] = fb[1] - t1
+                    tip[2] = fb[2] - t2
+            for i in range(3):
+                points[node, i] = g[i, 3]
+                forces[node, i] += fb[i]
+            sp = np.sqrt(prev[3] ** 2 + prev[4] ** 2 + prev[5] ** 2)
+            speed = max(speed, sp)
+            r = contact[CL.N_HEADER + k] if contact[CL.ROD_ON] > 0.0 else 0.0
+            if lo == LOAD_TIP and contact[CL.TIP_ON] > 0.0:
+                r = max(r, contact[CL.TIP_RADIUS])
+            if r > 0.0:
+                for s in range(nsh):
+                    base = contact.shape[0] - (nsh - s) * CL.SHAPE_SIZE
+                    d = sdf(contact, base, g[0, 3], g[1, 3], g[2, 3])[0]
+                    clearance = min(clearance, d - r)
+            node += 1
+    return points, forces, tip, clearance, speed

@@ -1,0 +1,122 @@
+"""The tip contact force from the tendons: no force sensor, the model's balance.
+
+A contact force ``F`` (inertial) on the tip sphere enters the dynamics (paper eq. (9)) as the
+generalized force ``J_v^T R^T F`` (eq. (16), ``J_v`` the linear rows of the tip Jacobian in
+the tip frame, ``R`` the tip orientation).  With the controller's model
+(:class:`~tdacm.control.model.EstimatedModel`: ``M_hat, C_hat, D_hat`` and ``K_hat``, elastic
+and estimated gravity), the applied inputs ``u`` (the rotor thrusts and the tendon
+tensions), and the (estimated) state and acceleration, the residual
+
+    r = M_hat qdd + (C_hat + D_hat) qd + K_hat - B(q) u  =  A F,   A = J_v^T R^T   (n x 3)
+
+is what the model cannot explain; :class:`TipForceEstimator` solves it for ``F`` by weighted
+least squares over the chosen rows (the strain rows: the tendons against the rod's bending;
+all rows: the drone's thrust and motion too) and propagates the covariance of ``u`` and of the
+state to that of ``F``.  The model errors that do not come from contact (a 10 % stiffness or
+weight error) bias ``r``: :meth:`TipForceEstimator.tare` stores the residual of a contact-free
+moment (before touching) and subtracts it.  A force along the rod's axis bends an
+inextensible rod only through its curvature: along a known direction (the contact normal),
+:meth:`TipForceEstimator.normal_force` estimates the one component instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control.model import EstimatedModel
+
+
+@dataclass(frozen=True)
+class ForceEstimate:
+    """``force`` (3,) inertial (N) and its covariance (3 x 3) (N^2)."""
+
+    force: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+
+class TipForceEstimator:
+    """Tip contact force from the tensions, the strains and the controller's model.
+
+    model : the controller's :class:`~tdacm.control.model.EstimatedModel`
+    rows : ``"strain"`` (the rod's balance only, the drone's rows left out: no thrust or
+        drone acceleration needed) or ``"all"``
+    input_sigma : standard deviation of each applied input (N): the tension and thrust errors
+        (scalar or one per input)
+    """
+
+    def __init__(self, model: EstimatedModel, rows: str = "strain", input_sigma=0.05):
+        if not isinstance(model, EstimatedModel):
+            raise ValueError(f"model must be an EstimatedModel, got {model!r}")
+        if rows not in ("strain", "all"):
+            raise ValueError(f"rows must be 'strain' or 'all', got {rows!r}")
+        self.model = model
+        s = model.system
+        self.system = s
+        off = 6 if s.floating else 0
+        self.rows = np.arange(off if rows == "strain" else 0, s.n)
+        self.input_sigma = np.broadcast_to(np.asarray(input_sigma, float), (s.n_u,)).copy()
+        self.bias = np.zeros(s.n)
+
+    def residual(self, q, qd, u, qdd=None) -> np.ndarray:
+        """``r = M_hat qdd + (C_hat + D_hat) qd + K_hat - B u`` (n,)."""
+        q, qd, u = (np.asarray(x, float) for x in (q, qd, u))
+        t = self.model.terms(q, qd)
+        r = (t.C + t.D) @ qd + t.K - self.system.input_matrix(q) @ u
+        if qdd is not None:
+            r = r + t.M @ np.asarray(qdd, float)
+        return r
+
+    def tare(self, q, qd, u, qdd=None) -> None:
+        """Store the residual of a contact-free state as the model's bias."""
+        self.bias = self.residual(q, qd, u, qdd)
+
+    def _a(self, q) -> np.ndarray:
+        s = self.system
+        g = s.tip_pose(q)
+        j = s.tip_jacobian(q)
+        return j[3:6].T @ g[:3, :3].T
+
+    def _r_cov(self, q, qd, u, qdd, state_cov) -> np.ndarray:
+        """Covariance of ``r`` from the inputs and, if given, the state ``[q, qd]``."""
+        b = self.system.input_matrix(np.asarray(q, float))
+        cov = (b * self.input_sigma**2) @ b.T
+        if state_cov is not None:
+            n = self.system.n
+            x = np.r_[q, qd]
+            r0 = self.residual(q, qd, u, qdd)
+            g = np.empty((n, 2 * n))
+            for i in range(2 * n):
+                e = 1e-7 * max(1.0, abs(x[i]))
+                xp = x.copy()
+                xp[i] += e
+                g[:, i] = (self.residual(xp[:n], xp[n:], u, qdd) - r0) / e
+            cov = cov + g @ np.asarray(state_cov, float) @ g.T
+        return cov
+
+    def estimate(self, q, qd, u, qdd=None, state_cov=None) -> ForceEstimate:
+        """The tip force (least squares over the rows; the minimum-norm solution where the
+        rows do not determine all three components) and its covariance."""
+        r = (self.residual(q, qd, u, qdd) - self.bias)[self.rows]
+        a = self._a(q)[self.rows]
+        pinv = np.linalg.pinv(a)
+        cov = self._r_cov(q, qd, u, qdd, state_cov)[np.ix_(self.rows, self.rows)]
+        return ForceEstimate(pinv @ r, pinv @ cov @ pinv.T)
+
+    def normal_force(self, q, qd, u, normal, qdd=None, state_cov=None):
+        """``(f, sigma)``: the force along the unit ``normal`` (inertial), the only unknown,
+        and its standard deviation."""
+        n = np.asarray(normal, float)
+        n = n / np.linalg.norm(n)
+        r = (self.residual(q, qd, u, qdd) - self.bias)[self.rows]
+        a = self._a(q)[self.rows] @ n
+        aa = a @ a
+        if aa == 0.0:
+            raise ValueError("the chosen rows do not see a force along this normal")
+        cov = self._r_cov(q, qd, u, qdd, state_cov)[np.ix_(self.rows, self.rows)]
+        return float(a @ r / aa), float(np.sqrt(a @ cov @ a) / aa)
