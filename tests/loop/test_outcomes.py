@@ -171,3 +171,20 @@ def test_a_reference_view_no_pose_explains_falls_back_to_the_projection():
         assert np.all(np.isfinite(loop.servo.desired_points)) and np.all(z > 0)
     finally:
         a.loop.close()
+
+
+def test_a_target_estimate_whose_corners_coincide_gives_no_prediction(assembly):
+    """Found by the fuzz campaign (156 px of noise, estimated state, random thrusts): the
+    robust servo's target estimate went so far that the predicted corners coincided, and the
+    features raised. The prediction is then invalid: the target is not seen this period."""
+    servo = assembly.loop.servo
+    loop = assembly.loop
+    loop.reset(assembly.world.q0, assembly.world.qd0)
+    q = assembly.world.q0
+    far = np.eye(4)
+    far[:3, 3] = [0.0, 0.0, -1e13]  # far below the drone: the four corners in one point
+    servo.target_pose = far
+    pv = servo.predicted_view(servo.servo_camera_pose(q))
+    assert not pv.valid
+    servo.target_pose = assembly.world.scene.target_pose.copy()
+    assert servo.predicted_view(servo.servo_camera_pose(q)).valid

@@ -35,7 +35,7 @@ from ..control import (
     plan_rod_configuration,
 )
 from ..lie.se3 import adjoint_pair, expmap, so3_log
-from ..vision.features import advanced_features
+from ..vision.features import _min_edge2, advanced_features
 from ..vision.ibvs import IBVSController
 from ..vision.mounts import tip_camera_pose
 from ..vision.target_filter import TargetFilter
@@ -524,7 +524,9 @@ class RobustServo(VisualServo):
                 return PredictedView()
             self.target_pose = self.target_filter.pose.copy()
         xy, z = self.target_filter.points_in(servo_pose, self.target_pose)
-        if np.any(z <= 0):
+        # behind the camera, or so far that the corners coincide (an estimate thrown off by
+        # large pixel noise): no features, the target counts as not seen this period
+        if np.any(z <= 0) or _min_edge2(xy) < 1e-24:
             return PredictedView()
         pix = None
         if camera_pose is not None:
