@@ -31,6 +31,7 @@ def test_help_lists_commands():
         "campaign",
         "export",
         "import",
+        "replay-recording",
         "identify",
     ):
         assert cmd in out.stdout

@@ -1,6 +1,6 @@
 """Command-line interface: ``tdacm info``, ``demo``, ``bench``, ``run``, ``plot``, ``scenarios``,
-``campaign``, ``replay``, ``export`` (MCAP), ``import`` (MCAP through a topic map), ``identify``
-(parameters from recordings).
+``campaign``, ``replay``, ``export`` (MCAP), ``import`` (MCAP through a topic map), ``replay-recording``
+(a recording through perception and estimation), ``identify`` (parameters from recordings).
 
 Conventions: stdout carries only the program's own output (``tdacm run`` prints the summary JSON
 alone, so ``tdacm run ... | python -m json.tool`` works); notices, progress lines and "written
@@ -496,6 +496,47 @@ def _cmd_import(args) -> int:
     return 0
 
 
+def _cmd_replay_recording(args) -> int:
+    import numpy as np
+
+    from .recording import RecordingError, load_topic_map, read_mcap, replay
+    from .sim import ScenarioError, load_scenario
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        return _err(f"--out {out} is a file, not a folder")
+    if not Path(args.file).is_file():
+        return _err(f"FILE {args.file} does not exist or is not a file")
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        return _err(f"--scenario: {exc}")
+    tmap = None
+    if args.topic_map is not None:
+        try:
+            tmap = load_topic_map(args.topic_map)
+        except RecordingError as exc:
+            return _err(_topic_map_error(exc))
+    _compile_notice()
+    try:
+        signals = read_mcap(args.file, tmap, t0="first" if args.relative else None)
+        estimate = {"auto": None, "estimated": True, "recorded": False}[args.state]
+        result = replay(signals, scenario, estimate=estimate)
+    except RecordingError as exc:
+        return _err(_topic_map_error(exc))
+    except ScenarioError as exc:
+        return _err(f"--scenario: {exc}")
+    path = result.save(out)
+    rmse = result.rmse[np.isfinite(result.rmse)]
+    last = f"{rmse[-1]:.4g}" if len(rmse) else "nan"
+    print(
+        f"{len(result.t)} periods, {int(result.detected.sum())} with a C_L detection, "
+        f"{'EKF estimate' if result.estimated else 'recorded state'}, final rmse {last}"
+    )
+    _note(f"replay written to {path.resolve()}")
+    return 0
+
+
 def _parse_start(text: str) -> dict:
     out = {}
     for item in text.split(","):
@@ -718,6 +759,31 @@ def build_parser() -> argparse.ArgumentParser:
         "--relative", action="store_true", help="times from the recording's first message"
     )
     s.set_defaults(func=_cmd_import)
+    s = sub.add_parser(
+        "replay-recording",
+        help="re-run an MCAP recording through perception, the estimator and the servo features",
+        description="Replay a recording (through a topic map) period by period through the "
+        "scenario's perception block, its EKF (when the recording has pose, IMU or encoder "
+        "signals) and the servo's feature computation; writes DIR/replay.npz (t, q_hat, qd_hat, "
+        "features, feature_error, points, rmse, detected). See docs/recordings.md.",
+    )
+    s.add_argument("file", help="an .mcap recording")
+    s.add_argument(
+        "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
+    )
+    s.add_argument("--scenario", required=True, help="the robot's scenario (name or TOML file)")
+    s.add_argument("--out", required=True, metavar="DIR", help="folder for replay.npz")
+    s.add_argument(
+        "--state",
+        choices=("auto", "estimated", "recorded"),
+        default="auto",
+        help="configuration of the servo: the EKF's estimate or the recorded state (auto: the "
+        "EKF when the recording has proprioception)",
+    )
+    s.add_argument(
+        "--relative", action="store_true", help="times from the recording's first message"
+    )
+    s.set_defaults(func=_cmd_replay_recording)
     s = sub.add_parser(
         "identify",
         help="estimate physical parameters from recordings (motion capture, tensions)",

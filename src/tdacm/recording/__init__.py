@@ -1,6 +1,7 @@
 """Recordings in the robotics ecosystem's format: a run folder exported as MCAP with standard
 ROS 2 message types (:mod:`.export`, viewable in Foxglove, replayable with ``ros2 bag play``),
-and MCAP recordings imported through a topic map into time-stamped signals (:mod:`.ingest`).
+and MCAP recordings imported through a topic map into time-stamped signals (:mod:`.ingest`), and re-run offline through the closed loop's perception,
+estimation and servo-feature blocks (:mod:`.replay`).
 See docs/recordings.md."""
 
 from .export import DEFAULT_SECTIONS, DEFAULT_TOPICS, ExportError, export_run, load_run_folder
@@ -15,6 +16,7 @@ from .ingest import (
     save_signals,
 )
 from .msgdefs import schema_text
+from .replay import ReplayResult, replay
 
 __all__ = [
     "DEFAULT_SECTIONS",
@@ -22,6 +24,7 @@ __all__ = [
     "DEFAULT_TOPIC_MAP",
     "ExportError",
     "RecordingError",
+    "ReplayResult",
     "Signal",
     "export_run",
     "load_run_folder",
@@ -29,6 +32,7 @@ __all__ = [
     "load_topic_map",
     "pose_matrices",
     "read_mcap",
+    "replay",
     "save_signals",
     "schema_text",
 ]
