@@ -324,7 +324,7 @@ def _write_pictures(out: Path, sim, plot_run_dir, write_video) -> None:
 
 
 def _cmd_plot(args) -> int:
-    from .viz._scene import RunDirError
+    from .sim.outputs import RunDirError
     from .viz.figures import KINDS, plot_run_dir
 
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else KINDS
@@ -400,7 +400,7 @@ def _cmd_campaign(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    from .viz._scene import RunDirError
+    from .sim.outputs import RunDirError
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():

@@ -34,7 +34,6 @@ images (``video.mp4`` is the captioned composite), so images are exported when g
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -118,34 +117,16 @@ class RunFolder:
 
 
 def load_run_folder(run_dir) -> RunFolder:
-    """Read ``run_dir`` (``timeseries.npz``, ``summary.json``, ``scenario.toml``)."""
-    from ..sim import ScenarioError, load_scenario
+    """Read ``run_dir`` (:func:`tdacm.sim.outputs.load_run`) and build its robot."""
+    from ..sim import ScenarioError
     from ..sim.assemble import build_world
+    from ..sim.outputs import RunDirError, load_run
 
-    run_dir = Path(run_dir)
-    npz = run_dir / "timeseries.npz"
-    if not run_dir.is_dir():
-        raise ExportError(f"RUN_DIR {run_dir} does not exist or is not a folder")
-    if not npz.is_file():
-        raise ExportError(f"RUN_DIR {run_dir} has no timeseries.npz: not a `tdacm run` folder")
-    with np.load(npz) as data:
-        arrays = {k: data[k] for k in data.files}
-    sj = run_dir / "summary.json"
-    summary = json.loads(sj.read_text()) if sj.is_file() else {}
-    toml = run_dir / "scenario.toml"
     try:
-        if toml.is_file():
-            sc = load_scenario(toml)
-        elif "scenario" in summary:
-            sc = load_scenario(summary["scenario"])
-        else:
-            raise ExportError(f"RUN_DIR {run_dir} has neither scenario.toml nor summary.json")
+        arrays, summary, sc = load_run(run_dir)
         world = build_world(sc)
-    except ScenarioError as exc:
-        raise ExportError(f"RUN_DIR {run_dir}: cannot load its scenario: {exc}") from None
-    for key in ("t", "q"):
-        if key not in arrays:
-            raise ExportError(f"RUN_DIR {run_dir}: timeseries.npz has no {key!r}")
+    except (RunDirError, ScenarioError) as exc:
+        raise ExportError(str(exc)) from None
     return RunFolder(arrays, summary, sc, world.robot, world.scene, world.q_star)
 
 

@@ -23,12 +23,13 @@ Rewriting into a folder first removes the files a previous run left there
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from ..loop.logger import LOG_KEYS, SCALAR_SERIES, SERIES_INFO, VECTOR_SERIES  # noqa: F401
-from .scenario import scenario_to_toml
+from .scenario import ScenarioError, load_scenario, scenario_to_toml
 
 Q_NAMES = ["phi", "theta", "psi", "x", "y", "z", "q_s1", "q_s2"]
 
@@ -204,3 +205,46 @@ def write_run(
     if len(a.get("t", ())):
         write_timeseries(out, a, floating, n_a)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
+
+
+class RunDirError(ValueError):
+    """A folder that is not a complete ``tdacm run`` output (the message names it)."""
+
+
+def load_run(run_dir):
+    """``(arrays, summary, scenario)`` of a run folder; the scenario from its
+    ``scenario.toml`` (self-contained folder), else by the name in ``summary.json``."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise RunDirError(f"RUN_DIR {run_dir} does not exist or is not a folder")
+    npz = run_dir / "timeseries.npz"
+    if not npz.is_file():
+        raise RunDirError(f"{npz} not found: is {run_dir} a `tdacm run` output folder?")
+    try:
+        with np.load(npz) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:
+        raise RunDirError(
+            f"{npz} cannot be read (truncated or not written by `tdacm run`): {exc}"
+        ) from None
+    missing = [k for k in ("t", "q") if k not in arrays]
+    if missing:
+        raise RunDirError(f"{npz} has no {', '.join(missing)} array: not written by `tdacm run`")
+    if len(arrays["q"]) != len(arrays["t"]):
+        raise RunDirError(f"{npz}: q has {len(arrays['q'])} rows for {len(arrays['t'])} times")
+    sj = run_dir / "summary.json"
+    try:
+        summary = json.loads(sj.read_text()) if sj.is_file() else {}
+    except (OSError, ValueError) as exc:
+        raise RunDirError(f"{sj} cannot be read: {exc}") from None
+    toml = run_dir / "scenario.toml"
+    try:
+        if toml.is_file():
+            scenario = load_scenario(toml)
+        elif "scenario" in summary:
+            scenario = load_scenario(summary["scenario"])
+        else:
+            raise RunDirError(f"{run_dir} has neither scenario.toml nor summary.json")
+    except ScenarioError as exc:
+        raise RunDirError(f"{run_dir}: cannot load its scenario: {exc}") from None
+    return arrays, summary, scenario

@@ -529,7 +529,7 @@ def plot_run_dir(
 ) -> list[Path]:
     """Regenerate the figures of a ``tdacm run`` folder from its stored time series
     (``timeseries.npz``, ``summary.json``, ``scenario.toml``); ``tdacm plot RUN_DIR``."""
-    from ._scene import load_run
+    from ..sim.outputs import load_run
 
     arrays, summary, scenario = load_run(run_dir)
     desired = arrays.pop("desired_points", None)

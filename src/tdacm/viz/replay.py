@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._scene import RunDirError
+from ..sim.outputs import RunDirError
 
 VIEWS = ("follow", "scene")
 
@@ -211,7 +211,8 @@ def replay_run(
     run_dir, out=None, fps=None, max_frames=200, speed=1.0, view="follow", progress=None
 ) -> Path:
     """Animate a ``tdacm run`` folder (``timeseries.npz``, ``summary.json``, ``scenario.toml``)."""
-    from ._scene import geometry, load_run
+    from ..sim.outputs import load_run
+    from ._scene import geometry
 
     arrays, summary, scenario = load_run(run_dir)
     run_dir = Path(run_dir)

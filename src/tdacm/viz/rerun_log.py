@@ -55,8 +55,9 @@ def record_run(
     (default: about 100 images over the run); ``progress(done, total)`` is called per step."""
     rr = require("rerun", "rerun")
 
+    from ..sim.outputs import load_run
     from ..vision import PlanarRenderer, TargetDetector
-    from ._scene import geometry, load_run
+    from ._scene import geometry
 
     run_dir = Path(run_dir)
     arrays, summary, scenario = load_run(run_dir)
