@@ -255,7 +255,8 @@ def _wait_for(proc, path_or_fn, timeout=120):
 def test_ctrl_c_during_run_writes_partial_and_exits_130(tmp_path):
     cfg = _cfg(tmp_path, "[cameras]\nglobal_every = 0\n")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "30",
+        # long enough to be still running when Ctrl-C arrives (a warm cache runs ~9x real time)
+        [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "600",
          "--out", "o", "--config", cfg],
         cwd=tmp_path, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
@@ -268,7 +269,7 @@ def test_ctrl_c_during_run_writes_partial_and_exits_130(tmp_path):
     assert "Traceback" not in err
     assert [ln for ln in err.splitlines() if ln.startswith("interrupted")] != []
     data = np.load(tmp_path / "o" / "timeseries.npz")
-    assert 1 <= len(data["t"]) < 1500
+    assert 1 <= len(data["t"]) < 30000
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["interrupted"] and summary["termination_reason"].startswith("interrupted")
     assert out == ""
