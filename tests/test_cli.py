@@ -259,6 +259,9 @@ def test_ctrl_c_during_run_writes_partial_and_exits_130(tmp_path):
         [sys.executable, "-m", "tdacm.cli", "run", "paper-in-fov", "--duration", "600",
          "--out", "o", "--config", cfg],
         cwd=tmp_path, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # SIGINT at its default in the child, as in a terminal (a shell's background job, e.g. a
+        # CI runner, starts it ignored, and Python then never raises KeyboardInterrupt)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     # wait until the loop runs (scene.png is written before the first step), then Ctrl-C
     assert _wait_for(proc, lambda: (tmp_path / "o" / "scene.png").is_file())

@@ -206,8 +206,11 @@ def test_ctrl_c_stops_a_campaign_cleanly_keeping_stored_rows(tmp_path):
     spec.write_text(SPEC.replace("runs = 4", "runs = 2000"))
     cmd = [sys.executable, "-m", "tdacm.cli", "campaign", str(spec), "--workers", "1",
            "--out", str(tmp_path / "c")]  # fmt: skip
+    # SIGINT at its default in the child, as in a terminal (a shell's background job, e.g. a
+    # CI runner, starts it ignored, and Python then never raises KeyboardInterrupt)
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)  # fmt: skip
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
     store = tmp_path / "c" / "results"
     t0 = time.time()
     while time.time() - t0 < 180 and proc.poll() is None:
