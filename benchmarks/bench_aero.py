@@ -12,23 +12,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 
 import numpy as np
 
 import tdacm
+from tdacm._timing import batch_times
 from tdacm.system import kernels as K
 from tdacm.system.aero import aero_array
 
 
 def _median(fn, number, repeats):
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        out.append((time.perf_counter() - t0) / number)
-    return float(np.median(out))
+    return float(np.median(batch_times(fn, number, repeats)))
 
 
 def run(repeats: int = 15, number: int = 2000, substeps: int = 4) -> dict:

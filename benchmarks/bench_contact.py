@@ -21,19 +21,14 @@ import time
 import numpy as np
 
 import tdacm
+from tdacm._timing import batch_times
 from tdacm.contact import Box, ContactModel, Cylinder, Plane
 from tdacm.loop.plant import Plant
 from tdacm.system.contact import contact_array, contact_state
 
 
 def _median(fn, number, repeats):
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        out.append((time.perf_counter() - t0) / number)
-    return float(np.median(out))
+    return float(np.median(batch_times(fn, number, repeats)))
 
 
 def run(repeats: int = 11, number: int = 500, dt: float = 0.02) -> dict:
