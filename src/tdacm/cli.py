@@ -615,6 +615,20 @@ def _cmd_identify(args) -> int:
     return 0
 
 
+def _add_topic_map(s) -> None:
+    """``--topic-map`` of the commands that read an MCAP recording."""
+    s.add_argument(
+        "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
+    )
+
+
+def _add_relative(s) -> None:
+    """``--relative`` of the commands that read an MCAP recording."""
+    s.add_argument(
+        "--relative", action="store_true", help="times from the recording's first message"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .recording.export import DEFAULT_SECTIONS
@@ -751,13 +765,9 @@ def build_parser() -> argparse.ArgumentParser:
         "[topics]: a lab's topic -> tdacm signal) and write one NAME.npz per signal.",
     )
     s.add_argument("file", help="an .mcap recording")
-    s.add_argument(
-        "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
-    )
+    _add_topic_map(s)
     s.add_argument("--out", required=True, metavar="DIR", help="folder for the signals")
-    s.add_argument(
-        "--relative", action="store_true", help="times from the recording's first message"
-    )
+    _add_relative(s)
     s.set_defaults(func=_cmd_import)
     s = sub.add_parser(
         "replay-recording",
@@ -768,9 +778,7 @@ def build_parser() -> argparse.ArgumentParser:
         "features, feature_error, points, rmse, detected). See docs/recordings.md.",
     )
     s.add_argument("file", help="an .mcap recording")
-    s.add_argument(
-        "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
-    )
+    _add_topic_map(s)
     s.add_argument("--scenario", required=True, help="the robot's scenario (name or TOML file)")
     s.add_argument("--out", required=True, metavar="DIR", help="folder for replay.npz")
     s.add_argument(
@@ -780,9 +788,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="configuration of the servo: the EKF's estimate or the recorded state (auto: the "
         "EKF when the recording has proprioception)",
     )
-    s.add_argument(
-        "--relative", action="store_true", help="times from the recording's first message"
-    )
+    _add_relative(s)
     s.set_defaults(func=_cmd_replay_recording)
     s = sub.add_parser(
         "identify",
