@@ -17,6 +17,12 @@ while keeping the structural properties the stability analysis needs
   coordinate by ``1 + d_g``) as part of ``K_hat`` (the potential forces); set
   ``gravity_feedforward=False`` for the paper's literal choice. Disturbances (base wrench,
   downwash) are never known to the controller: they are in ``Delta``.
+* Rotor drag (optional, ``rotor_drag``): a drone's rotors drag it in proportion to its velocity
+  in the body frame, ``F_b = -diag(k_r) v_b`` (Faessler, Franchi & Scaramuzza 2018), a property
+  of the drone the user can identify like its mass. Given its coefficients, the model adds the
+  generalized damping ``R diag(k_r_hat) R^T`` on the drone's position rows to ``D_hat``, with
+  ``k_r_hat = (1 + d_r) k_r`` (its own draw), and stays symmetric positive semidefinite (it is
+  no longer constant: it turns with the drone). The air's motion (wind, gusts) stays unknown.
 
 The estimated terms are computed on a private copy of the model with gravity only, so the
 plant's loads (disturbances) never leak into the controller.
@@ -28,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..lie.euler import rot_zyx
 from ..system.tdacm import TDACM, Loads
 
 
@@ -54,10 +61,18 @@ class EstimatedModel:
         Seed of the perturbation draw (reproducible).
     gravity_feedforward:
         Include the estimated gravity load in ``K_hat`` (see module docstring).
+    rotor_drag:
+        The drone's linear rotor drag along its body axes ``(k_x, k_y, k_z)`` (N s/m) for the
+        model to know (see module docstring); ``None`` (default): no drag in the model.
     """
 
     def __init__(
-        self, system: TDACM, level: float = 0.1, seed: int = 0, gravity_feedforward: bool = True
+        self,
+        system: TDACM,
+        level: float = 0.1,
+        seed: int = 0,
+        gravity_feedforward: bool = True,
+        rotor_drag=None,
     ):
         if not isinstance(system, TDACM):
             raise ValueError(f"system must be a TDACM, got {system!r}")
@@ -67,6 +82,14 @@ class EstimatedModel:
         self.level = level
         self.seed = int(seed)
         self.gravity_feedforward = bool(gravity_feedforward)
+        self.nominal_rotor_drag = None
+        if rotor_drag is not None:
+            k = np.asarray(rotor_drag, dtype=float)
+            if k.shape != (3,) or not np.all(np.isfinite(k)) or np.any(k < 0):
+                raise ValueError(f"rotor_drag must be 3 finite values >= 0, got {rotor_drag!r}")
+            if not system.floating:
+                raise ValueError("rotor_drag needs a floating base (a drone)")
+            self.nominal_rotor_drag = k
         # private model with gravity only (no disturbances)
         self.system = TDACM(
             system.rod,
@@ -89,6 +112,19 @@ class EstimatedModel:
         # positive definite like the true matrices
         self.mass_scale = np.sqrt(1.0 + self.d_m)
         self.damping_scale = np.sqrt(1.0 + self.d_d)
+        # drawn after the others so that knowing the drag leaves their draws unchanged
+        self.d_r = rng.uniform(-level, level, 3)
+        self.rotor_drag = (
+            np.zeros(3)
+            if self.nominal_rotor_drag is None
+            else (1.0 + self.d_r) * self.nominal_rotor_drag
+        )
+
+    def rotor_damping(self, q) -> np.ndarray:
+        """The estimated rotor drag's generalized damping on the drone's position rows,
+        ``R diag(k_r_hat) R^T`` (3 x 3), at the attitude of ``q``."""
+        r = rot_zyx(float(q[0]), float(q[1]), float(q[2]))
+        return (r * self.rotor_drag[None, :]) @ r.T
 
     def terms(self, q, qd) -> EstimatedTerms:
         """Estimated ``M, C, D, K`` at ``(q, qdot)``."""
@@ -97,6 +133,8 @@ class EstimatedModel:
         m_hat = sm[:, None] * t.M * sm[None, :]
         c_hat = sm[:, None] * t.C * sm[None, :]
         d_hat = sd[:, None] * t.D * sd[None, :]
+        if self.nominal_rotor_drag is not None:
+            d_hat[3:6, 3:6] += self.rotor_damping(q)
         k_hat = (1.0 + self.d_k) * t.K
         if self.gravity_feedforward:
             k_hat = k_hat - (1.0 + self.d_g) * t.tau_ext

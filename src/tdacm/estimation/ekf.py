@@ -135,6 +135,7 @@ class ExtendedKalmanFilter:
         self._s_d = np.ascontiguousarray(model.damping_scale)
         self._k_scale = 1.0 + model.d_k
         self._g_scale = 1.0 + model.d_g
+        self._drag = np.ascontiguousarray(model.rotor_drag, dtype=float)
         n = sysm.n
         self.n, self.n_s, self.n_a = n, sysm.n_s, sysm.n_a
         self.floating = sysm.floating
@@ -301,7 +302,7 @@ class ExtendedKalmanFilter:
         n = self.n
         a, ok = EK.model_qdd(
             x[:n], x[n : 2 * n], u, x[2 * n : 3 * n], self._m, self._loads,
-            self._s_m, self._s_d, self._k_scale, self._g_scale,
+            self._s_m, self._s_d, self._k_scale, self._g_scale, self._drag,
         )  # fmt: skip
         if not ok:
             raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
@@ -312,7 +313,9 @@ class ExtendedKalmanFilter:
         dt = t - prev.t
         x = prev.x_post
         q, qd, ad = x[:n], x[n : 2 * n], x[2 * n : 3 * n]
-        args = (self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale)
+        args = (
+            self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale, self._drag
+        )  # fmt: skip
         a0, jac, ok = EK.linearize(q, qd, u, ad, *args, self._skip)
         q1, qd1, ok2 = EK.propagate_mean(q, qd, u, ad, dt, self.config.rk4_steps, *args)
         if not (ok and ok2):
@@ -344,7 +347,9 @@ class ExtendedKalmanFilter:
         """Prior of ``tk`` from the (changed) posterior of ``prev`` with the stored Phi, Q."""
         n = self.n
         x = prev.x_post
-        args = (self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale)
+        args = (
+            self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale, self._drag
+        )  # fmt: skip
         q1, qd1, ok = EK.propagate_mean(
             x[:n], x[n : 2 * n], tk.u, x[2 * n : 3 * n], tk.t - prev.t, self.config.rk4_steps, *args
         )

@@ -10,6 +10,10 @@ a 10 % multiplicative perturbation of ``M``, ``C``, ``D`` and ``K``; see
 
     qdd = M_hat^-1 (B(q) u - C_hat qd - D_hat qd - K_hat) + a_d,           (paper eq. (9))
 
+and, when the model knows the drone's rotor drag ``k_r_hat`` (``drag``, all zeros: not), the
+damping ``R diag(k_r_hat) R^T`` of the drone's velocity on its position rows
+(:meth:`tdacm.control.model.EstimatedModel.rotor_damping`).
+
 with ``a_d`` the filter's disturbance acceleration state (model error and unknown loads). The
 kernels take ``m`` (the :class:`tdacm.system.kernels.ModelArrays` of the private model) and
 the packed gravity-only ``loads``.
@@ -30,9 +34,10 @@ from ..system.kernels import (
 
 
 @njit(cache=True)
-def model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale):
+def model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, drag):
     """Accelerations of the perturbed model plus the disturbance acceleration ``ad``;
-    ``ok`` False when ``M_hat`` is not positive definite."""
+    ``ok`` False when ``M_hat`` is not positive definite. ``drag`` (3,): the rotor drag the
+    model knows (zeros: none; the arithmetic is then that of the model without it)."""
     n = q.shape[0]
     mm, cc, _, tau, _, _, _ = coupled_terms(q, qd, m, loads, bool(1))
     bu = input_matrix(q, m) @ u
@@ -49,20 +54,28 @@ def model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale):
             acc_d += m.damping[i, j] * dqd[j]
             mh[i, j] = s_m[i] * mm[i, j] * s_m[j]
         rhs[i] = bu[i] - s_m[i] * acc_c - s_d[i] * acc_d - k_scale[i] * kq[i] + g_scale[i] * tau[i]
+    if drag[0] != 0.0 or drag[1] != 0.0 or drag[2] != 0.0:
+        r = rot_zyx(q[0], q[1], q[2])
+        vb = r.T @ qd[3:6]
+        for i in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += r[i, k] * drag[k] * vb[k]
+            rhs[3 + i] -= acc
     x, ok = cholesky_solve(mh, rhs)
     return x + ad, ok
 
 
 @njit(cache=True)
-def propagate_mean(q0, qd0, u, ad, dt, nsub, m, loads, s_m, s_d, k_scale, g_scale):
+def propagate_mean(q0, qd0, u, ad, dt, nsub, m, loads, s_m, s_d, k_scale, g_scale, drag):
     """RK4 of the perturbed model over ``dt`` in ``nsub`` steps, ``u`` and ``ad`` held."""
     h = dt / nsub
     q = q0.copy()
     qd = qd0.copy()
     for _ in range(nsub):
-        a1, ok1 = model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale)
+        a1, ok1 = model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, drag)
         a2, ok2 = model_qdd(
-            q + 0.5 * h * qd, qd + 0.5 * h * a1, u, ad, m, loads, s_m, s_d, k_scale, g_scale
+            q + 0.5 * h * qd, qd + 0.5 * h * a1, u, ad, m, loads, s_m, s_d, k_scale, g_scale, drag
         )
         a3, ok3 = model_qdd(
             q + 0.5 * h * (qd + 0.5 * h * a1),
@@ -75,10 +88,12 @@ def propagate_mean(q0, qd0, u, ad, dt, nsub, m, loads, s_m, s_d, k_scale, g_scal
             s_d,
             k_scale,
             g_scale,
+            drag,
         )
         a4, ok4 = model_qdd(
-            q + h * (qd + 0.5 * h * a2), qd + h * a3, u, ad, m, loads, s_m, s_d, k_scale, g_scale
-        )
+            q + h * (qd + 0.5 * h * a2), qd + h * a3, u, ad, m, loads, s_m, s_d, k_scale, g_scale,
+            drag,
+        )  # fmt: skip
         if not (ok1 and ok2 and ok3 and ok4):
             return q, qd, False
         q = q + h * qd + h * h / 6.0 * (a1 + a2 + a3)
@@ -87,13 +102,13 @@ def propagate_mean(q0, qd0, u, ad, dt, nsub, m, loads, s_m, s_d, k_scale, g_scal
 
 
 @njit(cache=True)
-def linearize(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, skip):
+def linearize(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, drag, skip):
     """``qdd`` and its forward-difference Jacobian ``d qdd / d[q, qd]`` (n x 2n).
 
     Columns with ``skip[j]`` True are left zero: the drone's inertial position does not enter
     the dynamics (uniform gravity, no position-dependent load in the filter's model)."""
     n = q.shape[0]
-    a0, ok = model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale)
+    a0, ok = model_qdd(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, drag)
     jac = np.zeros((n, 2 * n))
     if not ok:
         return a0, jac, False
@@ -108,7 +123,7 @@ def linearize(q, qd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, skip):
         else:
             eps = 1e-6 * (1.0 + abs(qd[j - n]))
             qqd[j - n] += eps
-        a1, ok1 = model_qdd(qq, qqd, u, ad, m, loads, s_m, s_d, k_scale, g_scale)
+        a1, ok1 = model_qdd(qq, qqd, u, ad, m, loads, s_m, s_d, k_scale, g_scale, drag)
         if not ok1:
             return a0, jac, False
         for i in range(n):

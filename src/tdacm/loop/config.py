@@ -141,6 +141,11 @@ class ModelConfig(ConfigModel):
     gravity_feedforward: bool = Field(
         True, description="compensate gravity with the model (false: lumped into Delta_hat)"
     )
+    rotor_drag: bool = Field(
+        True,
+        description="with [aerodynamics] drone drag on, the model (controller and EKF) knows the "
+        "drone's linear rotor drag (drone_linear, perturbed like D); false: lumped into Delta_hat",
+    )
 
 
 class CamerasConfig(ConfigModel):

@@ -300,7 +300,9 @@ def build_loop(
         else:
             servo = VisualServo(*args, floor=ib.floor, solver=ib.solver, **kwargs)
     m = d["model"]
-    model = EstimatedModel(s, m["perturbation"], seed, m["gravity_feedforward"])
+    model = EstimatedModel(
+        s, m["perturbation"], seed, m["gravity_feedforward"], known_rotor_drag(scenario, s)
+    )
     if controller is None:
         ctl = ControllerConfig(**d["controller"])
         # the [controller] keys the adaptive law reads, and the user's [controller.options]
@@ -381,6 +383,16 @@ def contact_logger(system, contact):
         return st.tip, st.rod
 
     return forces
+
+
+def known_rotor_drag(scenario: Scenario, system):
+    """The drone's rotor drag coefficients the controller's model knows (``[model] rotor_drag``
+    with the drone drag of ``[aerodynamics]`` on a floating base), or ``None``."""
+    d = scenario.data
+    cfg = AerodynamicsConfig(**d["aerodynamics"])
+    if not (d["model"]["rotor_drag"] and cfg.enabled and cfg.drone_drag and system.floating):
+        return None
+    return tuple(cfg.drone_linear)
 
 
 def air_of(scenario: Scenario, world: World, seed: int):
