@@ -25,7 +25,8 @@ V_STRIBECK = 7  # m/s, speed of the static -> kinetic transition
 ROD_ON = 8  # 1: the rod's backbone (capsules between its nodes) touches the obstacles
 TIP_ON = 9  # 1: the tip sphere touches the obstacles
 TIP_RADIUS = 10  # m, radius of the tip sphere
-N_HEADER = 12
+PROBE = 12  # (3,) m, centre of the tip sphere in the tip frame (0: the tip; a rigid probe)
+N_HEADER = 16
 
 # obstacle row
 KIND = 0

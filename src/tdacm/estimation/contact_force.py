@@ -2,7 +2,8 @@
 
 A contact force ``F`` (inertial) on the tip sphere enters the dynamics (paper eq. (9)) as the
 generalized force ``J_v^T R^T F`` (eq. (16), ``J_v`` the linear rows of the tip Jacobian in
-the tip frame, ``R`` the tip orientation).  With the controller's model
+the tip frame, ``R`` the tip orientation; at a point ``o`` of the tip frame, a probe's end,
+``(J_v + [o]x^T J_w)^T R^T F``).  With the controller's model
 (:class:`~tdacm.control.model.EstimatedModel`: ``M_hat, C_hat, D_hat`` and ``K_hat``, elastic
 and estimated gravity), the applied inputs ``u`` (the rotor thrusts and the tendon
 tensions), and the (estimated) state and acceleration, the residual
@@ -48,9 +49,11 @@ class TipForceEstimator:
         drone acceleration needed) or ``"all"``
     input_sigma : standard deviation of each applied input (N): the tension and thrust errors
         (scalar or one per input)
+    offset : (3,) m, where the force acts in the tip frame (a probe ahead of the tip,
+        :func:`tdacm.system.contact.probe_offset`); zero: at the tip
     """
 
-    def __init__(self, model: EstimatedModel, rows: str = "strain", input_sigma=0.05):
+    def __init__(self, model: EstimatedModel, rows: str = "strain", input_sigma=0.05, offset=None):
         if not isinstance(model, EstimatedModel):
             raise ValueError(f"model must be an EstimatedModel, got {model!r}")
         if rows not in ("strain", "all"):
@@ -62,6 +65,15 @@ class TipForceEstimator:
         self.rows = np.arange(off if rows == "strain" else 0, s.n)
         self.input_sigma = np.broadcast_to(np.asarray(input_sigma, float), (s.n_u,)).copy()
         self.bias = np.zeros(s.n)
+        o = np.zeros(3) if offset is None else np.asarray(offset, float)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise ValueError(f"offset must be a finite 3-vector (m), got {offset!r}")
+        # [o]x: a force f (tip frame) at o is the wrench [o x f; f] on the tip (eq. (16))
+        self.offset_skew = (
+            None
+            if not o.any()
+            else np.array([[0, -o[2], o[1]], [o[2], 0, -o[0]], [-o[1], o[0], 0]])
+        )
 
     def residual(self, q, qd, u, qdd=None) -> np.ndarray:
         """``r = M_hat qdd + (C_hat + D_hat) qd + K_hat - B u`` (n,)."""
@@ -80,7 +92,9 @@ class TipForceEstimator:
         s = self.system
         g = s.tip_pose(q)
         j = s.tip_jacobian(q)
-        return j[3:6].T @ g[:3, :3].T
+        if self.offset_skew is None:
+            return j[3:6].T @ g[:3, :3].T
+        return (j[3:6].T + j[0:3].T @ self.offset_skew) @ g[:3, :3].T
 
     def _r_cov(self, q, qd, u, qdd, state_cov) -> np.ndarray:
         """Covariance of ``r`` from the inputs and, if given, the state ``[q, qd]``."""

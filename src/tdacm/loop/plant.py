@@ -143,6 +143,9 @@ class Plant:
             self._reach = 1.05 * reach + max(self.contact[CL.TIP_RADIUS], float(
                 np.max(self.contact[CL.N_HEADER : CL.N_HEADER + m.h.shape[0]])
             ))  # fmt: skip
+            probe = float(np.linalg.norm(self.contact[CL.PROBE : CL.PROBE + 3]))
+            if probe > 0.0:  # the tip sphere on a rigid probe ahead of the tip
+                self._reach += probe
         self.system = system
         self.substeps = int(substeps)
         self.disturbances = disturbances or Disturbances()

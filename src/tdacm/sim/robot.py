@@ -20,6 +20,7 @@ cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
   ``pose_q = [phi, theta, psi, x, y, z]`` for a rod clamped at that pose (a fixed base, as
   ``system.base = "fixed"``);
 * ``[robot.attachment]``: ``offset`` of the rod's base below the drone's centre of mass;
+* ``[robot.tip]``: ``probe_length``, a rigid probe ahead of C_L carrying the contact sphere;
 * ``[robot.cameras.local]`` and ``[robot.cameras.global]``: the intrinsics of
   :class:`~tdacm.vision.PinholeCamera` (``width, height, fx, fy, cx, cy, near, far``) and the
   mounts: ``offset`` of C_L beyond the tip along the backbone; ``position`` and ``tilt_deg`` of
@@ -169,6 +170,17 @@ class GlobalCameraConfig(CameraIntrinsics):
     )
 
 
+class TipConfig(ConfigModel):
+    """``[robot.tip]``: what the arm's tip carries besides the camera."""
+
+    probe_length: float = Field(
+        0.0,
+        ge=0,
+        description="m, a rigid, massless probe ahead of C_L along its optical axis: the "
+        "contact sphere ([scene.contact] tip_radius) at its end (0: the sphere at the tip)",
+    )
+
+
 class RobotCamerasConfig(ConfigModel):
     """``[robot.cameras]``."""
 
@@ -186,6 +198,7 @@ class RobotConfig(ConfigModel):
     base: BaseConfig = BaseConfig()
     attachment: AttachmentConfig = AttachmentConfig()
     cameras: RobotCamerasConfig = RobotCamerasConfig()
+    tip: TipConfig = TipConfig()
 
 
 _CAMERA_KEYS = tuple(CameraIntrinsics.model_fields)
@@ -231,6 +244,7 @@ class Robot:
     global_camera: PinholeCamera
     tip_mount: np.ndarray  # g_{C_L}^L
     drone_mount: np.ndarray  # g_{C_G}^b
+    probe_length: float = 0.0  # m, the contact sphere ahead of C_L ([robot.tip])
 
 
 def _camera(base: PinholeCamera, keys: dict, where: str) -> PinholeCamera:
@@ -333,7 +347,7 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
         )
     except ValueError as exc:
         raise RobotError(f"robot.cameras: {exc}") from None
-    return Robot(system, local, glob, tip_mount, drone_mount)
+    return Robot(system, local, glob, tip_mount, drone_mount, robot["tip"]["probe_length"])
 
 
 def _check_thrust(system: TDACM, drone: dict) -> None:

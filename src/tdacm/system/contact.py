@@ -18,20 +18,36 @@ from . import kernels as K
 from .tdacm import TDACM
 
 
-def contact_array(system: TDACM, model: ContactModel) -> np.ndarray:
+def contact_array(system: TDACM, model: ContactModel, probe=(0.0, 0.0, 0.0)) -> np.ndarray:
     """The packed contact array (:mod:`tdacm.contact.layout`) of ``model`` on ``system``: the
     header, the rod radius at every node step (a Gauss section or a tip body) and the
-    obstacles' rows."""
+    obstacles' rows.  ``probe`` (m, tip frame): the tip sphere's centre on a rigid, massless
+    probe ahead of the tip (:func:`probe_offset`; zero: the sphere at the tip, as without)."""
     if not isinstance(model, ContactModel):
         raise ValueError(f"model must be a ContactModel, got {model!r}")
+    probe = np.asarray(probe, float)
+    if probe.shape != (3,) or not np.all(np.isfinite(probe)):
+        raise ValueError(f"probe must be a finite 3-vector (m, tip frame), got {probe!r}")
     m = system.model_arrays
     secs = system._sections
     radius = np.array([0.5 * secs[i].rod.diameter for i in system._step_sec])
     node = (m.step_load != K.LOAD_GRAVITY) & (m.step_w != 0.0)
     head = model.header()
     head[CL.TIP_RADIUS] = model.tip_radius
+    head[CL.PROBE : CL.PROBE + 3] = probe
     rows = [o.row() for o in model.obstacles]
     return np.concatenate([head, np.where(node, radius, 0.0)] + rows)
+
+
+def probe_offset(tip_mount, length: float) -> np.ndarray:
+    """The tip sphere's centre in the tip frame for a rigid probe of ``length`` (m) along the
+    optical axis of the tip camera mounted at ``tip_mount`` (``g_{C_L}^L``, 4x4): the camera's
+    centre plus ``length`` along its z axis; zero for ``length = 0`` (the sphere at the tip,
+    where the camera sits)."""
+    if length == 0.0:
+        return np.zeros(3)
+    g = np.asarray(tip_mount, float)
+    return g[:3, 3] + float(length) * g[:3, 2]
 
 
 def check_contact(system: TDACM, contact) -> np.ndarray:

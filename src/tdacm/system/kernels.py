@@ -441,10 +441,53 @@ def _node_contact(contact, k, g, eta, prev, fa, fb):
 
 
 @njit(cache=True)
-def _tip_contact(contact, g, eta, fb):
-    """Adds the tip sphere's contact force (inertial) to ``fb``; True when touching."""
+def _has_probe(contact):
+    """True when the tip sphere sits on a rigid probe (its centre off the tip's origin)."""
+    return contact[CL.PROBE] != 0.0 or contact[CL.PROBE + 1] != 0.0 or contact[CL.PROBE + 2] != 0.0
+
+
+@njit(cache=True)
+def probe_point(contact, g, eta):
+    """Inertial position and velocity of the tip sphere's centre ``p + R o`` (``o``: the
+    probe offset in the tip frame; velocity ``R (v + w x o)`` from the body twist ``eta``)."""
+    o0, o1, o2 = contact[CL.PROBE], contact[CL.PROBE + 1], contact[CL.PROBE + 2]
+    b0 = eta[3] + eta[1] * o2 - eta[2] * o1
+    b1 = eta[4] + eta[2] * o0 - eta[0] * o2
+    b2 = eta[5] + eta[0] * o1 - eta[1] * o0
+    x = np.empty(3)
+    v = np.empty(3)
+    for i in range(3):
+        x[i] = g[i, 3] + g[i, 0] * o0 + g[i, 1] * o1 + g[i, 2] * o2
+        v[i] = g[i, 0] * b0 + g[i, 1] * b1 + g[i, 2] * b2
+    return x, v
+
+
+@njit(cache=True)
+def _tip_contact(contact, g, eta, fb, mb):
+    """Adds the tip sphere's contact force (inertial) to ``fb``; True when touching.  On a
+    probe (:data:`~tdacm.contact.layout.PROBE` not zero) the sphere's centre is ``p + R o``
+    and ``mb`` receives the force's moment about the tip, ``o x R^T f`` (tip frame); without
+    a probe the arithmetic is the plain tip sphere's and ``mb`` is not touched."""
     if contact[CL.TIP_ON] <= 0.0:
         return False
+    if _has_probe(contact):
+        x, v = probe_point(contact, g, eta)
+        t0, t1, t2 = point_contact(
+            contact, contact[CL.TIP_RADIUS], x[0], x[1], x[2], v[0], v[1], v[2]
+        )
+        if t0 == 0.0 and t1 == 0.0 and t2 == 0.0:
+            return False
+        fb[0] += t0
+        fb[1] += t1
+        fb[2] += t2
+        f0 = g[0, 0] * t0 + g[1, 0] * t1 + g[2, 0] * t2
+        f1 = g[0, 1] * t0 + g[1, 1] * t1 + g[2, 1] * t2
+        f2 = g[0, 2] * t0 + g[1, 2] * t1 + g[2, 2] * t2
+        o0, o1, o2 = contact[CL.PROBE], contact[CL.PROBE + 1], contact[CL.PROBE + 2]
+        mb[0] += o1 * f2 - o2 * f1
+        mb[1] += o2 * f0 - o0 * f2
+        mb[2] += o0 * f1 - o1 * f0
+        return True
     v0 = g[0, 0] * eta[3] + g[0, 1] * eta[4] + g[0, 2] * eta[5]
     v1 = g[1, 0] * eta[3] + g[1, 1] * eta[4] + g[1, 2] * eta[5]
     v2 = g[2, 0] * eta[3] + g[2, 1] * eta[4] + g[2, 2] * eta[5]
@@ -524,6 +567,8 @@ def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
     prev = np.empty(6)
     fa = np.empty(6)
     fb = np.empty(3)
+    mb = np.zeros(3)
+    probe = cont and _has_probe(contact)
     g_prev = np.eye(4)
     j_prev = np.zeros((6, n))
     for rod in range(m.rod_steps.shape[0] - 1):
@@ -570,12 +615,15 @@ def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
             _tmatvec_add(j, f, w, tau)
             if cont and lo != LOAD_GRAVITY:
                 hit_a, hit_b = _node_contact(contact, k, g, eta, prev, fa, fb)
-                if lo == LOAD_TIP and _tip_contact(contact, g, eta, fb):
+                mb[0] = mb[1] = mb[2] = 0.0
+                if lo == LOAD_TIP and _tip_contact(contact, g, eta, fb, mb):
                     hit_b = True
                 if hit_a:
                     _add_point_force(j_prev, g_prev, fa[0], fa[1], fa[2], tau)
                 if hit_b:
                     _add_point_force(j, g, fb[0], fb[1], fb[2], tau)
+                    if probe and lo == LOAD_TIP:
+                        _tmatvec_add(j, np.array([mb[0], mb[1], mb[2], 0.0, 0.0, 0.0]), 1.0, tau)
                 g_prev[:] = g
                 j_prev[:] = j
     return m_out, c_out, cqd, tau, g, j, jd
@@ -866,6 +914,7 @@ def contact_nodes(q, qd, m, contact):
     prev = np.empty(6)
     fa = np.empty(6)
     fb = np.empty(3)
+    mb = np.zeros(3)
     nsh = int(contact[CL.N_SHAPES])
     node = 0
     for rod in range(nrod):
@@ -890,7 +939,7 @@ def contact_nodes(q, qd, m, contact):
                 t0 = fb[0]
                 t1 = fb[1]
                 t2 = fb[2]
-                if _tip_contact(contact, g, eta, fb):
+                if _tip_contact(contact, g, eta, fb, mb):
                     tip[0] = fb[0] - t0
                     tip[1] = fb[1] - t1
                     tip[2] = fb[2] - t2
@@ -900,12 +949,20 @@ def contact_nodes(q, qd, m, contact):
             sp = np.sqrt(prev[3] ** 2 + prev[4] ** 2 + prev[5] ** 2)
             speed = max(speed, sp)
             r = contact[CL.N_HEADER + k] if contact[CL.ROD_ON] > 0.0 else 0.0
-            if lo == LOAD_TIP and contact[CL.TIP_ON] > 0.0:
+            probe_tip = lo == LOAD_TIP and contact[CL.TIP_ON] > 0.0 and _has_probe(contact)
+            if lo == LOAD_TIP and contact[CL.TIP_ON] > 0.0 and not probe_tip:
                 r = max(r, contact[CL.TIP_RADIUS])
             if r > 0.0:
                 for s in range(nsh):
                     base = contact.shape[0] - (nsh - s) * CL.SHAPE_SIZE
                     d = sdf(contact, base, g[0, 3], g[1, 3], g[2, 3])[0]
                     clearance = min(clearance, d - r)
+            if probe_tip:  # the sphere at the probe's end, and the fastest point its end
+                x, v = probe_point(contact, g, eta)
+                speed = max(speed, np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2))
+                for s in range(nsh):
+                    base = contact.shape[0] - (nsh - s) * CL.SHAPE_SIZE
+                    d = sdf(contact, base, x[0], x[1], x[2])[0]
+                    clearance = min(clearance, d - contact[CL.TIP_RADIUS])
             node += 1
     return points, forces, tip, clearance, speed
