@@ -67,6 +67,11 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
         "complete": n == spec.runs,
         "success_rmse": spec.success_rmse,
         "success_window": spec.success_window,
+        **(
+            {"success_hold_force_rms": spec.success_hold_force_rms}
+            if spec.success_hold_force_rms is not None
+            else {}
+        ),
         "successes": ok,
         "success_rate": ok / n if n else None,
         "success_rate_ci95": [lo, hi],
@@ -90,6 +95,12 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
                 "strain_estimation_rms",
                 "drone_position_estimation_rms",
             )
+        },
+        # servoing into contact: only when the runs hold a force
+        **{
+            k: _stats(df[k])
+            for k in ("hold_force_rms_rel", "hold_image_error_max", "max_contact_force")
+            if n and k in df and not df[k].isna().all()
         },
         "worst_runs": [],
     }
@@ -134,6 +145,11 @@ def _write_markdown(report, out: Path):
             if w is None
             else f"RMS of the normalized RMSE over the last {w:g} s"
         )
+        if spec_hold := report.get("success_hold_force_rms"):
+            what = (
+                f"force held for touch.hold_time within {100 * spec_hold:g} % RMS, "
+                "normalized RMSE during the hold"
+            )
         lines.append(
             f"- success ({what} <= {report['success_rmse']}, not terminated): "
             f"{report['successes']}/{report['runs_stored']} = {100 * report['success_rate']:.1f} % "
@@ -151,6 +167,9 @@ def _write_markdown(report, out: Path):
         "within_0.01_last_2s",
         "strain_estimation_rms",
         "drone_position_estimation_rms",
+        "hold_force_rms_rel",
+        "hold_image_error_max",
+        "max_contact_force",
     ):
         s = report.get(key)
         if s:

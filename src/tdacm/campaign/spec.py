@@ -9,6 +9,9 @@ A spec is a TOML file::
     success_rmse = 0.01           # a run succeeds if it ends at or below this normalized RMSE
     success_window = 1.0          # optional: ... if the RMS of the normalized RMSE over its
                                   # last 1 s is at or below success_rmse (unset: the last sample)
+    success_hold_force_rms = 0.2  # optional, servoing into contact ([touch]): ... if it held
+                                  # the force for touch.hold_time within 20 % RMS with the
+                                  # normalized RMSE <= success_rmse throughout the hold
 
     [distributions]
     # keys are "section.key" paths into the scenario (docs/scenario-reference.md)
@@ -73,6 +76,11 @@ class CampaignSpec:
     #: s: judge a run on the RMS of its normalized RMSE over its last ``success_window``
     #: seconds (:func:`tdacm.sim.runner.late_rmse`); ``None``: on its last sample
     success_window: float | None = None
+    #: servoing into contact: a run succeeds when it held the force for the scenario's
+    #: ``touch.hold_time`` with the true force's RMS error at most this fraction of the
+    #: desired force and the normalized RMSE at most ``success_rmse`` throughout the hold
+    #: (the summary's ``hold_force_rms_rel``, ``hold_image_error_max``); ``None``: the RMSE rule
+    success_hold_force_rms: float | None = None
 
     def as_dict(self) -> dict:
         out = {
@@ -85,6 +93,8 @@ class CampaignSpec:
         }
         if self.success_window is not None:  # (absent: the fingerprints of older specs hold)
             out["success_window"] = self.success_window
+        if self.success_hold_force_rms is not None:
+            out["success_hold_force_rms"] = self.success_hold_force_rms
         return out
 
     def fingerprint(self) -> str:
@@ -208,7 +218,7 @@ def parse_spec(
     except tomllib.TOMLDecodeError as exc:
         raise CampaignSpecError(f"{source}: invalid TOML: {exc}") from None
     known = {"scenario", "runs", "seed", "duration", "success_rmse", "success_window",
-             "distributions"}  # fmt: skip
+             "success_hold_force_rms", "distributions"}  # fmt: skip
     unknown = set(data) - known
     if unknown:
         _err(source, f"unknown keys {sorted(unknown)} (known: {sorted(known)})")
@@ -235,6 +245,13 @@ def parse_spec(
             _err(source, f"success_window must be positive (s), got {window}")
         if duration is not None and window > duration:
             _err(source, f"success_window ({window} s) must not exceed duration ({duration} s)")
+    hold_rms = data.get("success_hold_force_rms")
+    if hold_rms is not None:
+        hold_rms = _num(source, "success_hold_force_rms", hold_rms)
+        if hold_rms <= 0:
+            _err(source, f"success_hold_force_rms must be positive, got {hold_rms}")
+        if window is not None:
+            _err(source, "success_hold_force_rms and success_window are two rules: give one")
     dists = data.get("distributions", {})
     if not isinstance(dists, dict):
         _err(source, "[distributions] must be a table")
@@ -341,8 +358,9 @@ def parse_spec(
             _check_range(source, where, key, out, base)
         clean[key] = out
     return CampaignSpec(
-        data["scenario"], runs, seed, clean, duration, success, source, success_window=window
-    )
+        data["scenario"], runs, seed, clean, duration, success, source, success_window=window,
+        success_hold_force_rms=hold_rms,
+    )  # fmt: skip
 
 
 def resolve_scenario(ref: str, spec_path: Path) -> str:

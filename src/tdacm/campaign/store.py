@@ -35,6 +35,11 @@ ROW_FIELDS = (
     "final_drone_position_error_m",
     "final_target_estimate_error_deg",
     "final_target_estimate_sigma_deg",
+    # servoing into contact ([touch]; NaN for the other scenarios)
+    "hold_duration",
+    "hold_force_rms_rel",
+    "hold_image_error_max",
+    "max_contact_force",
 )
 
 
