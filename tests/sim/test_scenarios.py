@@ -25,6 +25,7 @@ NAMES = [
     "ground-test-b",
     "paper-in-fov",
     "paper-out-of-fov",
+    "touch-target",
 ]
 
 

@@ -68,6 +68,7 @@ class Sensed:
     estimate: StateEstimate
     view: LocalView
     global_view: GlobalView | None
+    force: object = None  # a tdacm.loop.touch.ForceReading when the loop has a force block
 
 
 @dataclass
@@ -102,6 +103,9 @@ class ClosedLoop:
         The paper's error-growth monitor (default: on, paper values).
     log:
         A :class:`~.logger.RunLog` (default: one on the servo's reference snapshot).
+    force:
+        A :class:`~.touch.TipForceBlock` (servoing into contact): its estimate goes to the
+        servo's ``step`` as ``force=`` and to the log; ``None``: none.
     """
 
     def __init__(
@@ -116,6 +120,7 @@ class ClosedLoop:
         safety: SafetyMonitor | None = None,
         log: RunLog | None = None,
         name: str = "",
+        force=None,
     ):
         self.plant = plant
         self.sensors = sensors
@@ -127,6 +132,7 @@ class ClosedLoop:
         self.safety = safety if safety is not None else SafetyMonitor()
         self.log = log if log is not None else RunLog(servo.desired_points)
         self.name = name
+        self.force = force
         self._u = None
         self._request_global = False
         self.switch_time = None
@@ -142,6 +148,8 @@ class ClosedLoop:
         self.perception.reset()
         self.safety.reset()
         est = self.estimator.reset(p.state.t)
+        if self.force is not None:
+            self.force.reset()
         # the initial mode from the first C_L view (an ideal look, no noise drawn)
         first = self.perception.local(self.sensors.first_look(p.state.t, p.state.q))
         self.servo.reset(est.q, first)
@@ -159,7 +167,10 @@ class ClosedLoop:
         readings = self.sensors.read(self.plant.state, self._request_global)
         est = self.estimator.step(readings, self._u, self.dt)
         view = self.perception.local(readings.local)
-        return Sensed(readings, est, view, self.perception.global_(readings.global_))
+        gview = self.perception.global_(readings.global_)
+        if self.force is None:
+            return Sensed(readings, est, view, gview)
+        return Sensed(readings, est, view, gview, self.force.step(est, self._u, self.dt))
 
     def act(self, sensed: Sensed, twist=None, u=None, last: bool = False) -> LoopStep:
         """The second half: servo, low-level control, logging, safety, plant. ``twist``
@@ -180,7 +191,11 @@ class ClosedLoop:
             return LoopStep(t, view, est, cmd, _hold(est), True,
                             "non-finite twist command", Termination.NON_FINITE)  # fmt: skip
         try:
-            cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+            if sensed.force is None:
+                cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist)
+            else:
+                cmd = self.servo.step(t, dt, view, sensed.global_view, est, twist,
+                                      force=sensed.force)  # fmt: skip
         except BehindVirtualCamera as exc:  # eq. (18) undefined: the run ends, as an outcome
             return LoopStep(t, view, est, _stopped(self.servo.mode, est), _hold(est), True,
                             f"servo: {exc}", Termination.BEHIND_CAMERA)  # fmt: skip
@@ -189,6 +204,10 @@ class ClosedLoop:
             if self.switch_time is None:
                 self.switch_time = t
             self.safety.arm(t)
+        if cmd.phase_changed:  # servoing into contact: a new phase, a new reference view
+            self.safety.arm(t)
+        if cmd.tare_force and self.force is not None:
+            self.force.tare()
         if cmd.plan is not None:
             self.plan = cmd.plan
         if cmd.failure is not None:
@@ -203,7 +222,7 @@ class ClosedLoop:
             what = "actuator command" if u is not None else "controller output"
             return LoopStep(t, view, est, cmd, act, True, f"non-finite {what} u",
                             Termination.NON_FINITE)  # fmt: skip
-        self.log.record(state, sensed.readings, view, est, cmd, act)
+        self.log.record(state, sensed.readings, view, est, cmd, act, sensed.force)
         self._u = act.u
         if cmd.mode == Mode.IBVS and not self.safety.check(t, cmd.rmse):
             return LoopStep(t, view, est, cmd, act, True, self.safety.reason, Termination.SAFETY)

@@ -225,3 +225,52 @@ class SensorModel(ConfigModel):
             and self.latency_steps == 0
             and self.intrinsics_error == 0
         )
+
+
+class TouchConfig(ConfigModel):
+    """Section ``[touch]``: servoing into contact (:class:`~tdacm.loop.touch.TouchServo`,
+    docs/contact.md): IBVS to a standoff view, then along the camera's axis onto the target
+    until the estimated force reaches ``detect_force``, an admittance law holding ``force``
+    for ``hold_time``, then back to the standoff. The reference snapshot (``[desired] q``) is
+    the view at the contact pose."""
+
+    enabled: bool = Field(False, description="servo into contact (the phases below)")
+    force: float = Field(0.3, gt=0, description="N, desired normal force of the hold")
+    hold_time: float = Field(3.0, gt=0, description="s, how long the force is held")
+    settle: float = Field(
+        1.0, ge=0, description="s, from the first touch to the start of the hold (the impact)"
+    )
+    standoff: float = Field(
+        0.1, gt=0, description="m, distance along the camera axis of the approach view"
+    )
+    start_rmse: float = Field(
+        0.01, gt=0, description="normalized RMSE to the standoff view that ends the approach"
+    )
+    dwell: float = Field(0.5, ge=0, description="s, that RMSE held before moving in")
+    approach_speed: float = Field(
+        0.03, gt=0, description="m/s, speed along the camera axis toward the surface"
+    )
+    approach_gain: float = Field(
+        1.0, gt=0, description="1/s, axial speed per metre left to the contact pose"
+    )
+    touch_speed: float = Field(
+        0.01, gt=0, description="m/s, the least axial speed toward the surface (at contact)"
+    )
+    detect_force: float = Field(
+        0.1, gt=0, description="N, estimated force that counts as the first touch"
+    )
+    force_gain: float = Field(
+        0.03, ge=0, description="m per N, admittance: axial reference offset per force error"
+    )
+    force_integral: float = Field(
+        0.6, ge=0, description="m per N s, admittance: integral of the force error in the offset"
+    )
+    force_filter: float = Field(
+        0.1, ge=0, description="s, time constant of the force estimate's low-pass filter"
+    )
+    input_sigma: float = Field(
+        0.02,
+        gt=0,
+        description="N, assumed std of each applied thrust and tension (the "
+        "estimated force's sigma)",
+    )

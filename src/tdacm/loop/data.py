@@ -41,6 +41,11 @@ class Termination(StrEnum):
     NON_FINITE = "non-finite command"  # a twist or actuator command with NaN or inf
 
 
+#: The phases of servoing into contact (:mod:`tdacm.loop.touch`), in order (logged as their
+#: index, ``touch_phase``).
+PHASES = ("approach", "contact", "hold", "release")
+
+
 class ServoEvent(StrEnum):
     """A change of the servo's mode in one period (:attr:`ServoCommand.event`)."""
 
@@ -210,6 +215,9 @@ class ServoCommand:
     failure: str | None = None  # set when the servo cannot go on (the run ends)
     rmse_measured: float = float("nan")  # RMSE of this period's measured points (if any)
     target_pose: np.ndarray | None = None  # the servo's estimate of the target (world)
+    phase: str | None = None  # servoing into contact: the phase (tdacm.loop.touch.PHASES)
+    phase_changed: bool = False  # ... entered this period (the safety monitor re-arms)
+    tare_force: bool = False  # ask the tip force block to tare (contact-free) this period
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ import numpy as np
 from .._linalg import solve as _solve
 from ..lie.se3 import rotation_angle
 from .data import (
+    PHASES,
     ActuatorCommand,
     LocalView,
     PlantState,
@@ -58,6 +59,8 @@ VECTOR_SERIES = (
 LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
 #: Logged only when the plant has obstacles (:attr:`RunLog.contact` set).
 CONTACT_SERIES = ("contact_tip", "contact_rod")
+#: Logged only when the loop estimates the tip force (servoing into contact, ``[touch]``).
+TOUCH_SERIES = ("force_true", "force_hat", "force_sigma", "touch_phase")
 
 #: series -> (unit, meaning). Units of configuration-space series depend on the coordinate:
 #: "q" means rad (angles), m (positions), 1/m (strains); "qd" their rates; "tau" N m, N, N m^2.
@@ -93,6 +96,10 @@ SERIES_INFO = {
     "P_diag": ("var", "variances of the estimate [q_hat, qd_hat] (NaN for the true state)"),
     "contact_tip": ("N", "contact force of the obstacles on the tip sphere (inertial x, y, z)"),
     "contact_rod": ("N", "total contact force of the obstacles on the rod (inertial x, y, z)"),
+    "force_true": ("N", "true contact force (tip sphere and rod) along the estimate's normal"),
+    "force_hat": ("N", "estimated normal force on the probe (tendons, thrusts, model)"),
+    "force_sigma": ("N", "standard deviation of the estimated normal force"),
+    "touch_phase": ("-", "0 = approach, 1 = contact, 2 = hold, 3 = release ([touch])"),
 }
 
 _NAN4 = np.full((4, 2), np.nan)
@@ -124,6 +131,7 @@ class RunLog:
         estimate: StateEstimate,
         cmd: ServoCommand,
         act: ActuatorCommand,
+        force=None,
     ) -> None:
         r = self.rows
         raw = view.points if view.found else None
@@ -169,10 +177,22 @@ class RunLog:
         r["P_diag"].append(
             np.diag(estimate.P).copy() if estimate.P is not None else np.full(n2, np.nan)
         )
+        tip = rod = None
         if self.contact is not None:
             tip, rod = self.contact(plant.q, plant.qd)
             r.setdefault("contact_tip", []).append(tip)
             r.setdefault("contact_rod", []).append(rod)
+        if force is not None:
+            true = np.nan
+            if force.valid and tip is not None:
+                true = float((tip + rod) @ force.normal)
+            elif tip is not None:
+                true = float(np.linalg.norm(tip + rod))
+            r.setdefault("force_true", []).append(true)
+            r.setdefault("force_hat", []).append(force.force)
+            r.setdefault("force_sigma", []).append(force.sigma)
+            phase = PHASES.index(cmd.phase) if cmd.phase in PHASES else -1
+            r.setdefault("touch_phase", []).append(phase)
         if self.frame_composer is not None:
             self.frames.append(self.frame_composer(readings, view, cmd, plant.t))
 

@@ -33,7 +33,14 @@ from ..estimation.camera import TargetCamera
 from ..lie.se3 import rotation_angle
 from ..loop.ablation import TruthAblation, parse_controller_truth
 from ..loop.closed_loop import ClosedLoop
-from ..loop.config import ControllerConfig, IbvsConfig, RecoveryConfig, SafetyConfig, SensorModel
+from ..loop.config import (
+    ControllerConfig,
+    IbvsConfig,
+    RecoveryConfig,
+    SafetyConfig,
+    SensorModel,
+    TouchConfig,
+)
 from ..loop.logger import RunLog
 from ..loop.lowlevel import make_low_level
 from ..loop.perception import Perception
@@ -49,7 +56,9 @@ from ..loop.sensors import (
     perturbed_camera,
 )
 from ..loop.servo import RecoveryParams, RobustParams, RobustServo, ShapingParams, VisualServo
+from ..loop.touch import TipForceBlock, TouchServo
 from ..system.aero import aero_array
+from ..system.contact import probe_offset
 from ..system.kernels import rk4_run
 from ..vision import PAPER_MARKER, PAPER_PATTERN, PlanarRenderer, SceneConfig
 from ..vision.features import estimate_depths
@@ -267,6 +276,12 @@ def build_loop(
         local, robot, world.target, world.scene, world.q_star, ctl_camera
     )
     ib, rc = IbvsConfig(**d["ibvs"]), RecoveryConfig(**d["recovery"])
+    touch = TouchConfig(**d["touch"])
+    if touch.enabled and not (d["scene"]["obstacles"] or d["scene"]["contact"]["target_box"]):
+        raise ScenarioError(
+            f"{scenario.source}: touch.enabled needs something to touch: "
+            "scene.contact.target_box = true or [[scene.obstacles]]"
+        )
     if servo is None:
         if paper:  # the plain law: no limits, no ramp, no filter
             shaping = ShapingParams(
@@ -295,7 +310,16 @@ def build_loop(
             shaping=shaping,
             recovery=RecoveryParams.from_config(rc),
         )
-        if ib.features == "predicted":
+        if touch.enabled:
+            if ib.features != "predicted" or paper:
+                raise ScenarioError(
+                    f"{scenario.source}: touch.enabled needs the robust servo "
+                    "(ibvs.features = 'predicted', controller.profile = 'default')"
+                )
+            servo = TouchServo(
+                *args, robust=RobustParams.from_config(ib, rc), touch=touch, **kwargs
+            )
+        elif ib.features == "predicted":
             servo = RobustServo(*args, robust=RobustParams.from_config(ib, rc), **kwargs)
         else:
             servo = VisualServo(*args, floor=ib.floor, solver=ib.solver, **kwargs)
@@ -323,8 +347,14 @@ def build_loop(
         accelerations=suite is not None,  # the accelerometer senses qdd
         aero=aero,
         wind=wind,
-        **contact_plant_options(d["scene"], s),
+        **contact_plant_options(d["scene"], s, robot.tip_mount, robot.probe_length),
     )
+    force = None
+    if touch.enabled and isinstance(servo, TouchServo):
+        force = TipForceBlock(
+            model, robot.tip_mount, probe_offset(robot.tip_mount, robot.probe_length),
+            touch.input_sigma,
+        )  # fmt: skip
     truth = d["estimation"]["controller_truth"]
     if truth:  # ablation: the controller reads these coordinates from the plant
         try:
@@ -347,6 +377,7 @@ def build_loop(
         safety=SafetyMonitor(**SafetyConfig(**d["safety"]).model_dump()),
         log=RunLog(servo.desired_points, frame_composer, _truth(s, local, world)),
         name=scenario.name,
+        force=force,
     )
     if plant.contact is not None:
         loop.log.contact = contact_logger(s, plant.contact)
@@ -354,11 +385,12 @@ def build_loop(
     return Assembly(loop, world, seed, model, scenario)
 
 
-def contact_plant_options(scene: dict, system) -> dict:
+def contact_plant_options(scene: dict, system, tip_mount=None, probe_length=0.0) -> dict:
     """The :class:`~tdacm.loop.plant.Plant` keywords of ``[scene]``'s obstacles and
-    ``[scene.contact]`` (none without obstacles: the contact-free plant)."""
+    ``[scene.contact]`` (none without obstacles: the contact-free plant); the tip sphere on
+    a probe of ``probe_length`` along the optical axis of C_L mounted at ``tip_mount``."""
     from ..contact.config import ContactConfig, ObstacleConfig, box_obstacle
-    from ..system.contact import contact_array
+    from ..system.contact import contact_array, probe_offset
 
     cc = ContactConfig(**scene.get("contact", {}))
     obstacles = [ObstacleConfig(**o).obstacle() for o in scene.get("obstacles", [])]
@@ -367,7 +399,11 @@ def contact_plant_options(scene: dict, system) -> dict:
     if not obstacles:
         return {}
     return {
-        "contact": contact_array(system, cc.model(obstacles)),
+        "contact": contact_array(
+            system,
+            cc.model(obstacles),
+            probe_offset(tip_mount, probe_length) if probe_length else (0.0, 0.0, 0.0),
+        ),
         "contact_substeps": cc.substeps,
         "contact_margin": cc.margin,
         "force_limit": cc.force_limit,

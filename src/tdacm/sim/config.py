@@ -37,6 +37,7 @@ from ..loop.config import (
     RecoveryConfig,
     SafetyConfig,
     SensorModel,
+    TouchConfig,
     Vec2,
     Vec6,
 )
@@ -146,6 +147,7 @@ class ScenarioConfig(ConfigModel):
     wind: WindConfig = WindConfig()
     sensors: SensorsConfig = SensorsConfig()  # type: ignore[valid-type]
     estimation: EstimationConfig = EstimationConfig()
+    touch: TouchConfig = TouchConfig()
     expect: ExpectConfig = ExpectConfig()
 
 

@@ -59,6 +59,7 @@ FIGURE_KINDS = (
     "snapshots",
     "lyapunov",
     "estimation",
+    "contact",  # servoing into contact ([touch]): forces, image error, tensions, drone
 )
 
 

@@ -166,9 +166,57 @@ class Simulation:
             "controller_truth": self.scenario.data["estimation"]["controller_truth"] or None,
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
+            **touch_summary(a, self.scenario.data),
             **_target_merit(loop, assembly.world),
             **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
         }
+
+
+def touch_summary(a: dict, data: dict) -> dict:
+    """Servoing into contact (``[touch]``, :mod:`tdacm.loop.touch`): the hold's figures from
+    the log (empty without ``[touch] enabled``). ``hold_force_rms_rel``: RMS of the TRUE
+    normal force minus the desired one over the hold, relative to the desired one;
+    ``hold_image_error_max``: the largest normalized RMSE (the servo's, to the reference view
+    at the contact pose) during the hold; ``hold_duration``: how long the hold lasted (s);
+    ``max_contact_force``: the largest total contact force of the run (N)."""
+    if "touch_phase" not in a:
+        return {}
+    tc = data["touch"]
+    fd = float(tc["force"])
+    phase = a["touch_phase"]
+    hold = phase == 2
+    t = a["t"]
+    dt = float(data["dt"])
+    out = {
+        "touch_force": fd,
+        "touch_hold_time": float(tc["hold_time"]),
+        "touch_phase_reached": ("approach", "contact", "hold", "release")[int(phase.max())]
+        if phase.size and phase.max() >= 0
+        else None,
+        "hold_duration": float(hold.sum() * dt),
+        "hold_force_rms_rel": None,
+        "hold_force_mean": None,
+        "hold_force_max": None,
+        "hold_force_estimate_error_max": None,
+        "hold_image_error_max": None,
+        "hold_image_error_true_max": None,
+    }
+    if hold.any():
+        f = a["force_true"][hold]
+        out["hold_force_rms_rel"] = float(np.sqrt(np.mean((f - fd) ** 2)) / fd)
+        out["hold_force_mean"] = float(np.mean(f))
+        out["hold_force_max"] = float(np.max(f))
+        out["hold_force_estimate_error_max"] = float(np.nanmax(np.abs(a["force_hat"][hold] - f)))
+        r = a["rmse"][hold]
+        out["hold_image_error_max"] = float(np.max(np.where(np.isfinite(r), r, np.inf)))
+        rt = a["rmse_true"][hold]
+        out["hold_image_error_true_max"] = float(np.nanmax(rt)) if np.isfinite(rt).any() else None
+    if "contact_tip" in a and t.size:
+        total = np.linalg.norm(a["contact_tip"] + a["contact_rod"], axis=1)
+        out["max_contact_force"] = float(total.max())
+        rel = phase == 3
+        out["released"] = bool(rel.any() and total[rel][-1] == 0.0)
+    return out
 
 
 def _window(t, rmse, seconds):

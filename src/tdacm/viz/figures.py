@@ -445,6 +445,78 @@ def fig_estimation(rd: RunData, out, formats):
     return _finish(fig, rd, what, out, "estimation", formats)
 
 
+def fig_contact(rd: RunData, out, formats):
+    """Servoing into contact: the true and estimated normal force (with the estimate's
+    2 sigma band and the desired force), the image error, the tendon tensions and the drone's
+    position from the first phase in contact to the end, the hold shaded."""
+    if not rd.has("touch_phase", "force_true", "force_hat", "rmse", "u", "q"):
+        return []
+    phase = np.asarray(rd.arrays["touch_phase"])
+    if not (phase >= 1).any():
+        return []
+    import matplotlib.pyplot as plt
+
+    t = rd.t
+    k0 = max(0, int(np.argmax(phase >= 1)) - 25)
+    sl = slice(k0, None)
+    tt = t[sl]
+    hold = phase[sl] == 2
+    ft = np.asarray(rd.arrays["force_true"], float)[sl]
+    fh = np.asarray(rd.arrays["force_hat"], float)[sl]
+    sg = np.asarray(rd.arrays["force_sigma"], float)[sl]
+    fig, axes = plt.subplots(4, 1, figsize=(6.4, 8.0), sharex=True)
+
+    def shade(ax):
+        if hold.any():
+            ax.axvspan(tt[hold][0], tt[hold][-1], color="0.9", lw=0, zorder=0, label="hold")
+
+    ax = axes[0]
+    shade(ax)
+    ax.fill_between(tt, fh - 2 * sg, fh + 2 * sg, color="C1", alpha=0.25, lw=0,
+                    label=r"estimate $\pm 2\sigma$")  # fmt: skip
+    ax.plot(tt, ft, "k", lw=1.1, label="true (simulator)")
+    ax.plot(tt, fh, "C1--", lw=1.0, label="estimated (tendons, thrusts)")
+    fd = rd.summary.get("touch_force")
+    if fd is not None:
+        ax.axhline(fd, color="C3", ls=":", lw=1.0, label="desired")
+    ax.set_ylabel("normal force (N)")
+    ax.legend(loc="best", ncol=2)
+    ax = axes[1]
+    shade(ax)
+    r = np.asarray(rd.arrays["rmse"], float)[sl]
+    ax.semilogy(tt, r, "C0", label="servo (to the active view)")
+    if rd.has("rmse_true"):
+        ax.semilogy(tt, np.asarray(rd.arrays["rmse_true"], float)[sl], "C2--", lw=1.0,
+                    label="true (to the contact view)")  # fmt: skip
+    ax.axhline(0.01, color="k", ls=":", lw=0.8)
+    ax.set_ylabel("normalized RMSE")
+    ax.legend(loc="best")
+    ax = axes[2]
+    shade(ax)
+    u = np.asarray(rd.arrays["u"], float)[sl]
+    n_a = u.shape[1] - (4 if rd.floating else 0)
+    for i in range(n_a):
+        ax.plot(tt, u[:, -n_a + i], label=f"$T_{i + 1}$")
+    ax.set_ylabel("tendon tension (N)")
+    ax.legend(loc="best", ncol=4)
+    ax = axes[3]
+    shade(ax)
+    if rd.floating:
+        q = np.asarray(rd.arrays["q"], float)[sl]
+        ref = q[hold][0] if hold.any() else q[0]
+        for i, name in zip((3, 4, 5), _POS, strict=True):
+            ax.plot(tt, 1e3 * (q[:, i] - ref[i]), label=name)
+        ax.set_ylabel("drone position (mm,\nfrom the hold's start)")
+        ax.legend(loc="best", ncol=3)
+    ax.set_xlabel("time (s)")
+    s = rd.summary
+    what = "servoing into contact"
+    if s.get("hold_force_rms_rel") is not None:
+        what += (f" (hold: force RMS error {100 * s['hold_force_rms_rel']:.1f} %, image error "
+                 f"max {s['hold_image_error_max']:.4f})")  # fmt: skip
+    return _finish(fig, rd, what, out, "contact", formats)
+
+
 _FUNCS = {
     "state_errors": fig_state_errors,
     "tracking_errors": fig_tracking_errors,
@@ -456,6 +528,7 @@ _FUNCS = {
     "snapshots": fig_snapshots,
     "lyapunov": fig_lyapunov,
     "estimation": fig_estimation,
+    "contact": fig_contact,
 }
 
 
