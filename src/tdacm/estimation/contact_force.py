@@ -88,6 +88,10 @@ class TipForceEstimator:
         """Store the residual of a contact-free state as the model's bias."""
         self.bias = self.residual(q, qd, u, qdd)
 
+    def clear_tare(self) -> None:
+        """Forget the stored bias (as built: no tare)."""
+        self.bias = np.zeros(self.system.n)
+
     def _a(self, q) -> np.ndarray:
         s = self.system
         g = s.tip_pose(q)

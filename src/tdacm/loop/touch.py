@@ -74,7 +74,7 @@ class TipForceBlock:
         self.reset()
 
     def reset(self) -> None:
-        self.estimator.bias = np.zeros(self.system.n)
+        self.estimator.clear_tare()
         self._qd_prev = None
         self._last = None
 
