@@ -214,8 +214,12 @@ def _plot(df, spec, out: Path):
     init = df["initial_rmse"].astype(float).to_numpy() if "initial_rmse" in df else np.array([])
     fin = df["final_rmse"].astype(float).to_numpy() if "final_rmse" in df else np.array([])
     colors = np.where(df["success"].to_numpy(bool), "C2", "C3")
-    axes[2].scatter(init, fin, c=colors, s=12)
-    axes[2].set_yscale("log")
+    ok = np.isfinite(init) & np.isfinite(fin) & (fin > 0)
+    if ok.any():
+        axes[2].scatter(init[ok], fin[ok], c=colors[ok], s=12)
+        axes[2].set_yscale("log")
+    else:  # every run failed: no error to scale the axes
+        axes[2].set_ylim(0.0, 2.0 * spec.success_rmse)
     axes[2].set_xlabel("initial normalized RMSE")
     axes[2].set_ylabel("final normalized RMSE")
     axes[2].axhline(spec.success_rmse, color="k", ls="--", lw=0.8)
