@@ -471,20 +471,30 @@ def _topic_map_error(exc) -> str:
     return "--topic-map" + msg[len("topic map") :] if msg.startswith("topic map") else msg
 
 
+def _read_topic_map(path):
+    """``(topic map or None, None)`` from ``--topic-map`` (unset: no map), or ``(None, the
+    one-line error)``."""
+    if path is None:
+        return None, None
+    from .recording import RecordingError, load_topic_map
+
+    try:
+        return load_topic_map(path), None
+    except RecordingError as exc:
+        return None, _topic_map_error(exc)
+
+
 def _cmd_import(args) -> int:
-    from .recording import RecordingError, load_topic_map, read_mcap, save_signals
+    from .recording import RecordingError, read_mcap, save_signals
 
     out = Path(args.out)
     if (problem := _out_error("--out", out)) is not None:
         return _err(problem)
     if not Path(args.file).is_file():
         return _err(f"FILE {args.file} does not exist or is not a file")
-    tmap = None
-    if args.topic_map is not None:
-        try:
-            tmap = load_topic_map(args.topic_map)
-        except RecordingError as exc:
-            return _err(_topic_map_error(exc))
+    tmap, problem = _read_topic_map(args.topic_map)
+    if problem is not None:
+        return _err(problem)
     try:
         signals = read_mcap(args.file, tmap, t0="first" if args.relative else None)
     except RecordingError as exc:
@@ -499,24 +509,21 @@ def _cmd_import(args) -> int:
 def _cmd_replay_recording(args) -> int:
     import numpy as np
 
-    from .recording import RecordingError, load_topic_map, read_mcap, replay
+    from .recording import RecordingError, read_mcap, replay
     from .sim import ScenarioError, load_scenario
 
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        return _err(f"--out {out} is a file, not a folder")
+    if (problem := _out_error("--out", out)) is not None:
+        return _err(problem)
     if not Path(args.file).is_file():
         return _err(f"FILE {args.file} does not exist or is not a file")
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         return _err(f"--scenario: {exc}")
-    tmap = None
-    if args.topic_map is not None:
-        try:
-            tmap = load_topic_map(args.topic_map)
-        except RecordingError as exc:
-            return _err(_topic_map_error(exc))
+    tmap, problem = _read_topic_map(args.topic_map)
+    if problem is not None:
+        return _err(problem)
     _compile_notice()
     try:
         signals = read_mcap(args.file, tmap, t0="first" if args.relative else None)
@@ -569,18 +576,13 @@ def _cmd_identify(args) -> int:
         if k not in names:
             return _err(f"--start: {k!r} is not among --params ({', '.join(names)})")
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        return _err(f"--out {out} is a file, not a folder")
+    if (problem := _out_error("--out", out)) is not None:
+        return _err(problem)
     if args.topic_map is not None and not Path(args.topic_map).is_file():
         return _err(f"--topic-map {args.topic_map} does not exist or is not a file")
-    tmap = None
-    if args.topic_map is not None:
-        from .recording import RecordingError, load_topic_map
-
-        try:
-            tmap = load_topic_map(args.topic_map)
-        except RecordingError as exc:
-            return _err(_topic_map_error(exc))
+    tmap, problem = _read_topic_map(args.topic_map)
+    if problem is not None:
+        return _err(problem)
     _compile_notice()
     recs = []
     for path in args.recording:

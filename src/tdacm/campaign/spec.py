@@ -113,6 +113,17 @@ def _err(source, msg):
     raise CampaignSpecError(f"{source}: {msg}")
 
 
+def _optional_positive(source, data: dict, key: str, unit: str = ""):
+    """``data[key]`` as a positive float, or ``None`` when absent (one-line error otherwise)."""
+    value = data.get(key)
+    if value is None:
+        return None
+    value = _num(source, key, value)
+    if value <= 0:
+        _err(source, f"{key} must be positive{unit}, got {value}")
+    return value
+
+
 def _num(source, where, v):
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         _err(source, f"{where} must be a finite number, got {v!r}")
@@ -230,26 +241,16 @@ def parse_spec(
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         _err(source, f"'seed' must be a non-negative integer, got {seed!r}")
-    duration = data.get("duration")
-    if duration is not None:
-        duration = _num(source, "duration", duration)
-        if duration <= 0:
-            _err(source, f"duration must be positive, got {duration}")
+    duration = _optional_positive(source, data, "duration")
     success = _num(source, "success_rmse", data.get("success_rmse", 0.01))
     if success <= 0:
         _err(source, f"success_rmse must be positive, got {success}")
-    window = data.get("success_window")
+    window = _optional_positive(source, data, "success_window", " (s)")
     if window is not None:
-        window = _num(source, "success_window", window)
-        if window <= 0:
-            _err(source, f"success_window must be positive (s), got {window}")
         if duration is not None and window > duration:
             _err(source, f"success_window ({window} s) must not exceed duration ({duration} s)")
-    hold_rms = data.get("success_hold_force_rms")
+    hold_rms = _optional_positive(source, data, "success_hold_force_rms")
     if hold_rms is not None:
-        hold_rms = _num(source, "success_hold_force_rms", hold_rms)
-        if hold_rms <= 0:
-            _err(source, f"success_hold_force_rms must be positive, got {hold_rms}")
         if window is not None:
             _err(source, "success_hold_force_rms and success_window are two rules: give one")
     dists = data.get("distributions", {})

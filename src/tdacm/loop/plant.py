@@ -190,20 +190,25 @@ class Plant:
                 s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
                 self.system.model_arrays, loads.packed(), aero,
             )  # fmt: skip
-        q, qd = qs[-1].copy(), qds[-1].copy()
+        if aero is None:
+            accel = lambda q, qd: forward_dynamics(  # noqa: E731
+                q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed()
+            )
+        else:
+            accel = lambda q, qd: forward_dynamics_aero(  # noqa: E731
+                q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed(), aero
+            )
+        return self._end_period(qs[-1].copy(), qds[-1].copy(), ok, dt, accel)
+
+    def _end_period(self, q, qd, ok, dt: float, accel) -> PlantState:
+        """The state at the end of the period ``(q, qd)`` with the integrator's ``ok``: the
+        health flags, the clock and, when asked, the accelerations ``accel(q, qd)``."""
         self.ok = bool(ok and np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
         self.tumbled = self.system.floating and max(abs(q[0]), abs(q[1])) > MAX_TILT_RAD
         self._k += 1
         qdd = None
         if self.accelerations and self.ok:
-            if aero is None:
-                qdd, ok_a = forward_dynamics(
-                    q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed()
-                )
-            else:
-                qdd, ok_a = forward_dynamics_aero(
-                    q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed(), aero
-                )
+            qdd, ok_a = accel(q, qd)
             self.ok = bool(ok_a)
         self.state = PlantState(self._t0 + self._k * dt, q, qd, qdd)
         return self.state
@@ -231,14 +236,10 @@ class Plant:
         u = np.asarray(u, float)
         qs, qds, ok = rk4_run_env(s.q, s.qd, u, dt / n, n, n, m, loads.packed(), aero, self.contact)
         q, qd = qs[-1].copy(), qds[-1].copy()
-        self.ok = bool(ok and np.all(np.isfinite(q)) and np.all(np.isfinite(qd)))
-        self.tumbled = self.system.floating and max(abs(q[0]), abs(q[1])) > MAX_TILT_RAD
-        self._k += 1
-        qdd = None
-        if self.accelerations and self.ok:
-            qdd, ok_a = forward_dynamics_env(q, qd, u, m, loads.packed(), aero, self.contact)
-            self.ok = bool(ok_a)
-        self.state = PlantState(self._t0 + self._k * dt, q, qd, qdd)
+        self._end_period(
+            q, qd, ok, dt,
+            lambda q, qd: forward_dynamics_env(q, qd, u, m, loads.packed(), aero, self.contact),
+        )  # fmt: skip
         if self.force_limit is not None and self.ok:
             _, f, _, _, _ = contact_nodes(q, qd, m, self.contact)
             total = float(np.linalg.norm(f.sum(axis=0)))

@@ -33,14 +33,14 @@ back as it does, so the force stays at ``F_d`` (measured in docs/contact.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..estimation.contact_force import TipForceEstimator
 from ..vision.ibvs import IBVSController
 from .config import TouchConfig
-from .data import PHASES, LocalView, ServoCommand, StateEstimate
+from .data import PHASES, LocalView, StateEstimate
 from .servo import RobustServo, normalized_rmse
 
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
@@ -103,8 +103,8 @@ class TouchServo(RobustServo):
     :class:`~.config.TouchConfig`."""
 
     def __init__(self, *args, touch: TouchConfig | None = None, **kwargs):
+        self.touch = touch or TouchConfig(enabled=True)  # before the base's reset
         super().__init__(*args, **kwargs)
-        self.touch = touch or TouchConfig(enabled=True)
         tc = self.touch
         d = float(np.mean(self.desired_depths))
         self._depth = d
@@ -130,8 +130,7 @@ class TouchServo(RobustServo):
 
     def reset(self, q0, first_view: LocalView | None = None) -> None:
         super().reset(q0, first_view)
-        if hasattr(self, "touch"):
-            self._reset_phase()
+        self._reset_phase()
 
     def predicted_view(self, servo_pose, camera_pose=None):
         ps = super().predicted_view(servo_pose, camera_pose)
@@ -211,14 +210,8 @@ class TouchServo(RobustServo):
                 self.q_d = self.q_d + a * (offset - now)
                 self.qd_d = self.qd_d - a * (float(a @ self.qd_d) / aa)
                 fields = {"q_d": self.q_d.copy(), "qd_d": self.qd_d.copy()}
-        return _with(cmd, phase=self.phase, tare_force=tare, phase_changed=prev != self.phase,
-                     **fields)  # fmt: skip
+        return replace(cmd, phase=self.phase, tare_force=tare, phase_changed=prev != self.phase,
+                       **fields)  # fmt: skip
 
 
 _AXIAL = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # a unit translation along C_V's z (the axis)
-
-
-def _with(cmd: ServoCommand, **fields) -> ServoCommand:
-    from dataclasses import replace
-
-    return replace(cmd, **fields)

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..lie.se3 import rotation_angle
 from ..loop.closed_loop import ClosedLoop
+from ..loop.data import PHASES
 from ..loop.safety import SafetyMonitor
 from ..loop.sensors import RenderedFrontEnd
 from ..loop.servo import MODE_CODES, normalized_rmse
@@ -184,13 +185,13 @@ def touch_summary(a: dict, data: dict) -> dict:
     tc = data["touch"]
     fd = float(tc["force"])
     phase = a["touch_phase"]
-    hold = phase == 2
+    hold = phase == PHASES.index("hold")
     t = a["t"]
     dt = float(data["dt"])
     out = {
         "touch_force": fd,
         "touch_hold_time": float(tc["hold_time"]),
-        "touch_phase_reached": ("approach", "contact", "hold", "release")[int(phase.max())]
+        "touch_phase_reached": PHASES[int(phase.max())]
         if phase.size and phase.max() >= 0
         else None,
         "hold_duration": float(hold.sum() * dt),
@@ -214,7 +215,7 @@ def touch_summary(a: dict, data: dict) -> dict:
     if "contact_tip" in a and t.size:
         total = np.linalg.norm(a["contact_tip"] + a["contact_rod"], axis=1)
         out["max_contact_force"] = float(total.max())
-        rel = phase == 3
+        rel = phase == PHASES.index("release")
         out["released"] = bool(rel.any() and total[rel][-1] == 0.0)
     return out
 

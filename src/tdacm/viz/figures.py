@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..loop.data import PHASES
 from ..sim.outputs import FIGURE_KINDS
 
 #: Figure kinds, in the order :func:`plot_run` writes them (the run folder's layout).
@@ -452,15 +453,16 @@ def fig_contact(rd: RunData, out, formats):
     if not rd.has("touch_phase", "force_true", "force_hat", "rmse", "u", "q"):
         return []
     phase = np.asarray(rd.arrays["touch_phase"])
-    if not (phase >= 1).any():
+    contact = PHASES.index("contact")
+    if not (phase >= contact).any():
         return []
     import matplotlib.pyplot as plt
 
     t = rd.t
-    k0 = max(0, int(np.argmax(phase >= 1)) - 25)
+    k0 = max(0, int(np.argmax(phase >= contact)) - 25)
     sl = slice(k0, None)
     tt = t[sl]
-    hold = phase[sl] == 2
+    hold = phase[sl] == PHASES.index("hold")
     ft = np.asarray(rd.arrays["force_true"], float)[sl]
     fh = np.asarray(rd.arrays["force_hat"], float)[sl]
     sg = np.asarray(rd.arrays["force_sigma"], float)[sl]
