@@ -152,7 +152,7 @@ class EstimatorConfig(ConfigModel):
 
     rk4_steps: int = Field(1, ge=1, description="RK4 steps of the filter's prediction per period")
     accel_noise_angular: float = Field(
-        0.3, ge=0, description="rad/s^2/sqrt(Hz), process noise of the drone's Euler angles"
+        0.1, ge=0, description="rad/s^2/sqrt(Hz), process noise of the drone's Euler angles"
     )
     accel_noise_linear: float = Field(
         0.005, ge=0, description="m/s^2/sqrt(Hz), process noise of the drone's position"
