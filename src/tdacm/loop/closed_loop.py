@@ -33,6 +33,7 @@ from ..control import Mode
 from ..vision.virtual import BehindVirtualCamera
 from .data import (
     ActuatorCommand,
+    ForceReading,
     GlobalView,
     LocalView,
     SensorReadings,
@@ -68,7 +69,7 @@ class Sensed:
     estimate: StateEstimate
     view: LocalView
     global_view: GlobalView | None
-    force: object = None  # a tdacm.loop.touch.ForceReading when the loop has a force block
+    force: ForceReading | None = None  # when the loop has a force block (servoing into contact)
 
 
 @dataclass

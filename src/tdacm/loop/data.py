@@ -165,6 +165,20 @@ class LocalView:
 NOT_SEEN = LocalView(float("nan"))
 
 
+@dataclass(frozen=True)
+class ForceReading:
+    """The tip force estimate of one period: ``force`` (N) along ``normal`` (unit, inertial:
+    the direction the surface pushes the probe, minus the camera's optical axis), its standard
+    deviation ``sigma`` (N; from the inputs and the state covariance), ``valid`` False before
+    the first applied input."""
+
+    t: float
+    force: float = float("nan")
+    sigma: float = float("nan")
+    normal: np.ndarray | None = None
+    valid: bool = False
+
+
 class GlobalView:
     """Perception of C_G: the detection the recovery planner needs (target pose by IPPE).
     ``detection`` may be a :class:`DeferredMeasurement` (:meth:`deferred`): then C_G renders

@@ -14,6 +14,7 @@ from ..lie.se3 import rotation_angle
 from .data import (
     PHASES,
     ActuatorCommand,
+    ForceReading,
     LocalView,
     PlantState,
     SensorReadings,
@@ -131,7 +132,7 @@ class RunLog:
         estimate: StateEstimate,
         cmd: ServoCommand,
         act: ActuatorCommand,
-        force=None,
+        force: ForceReading | None = None,
     ) -> None:
         r = self.rows
         raw = view.points if view.found else None

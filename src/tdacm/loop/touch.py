@@ -33,31 +33,17 @@ back as it does, so the force stays at ``F_d`` (measured in docs/contact.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ..estimation.contact_force import TipForceEstimator
 from ..vision.ibvs import IBVSController
 from .config import TouchConfig
-from .data import PHASES, LocalView, StateEstimate
+from .data import PHASES, ForceReading, LocalView, StateEstimate
 from .servo import RobustServo, normalized_rmse
 
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
-
-
-@dataclass(frozen=True)
-class ForceReading:
-    """The tip force estimate of one period: ``force`` (N) along ``normal`` (unit, inertial:
-    the direction the surface pushes the probe, minus the camera's optical axis), its standard
-    deviation ``sigma`` (N; from the inputs and the state covariance), ``valid`` False before
-    the first applied input."""
-
-    t: float
-    force: float = float("nan")
-    sigma: float = float("nan")
-    normal: np.ndarray | None = None
-    valid: bool = False
 
 
 class TipForceBlock:
