@@ -5,6 +5,7 @@
   StateEstimate``);
 * :mod:`.inversion`: strains from measured tendon lengths (least squares);
 * :mod:`.camera`: the tip camera's view of the static target as a filter measurement;
+* :mod:`.sensor_limits`: the hover errors a pose sensor and an IMU allow (sensor sizing);
 * :mod:`.block`: :class:`FilterBlock`, the filter as the closed loop's estimation block
   (``estimation.source = "estimated"``, assembled by :func:`tdacm.sim.assemble.build_loop`).
 """
@@ -35,6 +36,7 @@ from .proprioception import (
     SensorSuite,
     TendonEncoders,
 )
+from .sensor_limits import HoverEstimateLimits, hover_estimate_limits
 
 __all__ = [
     "EstimationConfig",
@@ -43,6 +45,7 @@ __all__ = [
     "EncoderMeasurement",
     "ExtendedKalmanFilter",
     "FilterBlock",
+    "HoverEstimateLimits",
     "EstimatorConfig",
     "EstimatorDiverged",
     "Imu",
@@ -58,5 +61,6 @@ __all__ = [
     "TargetViewMeasurement",
     "TendonEncoders",
     "euler_from_rotation",
+    "hover_estimate_limits",
     "strains_from_tendon_lengths",
 ]
