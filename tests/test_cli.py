@@ -51,6 +51,8 @@ def test_info_prints_model_summary(capsys):
     text = capsys.readouterr().out
     assert "n = 8 generalized coordinates" in text
     assert "0.7331" in text and "Gauss-Legendre" in text and "EI = 0.03927" in text
+    # the default sensors and what they allow (tdacm.estimation.hover_estimate_limits)
+    assert "velocity 4.58 mm/s" in text and "tilt 0.65 mrad" in text
 
 
 def test_demo_writes_plot_data_and_bends_toward_static_value(tmp_path, capsys):

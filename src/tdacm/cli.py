@@ -187,6 +187,7 @@ def _progress(desc: str, unit: str = "frame"):
 # ------------------------------------------------------------------ commands
 def _cmd_info(args) -> int:
     from . import paper_system
+    from .estimation import SensorSuiteConfig, hover_estimate_limits
     from .system.paper import PAPER_DEFAULTS_NOT_IN_PAPER
 
     system = paper_system()
@@ -206,6 +207,18 @@ def _cmd_info(args) -> int:
         "    [g_a1, g_a2]); q = [drone, rod 1, rod 2, ...]; dual_paper_system() = the dual TD-CR\n"
         "  integrators: simulate(method='auto'|'rk4'|'rosenbrock'|'radau'|'adaptive'); 'auto' = RK4\n"
         "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'radau'"
+    )
+    sensors = SensorSuiteConfig()
+    lim = hover_estimate_limits(sensors)
+    pose, imu = sensors.pose, sensors.imu
+    print(
+        "\nDefault sensors (docs/estimation.md): drone pose "
+        f"{pose.rate_hz:g} Hz, {pose.position_noise * 1e3:g} mm, {pose.attitude_noise * 1e3:g} mrad; "
+        f"IMU {imu.rate_hz:g} Hz, gyro {imu.gyro_noise * 1e3:g} mrad/s, "
+        f"accelerometer {imu.accel_noise:g} m/s^2 (per sample)\n"
+        "  what they allow in hover, per horizontal axis (hover_estimate_limits): position "
+        f"{lim.position * 1e3:.2f} mm, velocity {lim.velocity * 1e3:.2f} mm/s, "
+        f"tilt {lim.attitude * 1e3:.2f} mrad"
     )
     return 0
 
