@@ -16,8 +16,10 @@ reasons are in ``docs/estimation.md``:
 * drone pose: 50 Hz (what a flight controller typically receives as external vision/mocap
   input), 20 ms latency (mocap + radio link), position noise 3 mm, attitude noise 0.3 deg
   (5 mrad) as a body-frame rotation vector;
-* IMU at the drone's centre of mass, delivered at the loop rate (the flight controller
-  averages its 1 kHz samples): gyro noise 5 mrad/s and a turn-on bias of std 5 mrad/s
+* IMU at the drone's centre of mass, delivered at the loop rate: the sample is the plant's
+  body rate and specific force at the capture time, with the noise of a flight controller's
+  average of its 1 kHz samples (for the specific force, the period's mean differs from the
+  instantaneous value by 0.002-0.003 m/s^2 in flight, far below the noise): gyro noise 5 mrad/s and a turn-on bias of std 5 mrad/s
   (after the usual stationary calibration); accelerometer = specific force ``R_b^T (p_ddot -
   g)`` in the body frame, noise 0.05 m/s^2 (vibration-dominated in flight), turn-on bias std
   0.05 m/s^2; optional bias random walks;
