@@ -11,9 +11,9 @@ Regenerate docs/figures/aero_wake.png with ``python -m tdacm.viz.aero docs/figur
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
+
+from ._main import figure_main
 
 #: the two configurations drawn: the hanging rod and the rod bent toward body +x
 DEFAULT_BENDS = ((0.0, 0.0), (-1.0, 0.0))
@@ -135,10 +135,7 @@ def _along(system, q, p):
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    path = argv[0] if argv else "aero_wake.png"
-    wake_figure(path)
-    return 0
+    return figure_main(wake_figure, "aero_wake.png", argv)
 
 
 if __name__ == "__main__":

@@ -13,9 +13,9 @@ Regenerate docs/figures/sensor_limits.png with
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
+
+from ._main import figure_main
 
 #: pose attitude noises drawn (rad per sample): motion capture to visual-inertial odometry
 DEFAULT_ATTITUDE_NOISES = (0.875e-3, 1.75e-3, 5e-3, 10e-3)
@@ -72,10 +72,7 @@ def sensor_limits_figure(
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    path = argv[0] if argv else "sensor_limits.png"
-    sensor_limits_figure(path)
-    return 0
+    return figure_main(sensor_limits_figure, "sensor_limits.png", argv)
 
 
 if __name__ == "__main__":
