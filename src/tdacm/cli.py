@@ -213,7 +213,8 @@ def _cmd_info(args) -> int:
     pose, imu = sensors.pose, sensors.imu
     print(
         "\nDefault sensors (docs/estimation.md): drone pose "
-        f"{pose.rate_hz:g} Hz, {pose.position_noise * 1e3:g} mm, {pose.attitude_noise * 1e3:g} mrad; "
+        f"{pose.rate_hz:g} Hz, {pose.position_noise * 1e3:g} mm, "
+        f"{pose.attitude_noise * 1e3:g} mrad; "
         f"IMU {imu.rate_hz:g} Hz, gyro {imu.gyro_noise * 1e3:g} mrad/s, "
         f"accelerometer {imu.accel_noise:g} m/s^2 (per sample)\n"
         "  what they allow in hover, per horizontal axis (hover_estimate_limits): position "

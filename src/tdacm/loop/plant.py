@@ -178,26 +178,18 @@ class Plant:
         if self.contact is not None and not self._far(s, dt):
             return self._advance_env(u, dt, loads)
         self.last_substeps = self.substeps
+        u = np.asarray(u, float)
+        m, packed = self.system.model_arrays, loads.packed()
         if aero is None:
-            qs, qds, ok = rk4_run(
-                s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
-                self.system.model_arrays, loads.packed(),
-            )  # fmt: skip
+            qs, qds, ok = rk4_run(s.q, s.qd, u, h, self.substeps, self.substeps, m, packed)
+            accel = lambda q, qd: forward_dynamics(q, qd, u, m, packed)  # noqa: E731
         else:
             if self.wind is not None:
                 set_wind(aero, self.wind.velocity(s.t))
             qs, qds, ok = rk4_run_aero(
-                s.q, s.qd, np.asarray(u, float), h, self.substeps, self.substeps,
-                self.system.model_arrays, loads.packed(), aero,
-            )  # fmt: skip
-        if aero is None:
-            accel = lambda q, qd: forward_dynamics(  # noqa: E731
-                q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed()
+                s.q, s.qd, u, h, self.substeps, self.substeps, m, packed, aero
             )
-        else:
-            accel = lambda q, qd: forward_dynamics_aero(  # noqa: E731
-                q, qd, np.asarray(u, float), self.system.model_arrays, loads.packed(), aero
-            )
+            accel = lambda q, qd: forward_dynamics_aero(q, qd, u, m, packed, aero)  # noqa: E731
         return self._end_period(qs[-1].copy(), qds[-1].copy(), ok, dt, accel)
 
     def _end_period(self, q, qd, ok, dt: float, accel) -> PlantState:
