@@ -131,3 +131,26 @@ def test_law_kernel_matches_the_matrix_form():
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-15)
     np.testing.assert_allclose(tau, tau_ref, rtol=1e-13, atol=1e-12)
     assert v == pytest.approx(v_ref, rel=1e-13)
+
+
+@pytest.mark.parametrize("beta", [1.2, 2.0])
+def test_velocity_estimate_bias_leaves_offset_b_over_beta(system, beta):
+    """A constant error ``b`` of the drone's horizontal velocity estimate: on the sliding
+    surface ``s_q = (xdot + b) + beta (x - x_d) = 0`` at rest, so the drone settles ``-b / beta``
+    from its reference however the adaptation integrates (``horizontal_position_rate``)."""
+    ctl = TDACMController(
+        system, EstimatedModel(system, 0.1, seed=2), horizontal_position_rate=beta
+    )
+    assert np.allclose(ctl.gains.beta[3:5], beta)
+    goal = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 3.0, 0.0, 0.0])
+    q, qd = goal.copy(), np.zeros(8)
+    bias = np.zeros(8)
+    bias[3] = 0.005  # m/s on x, the size of the default sensors' velocity error
+    dt = 0.02
+    for _ in range(1500):  # 30 s: the slowest horizontal mode decays at about 1 /s
+        st = ctl.step(q, qd + bias, goal, np.zeros(8), np.zeros(8), dt)
+        qs, qds, ok = rk4_run(q, qd, st.u, dt / 4, 4, 4, system.model_arrays, system.loads.packed())
+        assert ok
+        q, qd = qs[-1], qds[-1]
+    assert q[3] == pytest.approx(-bias[3] / beta, rel=0.02)
+    assert abs(q[4]) < 1e-4 and abs(qd[3]) < 1e-5

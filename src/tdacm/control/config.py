@@ -22,6 +22,12 @@ class ControlLawConfig(ConfigModel):
         0.05, ge=0, description="s, time constant of the commanded-attitude filter"
     )
     max_tilt_rate: float = Field(1.5, ge=0, description="rad/s, limit of the commanded tilt rate")
+    horizontal_position_rate: float = Field(
+        1.2,
+        gt=0,
+        description="1/s, beta of the drone's x and y in s_q = edot + beta e: a slow error b of "
+        "the horizontal velocity estimate leaves the drone b / beta from its reference",
+    )
 
 
 #: the defaults, for the constructors

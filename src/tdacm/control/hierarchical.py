@@ -55,21 +55,31 @@ def attitude_from_force(force, psi_d: float, exact: bool = False):
     return big_f, float(np.arctan(b / big_f)), float(np.arctan(a / big_f))
 
 
-def default_gains(system: TDACM, q=None) -> AdaptiveGains:
+def default_gains(
+    system: TDACM,
+    q=None,
+    horizontal_position_rate: float = LAW_DEFAULTS.horizontal_position_rate,
+) -> AdaptiveGains:
     """Diagonal gains used by the scenarios, scaled by the effective inertia of each
     coordinate at ``q`` (``1 / (M0^-1)_ii``, the inertia seen with the other coordinates
     free): the drone's roll/pitch and the rod strains are strongly coupled
     (``M_07 ~ 2 M_77``), and gains scaled by ``diag(M0)`` would be too high for the coupled
     modes at 50 Hz. ``A_p = A_d beta`` satisfies the gain condition for every ``eps > 1/2``.
-    The horizontal damping rate (1.5 /s; 3 /s before) is low because the horizontal velocity
-    of a real drone is an estimate (5 mm/s RMS with the default pose sensor): a stiffer
-    damping turned that noise into tilt commands that shook the camera (docs/control.md)."""
+    The horizontal damping rate (1.5 /s) is low because the horizontal velocity of a real
+    drone is an estimate (3-5 mm/s RMS with the default pose sensor): a stiffer damping turned
+    that noise into tilt commands that shook the camera (docs/control.md). On the sliding
+    surface ``s_q = 0`` the same error's slow part ``b`` (below about 1 Hz, which the pose
+    sensor cannot remove, :func:`tdacm.estimation.hover_estimate_limits`) leaves the drone
+    ``b / beta`` away from its reference: the horizontal ``beta``
+    (``horizontal_position_rate``, 1/s) trades that offset against the position noise fed to
+    the tilt command."""
     q = np.zeros(system.n) if q is None else np.asarray(q, float)
     m = 1.0 / np.diag(np.linalg.inv(system.terms(q, np.zeros(system.n)).M))
     if system.floating:
         ns = system.n_s
         #         roll  pitch  yaw   x     y     z     q_s...
-        beta = [6.0, 6.0, 3.0, 1.2, 1.2, 1.5] + [6.0] * ns
+        bh = float(horizontal_position_rate)
+        beta = [6.0, 6.0, 3.0, bh, bh, 1.5] + [6.0] * ns
         rate = [16.0, 16.0, 8.0, 1.5, 1.5, 4.0] + [25.0] * ns
         adapt = [20.0, 20.0, 8.0, 1.5, 1.5, 3.0] + [20.0] * ns
     else:
@@ -116,6 +126,9 @@ class TDACMController:
     min_lift:
         The vertical component of the desired force is kept above ``min_lift`` times the
         weight before the tilt is computed (a descending drone still needs thrust).
+    horizontal_position_rate:
+        The drone's horizontal ``beta`` (1/s) of the default gains; unused when ``gains`` is
+        given.
     """
 
     def __init__(
@@ -129,10 +142,13 @@ class TDACMController:
         max_tilt_rate: float = LAW_DEFAULTS.max_tilt_rate,
         min_lift: float = 0.8,
         exact_attitude: bool = False,
+        horizontal_position_rate: float = LAW_DEFAULTS.horizontal_position_rate,
     ):
         self.system = system
         self.model = EstimatedModel(system) if model is None else model
-        self.gains = default_gains(system) if gains is None else gains
+        if gains is None:
+            gains = default_gains(system, horizontal_position_rate=horizontal_position_rate)
+        self.gains = gains
         self.law = AdaptiveController(self.model, self.gains)
         self.pretension = float(pretension)
         self.max_tilt = float(max_tilt)
@@ -150,14 +166,12 @@ class TDACMController:
     def from_options(cls, system, model, q_star, options: dict) -> TDACMController:
         """The scenario's controller: gains for the desired configuration ``q_star``
         (:func:`default_gains`) and the ``[controller]`` options (``pretension``,
-        ``max_tilt``, ``attitude_filter``, ``max_tilt_rate``; missing ones take the defaults)."""
+        ``max_tilt``, ``attitude_filter``, ``max_tilt_rate``, ``horizontal_position_rate``;
+        missing ones take the defaults)."""
         keys = tuple(ControlLawConfig.model_fields)
-        return cls(
-            system,
-            model,
-            default_gains(system, q_star),
-            **{k: options[k] for k in keys if k in options},
-        )
+        law = {k: options[k] for k in keys if k in options}
+        rate = law.pop("horizontal_position_rate", LAW_DEFAULTS.horizontal_position_rate)
+        return cls(system, model, default_gains(system, q_star, rate), **law)
 
     def reset(self, q=None):
         self.law.reset()
