@@ -20,9 +20,9 @@ reasons are in ``docs/estimation.md``:
   body rate and specific force at the capture time, with the noise of a flight controller's
   average of its 1 kHz samples (for the specific force, the period's mean differs from the
   instantaneous value by 0.002-0.003 m/s^2 in flight, far below the noise): gyro noise
-  5 mrad/s and a turn-on bias of std 5 mrad/s (after the usual stationary calibration); accelerometer = specific force ``R_b^T (p_ddot -
-  g)`` in the body frame, noise 0.05 m/s^2 (vibration-dominated in flight), turn-on bias std
-  0.05 m/s^2; optional bias random walks;
+  5 mrad/s and a turn-on bias of std 5 mrad/s (after the usual stationary calibration);
+  accelerometer = specific force ``R_b^T (p_ddot - g)`` in the body frame, noise 0.05 m/s^2
+  (vibration-dominated in flight), turn-on bias std 0.05 m/s^2; optional bias random walks;
 * tendon encoders: the change of each tendon's path length ``l_i(q) - l_i(q_ref)`` (encoders
   zeroed with the rod straight, ``q_ref = 0``), quantized at 10 um (a 4096-count encoder on a
   6.5 mm spool radius), noise 5 um; ``bias`` draws a constant offset per tendon (slack or
