@@ -369,11 +369,17 @@ def _cmd_scenarios(args) -> int:
 
 
 def _cmd_schema(args) -> int:
-    """The JSON Schema of a scenario file, or (``--markdown``) the scenario reference."""
+    """The JSON Schema of a scenario file (of a campaign spec with ``--campaign``), or
+    (``--markdown``) the scenario reference."""
     import json
 
     from .sim.config import json_schema, reference_markdown
 
+    if args.campaign:
+        from .campaign.spec import json_schema as campaign_schema
+
+        print(json.dumps(campaign_schema(), indent=2))
+        return 0
     if args.markdown is None:
         print(json.dumps(json_schema(), indent=2))
         return 0
@@ -710,8 +716,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser(
         "schema",
         help="print the JSON Schema of a scenario file (for editor completion)",
-        description="Print the JSON Schema of a scenario file; with --markdown, write the "
-        "scenario reference (docs/scenario-reference.md) generated from the same records.",
+        description="Print the JSON Schema of a scenario file (of a campaign spec with "
+        "--campaign); with --markdown, write the scenario reference "
+        "(docs/scenario-reference.md) generated from the same records.",
     )
     s.add_argument(
         "--markdown",
@@ -719,6 +726,9 @@ def build_parser() -> argparse.ArgumentParser:
         const="-",
         metavar="FILE.md",
         help="write the scenario reference in Markdown instead (default: stdout)",
+    )
+    s.add_argument(
+        "--campaign", action="store_true", help="the JSON Schema of a campaign spec instead"
     )
     s.set_defaults(func=_cmd_schema)
     s = sub.add_parser("campaign", help="run a robustness campaign on Dask (resumable)")

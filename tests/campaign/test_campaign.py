@@ -35,9 +35,9 @@ def test_spec_validation_errors(scenario_data):
         with pytest.raises(CampaignSpecError, match=match):
             parse_spec(text, "spec.toml", scenario_data)
 
-    bad("runs = 3", "'scenario'")
-    bad('scenario = "paper-in-fov"\nruns = 0', "'runs' must be a positive integer")
-    bad('scenario = "paper-in-fov"\nruns = 2\nworkers = 3', "unknown keys")
+    bad("runs = 3", "scenario is required")
+    bad('scenario = "paper-in-fov"\nruns = 0', "runs must be >= 1, got 0")
+    bad('scenario = "paper-in-fov"\nruns = 2\nworkers = 3', "unknown key workers")
     bad(
         'scenario = "paper-in-fov"\nruns = 2\n[distributions]\n"initial.q" = { kind = "gauss", std = 1 }',
         "kind",
@@ -290,7 +290,7 @@ def test_success_window_criterion(scenario_data):
     summary2 = {"final_rmse": 0.004, "terminated": False}
     assert succeeded(plain, arrays2, summary2) and not succeeded(windowed, arrays2, summary2)
     assert not succeeded(windowed, arrays, {**summary, "terminated": True})
-    for bad, match in (("success_window = 0.0", "success_window must be positive"),
+    for bad, match in (("success_window = 0.0", "success_window must be > 0"),
                        ("success_window = 5.0", "must not exceed duration")):  # fmt: skip
         with pytest.raises(CampaignSpecError, match=match):
             parse_spec(base + bad, "s", scenario_data)

@@ -173,5 +173,5 @@ def test_campaign_hold_rule():
         assert not succeeded(spec, {}, {**ok, **bad}), bad
     assert "success_hold_force_rms" in spec.as_dict()
     assert "success_hold_force_rms" not in parse_spec(text.replace("success_hold", "#")).as_dict()
-    with pytest.raises(CampaignSpecError, match="success_hold_force_rms must be positive"):
+    with pytest.raises(CampaignSpecError, match="success_hold_force_rms must be > 0"):
         parse_spec(text.replace("0.2", "0"))

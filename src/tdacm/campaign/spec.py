@@ -30,6 +30,11 @@ booleans, each a valid value of the key), ``truncnormal`` (``mean``, ``std``, op
 generator, until they lie in ``[low, high]`` and in the key's valid range).  Vectors take vector
 parameters of the key's length or scalars (broadcast).
 
+The file is the record :class:`CampaignSpecConfig` (one :class:`DistributionConfig` per
+distribution), validated as a scenario is: an error is one line naming the dotted key, and
+``tdacm schema --campaign`` prints its JSON Schema. The checks that need the scenario (the key
+exists, vector lengths, the key's range) follow in :func:`parse_spec`.
+
 The valid range of a key comes from the scenario's records (:func:`tdacm.sim.config.bounds`):
 a distribution whose samples can leave it (a ``normal`` on ``sensors.pixel_noise``, which must
 be >= 0; a ``uniform`` or ``choice`` reaching outside) is rejected when the spec is loaded,
@@ -42,10 +47,14 @@ import hashlib
 import json
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
+from pydantic import ValidationError, model_validator
+
+from .._config import ConfigModel, Field
 
 
 class CampaignSpecError(ValueError):
@@ -60,8 +69,100 @@ KINDS = {
     "truncnormal": {"mean", "std", "low", "high"},
 }
 
+#: the parameters a kind must have (the others of :data:`KINDS` are optional)
+NEEDS = {"fixed": ("value",), "normal": ("std",), "uniform": ("low", "high"),
+         "choice": ("values",), "truncnormal": ("mean", "std")}  # fmt: skip
+
 #: draws of a truncnormal before giving up (the window must hold some of the normal's mass)
 MAX_REDRAWS = 10_000
+
+Param = float | list[float]
+
+
+class DistributionConfig(ConfigModel):
+    """One entry of ``[distributions]``: ``kind`` and its parameters (module docstring); a
+    vector parameter has the key's length, a scalar is broadcast."""
+
+    kind: Literal["fixed", "normal", "uniform", "choice", "truncnormal"] = Field(
+        description="the distribution"
+    )
+    value: Param | bool | str | None = Field(None, description="fixed: the value")
+    values: list[Param | bool | str] | None = Field(
+        None, min_length=1, description="choice: the values drawn from (uniformly)"
+    )
+    mean: Param | None = Field(
+        None, description="normal: mean of the draw (default 0); truncnormal: its mean"
+    )
+    std: Param | None = Field(None, description="normal, truncnormal: standard deviation")
+    low: Param | None = Field(
+        None, description="uniform: lower end; truncnormal: lower end of the window (optional)"
+    )
+    high: Param | None = Field(
+        None, description="uniform: upper end; truncnormal: upper end of the window (optional)"
+    )
+    relative: bool = Field(
+        False, description="normal: multiply the scenario's value by 1 + N(mean, std)"
+    )
+    offset: bool = Field(False, description="uniform: add the draw to the scenario's value")
+
+    @model_validator(mode="after")
+    def _parameters(self):
+        given = self.model_fields_set - {"kind"}
+        extra = given - KINDS[self.kind]
+        if extra:
+            raise ValueError(f"unknown parameters {sorted(extra)} for kind {self.kind!r}")
+        missing = [k for k in NEEDS[self.kind] if k not in given]
+        if missing:
+            raise ValueError(f"kind {self.kind!r} needs {' and '.join(repr(k) for k in missing)}")
+        return self
+
+
+class CampaignSpecConfig(ConfigModel):
+    """A campaign spec file (``tdacm campaign SPEC``, docs/campaigns.md)."""
+
+    scenario: str = Field(description="a shipped scenario name or a scenario TOML path")
+    runs: int = Field(ge=1, description="number of runs")
+    seed: int = Field(
+        0, ge=0, description="master seed: run i gets its own seed from SeedSequence(seed)"
+    )
+    duration: float | None = Field(
+        None, gt=0, description="s, overrides the scenario's duration (unset: the scenario's)"
+    )
+    success_rmse: float = Field(
+        0.01, gt=0, description="a run succeeds if it ends at or below this normalized RMSE"
+    )
+    success_window: float | None = Field(
+        None,
+        gt=0,
+        description="s: judge the RMS of the normalized RMSE over the run's last seconds "
+        "(unset: its last sample)",
+    )
+    success_hold_force_rms: float | None = Field(
+        None,
+        gt=0,
+        description="servoing into contact: a run succeeds if it held the force for "
+        "touch.hold_time within this fraction RMS, the normalized RMSE <= success_rmse "
+        "throughout the hold",
+    )
+    distributions: dict[str, DistributionConfig] = Field(
+        {}, description="dotted scenario key -> its distribution"
+    )
+
+    @model_validator(mode="after")
+    def _rules(self):
+        w, d = self.success_window, self.duration
+        if w is not None and d is not None and w > d:
+            raise ValueError(f"success_window ({w} s) must not exceed duration ({d} s)")
+        if self.success_hold_force_rms is not None and w is not None:
+            raise ValueError("success_hold_force_rms and success_window are two rules: give one")
+        return self
+
+
+def json_schema() -> dict:
+    """The JSON Schema of a campaign spec file (``tdacm schema --campaign``)."""
+    schema = CampaignSpecConfig.model_json_schema()
+    schema["title"] = "tdacm campaign spec"
+    return schema
 
 
 @dataclass
@@ -69,9 +170,9 @@ class CampaignSpec:
     scenario: str
     runs: int
     seed: int
-    distributions: dict = field(default_factory=dict)
-    duration: float | None = None
-    success_rmse: float = 0.01
+    distributions: dict
+    duration: float | None
+    success_rmse: float
     source: str = "<spec>"
     #: s: judge a run on the RMS of its normalized RMSE over its last ``success_window``
     #: seconds (:func:`tdacm.sim.runner.late_rmse`); ``None``: on its last sample
@@ -111,17 +212,6 @@ class CampaignSpec:
 
 def _err(source, msg):
     raise CampaignSpecError(f"{source}: {msg}")
-
-
-def _optional_positive(source, data: dict, key: str, unit: str = ""):
-    """``data[key]`` as a positive float, or ``None`` when absent (one-line error otherwise)."""
-    value = data.get(key)
-    if value is None:
-        return None
-    value = _num(source, key, value)
-    if value <= 0:
-        _err(source, f"{key} must be positive{unit}, got {value}")
-    return value
 
 
 def _num(source, where, v):
@@ -224,38 +314,17 @@ def parse_spec(
 ) -> CampaignSpec:
     """Parse and validate a campaign spec (TOML text).  ``scenario_defaults`` (the scenario's
     resolved data) lets the validation check every distribution key and vector length."""
+    from ..sim.config import error_line
+
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CampaignSpecError(f"{source}: invalid TOML: {exc}") from None
-    known = {"scenario", "runs", "seed", "duration", "success_rmse", "success_window",
-             "success_hold_force_rms", "distributions"}  # fmt: skip
-    unknown = set(data) - known
-    if unknown:
-        _err(source, f"unknown keys {sorted(unknown)} (known: {sorted(known)})")
-    if not isinstance(data.get("scenario"), str):
-        _err(source, "'scenario' (a scenario name or path) is required")
-    runs = data.get("runs")
-    if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
-        _err(source, f"'runs' must be a positive integer, got {runs!r}")
-    seed = data.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        _err(source, f"'seed' must be a non-negative integer, got {seed!r}")
-    duration = _optional_positive(source, data, "duration")
-    success = _num(source, "success_rmse", data.get("success_rmse", 0.01))
-    if success <= 0:
-        _err(source, f"success_rmse must be positive, got {success}")
-    window = _optional_positive(source, data, "success_window", " (s)")
-    if window is not None:
-        if duration is not None and window > duration:
-            _err(source, f"success_window ({window} s) must not exceed duration ({duration} s)")
-    hold_rms = _optional_positive(source, data, "success_hold_force_rms")
-    if hold_rms is not None:
-        if window is not None:
-            _err(source, "success_hold_force_rms and success_window are two rules: give one")
-    dists = data.get("distributions", {})
-    if not isinstance(dists, dict):
-        _err(source, "[distributions] must be a table")
+    try:
+        rec = CampaignSpecConfig.model_validate(data)
+    except ValidationError as exc:
+        raise CampaignSpecError(f"{source}: {error_line(exc, CampaignSpecConfig)}") from None
+    dists = {k: v.model_dump(exclude_unset=True) for k, v in rec.distributions.items()}
     clean = {}
     for key, d in dists.items():
         where = f"distributions.{key!r}"
@@ -298,12 +367,7 @@ def parse_spec(
             vals = [d.get("value")] if d.get("kind") == "fixed" else d.get("values") or []
             text_value = bool(vals) and all(isinstance(v, bool | str) for v in vals)
             base = vals[0] if text_value else None
-        if not isinstance(d, dict) or d.get("kind") not in KINDS:
-            _err(source, f"{where} must be a table with kind = one of {sorted(KINDS)}, got {d!r}")
         kind = d["kind"]
-        extra = set(d) - KINDS[kind] - {"kind"}
-        if extra:
-            _err(source, f"{where}: unknown parameters {sorted(extra)} for kind {kind!r}")
         out = {"kind": kind}
         if text_value:
             if kind not in ("fixed", "choice"):
@@ -317,28 +381,20 @@ def parse_spec(
                 _err(source, f"{where}: give {type(base).__name__} value(s) for {key}, got {d!r}")
             out["value" if kind == "fixed" else "values"] = vals[0] if kind == "fixed" else vals
         elif kind == "fixed":
-            if "value" not in d:
-                _err(source, f"{where}: kind 'fixed' needs 'value'")
             out["value"] = _vec_or_scalar(source, f"{where}.value", d["value"], length)
         elif kind == "normal":
-            if "std" not in d:
-                _err(source, f"{where}: kind 'normal' needs 'std'")
             out["std"] = _vec_or_scalar(source, f"{where}.std", d["std"], length)
             if np.any(np.asarray(out["std"]) < 0):
                 _err(source, f"{where}.std must be non-negative, got {d['std']!r}")
             out["mean"] = _vec_or_scalar(source, f"{where}.mean", d.get("mean", 0.0), length)
             out["relative"] = bool(d.get("relative", False))
         elif kind == "uniform":
-            if "low" not in d or "high" not in d:
-                _err(source, f"{where}: kind 'uniform' needs 'low' and 'high'")
             out["low"] = _vec_or_scalar(source, f"{where}.low", d["low"], length)
             out["high"] = _vec_or_scalar(source, f"{where}.high", d["high"], length)
             if np.any(np.asarray(out["high"]) < np.asarray(out["low"])):
                 _err(source, f"{where}: high must be >= low")
             out["offset"] = bool(d.get("offset", False))
         elif kind == "truncnormal":
-            if "std" not in d or "mean" not in d:
-                _err(source, f"{where}: kind 'truncnormal' needs 'mean' and 'std'")
             out["mean"] = _vec_or_scalar(source, f"{where}.mean", d["mean"], length)
             out["std"] = _vec_or_scalar(source, f"{where}.std", d["std"], length)
             if np.any(np.asarray(out["std"]) < 0):
@@ -351,16 +407,14 @@ def parse_spec(
             if np.any(np.asarray(_side(out, "high")) < np.asarray(_side(out, "low"))):
                 _err(source, f"{where}: high must be >= low")
         else:
-            vals = d.get("values")
-            if not isinstance(vals, list) or not vals:
-                _err(source, f"{where}: kind 'choice' needs a non-empty list 'values'")
+            vals = d["values"]
             out["values"] = [_vec_or_scalar(source, f"{where}.values", v, length) for v in vals]
         if scenario_defaults is not None:
             _check_range(source, where, key, out, base)
         clean[key] = out
     return CampaignSpec(
-        data["scenario"], runs, seed, clean, duration, success, source, success_window=window,
-        success_hold_force_rms=hold_rms,
+        rec.scenario, rec.runs, rec.seed, clean, rec.duration, rec.success_rmse, source,
+        success_window=rec.success_window, success_hold_force_rms=rec.success_hold_force_rms,
     )  # fmt: skip
 
 

@@ -183,26 +183,33 @@ TOP_KEYS = tuple(k for k, f in _by_key(ScenarioConfig).items() if _model_of(f.an
 SECTIONS = tuple(k for k, f in _by_key(ScenarioConfig).items() if _model_of(f.annotation))
 
 
-def _walk(path):
-    """``(record, field)`` of a dotted key given as parts (``("ibvs", "gain")``); list indices
-    are skipped. ``field`` is ``None`` for a section; raises ``KeyError`` if unknown."""
-    model, field = ScenarioConfig, None
+def _walk(path, root=None):
+    """``(record, field)`` of a dotted key given as parts (``("ibvs", "gain")``) in ``root``
+    (default :class:`ScenarioConfig`); list indices are skipped. ``field`` is ``None`` for a
+    section; raises ``KeyError`` if unknown."""
+    model, field = root or ScenarioConfig, None
+    table = False  # the previous part was a table of records (dict[str, Record]): skip a key
     for part in path:
-        if isinstance(part, int):
+        if isinstance(part, int) or table:
+            table = False
             continue
         if model is None:
             raise KeyError(part)
         field = _by_key(model)[part]
+        ann = field.annotation
+        if getattr(ann, "__origin__", None) is dict and _model_of(ann.__args__[1]) is not None:
+            model, field, table = ann.__args__[1], None, True
+            continue
         model = _model_of(field.annotation)
         if model is not None:
             field = None
     return model, field
 
 
-def bounds(key: str):
+def bounds(key: str, root=None):
     """``(low, low_inclusive, high, high_inclusive)`` of a numeric scenario key (``None`` for an
     open side), from the record's constraints; ``KeyError`` for an unknown key."""
-    _, field = _walk(key.split("."))
+    _, field = _walk(key.split("."), root)
     if field is None:
         raise KeyError(key)
     lo = hi = None
@@ -227,9 +234,9 @@ def key_type(key: str):
     return field.annotation
 
 
-def range_text(key: str) -> str:
+def range_text(key: str, root=None) -> str:
     """``"> 0"``, ``">= 0"``, ``"in [0, 1)"`` ... for a key's numeric range ("" if none)."""
-    lo, lo_in, hi, hi_in = bounds(key)
+    lo, lo_in, hi, hi_in = bounds(key, root)
     if lo is not None and hi is not None:
         return f"in {'[' if lo_in else '('}{lo:g}, {hi:g}{']' if hi_in else ')'}"
     if lo is not None:
@@ -242,20 +249,25 @@ def range_text(key: str) -> str:
 def _dotted(loc) -> str:
     out = ""
     for part in loc:
+        if isinstance(part, str) and "." in part:  # a table's key that is a dotted path
+            part = repr(part)
         out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
     return out
 
 
-def error_line(exc: ValidationError) -> str:
-    """The first error of ``exc`` (a validation of :class:`ScenarioConfig`) as one line naming
-    the dotted key and what it must be (the allowed range or values, the known keys)."""
+def error_line(exc: ValidationError, root=None) -> str:
+    """The first error of ``exc`` (a validation of ``root``, default :class:`ScenarioConfig`)
+    as one line naming the dotted key and what it must be (the allowed range or values, the
+    known keys)."""
     err = exc.errors()[0]
     loc, kind, value = err["loc"], err["type"], err.get("input")
     key = _dotted(loc)
+    if kind == "missing":
+        return f"{key} is required"
     if kind == "extra_forbidden":
-        model, _ = _walk(loc[:-1])
+        model, _ = _walk(loc[:-1], root)
         known = ", ".join(_by_key(model))
-        if len(loc) == 1:
+        if len(loc) == 1 and root is None:
             if isinstance(value, dict):
                 return f"unknown section [{key}] (known: {', '.join(SECTIONS)})"
             return f"unknown key {key!r} (known: {', '.join(TOP_KEYS)}, or a section)"
@@ -263,17 +275,20 @@ def error_line(exc: ValidationError) -> str:
     if kind in ("model_type", "dict_type", "model_attributes_type"):
         return f"{key} must be a section [{key}], got {value!r}"
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
-        rng = range_text(".".join(str(p) for p in loc if not isinstance(p, int)))
+        rng = range_text(".".join(str(p) for p in loc if not isinstance(p, int)), root)
         return f"{key} must be {rng}, got {value!r}"
     if kind == "literal_error":
         return f"{key} must be one of {err['ctx']['expected']}, got {value!r}"
     if kind in ("too_short", "too_long"):
-        _, field = _walk(loc)
-        lens = {getattr(m, a) for m in field.metadata for a in ("min_length", "max_length")
-                if getattr(m, a, None) is not None} if field is not None else set()  # fmt: skip
+        _, field = _walk(loc, root)
+        meta = field.metadata if field is not None else []
+        lo = {m.min_length for m in meta if getattr(m, "min_length", None) is not None}
+        hi = {m.max_length for m in meta if getattr(m, "max_length", None) is not None}
         n = len(value) if isinstance(value, list | tuple) else "?"
-        if len(lens) == 1:
-            return f"{key} must have {lens.pop()} entries, got {n}"
+        if lo and lo == hi:
+            return f"{key} must have {lo.pop()} entries, got {n}"
+        if lo and not hi:
+            return f"{key} must have at least {lo.pop()} entries, got {n}"
         return f"{key}: {err['msg']}"
     simple = {
         "float_type": "a finite number",
