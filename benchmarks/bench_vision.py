@@ -50,7 +50,7 @@ def bench_config(renderer, camera, scene, frames: int, ref: np.ndarray) -> dict:
     """Servo ``camera`` from a pose near ``ref`` towards the view of ``ref``."""
     xd, zd = reference_from_pose(scene.target, scene.target_pose, ref)
     detector = TargetDetector(scene.target)
-    ibvs = IBVSController(xd, zd, gain=1.0)
+    ibvs = IBVSController(xd, zd, gain=1.0, floor=0.0)
     # start 26 deg about the optical axis, a few cm sideways and 0.15 m further forward
     # (for C_G: away from the drone body, which would otherwise fill the view)
     g = ref @ expmap(np.array([0.0, 0.0, 0.45, 0.05, -0.04, 0.15]))
@@ -112,7 +112,7 @@ def closed_loop_rate(runs: int) -> dict:
             xy, z = project_points(pts, g0)
             if LOCAL_CAMERA.all_in_fov(np.column_stack((xy * z[:, None], z)), margin=5):
                 break
-        r = free_camera_servo(pts, g0, gd, camera=LOCAL_CAMERA)
+        r = free_camera_servo(pts, g0, gd, gain=5.0, camera=LOCAL_CAMERA)
         r_yaw = abs(np.degrees(np.arctan2(g0[1, 0], g0[0, 0])))
         ok += r.converged
         if r_yaw > 90:

@@ -142,7 +142,7 @@ def campaign_bound(runs, spec_path="examples/campaigns/paper-in-fov-200.toml"):
             f"(frames + level prior), flown within: {flown[-1]}",
             flush=True,
         )
-    prior = servo.robust.level_prior_deg
+    prior = servo.config.target_level_prior_deg
     print(
         f"{runs} runs of {spec_path}: an ideal controller ends within 3 cm and 2 deg in "
         f"{100 * np.mean(ideal):.1f} % from the frames alone (per run {100 * min(ideal):.1f}-"

@@ -48,7 +48,7 @@ def main() -> None:
     # the closed loop's local-camera chain: detector, perception block, IBVS law
     detector = TargetDetector(scene.target)
     perception = Perception(camera, GLOBAL_CAMERA, scene.target)
-    ibvs = IBVSController(xd, zd, gain=args.gain)
+    ibvs = IBVSController(xd, zd, gain=args.gain, floor=0.0)
 
     g = scene.viewing_pose(1.9, 120.0)
     g[:3, 3] += [0.15, -0.1, 0.0]

@@ -49,7 +49,7 @@ def main() -> None:
     # reference snapshot: the target centred in C_L at the final configuration
     g_ref = camera_pose(system.tip_pose(q_final), DEFAULT_TIP_CAMERA_MOUNT)
     xd, zd = reference_from_pose(scene.target, scene.target_pose, g_ref)
-    ibvs = IBVSController(xd, zd, gain=0.5)
+    ibvs = IBVSController(xd, zd, gain=0.5, floor=0.0)
 
     with PyBulletRenderer(scene, backend=args.backend) as renderer:
         for name, q in (("final", q_final), ("current", q_now)):

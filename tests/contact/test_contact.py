@@ -310,11 +310,11 @@ def test_scenario_obstacles_reach_the_plant_and_the_log(tmp_path):
     scene = SceneSection(
         obstacles=[{"shape": "sphere", "position": [0, 0, -1.2], "radius": 0.2}],
         contact={"target_box": True, "tip_stiffness": 500.0},
-    ).model_dump()
+    )
     opts = contact_plant_options(scene, s)
     c = opts["contact"]
     assert c[CL.N_SHAPES] == 2 and c[CL.K_TIP] == 500.0
-    assert contact_plant_options(SceneSection().model_dump(), s) == {}
+    assert contact_plant_options(SceneSection(), s) == {}
     with pytest.raises(ValueError, match="needs radius"):
         SceneSection(obstacles=[{"shape": "sphere"}])
 

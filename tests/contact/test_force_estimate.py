@@ -5,6 +5,7 @@ import pytest
 from scipy.optimize import root
 
 from tdacm.contact import ContactModel, Plane
+from tdacm.control.config import LAW_DEFAULTS
 from tdacm.control.model import EstimatedModel
 from tdacm.estimation.contact_force import TipForceEstimator
 from tdacm.rod import StrainBasis
@@ -67,7 +68,7 @@ def test_exact_with_the_true_model():
     z = np.zeros(S.n)
     q = _static(6.0, _static(0.6, z))
     true = contact_state(S, q, z, WALL).tip
-    est = TipForceEstimator(EstimatedModel(S, 0.0, 0))
+    est = TipForceEstimator(EstimatedModel(S, 0.0, 0), input_sigma=0.05)
     f, _ = est.normal_force(q, z, np.r_[6.0, 0, 0, 0], NORMAL)
     assert f == pytest.approx(true @ NORMAL, rel=1e-6)
     full = est.estimate(q, z, np.r_[6.0, 0, 0, 0])
@@ -95,8 +96,8 @@ def test_force_estimate_during_a_hold_of_the_flying_arm():
     c = contact_array(s, ContactModel(obstacles=(Plane((0, 0, floor)),)))
     plant = Plant(s, q0, np.zeros(s.n), contact=c)
     model = EstimatedModel(s, 0.1, 1)
-    ctl = TDACMController.from_options(s, model, q0, {})
-    est = TipForceEstimator(model, rows="all")
+    ctl = TDACMController.from_config(s, model, q0, LAW_DEFAULTS)
+    est = TipForceEstimator(model, rows="all", input_sigma=0.05)
     dt, z_d, qd_prev, rows = 0.02, 3.0, np.zeros(s.n), []
     for _ in range(int(9.0 / dt)):
         st = plant.state

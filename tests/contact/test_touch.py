@@ -110,10 +110,11 @@ def test_force_estimate_on_a_probe_is_exact_with_the_true_model():
     # inputs balancing gravity, elasticity and the contact at rest: B u = K - tau_ext - tau_c
     u = np.linalg.lstsq(b, t.K - t.tau_ext - tau_c, rcond=None)[0]
     assert np.allclose(b @ u, t.K - t.tau_ext - tau_c, atol=1e-9)
-    est = TipForceEstimator(EstimatedModel(S, 0.0, 0), "all", offset=o)
+    est = TipForceEstimator(EstimatedModel(S, 0.0, 0), "all", input_sigma=0.05, offset=o)
     f, _ = est.normal_force(q, np.zeros(S.n), u, (0, 0, 1))
     assert f == pytest.approx(true[2], rel=1e-6)
-    plain = TipForceEstimator(EstimatedModel(S, 0.0, 0), "all")  # the moment ignored: off
+    # the moment ignored: off
+    plain = TipForceEstimator(EstimatedModel(S, 0.0, 0), "all", input_sigma=0.05)
     assert abs(plain.normal_force(q, np.zeros(S.n), u, (0, 0, 1))[0] - true[2]) > 1e-3
 
 

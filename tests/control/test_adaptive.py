@@ -13,6 +13,7 @@ from tdacm.control import (
     TDACMController,
     check_gains,
 )
+from tdacm.control.config import ControlLawConfig
 from tdacm.system.kernels import rk4_run
 
 
@@ -138,9 +139,8 @@ def test_velocity_estimate_bias_leaves_offset_b_over_beta(system, beta):
     """A constant error ``b`` of the drone's horizontal velocity estimate: on the sliding
     surface ``s_q = (xdot + b) + beta (x - x_d) = 0`` at rest, so the drone settles ``-b / beta``
     from its reference however the adaptation integrates (``horizontal_position_rate``)."""
-    ctl = TDACMController(
-        system, EstimatedModel(system, 0.1, seed=2), horizontal_position_rate=beta
-    )
+    law = ControlLawConfig(horizontal_position_rate=beta)
+    ctl = TDACMController(system, EstimatedModel(system, 0.1, seed=2), law=law)
     assert np.allclose(ctl.gains.beta[3:5], beta)
     goal = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 3.0, 0.0, 0.0])
     q, qd = goal.copy(), np.zeros(8)

@@ -144,6 +144,6 @@ def test_target_camera_validation_names_the_argument():
     with pytest.raises(ValueError, match="object_points"):
         TargetCamera(tip_camera_mount(), np.zeros((3, 3)), np.array([1e-3, 1e-3]))
     with pytest.raises(ValueError, match="initial_position_std"):
-        _camera(initial_position_std=0.0)
+        _camera(target_initial_position_std=0.0)
     with pytest.raises(ValueError, match="level_normal"):
         _camera(level_normal=np.zeros(3))

@@ -305,7 +305,7 @@ def test_robot_section_builds_any_robot_and_names_bad_keys():
         build_world(two)
     with pytest.raises(ScenarioError, match=r"initial.q must have 10 entries"):
         parse_scenario(base + '[robot.rod]\nbasis = "bending:1"\n')
-    r = build_robot(load_scenario("paper-in-fov")["robot"])
+    r = build_robot(load_scenario("paper-in-fov").config.robot)
     assert r.system.n == 8
 
 

@@ -16,7 +16,6 @@ from tdacm.base import Quadrotor
 from tdacm.campaign.spec import CampaignSpecError, parse_spec, sample_overrides
 from tdacm.estimation import EstimatorConfig, SensorSuiteConfig
 from tdacm.loop.config import IbvsConfig, RecoveryConfig
-from tdacm.loop.servo import RecoveryParams, RobustParams, ShapingParams
 from tdacm.rod import Rod, Tendons
 from tdacm.sim import build_loop
 from tdacm.sim import config as C
@@ -34,17 +33,15 @@ ANALYTIC = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar
 
 
 # ------------------------------------------------------------------ one default per value
-def test_servo_records_take_the_scenario_defaults():
+def test_servo_takes_the_scenario_records_whole():
     ib, rc = IbvsConfig(), RecoveryConfig()
-    robust = RobustParams.from_config(ib, rc)
-    assert (
-        robust.level_prior_deg
-        == 0.5
-        == load_scenario("ground-test-a")["ibvs"]["target_level_prior_deg"]
-    )
-    assert robust.window == ib.filter_window and robust.lost_timeout == rc.lost_timeout
-    assert ShapingParams.from_config(ib).max_joint_rate == 0.4
-    assert RecoveryParams.from_config(rc).lose == 5
+    sc = load_scenario("ground-test-a").with_overrides(ANALYTIC)
+    servo = build_loop(sc).loop.servo
+    assert servo.config == sc.config.ibvs and servo.recovery == sc.config.recovery
+    assert servo.config.target_level_prior_deg == 0.5 == ib.target_level_prior_deg
+    assert servo.target_filter.level_prior == pytest.approx(np.radians(0.5))
+    assert servo.target_filter.window == ib.filter_window
+    assert servo.shaping.max_joint_rate == 0.4 and servo.recovery.lose == rc.lose == 5
 
 
 def test_filter_and_sensor_defaults_are_the_scenario_defaults():
@@ -63,7 +60,7 @@ def test_paper_values_reach_every_constructor():
     assert quad.mass == PV.DRONE_MASS and tuple(quad.inertia) == PV.DRONE_INERTIA
     assert tendons.n == PV.TENDON_COUNT and tendons.max_tension == PV.TENDON_MAX_TENSION
     # a scenario without [robot] builds the paper's system
-    robot = build_robot(load_scenario("paper-in-fov")["robot"])
+    robot = build_robot(load_scenario("paper-in-fov").config.robot)
     ref = tdacm.paper_system()
     assert robot.system.n == ref.n == 8
     q = np.r_[0, 0, 0, 0, 0, 3, 0.3, -0.2]
@@ -226,8 +223,8 @@ def test_loop_blocks_take_the_scenario_values():
          "recovery": {"lost_timeout": 0.7, "margin_px": 11.0}}
     )  # fmt: skip
     servo = build_loop(sc).loop.servo
-    assert servo.robust.window == 17 and servo.robust.level_prior_deg == 0.25
-    assert servo.robust.lost_timeout == 0.7 and servo.recovery.margin_px == 11.0
+    assert servo.target_filter.window == 17 and servo.config.target_level_prior_deg == 0.25
+    assert servo.recovery.lost_timeout == 0.7 and servo.recovery.margin_px == 11.0
     assert servo.shaping.soft_start == sc["ibvs"]["soft_start"] == 0.4
 
 

@@ -35,7 +35,7 @@ def _initial_poses(target, seed, n):
         yaw = (-90.0, 90.0)
         if big:
             yaw = (92.0, 178.0) if rng.random() < 0.5 else (-178.0, -92.0)
-        g = random_initial_pose(rng, DESIRED, yaw_range_deg=yaw, tilt_deg=20.0, lateral=0.3)
+        g = random_initial_pose(rng, DESIRED, yaw_range_deg=yaw, max_tilt_deg=20.0, lateral=0.3)
         xy, z = project_points(target.feature_points, g)
         if LOCAL_CAMERA.all_in_fov(np.column_stack((xy * z[:, None], z)), margin=5):
             poses.append(g)
@@ -53,7 +53,9 @@ def test_closed_loop_converges_from_random_poses(mode, record_property):
     yaw0 = np.array([_yaw_error_deg(g) for g in poses])
     assert np.sum(yaw0 > 90.0) >= N_RUNS // 2 - 1
     results = [
-        free_camera_servo(PAPER_MARKER.feature_points, g, DESIRED, mode=mode, camera=LOCAL_CAMERA)
+        free_camera_servo(
+            PAPER_MARKER.feature_points, g, DESIRED, gain=5.0, mode=mode, camera=LOCAL_CAMERA
+        )
         for g in poses
     ]
     ok = np.array([r.converged for r in results])
@@ -81,7 +83,7 @@ def test_closed_loop_pattern_target():
     poses = [g @ np.diag([1, 1, 1, 1.0]) for g in poses]
     for g in poses:
         g[:3, 3] *= 0.6 / 1.5
-    rs = [free_camera_servo(PAPER_PATTERN.feature_points, g, desired) for g in poses]
+    rs = [free_camera_servo(PAPER_PATTERN.feature_points, g, desired, gain=5.0) for g in poses]
     assert all(r.converged for r in rs)
 
 
@@ -98,16 +100,18 @@ def test_plain_atan_converges_to_the_wrong_pose():
     g = g0.copy()
     for _ in range(800):
         xy, z = project_points(pts, g)
-        v = ibvs_twist(paper_features(xy) - fd, feature_interaction_matrix(xy, z), gain=5.0)
+        v = ibvs_twist(
+            paper_features(xy) - fd, feature_interaction_matrix(xy, z), gain=5.0, floor=0.0
+        )
         g = g @ expmap(0.02 * v)
     assert _yaw_error_deg(g) == pytest.approx(180.0, abs=1.0)
-    r = free_camera_servo(pts, g0, DESIRED)
+    r = free_camera_servo(pts, g0, DESIRED, gain=5.0)
     assert r.converged and _yaw_error_deg(r.final_pose) < 1e-3
 
 
 def test_law_and_modes():
     xd, zd = project_points(PAPER_MARKER.feature_points, DESIRED)
-    c = IBVSController(xd, zd, gain=2.0)
+    c = IBVSController(xd, zd, gain=2.0, floor=0.0)
     np.testing.assert_allclose(c.twist(xd, zd), 0.0, atol=1e-12)
     g = DESIRED.copy()
     g[:3, 3] += [0.05, 0.0, 0.0]
@@ -117,19 +121,19 @@ def test_law_and_modes():
     np.testing.assert_allclose(feature_interaction_matrix(xy, z) @ v, -2.0 * e, atol=1e-12)
     # the camera is 5 cm to the right (+x): it must move left
     assert v[3] < 0
-    lin = IBVSController(xd, zd, gain=2.0, order="linear_first").twist(xy, z)
+    lin = IBVSController(xd, zd, gain=2.0, floor=0.0, order="linear_first").twist(xy, z)
     np.testing.assert_allclose(lin, np.r_[v[3:], v[:3]])
-    vd = IBVSController(xd, zd, gain=2.0, mode="desired").twist(xy)
-    vm = IBVSController(xd, zd, gain=2.0, mode="mean").twist(xy, z)
+    vd = IBVSController(xd, zd, gain=2.0, floor=0.0, mode="desired").twist(xy)
+    vm = IBVSController(xd, zd, gain=2.0, floor=0.0, mode="mean").twist(xy, z)
     assert np.all(np.isfinite(vd)) and np.all(np.isfinite(vm))
     with pytest.raises(ValueError, match="mode"):
-        IBVSController(xd, zd, mode="best")
+        IBVSController(xd, zd, gain=1.0, floor=0.0, mode="best")
     with pytest.raises(ValueError, match="gain"):
-        IBVSController(xd, zd, gain=0.0)
+        IBVSController(xd, zd, gain=0.0, floor=0.0)
     with pytest.raises(ValueError, match="depths"):
         c.twist(xy)
     with pytest.raises(ValueError, match="interaction"):
-        ibvs_twist(e, np.eye(5))
+        ibvs_twist(e, np.eye(5), gain=1.0, floor=0.0)
 
 
 @pytest.mark.parametrize("mode", ["current", "desired", "mean"])

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from tdacm.lie.se3 import expmap, rotation_angle
-from tdacm.loop.config import IbvsConfig, RecoveryConfig
-from tdacm.loop.servo import RobustParams, RobustServo
+from tdacm.loop.config import IbvsConfig
+from tdacm.loop.servo import RobustServo
 from tdacm.vision import (
     GLOBAL_CAMERA,
     LOCAL_CAMERA,
@@ -114,10 +114,14 @@ def test_filter_averages_noise_in_the_weak_directions():
     g_cam = _camera(1.5)
     pix = _pixels(g_cam)
     rng = np.random.default_rng(1)
-    exact = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    exact = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=SIGMA_PX
+    )
     exact.update(pix, g_cam)  # one frame's information at the true pose
     sig1 = np.degrees(np.sqrt(np.diag(exact.P)[:2]))
-    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    f = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=SIGMA_PX
+    )
     for _ in range(200):
         assert f.update(pix + rng.normal(0, SIGMA_PX, pix.shape), g_cam)
     sig200 = np.degrees(np.sqrt(np.diag(f.P)[:2]))
@@ -132,7 +136,9 @@ def test_filter_gates_outliers():
     g_cam = _camera(1.5)
     pix = _pixels(g_cam)
     rng = np.random.default_rng(2)
-    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    f = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=SIGMA_PX
+    )
     for _ in range(30):
         f.update(pix + rng.normal(0, SIGMA_PX, pix.shape), g_cam)
     before = f.pose.copy()
@@ -145,7 +151,7 @@ def test_filter_gates_outliers():
 
 def test_filter_reinitializes_after_persistent_rejections():
     g_cam = _camera(1.5)
-    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, reset_after=3)
+    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, reset_after=3)
     for _ in range(10):
         f.update(_pixels(g_cam), g_cam)
     moved = np.eye(4)
@@ -160,8 +166,10 @@ def test_latency_frames_are_associated_with_the_capture_pose():
     capture-time pose the estimate is exact; with the current pose it is off by the motion."""
     dt, speed = 0.02, 0.5
     poses = [_camera(2.0, lateral=(speed * dt * k, 0.0)) for k in range(40)]
-    good = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=0.1)
-    naive = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=0.1)
+    good = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=0.1)
+    naive = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=0.1
+    )
     for k in range(2, 40):
         pix = _pixels(poses[k - 2])  # delivered at step k
         good.update(pix, poses[k - 2])
@@ -174,7 +182,7 @@ def test_latency_frames_are_associated_with_the_capture_pose():
 def test_pose_noise_matches_finite_differences():
     """``G`` of :meth:`TargetFilter.pose_noise`: image motion under a camera-pose perturbation
     ``g_C exp(eps^)``, against central differences (camera 1.5 m away, tilted and shifted)."""
-    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points)
+    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0)
     g_cam = _camera(1.5, lateral=(0.1, -0.05), tilt=(0.05, -0.03))
     g_t = np.eye(4)
     rel = np.linalg.solve(g_cam, g_t)
@@ -200,7 +208,9 @@ def _noisy_pose_run(weighted, seed, frames=150, att=0.004, pos=0.003):
     is known only to ``att`` rad / ``pos`` m (white), the corners to 1 px."""
     rng = np.random.default_rng(seed)
     cov = np.diag([att**2] * 3 + [pos**2] * 3)
-    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    f = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=SIGMA_PX
+    )
     for k in range(frames):
         g_true = _camera(1.5, lateral=(0.3 * k / frames, 0.0))
         pix = _pixels(g_true) + rng.normal(0, SIGMA_PX, (4, 2))
@@ -236,7 +246,9 @@ def test_exact_pose_covariance_is_the_unweighted_filter():
     """A zero covariance means an exact pose: bit-identical to passing none."""
     a = _noisy_pose_run(False, 3, frames=40)
     rng = np.random.default_rng(3)
-    b = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    b = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=SIGMA_PX
+    )
     for k in range(40):
         g_true = _camera(1.5, lateral=(0.3 * k / 40, 0.0))
         pix = _pixels(g_true) + rng.normal(0, SIGMA_PX, (4, 2))
@@ -260,8 +272,8 @@ def _servo(smoothing=0.0):
     xd, zd = project_points(PAPER_MARKER.feature_points, g_des)
     return RobustServo(
         _HeldCamera(), LOCAL_CAMERA, GLOBAL_CAMERA, PAPER_MARKER, np.eye(4), np.eye(4), xd, zd,
-        gain=1.0, mode="mean", robust=RobustParams.from_config(
-            IbvsConfig(filter_smoothing=smoothing, target_level_prior_deg=0.0), RecoveryConfig()
+        config=IbvsConfig(
+            gain=1.0, mode="mean", filter_smoothing=smoothing, target_level_prior_deg=0.0
         ),
     )  # fmt: skip
 
@@ -310,7 +322,9 @@ def test_information_is_the_inverse_of_the_converged_covariance():
     """``information`` of a set of camera poses = ``P^-1`` of the filter that fused noise-free
     frames from them (the Cramer-Rao bound the filter attains); a wider baseline gives more
     information on the tilt than the same number of frames from one pose."""
-    f = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX)
+    f = TargetFilter(
+        LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, pixel_sigma=SIGMA_PX
+    )
     poses = [_camera(1.5, lateral=(0.004 * k - 0.1, 0.002 * k)) for k in range(50)]
     for g in poses:
         assert f.update(_pixels(g), g)
@@ -335,8 +349,20 @@ def test_checked_update_is_the_validating_update():
     rng = np.random.default_rng(5)
     frames = [pix + rng.normal(0, SIGMA_PX, pix.shape) for _ in range(12)]
     frames += [_pixels(g_cam @ np.linalg.inv(moved))] * 4  # rejected, then a reset
-    a = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX, reset_after=3)
-    b = TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, pixel_sigma=SIGMA_PX, reset_after=3)
+    a = TargetFilter(
+        LOCAL_CAMERA,
+        PAPER_MARKER.feature_points,
+        level_prior=0.0,
+        pixel_sigma=SIGMA_PX,
+        reset_after=3,
+    )
+    b = TargetFilter(
+        LOCAL_CAMERA,
+        PAPER_MARKER.feature_points,
+        level_prior=0.0,
+        pixel_sigma=SIGMA_PX,
+        reset_after=3,
+    )
     for px in frames:
         assert a.update(px, g_cam) == b.update_checked(px, g_cam)
         np.testing.assert_array_equal(a.pose, b.pose)

@@ -35,7 +35,7 @@ class _Chain:
         xd, zd = reference_from_pose(PAPER_MARKER, scene.target_pose, self.ref)
         self.detector = TargetDetector(PAPER_MARKER)
         self.perception = Perception(camera, GLOBAL_CAMERA, PAPER_MARKER)
-        self.ibvs = IBVSController(xd, zd, gain=gain, mode="current")
+        self.ibvs = IBVSController(xd, zd, gain=gain, floor=0.0, mode="current")
 
     def view(self, image):
         return self.perception.local(CameraMeasurement(0.0, self.detector.detect(image)))

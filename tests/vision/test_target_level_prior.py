@@ -122,7 +122,9 @@ def test_level_prior_validation():
     with pytest.raises(ValueError, match="level_prior"):
         TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=-1.0)
     with pytest.raises(ValueError, match="level_normal"):
-        TargetFilter(LOCAL_CAMERA, PAPER_MARKER.feature_points, level_normal=(0, 0, 0))
+        TargetFilter(
+            LOCAL_CAMERA, PAPER_MARKER.feature_points, level_prior=0.0, level_normal=(0, 0, 0)
+        )
 
 
 def test_scene_target_tilt():

@@ -149,7 +149,7 @@ class DrydenTurbulence(Wind):
     """
 
     def __init__(
-        self, sigma, scale, airspeed: float, dt: float = 0.01, seed: int = 0, direction=(1.0, 0.0)
+        self, sigma, scale, airspeed: float, dt: float, seed: int = 0, direction=(1.0, 0.0)
     ):
         self.sigma = V.array("sigma", sigma, (3,))
         self.scale = V.array("scale", scale, (3,))

@@ -121,7 +121,7 @@ def compiled_share(overrides: dict, duration: float = 5.0, top: int = 8) -> dict
         "period_ms": period,
         "compiled_ms": compiled,
         "compiled_fraction": compiled / period,
-        "cap_real_time_factor": sc.data["dt"] * 1e3 / compiled,
+        "cap_real_time_factor": sc.config.dt * 1e3 / compiled,
         "top": {k: {"calls_per_period": c, "ms_per_period": ms} for k, (c, ms) in ranked},
     }
 

@@ -74,11 +74,17 @@ class ContactConfig(ConfigModel):
     )
     rod: bool = Field(_D["rod"], description="the rod's backbone touches the obstacles")
     tip: bool = Field(_D["tip"], description="the tip sphere touches the obstacles")
-    substeps: int = Field(
-        32, ge=1, description="plant RK4 steps per control period near an obstacle"
+    contact_substeps: int = Field(
+        32,
+        ge=1,
+        alias="substeps",
+        description="plant RK4 steps per control period near an obstacle",
     )
-    margin: float = Field(
-        0.01, ge=0, description="m, clearance under which a period counts as near an obstacle"
+    contact_margin: float = Field(
+        0.01,
+        ge=0,
+        alias="margin",
+        description="m, clearance under which a period counts as near an obstacle",
     )
     force_limit: float | None = Field(
         None, gt=0, description="N, a contact force above it ends the run (unset: no limit)"

@@ -55,38 +55,30 @@ def attitude_from_force(force, psi_d: float, exact: bool = False):
     return big_f, float(np.arctan(b / big_f)), float(np.arctan(a / big_f))
 
 
-def default_gains(
-    system: TDACM,
-    q=None,
-    horizontal_position_rate: float = LAW_DEFAULTS.horizontal_position_rate,
-) -> AdaptiveGains:
-    """Diagonal gains used by the scenarios, scaled by the effective inertia of each
+def default_gains(system: TDACM, q=None, law: ControlLawConfig = LAW_DEFAULTS) -> AdaptiveGains:
+    """Diagonal gains of the rates of ``law`` (:class:`~.config.ControlLawConfig`: ``beta``,
+    damping and adaptation rates per coordinate group), scaled by the effective inertia of each
     coordinate at ``q`` (``1 / (M0^-1)_ii``, the inertia seen with the other coordinates
     free): the drone's roll/pitch and the rod strains are strongly coupled
     (``M_07 ~ 2 M_77``), and gains scaled by ``diag(M0)`` would be too high for the coupled
     modes at 50 Hz. ``A_p = A_d beta`` satisfies the gain condition for every ``eps > 1/2``.
-    The horizontal damping rate (1.5 /s) is low because the horizontal velocity of a real
-    drone is an estimate (3-5 mm/s RMS with the default pose sensor): a stiffer damping turned
-    that noise into tilt commands that shook the camera (docs/control.md). On the sliding
-    surface ``s_q = 0`` the same error's slow part ``b`` (below about 1 Hz, which the pose
-    sensor cannot remove, :func:`tdacm.estimation.hover_estimate_limits`) leaves the drone
+    The horizontal damping rate is low because the horizontal velocity of a real drone is an
+    estimate (3-5 mm/s RMS with the default pose sensor): a stiffer damping turns that noise
+    into tilt commands that shake the camera (docs/control.md). On the sliding surface
+    ``s_q = 0`` the same error's slow part ``b`` (below about 1 Hz, which the pose sensor
+    cannot remove, :func:`tdacm.estimation.hover_estimate_limits`) leaves the drone
     ``b / beta`` away from its reference: the horizontal ``beta``
     (``horizontal_position_rate``, 1/s) trades that offset against the position noise fed to
     the tilt command."""
     q = np.zeros(system.n) if q is None else np.asarray(q, float)
     m = 1.0 / np.diag(np.linalg.inv(system.terms(q, np.zeros(system.n)).M))
-    if system.floating:
-        ns = system.n_s
-        #         roll  pitch  yaw   x     y     z     q_s...
-        bh = float(horizontal_position_rate)
-        beta = [6.0, 6.0, 3.0, bh, bh, 1.5] + [6.0] * ns
-        rate = [16.0, 16.0, 8.0, 1.5, 1.5, 4.0] + [25.0] * ns
-        adapt = [20.0, 20.0, 8.0, 1.5, 1.5, 3.0] + [20.0] * ns
-    else:
-        beta = [6.0] * system.n
-        rate = [25.0] * system.n
-        adapt = [20.0] * system.n
-    return AdaptiveGains.from_rates(m, beta, rate, adapt)
+    fl, ns = system.floating, system.n_s
+    return AdaptiveGains.from_rates(
+        m,
+        law.rates("position", fl, ns),
+        law.rates("damping", fl, ns),
+        law.rates("adaptation", fl, ns),
+    )
 
 
 @dataclass(frozen=True)
@@ -117,18 +109,11 @@ class TDACMController:
         :class:`EstimatedModel` (default: 10 % perturbation, seed 0).
     gains:
         :class:`AdaptiveGains` (default :func:`default_gains`).
-    pretension:
-        Tendon pretension target (N).
-    max_tilt:
-        Bound on the commanded roll/pitch (rad).
-    attitude_filter, max_tilt_rate:
-        Time constant (s) and rate limit (rad/s) of the roll/pitch command filter.
-    min_lift:
-        The vertical component of the desired force is kept above ``min_lift`` times the
-        weight before the tilt is computed (a descending drone still needs thrust).
-    horizontal_position_rate:
-        The drone's horizontal ``beta`` (1/s) of the default gains; unused when ``gains`` is
-        given.
+    law:
+        The law's parameters (:class:`~.config.ControlLawConfig`: pretension, tilt limit and
+        filter, minimum lift, the rates of the default gains, unused when ``gains`` is given).
+    exact_attitude:
+        Invert the attitude with the exact ZYX formulas instead of the paper's.
     """
 
     def __init__(
@@ -136,26 +121,22 @@ class TDACMController:
         system: TDACM,
         model: EstimatedModel | None = None,
         gains: AdaptiveGains | None = None,
-        pretension: float = LAW_DEFAULTS.pretension,
-        max_tilt: float = LAW_DEFAULTS.max_tilt,
-        attitude_filter: float = LAW_DEFAULTS.attitude_filter,
-        max_tilt_rate: float = LAW_DEFAULTS.max_tilt_rate,
-        min_lift: float = 0.8,
+        law: ControlLawConfig = LAW_DEFAULTS,
         exact_attitude: bool = False,
-        horizontal_position_rate: float = LAW_DEFAULTS.horizontal_position_rate,
     ):
         self.system = system
         self.model = EstimatedModel(system) if model is None else model
         if gains is None:
-            gains = default_gains(system, horizontal_position_rate=horizontal_position_rate)
+            gains = default_gains(system, law=law)
         self.gains = gains
+        self.config = law
         self.law = AdaptiveController(self.model, self.gains)
-        self.pretension = float(pretension)
-        self.max_tilt = float(max_tilt)
-        self.attitude_filter = float(attitude_filter)
+        self.pretension = float(law.pretension)
+        self.max_tilt = float(law.max_tilt)
+        self.attitude_filter = float(law.attitude_filter)
         self.exact_attitude = bool(exact_attitude)
-        self.max_tilt_rate = float(max_tilt_rate)
-        self.min_lift = float(min_lift)
+        self.max_tilt_rate = float(law.max_tilt_rate)
+        self.min_lift = float(law.min_lift)
 
         self._weight = float(system.total_mass * np.linalg.norm(system.loads.gravity))
         self.n = system.n
@@ -163,15 +144,10 @@ class TDACMController:
         self._att_rate = np.zeros(2)
 
     @classmethod
-    def from_options(cls, system, model, q_star, options: dict) -> TDACMController:
-        """The scenario's controller: gains for the desired configuration ``q_star``
-        (:func:`default_gains`) and the ``[controller]`` options (``pretension``,
-        ``max_tilt``, ``attitude_filter``, ``max_tilt_rate``, ``horizontal_position_rate``;
-        missing ones take the defaults)."""
-        keys = tuple(ControlLawConfig.model_fields)
-        law = {k: options[k] for k in keys if k in options}
-        rate = law.pop("horizontal_position_rate", LAW_DEFAULTS.horizontal_position_rate)
-        return cls(system, model, default_gains(system, q_star, rate), **law)
+    def from_config(cls, system, model, q_star, law: ControlLawConfig) -> TDACMController:
+        """The scenario's controller: the gains of ``law`` at the desired configuration
+        ``q_star`` (:func:`default_gains`) and the rest of ``law``."""
+        return cls(system, model, default_gains(system, q_star, law), law)
 
     def reset(self, q=None):
         self.law.reset()

@@ -133,7 +133,7 @@ class TipServoEnv(gym.Env):
         self.max_lost = int(max_lost)
         self.scale = np.array([max_angular] * 3 + [max_linear] * 3)
         self.render_mode = render_mode
-        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.data["dt"])))
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
         self._renderer = None
         self.assembly = build_loop(sc, int(sc["seed"]))
         self.loop, self.world = self.assembly.loop, self.assembly.world

@@ -62,16 +62,16 @@ class TargetCamera:
     frame (``(k, 3)``, planar, ``k >= 4`` for the initialization); ``sigma``: corner noise in
     normalized coordinates (``[sigma_px / f_x, sigma_px / f_y]``); ``level_normal``: the
     believed direction of the target's z axis in the world (chooses between the two planar-PnP
-    solutions); ``initial_position_std`` (m), ``initial_attitude_std`` (rad): the prior of the
-    target pose at its initialization; ``reinit_after`` (s) of gated-out frames restart it.
+    solutions); ``target_initial_position_std`` (m), ``target_initial_attitude_std`` (rad): the
+    prior of the target pose at its initialization; ``reinit_after`` (s) of gated-out frames restart it.
     """
 
     tip_mount: np.ndarray
     object_points: np.ndarray
     sigma: np.ndarray
     level_normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))
-    initial_position_std: float = 0.05
-    initial_attitude_std: float = 0.05
+    target_initial_position_std: float = 0.05
+    target_initial_attitude_std: float = 0.05
     reinit_after: float = 0.5
 
     def __post_init__(self):
@@ -85,7 +85,7 @@ class TargetCamera:
             raise ValueError(f"sigma must be positive, got {sig}")
         object.__setattr__(self, "sigma", sig)
         object.__setattr__(self, "level_normal", C.unit_vector("level_normal", self.level_normal))
-        for name in ("initial_position_std", "initial_attitude_std", "reinit_after"):
+        for name in ("target_initial_position_std", "target_initial_attitude_std", "reinit_after"):
             C.positive(name, getattr(self, name))
 
     @cached_property

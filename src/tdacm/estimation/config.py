@@ -137,9 +137,15 @@ class SensorSuiteConfig(ConfigModel):
             raise ValueError(
                 f"sensors.{err['loc'][0]}: {err['msg']}, got {err['input']!r}"
             ) from None
+        return cls.from_config(rec)
+
+    @classmethod
+    def from_config(cls, sensors) -> SensorSuiteConfig:
+        """From a record with the flat ``[sensors]`` keys (:data:`ProprioceptiveSensors`, or
+        the scenario's ``[sensors]`` record)."""
         parts = {"pose": {}, "imu": {}, "encoders": {}}
         for key, (sub, name) in SENSOR_KEYS.items():
-            parts[sub][name] = getattr(rec, key)
+            parts[sub][name] = getattr(sensors, key)
         return cls(pose=PoseSensorConfig(**parts["pose"]), imu=ImuConfig(**parts["imu"]),
                    encoders=EncoderConfig(**parts["encoders"]))  # fmt: skip
 
@@ -197,6 +203,11 @@ class EstimatorConfig(ConfigModel):
     @classmethod
     def from_section(cls, section: dict) -> EstimatorConfig:
         return cls(**{k: v for k, v in section.items() if k in cls.model_fields})
+
+    @classmethod
+    def from_config(cls, estimation) -> EstimatorConfig:
+        """The filter's part of an ``[estimation]`` record."""
+        return cls(**{k: getattr(estimation, k) for k in cls.model_fields})
 
 
 class EstimationConfig(EstimatorConfig):

@@ -53,7 +53,7 @@ class TipForceEstimator:
         :func:`tdacm.system.contact.probe_offset`); zero: at the tip
     """
 
-    def __init__(self, model: EstimatedModel, rows: str = "strain", input_sigma=0.05, offset=None):
+    def __init__(self, model: EstimatedModel, rows: str = "strain", *, input_sigma, offset=None):
         if not isinstance(model, EstimatedModel):
             raise ValueError(f"model must be an EstimatedModel, got {model!r}")
         if rows not in ("strain", "all"):

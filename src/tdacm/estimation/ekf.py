@@ -209,7 +209,9 @@ class ExtendedKalmanFilter:
         cam = self.camera
         if cam is None:
             return None
-        return np.array([cam.initial_position_std] * 3 + [cam.initial_attitude_std] * 3)
+        return np.array(
+            [cam.target_initial_position_std] * 3 + [cam.target_initial_attitude_std] * 3
+        )
 
     def initial_guess(self, measurements, fallback_q=None) -> np.ndarray:
         """``q`` from one set of measurements: drone pose from the pose sensor, strains from

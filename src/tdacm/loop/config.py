@@ -6,9 +6,9 @@ Layout: a block's parameter record lives with its block (this module for the loo
 :mod:`tdacm.estimation.config` for the filter and the proprioceptive sensors), and the
 scenario model of :mod:`tdacm.sim.config` composes them. So each default, range and
 description is written once, next to the code that uses it, and imports only go down (the
-loop never imports ``sim``). The servo's own records (:class:`~.servo.ShapingParams`,
-:class:`~.servo.RecoveryParams`, :class:`~.servo.RobustParams`) are built from these
-(``from_config``) and carry no defaults of their own.
+loop never imports ``sim``). The blocks take these records whole (the servo its
+:class:`IbvsConfig` and :class:`RecoveryConfig`, the touch servo its :class:`TouchConfig`, the
+safety monitor its :class:`SafetyConfig`).
 """
 
 from __future__ import annotations

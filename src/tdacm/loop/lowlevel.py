@@ -10,6 +10,7 @@ import importlib
 import sys
 
 from ..control import TDACMController
+from ..control.config import ControlLawConfig
 from ..control.pd import PDGravityLaw
 from .data import ActuatorCommand, ServoCommand, StateEstimate
 from .protocols import ControllerContext, LowLevelController
@@ -22,8 +23,12 @@ class AdaptiveLowLevel:
     law_class = None
 
     def __init__(self, context: ControllerContext):
-        self.controller = TDACMController.from_options(
-            context.system, context.model, context.q_star, context.options
+        law = context.law
+        if law is None:  # a context made by hand: the law's keys among its options
+            o = context.options
+            law = ControlLawConfig(**{k: o[k] for k in ControlLawConfig.model_fields if k in o})
+        self.controller = TDACMController.from_config(
+            context.system, context.model, context.q_star, law
         )
         if self.law_class is not None:
             c = self.controller

@@ -28,6 +28,7 @@ from ..system.kernels import (
     rk4_run_env,
 )
 from ..system.tdacm import TDACM, Loads
+from .config import DisturbancesConfig
 from .data import PlantState
 
 #: Roll or pitch (rad) beyond which the drone counts as tumbled and the run ends
@@ -52,12 +53,13 @@ class Disturbances:
     downwash_noise: float = 0.0
 
     @classmethod
-    def from_dict(cls, d: dict) -> Disturbances:
+    def from_config(cls, c: DisturbancesConfig) -> Disturbances:
+        """From the ``[disturbances]`` record."""
         return cls(
-            np.asarray(d["base_wrench_amplitude"], float),
-            float(d["base_wrench_frequency"]),
-            np.asarray(d["downwash"], float),
-            float(d["downwash_noise"]),
+            np.asarray(c.base_wrench_amplitude, float),
+            float(c.base_wrench_frequency),
+            np.asarray(c.downwash, float),
+            float(c.downwash_noise),
         )
 
     @property

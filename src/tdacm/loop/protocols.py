@@ -84,10 +84,13 @@ class ControllerContext:
     ``system`` is the robot's structure (kinematics, limits, ``Gamma``); ``model`` the
     controller's *perturbed* model (:class:`~tdacm.control.EstimatedModel`), the only dynamics
     it may use; ``q_star`` the desired configuration; ``options`` the scenario's
-    ``[controller]`` keys of the adaptive law and every key of ``[controller.options]``."""
+    ``[controller]`` keys of the adaptive law and every key of ``[controller.options]``;
+    ``law`` the same keys of the adaptive law as their record
+    (:class:`~tdacm.control.config.ControlLawConfig`; ``None``: read from ``options``)."""
 
     system: object
     model: object
     q_star: np.ndarray
     dt: float
     options: dict = field(default_factory=dict)
+    law: object = None

@@ -35,6 +35,11 @@ class SafetyMonitor:
         self.prev = None
         self.reason = None
 
+    @classmethod
+    def from_config(cls, c: SafetyConfig) -> SafetyMonitor:
+        """From the ``[safety]`` record."""
+        return cls(c.enabled, c.growth_limit, c.min_increase, c.grace)
+
     def reset(self) -> None:
         self.armed_at, self.prev, self.reason = 0.0, None, None
 

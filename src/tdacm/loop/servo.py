@@ -57,36 +57,6 @@ def normalized_rmse(points, desired) -> float:
     return math.sqrt(s.sum() / s.shape[0]) if s.shape[0] else float("nan")
 
 
-@dataclass(frozen=True)
-class ShapingParams:
-    """Command shaping of the IBVS joint rates (from ``[ibvs]``, :class:`~.config.IbvsConfig`
-    holds the defaults and meanings)."""
-
-    max_joint_rate: float  # rad/s, rod strains and yaw
-    max_drone_speed: float  # m/s, horizontal
-    max_vertical_speed: float  # m/s
-    soft_start: float  # s, time constant of the ramp after IBVS engages (0: off)
-    rate_filter: float  # s, time constant of the first-order rate filter (0: off)
-
-    @classmethod
-    def from_config(cls, ibvs: IbvsConfig) -> ShapingParams:
-        return cls(**{f: getattr(ibvs, f) for f in cls.__dataclass_fields__})
-
-
-@dataclass(frozen=True)
-class RecoveryParams:
-    """Recovery planner and mode switch (from ``[recovery]``, :class:`~.config.RecoveryConfig`)."""
-
-    max_speed: float
-    margin_px: float
-    confirm: int
-    lose: int
-
-    @classmethod
-    def from_config(cls, recovery: RecoveryConfig) -> RecoveryParams:
-        return cls(**{f: getattr(recovery, f) for f in cls.__dataclass_fields__})
-
-
 class VisualServo:
     """The paper's dual-camera servo (module docstring).
 
@@ -102,11 +72,13 @@ class VisualServo:
         ``g_{C_L}^L`` and ``g_{C_G}^b``.
     desired_points, desired_depths:
         The reference snapshot in C_V (C_L for a fixed base).
-    gain, mode, compensation:
-        IBVS gain ``lambda``, interaction-matrix choice and the virtual-camera form.
-    floor, solver:
-        Singular-value floor of the ``J_img`` solve and its kind
-        (:func:`~tdacm.vision.ibvs.robust_solve`; ``floor = 0``: the plain inverse).
+    config:
+        The ``[ibvs]`` record (:class:`~.config.IbvsConfig`): gain ``lambda``, interaction
+        matrix, virtual-camera form, the ``J_img`` solve (:func:`~tdacm.vision.ibvs.robust_solve`;
+        ``floor = 0``: the plain inverse) and the command shaping (``max_joint_rate``, ...).
+    recovery:
+        The ``[recovery]`` record (:class:`~.config.RecoveryConfig`): the mode switch and the
+        recovery planner.
     """
 
     def __init__(
@@ -119,13 +91,8 @@ class VisualServo:
         drone_mount,
         desired_points,
         desired_depths,
-        gain: float = IbvsConfig().gain,
-        mode: str = IbvsConfig().mode,
-        compensation: str = IbvsConfig().compensation,
-        shaping: ShapingParams | None = None,
-        recovery: RecoveryParams | None = None,
-        floor: float = IbvsConfig().floor,
-        solver: str = IbvsConfig().solver,
+        config: IbvsConfig | None = None,
+        recovery: RecoveryConfig | None = None,
     ):
         self.system = system
         self.local_camera = local_camera
@@ -135,13 +102,14 @@ class VisualServo:
         self.drone_mount = np.asarray(drone_mount, float)
         self.desired_points = np.asarray(desired_points, float)
         self.desired_depths = np.asarray(desired_depths, float)
+        self.config = config = config or IbvsConfig()
         self.ibvs = IBVSController(
-            self.desired_points, self.desired_depths, gain=gain, mode=mode, floor=floor,
-            solver=solver,
+            self.desired_points, self.desired_depths, gain=config.gain, mode=config.mode,
+            floor=config.floor, solver=config.solver,
         )  # fmt: skip
-        self.compensation = compensation
-        self.shaping = shaping or ShapingParams.from_config(IbvsConfig())
-        self.recovery = recovery or RecoveryParams.from_config(RecoveryConfig())
+        self.compensation = config.compensation
+        self.shaping = config  # the command shaping's limits and time constants
+        self.recovery = recovery or RecoveryConfig()
         s = system
         n = s.n
         self.n = n
@@ -370,38 +338,6 @@ class VisualServo:
 
 
 @dataclass(frozen=True)
-class RobustParams:
-    """The robust servo's options (from ``[ibvs]`` and ``recovery.lost_timeout``; meanings and
-    defaults in :class:`~.config.IbvsConfig`, docs/control.md)."""
-
-    floor: float  # singular-value floor of the J_img solve
-    solver: str  # "floor" | "damped"
-    pixel_sigma: float  # px, corner noise assumed by the target filter
-    window: int  # frames fused by the target filter
-    smoothing: float  # s, smoothing of the estimate used by the prediction
-    accel_feedforward: bool  # qdd_d = d(qd_d)/dt of the filtered rate command
-    reference_leak: float  # 1/s, pull of q_d toward q_hat (anti wind-up)
-    lost_timeout: float  # s without a fused frame before the target counts as lost
-    level_prior_deg: float  # deg, prior that the target lies level (0: none)
-    level_normal: tuple  # its believed z axis in the world
-
-    @classmethod
-    def from_config(cls, ibvs: IbvsConfig, recovery: RecoveryConfig) -> RobustParams:
-        return cls(
-            floor=ibvs.floor,
-            solver=ibvs.solver,
-            pixel_sigma=ibvs.filter_pixel_sigma,
-            window=ibvs.filter_window,
-            smoothing=ibvs.filter_smoothing,
-            accel_feedforward=ibvs.accel_feedforward,
-            reference_leak=ibvs.reference_leak,
-            lost_timeout=recovery.lost_timeout,
-            level_prior_deg=ibvs.target_level_prior_deg,
-            level_normal=tuple(ibvs.target_level_normal),
-        )
-
-
-@dataclass(frozen=True)
 class PredictedView:
     """The target's feature points predicted in the servo camera (C_V, or C_L for a held
     base) from the world-frame estimate, with their features, error and twist (``twist`` is
@@ -440,21 +376,18 @@ class RobustServo(VisualServo):
        target in C_G holds and retries for ``lost_timeout`` s before giving up.
     """
 
-    def __init__(self, *args, robust: RobustParams | None = None, **kwargs):
-        r = robust or RobustParams.from_config(IbvsConfig(), RecoveryConfig())
-        super().__init__(*args, floor=r.floor, solver=r.solver, **kwargs)
-        self.robust = r
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        c = self.config
         self.target_filter = TargetFilter(
             self.local_camera,
             self.target.feature_points,
-            pixel_sigma=r.pixel_sigma,
-            window=r.window,
-            level_prior=np.radians(r.level_prior_deg),
-            level_normal=r.level_normal,
+            pixel_sigma=c.filter_pixel_sigma,
+            window=c.filter_window,
+            level_prior=np.radians(c.target_level_prior_deg),
+            level_normal=tuple(c.target_level_normal),
         )
-        if not np.isfinite(r.smoothing) or r.smoothing < 0:
-            raise ValueError(f"smoothing must be >= 0, got {r.smoothing!r}")
-        self.smoothing = float(r.smoothing)
+        self.smoothing = float(c.filter_smoothing)
         self.target_pose = None  # smoothed estimate used by the prediction
         # feed-forward and leak are for the flying base, whose position lags the reference
         # through the attitude loop (measured on paper-in-fov); a held rod tracks directly
@@ -476,7 +409,7 @@ class RobustServo(VisualServo):
         if gview is None:
             return None
         self._cg_missed = t if self._cg_missed is None else self._cg_missed
-        if t - self._cg_missed >= self.robust.lost_timeout:
+        if t - self._cg_missed >= self.recovery.lost_timeout:
             return "recovery: target not seen by C_G"
         return None
 
@@ -569,7 +502,6 @@ class RobustServo(VisualServo):
         estimate (the view is fused first; the mode switch watches the predicted C_L pixels
         while in IBVS)."""
         q = est.q
-        r = self.robust
         self._fuse(t, view, est)
         self.predict_target(dt)
         g_c = self.local_camera_pose(q)
@@ -587,7 +519,7 @@ class RobustServo(VisualServo):
             ok = (
                 ps.valid
                 and self._last_seen is not None
-                and t - self._last_seen <= r.lost_timeout
+                and t - self._last_seen <= self.recovery.lost_timeout
                 and ps.pixels_local is not None
                 and bool(np.all(self.local_camera.pixels_in_image_checked(ps.pixels_local, 0.0)))
             )
@@ -604,7 +536,7 @@ class RobustServo(VisualServo):
     def follow_twist(self, q, twist, t: float, dt: float) -> np.ndarray:
         """As :meth:`VisualServo.follow_twist`, plus the acceleration feed-forward of the
         filtered rate and the leak of ``q_d`` toward ``q_hat``."""
-        r = self.robust
+        r = self.config
         qdd_d = np.zeros(self.n)
         qd_prev = self.qd_d.copy()
         self.shape(self.joint_rates(q, twist), t, dt)

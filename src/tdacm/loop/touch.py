@@ -53,8 +53,8 @@ class TipForceBlock:
     ``g_{C_L}^L``; ``offset``: the contact sphere's centre in the tip frame; accelerations
     from the finite difference of ``qd_hat`` (the model's balance needs ``qdd``)."""
 
-    def __init__(self, model, tip_mount, offset, input_sigma: float = 0.05):
-        self.estimator = TipForceEstimator(model, "all", input_sigma, offset)
+    def __init__(self, model, tip_mount, offset, input_sigma: float):
+        self.estimator = TipForceEstimator(model, "all", input_sigma=input_sigma, offset=offset)
         self.system = model.system
         self.tip_mount = np.asarray(tip_mount, float)
         self.reset()

@@ -205,7 +205,7 @@ def replay(signals: dict, scenario, *, estimate: bool | None = None, seed: int |
     asm = build_loop(sc, seed=seed)
     loop, world = asm.loop, asm.world
     s = world.robot.system
-    d = asm.scenario.data
+    cfg = asm.scenario.config
     dt = loop.dt
     _check(signals, "strains", s.n_s)
     _check(signals, "tendon_lengths", s.n_a)
@@ -263,10 +263,12 @@ def replay(signals: dict, scenario, *, estimate: bool | None = None, seed: int |
     if use_ekf:
         block = loop.estimator if isinstance(loop.estimator, FilterBlock) else None
         if block is None:
-            suite = proprioceptive_sensors(d, s, asm.seed)
-            block = estimation_block(d, s, asm.seed, loop.plant, suite, world.q0, asm.model,
-                                     world.robot.tip_mount, world.target,
-                                     perception.local_camera)  # fmt: skip
+            suite = proprioceptive_sensors(cfg.sensors, s, asm.seed)
+            block = estimation_block(
+                cfg.estimation, cfg.ibvs.target_level_normal, s, asm.seed, loop.plant, suite,
+                world.q0, asm.model, world.robot.tip_mount, world.target,
+                perception.local_camera,
+            )  # fmt: skip
         first = poll(times[0])
         # the start-up reading is the recording's first samples (the filter never sees a plant)
         block.initial_measurements = (lambda t: list(first.values())) if first else None

@@ -247,8 +247,8 @@ class Robot:
     probe_length: float = 0.0  # m, the contact sphere ahead of C_L ([robot.tip])
 
 
-def _camera(base: PinholeCamera, keys: dict, where: str) -> PinholeCamera:
-    given = {k: v for k, v in keys.items() if k in _CAMERA_KEYS and v is not None}
+def _camera(base: PinholeCamera, record: CameraIntrinsics, where: str) -> PinholeCamera:
+    given = {k: getattr(record, k) for k in _CAMERA_KEYS if getattr(record, k) is not None}
     if not given:
         return base
     try:
@@ -260,47 +260,45 @@ def _camera(base: PinholeCamera, keys: dict, where: str) -> PinholeCamera:
     return cam
 
 
-def build_robot(robot: dict, held_base_q=None) -> Robot:
-    """The :class:`Robot` of a validated ``[robot]`` section (defaults filled in).
+def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
+    """The :class:`Robot` of a ``[robot]`` record.
     ``held_base_q`` (``system.held_base_q``) clamps the rod at that drone pose when the scenario
     says ``system.base = "fixed"``; ``robot.base.pose_q`` does the same."""
-    r = robot["rod"]
-    basis = parse_basis(r["basis"])
+    r = robot.rod
+    basis = parse_basis(r.basis)
     paper_basis = basis == parse_basis(PV.ROD_BASIS)
-    n_gauss = (
-        r["n_gauss"] if r["n_gauss"] is not None else (PV.ROD_N_GAUSS if paper_basis else None)
-    )
-    magnus = r["magnus_order"]
+    n_gauss = r.n_gauss if r.n_gauss is not None else (PV.ROD_N_GAUSS if paper_basis else None)
+    magnus = r.magnus_order
     if magnus is None:
         magnus = PV.ROD_MAGNUS_ORDER if paper_basis else None
     try:
         rod = Rod(
-            length=r["length"],
-            diameter=r["diameter"],
-            density=r["density"],
-            youngs_modulus=r["youngs_modulus"],
-            poisson_ratio=r["poisson_ratio"],
-            damping=r["damping"],
+            length=r.length,
+            diameter=r.diameter,
+            density=r.density,
+            youngs_modulus=r.youngs_modulus,
+            poisson_ratio=r.poisson_ratio,
+            damping=r.damping,
             basis=basis,
             n_gauss=n_gauss,
             magnus_order=magnus,
-            tip_mass=r["tip_mass"],
+            tip_mass=r.tip_mass,
         )
     except RobotError:
         raise
     except ValueError as exc:
         raise RobotError(f"robot.rod: {exc}") from None
-    t = robot["tendons"]
+    t = robot.tendons
     try:
-        if t["offsets"] is not None:
-            off = np.asarray(t["offsets"], float)
+        if t.offsets is not None:
+            off = np.asarray(t.offsets, float)
             if off.ndim != 2 or off.shape[1] not in (2, 3):
                 raise ValueError("offsets must be a list of [y, z] (or [0, y, z]) pairs")
             if off.shape[1] == 2:
                 off = np.column_stack([np.zeros(len(off)), off])
-            tendons = Tendons(offsets=off, max_tension=t["max_tension"])
+            tendons = Tendons(offsets=off, max_tension=t.max_tension)
         else:
-            tendons = Tendons.parallel(t["radius"], t["count"], t["max_tension"])
+            tendons = Tendons.parallel(t.radius, t.count, t.max_tension)
     except ValueError as exc:
         raise RobotError(f"robot.tendons: {exc}") from None
     if tendons.n < 3:
@@ -308,24 +306,24 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
             f"robot.tendons: {tendons.n} tendon(s) cannot bend the rod both ways (tendons only "
             "pull); give at least 3"
         )
-    pose_q = robot["base"]["pose_q"]
+    pose_q = robot.base.pose_q
     if pose_q is None and held_base_q is not None:
         pose_q = held_base_q
     try:
         if pose_q is None:
-            d = robot["drone"]
+            d = robot.drone
             base = Quadrotor(
-                mass=d["mass"],
-                inertia=tuple(d["inertia"]),
-                arm_length=d["arm_length"],
-                drag_factor=d["drag_factor"],
-                max_thrust=d["max_thrust"],
+                mass=d.mass,
+                inertia=tuple(d.inertia),
+                arm_length=d.arm_length,
+                drag_factor=d.drag_factor,
+                max_thrust=d.max_thrust,
             )
         else:
             base = None
     except ValueError as exc:
         raise RobotError(f"robot.drone: {exc}") from None
-    off = robot["attachment"]["offset"]
+    off = robot.attachment.offset
     if not off >= 0:
         raise RobotError(f"robot.attachment.offset must be >= 0, got {off!r}")
     attachment = default_attachment(off)
@@ -336,34 +334,32 @@ def build_robot(robot: dict, held_base_q=None) -> Robot:
         base = FixedBase(pose=held.base_pose(q))
     system = TDACM(rod, tendons, base, attachment)
     if system.floating:
-        _check_thrust(system, robot["drone"])
-    cams = robot["cameras"]
-    local = _camera(LOCAL_CAMERA, cams["local"], "robot.cameras.local")
-    glob = _camera(GLOBAL_CAMERA, cams["global"], "robot.cameras.global")
+        _check_thrust(system, robot.drone)
+    cams = robot.cameras
+    local = _camera(LOCAL_CAMERA, cams.local, "robot.cameras.local")
+    glob = _camera(GLOBAL_CAMERA, cams.global_, "robot.cameras.global")
     try:
-        tip_mount = tip_camera_mount(attachment, cams["local"]["offset"])
-        drone_mount = drone_camera_mount(
-            tuple(cams["global"]["position"]), cams["global"]["tilt_deg"]
-        )
+        tip_mount = tip_camera_mount(attachment, cams.local.offset)
+        drone_mount = drone_camera_mount(tuple(cams.global_.position), cams.global_.tilt_deg)
     except ValueError as exc:
         raise RobotError(f"robot.cameras: {exc}") from None
-    return Robot(system, local, glob, tip_mount, drone_mount, robot["tip"]["probe_length"])
+    return Robot(system, local, glob, tip_mount, drone_mount, robot.tip.probe_length)
 
 
-def _check_thrust(system: TDACM, drone: dict) -> None:
+def _check_thrust(system: TDACM, drone: DroneConfig) -> None:
     """The rotors' total thrust against the robot's weight (:data:`MIN_THRUST_TO_WEIGHT`)."""
     weight = system.total_mass * float(np.linalg.norm(system.loads.gravity))
-    total = 4 * drone["max_thrust"]
+    total = 4 * drone.max_thrust
     if total < MIN_THRUST_TO_WEIGHT * weight:
         raise RobotError(
             f"robot.drone: 4 x max_thrust = {total:g} N cannot fly the robot: its weight is "
-            f"{weight:.4g} N ({system.total_mass:.4g} kg: robot.drone.mass = {drone['mass']:g} "
+            f"{weight:.4g} N ({system.total_mass:.4g} kg: robot.drone.mass = {drone.mass:g} "
             f"kg plus rod and tip) and the rotors need {MIN_THRUST_TO_WEIGHT:g} times it; raise "
             f"robot.drone.max_thrust to at least {MIN_THRUST_TO_WEIGHT * weight / 4:.4g} N or "
             "lower robot.drone.mass"
         )
 
 
-def strain_count(robot: dict) -> int:
-    """``n_s`` of a ``[robot]`` section (for the length checks of ``q``), without building."""
-    return parse_basis(robot["rod"]["basis"]).n
+def strain_count(robot: RobotConfig) -> int:
+    """``n_s`` of a ``[robot]`` record (for the length checks of ``q``), without building."""
+    return parse_basis(robot.rod.basis).n

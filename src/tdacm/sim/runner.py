@@ -51,9 +51,9 @@ class Simulation:
         frame_composer=None,
     ):
         self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
-        d = self.scenario.data
-        self.duration = float(d["duration"] if duration is None else duration)
-        self.seed = int(d["seed"] if seed is None else seed)
+        cfg = self.scenario.config
+        self.duration = float(cfg.duration if duration is None else duration)
+        self.seed = int(cfg.seed if seed is None else seed)
         self.video = bool(video)
         self.progress = bool(progress)
         self.blocks = {"controller": controller, "servo": servo, "estimator": estimator}
@@ -130,13 +130,14 @@ class Simulation:
             cam_dp, cam_da = camera_pose_error(loop, a["q"][-1], q_star)
             if s.floating:
                 drone_dp = float(np.linalg.norm(a["q"][-1][3:6] - q_star[3:6]))
+        cfg = self.scenario.config
         return {
             "scenario": self.scenario.name,
             "seed": self.seed,
             "duration": sim_t,
             "requested_duration": self.duration,
-            "dt": self.scenario.data["dt"],
-            "perturbation": self.scenario.data["model"]["perturbation"],
+            "dt": cfg.dt,
+            "perturbation": cfg.model.perturbation,
             "initial_rmse": initial,
             "final_rmse": final,
             "min_rmse": float(np.nanmin(rmse)) if finite.any() else None,
@@ -162,18 +163,18 @@ class Simulation:
             "thrust_saturated_steps": int(np.sum(a["thrust_saturated"])),
             "final_q": a["q"][-1].tolist() if a["q"].size else None,
             "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
-            "profile": self.scenario.data["controller"]["profile"],
+            "profile": cfg.controller.profile,
             # an ablation (tdacm.loop.ablation): the controller read these from the plant
-            "controller_truth": self.scenario.data["estimation"]["controller_truth"] or None,
+            "controller_truth": cfg.estimation.controller_truth or None,
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
-            **touch_summary(a, self.scenario.data),
+            **touch_summary(a, cfg),
             **_target_merit(loop, assembly.world),
-            **estimation_summary(a, s, self.scenario.data["estimation"]["source"], loop),
+            **estimation_summary(a, s, cfg.estimation.source, loop),
         }
 
 
-def touch_summary(a: dict, data: dict) -> dict:
+def touch_summary(a: dict, cfg) -> dict:
     """Servoing into contact (``[touch]``, :mod:`tdacm.loop.touch`): the hold's figures from
     the log (empty without ``[touch] enabled``). ``hold_force_rms_rel``: RMS of the TRUE
     normal force minus the desired one over the hold, relative to the desired one;
@@ -182,15 +183,15 @@ def touch_summary(a: dict, data: dict) -> dict:
     ``max_contact_force``: the largest total contact force of the run (N)."""
     if "touch_phase" not in a:
         return {}
-    tc = data["touch"]
-    fd = float(tc["force"])
+    tc = cfg.touch
+    fd = float(tc.force)
     phase = a["touch_phase"]
     hold = phase == PHASES.index("hold")
     t = a["t"]
-    dt = float(data["dt"])
+    dt = float(cfg.dt)
     out = {
         "touch_force": fd,
-        "touch_hold_time": float(tc["hold_time"]),
+        "touch_hold_time": float(tc.hold_time),
         "touch_phase_reached": PHASES[int(phase.max())]
         if phase.size and phase.max() >= 0
         else None,

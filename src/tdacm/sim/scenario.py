@@ -16,6 +16,7 @@ import copy
 import math
 import tomllib
 from dataclasses import dataclass, replace
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 
@@ -23,7 +24,6 @@ import numpy as np
 import tomli_w
 from pydantic import ValidationError
 
-from ..aero.config import WindConfig
 from ..loop.ablation import parse_controller_truth
 from ..vision.mounts import tip_camera_pose
 from .config import SECTIONS, TOP_KEYS, ScenarioConfig, error_line
@@ -61,39 +61,40 @@ def _deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
-def _resolve(data: dict, source: str) -> dict:
+def _resolve(data: dict, source: str) -> ScenarioConfig:
     """Validate ``data`` (raw TOML tables, defaults not filled in) against the records of
-    :mod:`tdacm.sim.config`: the full nested dict with every default filled in, or a
+    :mod:`tdacm.sim.config`: the typed record with every default filled in, or a
     :class:`ScenarioError` of one line naming ``source`` and the key."""
     try:
-        cfg = ScenarioConfig.model_validate(data)
+        return ScenarioConfig.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(f"{source}: {error_line(exc)}") from None
-    return cfg.model_dump(by_alias=True)
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario (``data`` is the full nested dict with defaults filled in: the dump
-    of :class:`~tdacm.sim.config.ScenarioConfig`). ``folder`` is the folder of the scenario
-    file (searched for a user controller's module), ``None`` for a shipped scenario."""
+    """A validated scenario: ``config`` is its typed record
+    (:class:`~tdacm.sim.config.ScenarioConfig`, every default filled in), what the assembly
+    reads; ``data`` the same values as a nested dict (for writing and merging). ``folder`` is
+    the folder of the scenario file (searched for a user controller's module), ``None`` for a
+    shipped scenario."""
 
-    data: dict
+    config: ScenarioConfig
     source: str
     folder: str | None = None
 
-    @property
-    def config(self) -> ScenarioConfig:
-        """The typed record of ``data``."""
-        return ScenarioConfig.model_validate(self.data)
+    @cached_property
+    def data(self) -> dict:
+        """The record as the nested dict of the file's keys (defaults filled in)."""
+        return self.config.model_dump(by_alias=True)
 
     @property
     def name(self) -> str:
-        return self.data["name"]
+        return self.config.name
 
     @property
     def floating(self) -> bool:
-        return self.data["system"]["base"] == "floating"
+        return self.config.system.base == "floating"
 
     def __getitem__(self, key):
         return self.data[key]
@@ -105,32 +106,32 @@ class Scenario:
         except ValidationError as exc:
             raise ScenarioError(f"{source}: {error_line(exc)}") from None
         merged = _resolve(_deep_merge(_drop_none(self.data), data), src)
-        return replace(self, data=validate(merged, src).data, source=src)
+        return replace(self, config=validate(merged, src).config, source=src)
 
 
-def validate(d: dict, source: str) -> Scenario:
-    """Cross-field checks on a dict already validated key by key (:func:`_resolve`): the name,
-    ``dt`` against ``duration``, the lengths of ``q`` against the robot's strain count, the
-    ablation's ``controller_truth``. A ``[robot.base]`` clamp sets ``system.base = "fixed"``."""
-    if not d.get("name"):
+def validate(cfg: ScenarioConfig, source: str) -> Scenario:
+    """Cross-field checks on a record already validated key by key (:func:`_resolve`): the
+    name, ``dt`` against ``duration``, the lengths of ``q`` against the robot's strain count,
+    the ablation's ``controller_truth``. A ``[robot.base]`` clamp sets
+    ``system.base = "fixed"``."""
+    if not cfg.name:
         raise ScenarioError(f"{source}: 'name' is required")
-    if d["dt"] > d["duration"]:
+    if cfg.dt > cfg.duration:
         raise ScenarioError(
-            f"{source}: dt ({d['dt']} s) must not exceed duration ({d['duration']} s)"
+            f"{source}: dt ({cfg.dt} s) must not exceed duration ({cfg.duration} s)"
         )
-    if d["robot"]["base"]["pose_q"] is not None:  # [robot.base] is a clamp at that pose
-        d["system"]["base"] = "fixed"
-    base = d["system"]["base"]
+    if cfg.robot.base.pose_q is not None:  # [robot.base] is a clamp at that pose
+        cfg = cfg.model_copy(update={"system": cfg.system.model_copy(update={"base": "fixed"})})
+    base = cfg.system.base
     try:
-        n_s = strain_count(d["robot"])
+        n_s = strain_count(cfg.robot)
     except RobotError as exc:
         raise ScenarioError(f"{source}: {exc}") from None
     n = n_s + (6 if base == "floating" else 0)
     names = (["phi", "theta", "psi", "x", "y", "z"] if base == "floating" else []) + [
         f"q_s{i + 1}" for i in range(n_s)
     ]
-    for sec in ("initial", "desired"):
-        q = d[sec]["q"]
+    for sec, q in (("initial", cfg.initial.q), ("desired", cfg.desired.q)):
         if q is None:
             raise ScenarioError(f"{source}: {sec}.q is required")
         if len(q) != n:
@@ -138,30 +139,30 @@ def validate(d: dict, source: str) -> Scenario:
                 f"{source}: {sec}.q must have {n} entries for a {base} base "
                 f"(q = [{', '.join(names)}]), got {len(q)}"
             )
-    qd = d["initial"]["qd"]
+    qd = cfg.initial.qd
     if qd is not None and len(qd) != n:
         raise ScenarioError(f"{source}: initial.qd must have {n} entries, got {len(qd)}")
-    aero, wind = d["aerodynamics"], d["wind"]
-    if not aero["enabled"] and WindConfig(**wind).active:
+    aero = cfg.aerodynamics
+    if not aero.enabled and cfg.wind.active:
         raise ScenarioError(
             f"{source}: [wind] acts through the drag: set aerodynamics.enabled = true"
         )
-    if aero["enabled"] and aero["fixed_thrusts"] is not None and base == "floating":
+    if aero.enabled and aero.fixed_thrusts is not None and base == "floating":
         raise ScenarioError(
             f"{source}: aerodynamics.fixed_thrusts is for a fixed base (a floating drone's "
             "wake follows its own thrusts)"
         )
-    est = d["estimation"]
+    est = cfg.estimation
     try:
-        truth = parse_controller_truth(est["controller_truth"])
+        truth = parse_controller_truth(est.controller_truth)
     except ValueError as exc:
         raise ScenarioError(f"{source}: {exc}") from None
-    if any(truth) and est["source"] != "estimated":
+    if any(truth) and est.source != "estimated":
         raise ScenarioError(
             f"{source}: estimation.controller_truth needs estimation.source = 'estimated' "
             "(on the true state the controller reads the plant already)"
         )
-    return Scenario(d, source)
+    return Scenario(cfg, source)
 
 
 #: Longest plant step ``dt / substeps``, as a multiple of ``TDACM.suggested_dt()`` (10 ms for
@@ -183,9 +184,10 @@ def check_run(scenario: Scenario, duration=None, seed=None, flags: bool = True) 
             raise ScenarioError(f"{dn} must be a number of seconds, got {duration!r}")
         if not math.isfinite(duration) or duration <= 0:
             raise ScenarioError(f"{dn} must be a finite positive number of seconds, got {duration}")
-        if scenario["dt"] > duration:
+        dt = scenario.config.dt
+        if dt > duration:
             raise ScenarioError(
-                f"{dn} ({duration} s) is shorter than the control period dt = {scenario['dt']} s"
+                f"{dn} ({duration} s) is shorter than the control period dt = {dt} s"
             )
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
@@ -202,15 +204,15 @@ def check_with_world(scenario: Scenario, world) -> None:
     * the target in front of the tip camera C_L at the desired configuration (the reference
       view of the IBVS is taken there).
     """
-    d = scenario.data
+    cfg = scenario.config
     src = scenario.source
     system = world.robot.system
-    if d["dt"] > MAX_CONTROL_PERIOD:
+    if cfg.dt > MAX_CONTROL_PERIOD:
         raise ScenarioError(
-            f"{src}: dt = {d['dt']} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
+            f"{src}: dt = {cfg.dt} s is longer than {MAX_CONTROL_PERIOD} s: the sampled closed "
             f"loop is unstable there (measured: stopped at 0.05 s, diverges at 0.1 s; paper: 0.02 s)"
         )
-    h = d["dt"] / d["substeps"]
+    h = cfg.dt / cfg.substeps
     h_max = MAX_STEP_FACTOR * system.suggested_dt()
     if h > h_max:
         raise ScenarioError(
@@ -218,7 +220,7 @@ def check_with_world(scenario: Scenario, world) -> None:
             f"{h_max:.4g} s ({MAX_STEP_FACTOR:g} x suggested_dt()); raise substeps or lower dt"
         )
     try:
-        parse_controller_truth(d["estimation"]["controller_truth"], system.n)
+        parse_controller_truth(cfg.estimation.controller_truth, system.n)
     except ValueError as exc:
         raise ScenarioError(f"{src}: {exc}") from None
     robot = world.robot
@@ -350,9 +352,9 @@ def dict_to_toml(data: dict, header: str | None = None) -> str:
 def scenario_to_toml(scenario: Scenario) -> str:
     """The resolved scenario (defaults filled in) as TOML text; ``load_scenario`` of the
     written file gives the same data (keys left unset, such as ``initial.qd``, are omitted)."""
-    d = scenario.data
-    ordered = {k: d[k] for k in TOP_KEYS if k in d}
-    ordered.update({sec: d[sec] for sec in SECTIONS})
+    data = scenario.data
+    ordered = {k: data.get(k) for k in TOP_KEYS}
+    ordered.update({sec: data.get(sec) for sec in SECTIONS})
     return dict_to_toml(ordered, f"# resolved from {scenario.source}")
 
 

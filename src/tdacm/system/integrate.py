@@ -80,7 +80,7 @@ def simulate(
     record_dt: float | None = None,
     rtol: float | None = None,
     atol: float | None = None,
-    solver: str = "DOP853",
+    adaptive_solver: str = "DOP853",
     progress: bool = False,
 ) -> SimulationResult:
     """Integrate the TD-ACM from ``(q0, qd0)`` for ``duration`` seconds.
@@ -93,7 +93,8 @@ def simulate(
     recorded every ``record_dt`` (default ``dt``; any spacing for Radau, which interpolates).
     ``rtol``/``atol``: tolerances of the adaptive method (default 1e-8 / 1e-10) and, if given,
     of the Rosenbrock and Radau methods (``atol`` for the positions; the velocities use
-    ``atol * 100``).
+    ``atol * 100``). ``adaptive_solver``: the :func:`scipy.integrate.solve_ivp` method of the
+    adaptive method.
     """
     q0 = system._q(q0, "q0")
     qd0 = np.zeros(system.n) if qd0 is None else system._q(qd0, "qd0")
@@ -130,7 +131,7 @@ def simulate(
         return _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol)
     rtol = 1e-8 if rtol is None else rtol
     atol = 1e-10 if atol is None else atol
-    return _adaptive(system, q0, qd0, u, duration, record_dt, rtol, atol, solver)
+    return _adaptive(system, q0, qd0, u, duration, record_dt, rtol, atol, adaptive_solver)
 
 
 def _rosenbrock(system, q0, qd0, u, duration, dt, record_dt, rtol, atol):

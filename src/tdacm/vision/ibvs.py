@@ -100,7 +100,7 @@ def _twist_kernel(p, z, desired, interaction_desired, mode, gain, floor, damped)
 
 
 def ibvs_twist(
-    error, interaction, gain: float = 0.5, floor: float = 0.0, solver: str = "floor"
+    error, interaction, *, gain: float, floor: float, solver: str = "floor"
 ) -> np.ndarray:
     """``v = -gain J_img^-1 e`` (paper eq. (39)); with ``floor > 0`` the well-conditioned
     solve of :func:`robust_solve`.
@@ -133,7 +133,7 @@ class IBVSController:
         Their depths (``(4,)`` or a scalar), needed by the ``"desired"`` and ``"mean"``
         interaction matrices.
     gain:
-        ``lambda > 0``.
+        ``lambda > 0`` (``[ibvs] gain`` in a scenario).
     mode:
         ``"current"``, ``"desired"`` or ``"mean"`` (see module docstring).
     order:
@@ -141,17 +141,18 @@ class IBVSController:
         or ``"linear_first"`` (``[v; w]``).
     floor, solver:
         Singular-value floor of the solve and its kind (:func:`robust_solve`); ``floor = 0``
-        is the paper's plain ``J_img^-1``.
+        is the paper's plain ``J_img^-1`` (``[ibvs] floor`` in a scenario).
     """
 
     def __init__(
         self,
         desired_points,
         desired_depths,
-        gain: float = 0.5,
+        *,
+        gain: float,
+        floor: float,
         mode: str = "current",
         order: str = "angular_first",
-        floor: float = 0.0,
         solver: str = "floor",
     ):
         if solver not in SOLVERS:

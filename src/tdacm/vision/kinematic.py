@@ -44,7 +44,8 @@ def free_camera_servo(
     points_target,
     initial_pose,
     desired_pose,
-    gain: float = 5.0,
+    *,
+    gain: float,
     dt: float = 0.02,
     max_steps: int = 600,
     mode: str = "current",
@@ -74,7 +75,7 @@ def free_camera_servo(
     g = C.transform("initial_pose", initial_pose).copy()
     gd = C.transform("desired_pose", desired_pose)
     xd, zd = project_points(pts, gd)
-    ctrl = IBVSController(xd, zd, gain=gain, mode=mode)
+    ctrl = IBVSController(xd, zd, gain=gain, floor=0.0, mode=mode)
 
     def view(g):
         xy, z = project_points(pts, g)
@@ -119,16 +120,16 @@ def random_initial_pose(
     rng: np.random.Generator,
     desired_pose,
     yaw_range_deg=(-180, 180),
-    tilt_deg: float = 20.0,
+    max_tilt_deg: float = 20.0,
     lateral: float = 0.3,
     depth_range=(-0.5, 1.0),
 ) -> np.ndarray:
     """A random camera pose around ``desired_pose`` (target frame): yaw about the optical
-    axis uniform in ``yaw_range_deg``, tilt about x and y uniform in ``+-tilt_deg``, lateral
+    axis uniform in ``yaw_range_deg``, tilt about x and y uniform in ``+-max_tilt_deg``, lateral
     offsets uniform in ``+-lateral`` m and a change of distance in ``depth_range`` m."""
     gd = C.transform("desired_pose", desired_pose)
     yaw = np.radians(rng.uniform(*yaw_range_deg))
-    ax, ay = np.radians(rng.uniform(-tilt_deg, tilt_deg, 2))
+    ax, ay = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, 2))
     cz, sz = np.cos(yaw), np.sin(yaw)
     rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
     rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(ax), -np.sin(ax)], [0.0, np.sin(ax), np.cos(ax)]])
@@ -157,7 +158,8 @@ def tdacm_servo(
     q_desired,
     points_world,
     mount=None,
-    gain: float = 2.0,
+    *,
+    gain: float,
     dt: float = 0.02,
     max_steps: int = 1000,
     tol: float = 1e-6,
@@ -204,7 +206,7 @@ def tdacm_servo(
     xd, zd, _ = view(qd)
     if xd is None:
         raise ValueError("the target is behind the camera at q_desired")
-    ctrl = IBVSController(xd, zd, gain=gain)
+    ctrl = IBVSController(xd, zd, gain=gain, floor=0.0)
 
     def seen(qq):
         xy, z, extra = view(qq)

@@ -137,7 +137,7 @@ class ArmStyle:
 
     span: float = 0.65
     body_size: tuple = (0.18, 0.18, 0.06)
-    rotor_radius: float = 0.11
+    rotor_disc_radius: float = 0.11
     rod_radius: float = 0.005
     segments: int = 20
     drone_rgba: tuple = (0.15, 0.15, 0.18, 1.0)
@@ -149,6 +149,6 @@ class ArmStyle:
         b = C.array("body_size", self.body_size, (3,))
         if np.any(b <= 0):
             raise ValueError(f"body_size must be positive, got {self.body_size!r}")
-        C.positive("rotor_radius", self.rotor_radius)
+        C.positive("rotor_disc_radius", self.rotor_disc_radius)
         C.positive("rod_radius", self.rod_radius)
         C.positive_int("segments", self.segments)

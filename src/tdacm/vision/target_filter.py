@@ -337,7 +337,7 @@ class TargetFilter:
     level_prior:
         Standard deviation (rad) of the prior that the target's z axis is along
         ``level_normal`` (world), i.e. that it lies on a level surface (module docstring);
-        0 (default) disables it.
+        0 disables it (a scenario's ``[ibvs] target_level_prior_deg``).
     level_normal:
         The nominal direction of the target's z axis in the world (default ``[0, 0, -1]``:
         the target faces up, its z axis into the surface).
@@ -348,6 +348,8 @@ class TargetFilter:
         camera: PinholeCamera,
         object_points,
         pixel_sigma: float = 1.0,
+        *,
+        level_prior: float,
         window: int = 250,
         iterations: int = 2,
         gate: float = GATE_CHI2_8,
@@ -355,7 +357,6 @@ class TargetFilter:
         decisive: float = 25.0,
         reset_after: int = 5,
         recheck: int = 10,
-        level_prior: float = 0.0,
         level_normal=(0.0, 0.0, -1.0),
     ):
         self.camera = camera

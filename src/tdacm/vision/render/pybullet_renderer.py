@@ -324,7 +324,7 @@ class PyBulletRenderer(Renderer):
         for x, y in ((half, 0.0), (0.0, half), (-half, 0.0), (0.0, -half)):
             shapes.append(p.GEOM_CYLINDER)
             kw["halfExtents"].append([0, 0, 0])
-            kw["radii"].append(arm.rotor_radius)
+            kw["radii"].append(arm.rotor_disc_radius)
             kw["lengths"].append(0.01)
             kw["visualFramePositions"].append([x, y, 0.03])
             kw["rgbaColors"].append(list(arm.rotor_rgba))
