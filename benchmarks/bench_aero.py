@@ -16,7 +16,7 @@ import json
 import numpy as np
 
 import tdacm
-from tdacm._timing import batch_times
+from tdacm.bench import batch_times
 from tdacm.system import kernels as K
 from tdacm.system.aero import aero_array
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from tdacm.baselines import study
-from tdacm.cli import configure_logging
+from tdacm.bench import configure_logging
 
 if __name__ == "__main__":
     configure_logging()  # the tables on stdout

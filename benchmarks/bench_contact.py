@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 import tdacm
-from tdacm._timing import batch_times
+from tdacm.bench import batch_times
 from tdacm.contact import Box, ContactModel, Cylinder, Plane
 from tdacm.loop.plant import Plant
 from tdacm.system.contact import contact_array, contact_state

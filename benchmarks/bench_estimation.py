@@ -1,11 +1,11 @@
-"""State estimation (issue 10): filter cost per period, accuracy, consistency, and the closed
+"""State estimation: filter cost per period, accuracy, consistency, and the closed
 loop on estimates against the true state. The numbers of ``docs/estimation.md``.
 
     python benchmarks/bench_estimation.py [--seeds 6] [--out out/bench]
 
 Writes ``OUT/estimation.json``. Part 1 drives the filter with the plant alone (the paper
 system under the project's controller on the true state, hover + strain steps, default sensors,
-10 % model error, initial strain error 0.3 rad/m; ``tests/estimation/harness.py``); part 2 runs
+10 % model error, initial strain error 0.3 rad/m; :mod:`tdacm.bench.estimation`); part 2 runs
 the shipped scenarios (analytic C_L, noise-free cameras) with ``estimation.source`` = "true"
 and "estimated".
 """
@@ -13,22 +13,18 @@ and "estimated".
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tests.estimation.harness import nees, run  # noqa: E402
-
-from tdacm.control import EstimatedModel  # noqa: E402
-from tdacm.estimation import ExtendedKalmanFilter, SensorSuite  # noqa: E402
-from tdacm.sim import build_loop  # noqa: E402
-from tdacm.sim.runner import estimation_summary  # noqa: E402
-from tdacm.sim.scenario import load_scenario  # noqa: E402
+from tdacm.bench.estimation import nees, run
+from tdacm.control import EstimatedModel
+from tdacm.estimation import ExtendedKalmanFilter, SensorSuite
+from tdacm.sim import build_loop
+from tdacm.sim.runner import estimation_summary
+from tdacm.sim.scenario import load_scenario
 
 FAST = {"cameras": {"local_renderer": "analytic", "global_renderer": "planar"}}
 

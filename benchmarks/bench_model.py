@@ -1,8 +1,7 @@
 """Benchmark of the coupled model (speed targets).  Run: ``python benchmarks/bench_model.py``
 or ``tdacm bench``.  Reports medians; see ``docs/benchmarks.md`` for this machine's figures."""
 
-from tdacm.bench import run_model_bench
-from tdacm.cli import configure_logging
+from tdacm.bench import configure_logging, run_model_bench
 
 if __name__ == "__main__":
     configure_logging()  # the tables on stdout, progress on stderr

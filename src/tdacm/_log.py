@@ -1,10 +1,12 @@
 """Logging conventions shared by the library: every module logs through
 ``logging.getLogger(__name__)`` (all under the ``tdacm`` logger, which the command line
-configures with ``-v``/``-q``); progress bars follow that logger's level."""
+configures with ``-v``/``-q`` through :func:`configure_logging`; the benchmark scripts call it
+too); progress bars follow that logger's level."""
 
 from __future__ import annotations
 
 import logging
+import sys
 
 #: The logger of tables that are a command's own output (``tdacm bench``): the command line
 #: sends it to stdout, whatever ``-v``/``-q``; everything else goes to stderr.
@@ -18,3 +20,59 @@ def progress_enabled() -> bool:
     if logger.level == logging.NOTSET and not logger.handlers:
         return True
     return logger.isEnabledFor(logging.INFO)
+
+
+class StderrHandler(logging.StreamHandler):
+    """Writes to the current ``sys.stderr`` (looked up at each record, so a replaced stderr,
+    e.g. a test's capture, receives the messages)."""
+
+    target = "stderr"
+
+    def __init__(self):
+        super().__init__(self.stream)
+
+    @property
+    def stream(self):
+        return getattr(sys, self.target)
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class StdoutHandler(StderrHandler):
+    """The same on the current ``sys.stdout``: the tables of :data:`REPORT`."""
+
+    target = "stdout"
+
+
+class PlainFormatter(logging.Formatter):
+    """The message alone; warnings and errors start with their level (``warning: ...``)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if record.levelno >= logging.WARNING:
+            text = f"{record.levelname.lower()}: {text}"
+        return text
+
+
+def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
+    """Send the ``tdacm`` loggers to stderr: INFO by default, DEBUG with ``verbose``,
+    WARNING with ``quiet``; the tables of :data:`REPORT` (a command's own output)
+    to stdout at any level. Replaces the handlers a previous call installed."""
+    level = logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO
+    report = logging.getLogger(REPORT)
+    for h in [h for h in report.handlers if isinstance(h, StdoutHandler)]:
+        report.removeHandler(h)
+    out = StdoutHandler()
+    out.setFormatter(logging.Formatter("%(message)s"))
+    report.addHandler(out)
+    report.setLevel(logging.INFO)
+    report.propagate = False
+    logger = logging.getLogger("tdacm")
+    for h in [h for h in logger.handlers if isinstance(h, StderrHandler)]:
+        logger.removeHandler(h)
+    handler = StderrHandler()
+    handler.setFormatter(PlainFormatter("%(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(level)

@@ -25,6 +25,8 @@ import math
 import sys
 from pathlib import Path
 
+from ._log import StderrHandler, configure_logging
+
 
 def _err(msg: str) -> int:
     print(f"error: {msg}", file=sys.stderr)
@@ -33,71 +35,9 @@ def _err(msg: str) -> int:
 
 def _note(msg: str) -> None:
     """A notice on stderr (through logging: hidden by ``-q``)."""
-    if not any(isinstance(h, _StderrHandler) for h in logging.getLogger("tdacm").handlers):
+    if not any(isinstance(h, StderrHandler) for h in logging.getLogger("tdacm").handlers):
         configure_logging()  # a command called without main(), e.g. from the tests
     logging.getLogger("tdacm.cli").info(msg)
-
-
-class _StderrHandler(logging.StreamHandler):
-    """Writes to the current ``sys.stderr`` (looked up at each record, so a replaced stderr,
-    e.g. a test's capture, receives the messages)."""
-
-    def __init__(self):
-        super().__init__(self.stream)
-
-    @property
-    def stream(self):
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, value):
-        pass
-
-
-class _StdoutHandler(_StderrHandler):
-    """The same on the current ``sys.stdout``: the tables of :data:`tdacm._log.REPORT`."""
-
-    @property
-    def stream(self):
-        return sys.stdout
-
-    @stream.setter
-    def stream(self, value):
-        pass
-
-
-class _PlainFormatter(logging.Formatter):
-    """The message alone; warnings and errors start with their level (``warning: ...``)."""
-
-    def format(self, record: logging.LogRecord) -> str:
-        text = super().format(record)
-        if record.levelno >= logging.WARNING:
-            text = f"{record.levelname.lower()}: {text}"
-        return text
-
-
-def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
-    """Send the ``tdacm`` loggers to stderr: INFO by default, DEBUG with ``verbose``,
-    WARNING with ``quiet``; the tables of :data:`tdacm._log.REPORT` (a command's own output)
-    to stdout at any level. Replaces the handlers a previous call installed."""
-    from ._log import REPORT
-
-    level = logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO
-    report = logging.getLogger(REPORT)
-    for h in [h for h in report.handlers if isinstance(h, _StdoutHandler)]:
-        report.removeHandler(h)
-    out = _StdoutHandler()
-    out.setFormatter(logging.Formatter("%(message)s"))
-    report.addHandler(out)
-    report.setLevel(logging.INFO)
-    report.propagate = False
-    logger = logging.getLogger("tdacm")
-    for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
-        logger.removeHandler(h)
-    handler = _StderrHandler()
-    handler.setFormatter(_PlainFormatter("%(message)s"))
-    logger.addHandler(handler)
-    logger.setLevel(level)
 
 
 # ------------------------------------------------------------------ argument types

@@ -1,4 +1,4 @@
-"""The tip camera in the state estimator (tdacm.estimation.camera, issue 10)."""
+"""The tip camera in the state estimator (tdacm.estimation.camera)."""
 
 from __future__ import annotations
 
@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from tdacm import paper_system
+from tdacm.bench import estimation as H
 from tdacm.control import EstimatedModel
 from tdacm.estimation import ExtendedKalmanFilter
 from tdacm.estimation.camera import TargetCamera, TargetViewMeasurement, target_pose_from_view
 from tdacm.lie.se3 import expmap
 from tdacm.vision import PAPER_MARKER
 from tdacm.vision.mounts import tip_camera_mount
-
-from . import harness as H
 
 SIGMA = 1.0 / 600.0  # 1 px for a 600 px focal length
 

@@ -1,4 +1,4 @@
-"""Plant + sensors + estimator, without the visual loop (shared by the estimation tests).
+"""Plant + sensors + estimator, without the visual loop (the estimation benchmark and tests).
 
 The plant is the true paper system integrated with :func:`tdacm.system.kernels.rk4_run`; its
 input comes from the project's low-level controller acting on the *true* state (the loop under
@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tdacm import paper_system
-from tdacm.control import EstimatedModel, TDACMController, default_gains
-from tdacm.estimation import EstimatorConfig, ExtendedKalmanFilter, SensorSuite, SensorSuiteConfig
-from tdacm.estimation.camera import TargetViewMeasurement
-from tdacm.system import kernels as K
+from ..control import EstimatedModel, TDACMController, default_gains
+from ..estimation import EstimatorConfig, ExtendedKalmanFilter, SensorSuite, SensorSuiteConfig
+from ..estimation.camera import TargetViewMeasurement
+from ..system import kernels as K
+from ..system.paper import paper_system
 
 Q0 = np.array([0.0, 0.0, 0.17453292519943295, -0.5, 0.5, 5.0, -0.3, -0.4])
 
