@@ -125,6 +125,36 @@ def _progress(desc: str, unit: str = "frame"):
 
 
 # ------------------------------------------------------------------ commands
+def _opening(
+    out=None,
+    flag: str = "--out",
+    folder: bool = True,
+    suffixes: tuple = (),
+    file=None,
+    topic_map=None,
+    compile_notice: bool = False,
+):
+    """The checks a command opens with, in this order: the output ``out`` of ``flag`` (its
+    suffix among ``suffixes`` if given, then :func:`_out_error`; ``folder``: a folder, else a
+    file), the input ``file`` exists, the ``--topic-map`` file reads; then the compile notice.
+    Returns ``(topic map or None, None)``, or ``(None, the one-line error)``."""
+    if out is not None:
+        if suffixes and Path(out).suffix.lower() not in suffixes:
+            kind = " or ".join(suffixes)
+            what = f"name a {kind} file" if len(suffixes) == 1 else f"end in {kind}"
+            return None, f"{flag} must {what}, got {out}"
+        if (problem := _out_error(flag, out, folder)) is not None:
+            return None, problem
+    if file is not None and not Path(file).is_file():
+        return None, f"FILE {file} does not exist or is not a file"
+    tmap, problem = _read_topic_map(topic_map)
+    if problem is not None:
+        return None, problem
+    if compile_notice:
+        _compile_notice()
+    return tmap, None
+
+
 def _cmd_info(args) -> int:
     from . import paper_system
     from .estimation import SensorSuiteConfig, hover_estimate_limits
@@ -167,9 +197,9 @@ def _cmd_info(args) -> int:
 def _cmd_demo(args) -> int:
     from .demo import run_demo
 
-    if (problem := _out_error("--out", args.out)) is not None:
+    # one process for the compilation: the demo's kernels would not split evenly (measured)
+    if (problem := _opening(args.out, compile_notice=True)[1]) is not None:
         return _err(problem)
-    _compile_notice()  # one process: the demo's kernels would not split evenly (measured)
     summary = run_demo(args.out, duration=args.duration)
     out = Path(args.out).resolve()
     print(json.dumps(summary, indent=2))
@@ -180,9 +210,8 @@ def _cmd_demo(args) -> int:
 def _cmd_bench(args) -> int:
     from .bench import run_full_bench, run_model_bench
 
-    if (problem := _out_error("--out", args.out)) is not None:
+    if (problem := _opening(args.out, compile_notice=True)[1]) is not None:
         return _err(problem)
-    _compile_notice()
     if args.full:
         run_full_bench(out=args.out, repeats=args.repeats)
     else:
@@ -288,7 +317,7 @@ def _cmd_plot(args) -> int:
     formats = tuple(f.strip() for f in args.formats.split(","))
     if any(f not in ("png", "pdf", "svg") for f in formats):
         return _err(f"--formats must list png, pdf or svg, got {args.formats!r}")
-    if args.out is not None and (problem := _out_error("--out", args.out)) is not None:
+    if (problem := _opening(args.out)[1]) is not None:
         return _err(problem)
     try:
         paths = plot_run_dir(args.run_dir, args.out, formats=formats, kinds=kinds)
@@ -336,9 +365,8 @@ def _cmd_campaign(args) -> int:
     from .campaign import CampaignSpecError, run_campaign
 
     out = Path(args.out)
-    if (problem := _out_error("--out", out)) is not None:
+    if (problem := _opening(out, compile_notice=True)[1]) is not None:
         return _err(problem)
-    _compile_notice()
     try:
         report = run_campaign(args.spec, args.out, workers=args.workers, scheduler=args.scheduler)
     except CampaignSpecError as exc:
@@ -369,9 +397,7 @@ def _cmd_replay(args) -> int:
         from .viz import record_run
 
         rrd = None if args.rerun == "" else args.rerun
-        if rrd is not None and Path(rrd).suffix != ".rrd":
-            return _err(f"--rerun must name a .rrd file, got {rrd}")
-        if rrd is not None and (problem := _out_error("--rerun", rrd, False)) is not None:
+        if (problem := _opening(rrd, "--rerun", False, (".rrd",))[1]) is not None:
             return _err(problem)
         try:
             path = record_run(run_dir, rrd, progress=_progress("rerun", "step"))
@@ -381,9 +407,7 @@ def _cmd_replay(args) -> int:
         return 0
     from .viz import replay_run
 
-    if args.out is not None and Path(args.out).suffix.lower() not in (".gif", ".mp4"):
-        return _err(f"--out must end in .gif or .mp4, got {args.out}")
-    if args.out is not None and (problem := _out_error("--out", args.out, False)) is not None:
+    if (problem := _opening(args.out, folder=False, suffixes=(".gif", ".mp4"))[1]) is not None:
         return _err(problem)
     try:
         path = replay_run(
@@ -404,9 +428,7 @@ def _cmd_replay(args) -> int:
 def _cmd_export(args) -> int:
     from .recording import ExportError, export_run
 
-    if Path(args.mcap).suffix != ".mcap":
-        return _err(f"--mcap must name a .mcap file, got {args.mcap}")
-    if (problem := _out_error("--mcap", args.mcap, False)) is not None:
+    if (problem := _opening(args.mcap, "--mcap", False, (".mcap",))[1]) is not None:
         return _err(problem)
     run_dir = Path(args.run_dir)
     if not (run_dir / "timeseries.npz").is_file():
@@ -448,11 +470,7 @@ def _cmd_import(args) -> int:
     from .recording import RecordingError, read_mcap, save_signals
 
     out = Path(args.out)
-    if (problem := _out_error("--out", out)) is not None:
-        return _err(problem)
-    if not Path(args.file).is_file():
-        return _err(f"FILE {args.file} does not exist or is not a file")
-    tmap, problem = _read_topic_map(args.topic_map)
+    tmap, problem = _opening(out, file=args.file, topic_map=args.topic_map)
     if problem is not None:
         return _err(problem)
     try:
@@ -473,18 +491,15 @@ def _cmd_replay_recording(args) -> int:
     from .sim import ScenarioError, load_scenario
 
     out = Path(args.out)
-    if (problem := _out_error("--out", out)) is not None:
+    if (problem := _opening(out, file=args.file)[1]) is not None:
         return _err(problem)
-    if not Path(args.file).is_file():
-        return _err(f"FILE {args.file} does not exist or is not a file")
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         return _err(f"--scenario: {exc}")
-    tmap, problem = _read_topic_map(args.topic_map)
+    tmap, problem = _opening(topic_map=args.topic_map, compile_notice=True)
     if problem is not None:
         return _err(problem)
-    _compile_notice()
     try:
         signals = read_mcap(args.file, tmap, t0="first" if args.relative else None)
         estimate = {"auto": None, "estimated": True, "recorded": False}[args.state]
@@ -536,14 +551,13 @@ def _cmd_identify(args) -> int:
         if k not in names:
             return _err(f"--start: {k!r} is not among --params ({', '.join(names)})")
     out = Path(args.out)
-    if (problem := _out_error("--out", out)) is not None:
+    if (problem := _opening(out)[1]) is not None:
         return _err(problem)
     if args.topic_map is not None and not Path(args.topic_map).is_file():
         return _err(f"--topic-map {args.topic_map} does not exist or is not a file")
-    tmap, problem = _read_topic_map(args.topic_map)
+    tmap, problem = _opening(topic_map=args.topic_map, compile_notice=True)
     if problem is not None:
         return _err(problem)
-    _compile_notice()
     recs = []
     for path in args.recording:
         try:
