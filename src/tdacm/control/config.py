@@ -16,28 +16,38 @@ from __future__ import annotations
 
 import math
 
+from pydantic import create_model
+
 from .._config import ConfigModel, Field
 
-#: the coordinate groups of the gains, in the order of a floating base's q (strains last)
-GAIN_GROUPS = ("tilt", "yaw", "horizontal", "vertical", "strain")
+#: The gains' rates (1/s) per kind and coordinate group (``*_position_rate`` is ``beta``); a
+#: floating base's coordinates ``[roll, pitch, yaw, x, y, z, strains]`` are the groups
+#: ``tilt, tilt, yaw, horizontal, horizontal, vertical, strain...``.
+RATES = {
+    "position": {"tilt": 6.0, "yaw": 3.0, "horizontal": 1.2, "vertical": 1.5, "strain": 6.0},
+    "damping": {"tilt": 16.0, "yaw": 8.0, "horizontal": 1.5, "vertical": 4.0, "strain": 25.0},
+    "adaptation": {"tilt": 20.0, "yaw": 8.0, "horizontal": 1.5, "vertical": 3.0, "strain": 20.0},
+}
+_KIND = {
+    "position": "beta in s_q = edot + beta e",
+    "damping": "damping rate of A_d",
+    "adaptation": "adaptation rate of A_a",
+}
+_GROUP = {
+    "tilt": "the drone's roll and pitch",
+    "yaw": "the drone's yaw",
+    "horizontal": "the drone's x and y",
+    "vertical": "the drone's z",
+    "strain": "the rod's strains",
+}
+_NOTE = {
+    ("position", "horizontal"): ": a slow error b of the horizontal velocity estimate leaves "
+    "the drone b / beta from its reference",
+    ("damping", "horizontal"): " (low: the velocity is an estimate, docs/control.md)",
+}
 
 
-def _rate(default: float, what: str, group: str):
-    return Field(default, gt=0, description=f"1/s, {what} of the {group}")
-
-
-_TILT, _YAW, _HOR, _VER, _STR = (
-    "drone's roll and pitch",
-    "drone's yaw",
-    "drone's x and y",
-    "drone's z",
-    "rod's strains",
-)
-
-
-class ControlLawConfig(ConfigModel):
-    """The ``[controller]`` keys of the adaptive law (docs/control.md)."""
-
+class _LawKeys(ConfigModel):
     pretension: float = Field(0.5, ge=0, description="N, minimum tendon tension")
     max_tilt: float = Field(
         0.35, gt=0, lt=math.pi / 2, description="rad, limit of the commanded drone tilt"
@@ -47,41 +57,35 @@ class ControlLawConfig(ConfigModel):
     )
     max_tilt_rate: float = Field(1.5, ge=0, description="rad/s, limit of the commanded tilt rate")
     min_lift: float = Field(
-        0.8,
-        ge=0,
-        description="the desired force's vertical part is kept above this fraction of the weight "
-        "before the tilt is computed (a descending drone still needs thrust)",
+        0.8, ge=0, description="least vertical part of the desired force, a fraction of the weight"
     )
-    horizontal_position_rate: float = Field(
-        1.2,
-        gt=0,
-        description="1/s, beta of the drone's x and y in s_q = edot + beta e: a slow error b of "
-        "the horizontal velocity estimate leaves the drone b / beta from its reference",
-    )
-    tilt_position_rate: float = _rate(6.0, "beta in s_q = edot + beta e", _TILT)
-    yaw_position_rate: float = _rate(3.0, "beta", _YAW)
-    vertical_position_rate: float = _rate(1.5, "beta", _VER)
-    strain_position_rate: float = _rate(6.0, "beta", _STR)
-    tilt_damping_rate: float = _rate(16.0, "damping rate of A_d", _TILT)
-    yaw_damping_rate: float = _rate(8.0, "damping rate of A_d", _YAW)
-    horizontal_damping_rate: float = _rate(
-        1.5, "damping rate of A_d (low: the velocity is an estimate, docs/control.md)", _HOR
-    )
-    vertical_damping_rate: float = _rate(4.0, "damping rate of A_d", _VER)
-    strain_damping_rate: float = _rate(25.0, "damping rate of A_d", _STR)
-    tilt_adaptation_rate: float = _rate(20.0, "adaptation rate of A_a", _TILT)
-    yaw_adaptation_rate: float = _rate(8.0, "adaptation rate of A_a", _YAW)
-    horizontal_adaptation_rate: float = _rate(1.5, "adaptation rate of A_a", _HOR)
-    vertical_adaptation_rate: float = _rate(3.0, "adaptation rate of A_a", _VER)
-    strain_adaptation_rate: float = _rate(20.0, "adaptation rate of A_a", _STR)
 
     def rates(self, kind: str, floating: bool, n_s: int) -> list[float]:
         """The ``kind`` rate (``"position"``, ``"damping"`` or ``"adaptation"``) of every
         coordinate: ``[roll, pitch, yaw, x, y, z, strains...]`` for a floating base, the
         strains only for a held one."""
-        g = {k: getattr(self, f"{k}_{kind}_rate") for k in GAIN_GROUPS}
+        g = {k: getattr(self, f"{k}_{kind}_rate") for k in _GROUP}
         drone = [g["tilt"], g["tilt"], g["yaw"], g["horizontal"], g["horizontal"], g["vertical"]]
         return (drone if floating else []) + [g["strain"]] * n_s
+
+
+ControlLawConfig = create_model(
+    "ControlLawConfig",
+    __base__=_LawKeys,
+    __doc__="The ``[controller]`` keys of the adaptive law (docs/control.md).",
+    **{
+        f"{group}_{kind}_rate": (
+            float,
+            Field(
+                rate,
+                gt=0,
+                description=f"1/s, {_KIND[kind]} of {_GROUP[group]}{_NOTE.get((kind, group), '')}",
+            ),
+        )
+        for kind, groups in RATES.items()
+        for group, rate in groups.items()
+    },
+)
 
 
 #: the defaults (a controller built without a scenario)

@@ -202,6 +202,9 @@ class RobotConfig(ConfigModel):
 
 
 _CAMERA_KEYS = tuple(CameraIntrinsics.model_fields)
+#: the [robot.rod] keys a :class:`~tdacm.rod.Rod` takes as they are
+_ROD_KEYS = ("length", "diameter", "density", "youngs_modulus", "poisson_ratio", "damping",
+             "tip_mass")  # fmt: skip
 
 
 #: The drone's four rotors together must lift at least this many times the robot's weight
@@ -272,18 +275,8 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
     if magnus is None:
         magnus = PV.ROD_MAGNUS_ORDER if paper_basis else None
     try:
-        rod = Rod(
-            length=r.length,
-            diameter=r.diameter,
-            density=r.density,
-            youngs_modulus=r.youngs_modulus,
-            poisson_ratio=r.poisson_ratio,
-            damping=r.damping,
-            basis=basis,
-            n_gauss=n_gauss,
-            magnus_order=magnus,
-            tip_mass=r.tip_mass,
-        )
+        material = {k: getattr(r, k) for k in _ROD_KEYS}
+        rod = Rod(**material, basis=basis, n_gauss=n_gauss, magnus_order=magnus)
     except RobotError:
         raise
     except ValueError as exc:
