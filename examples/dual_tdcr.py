@@ -1,4 +1,4 @@
-"""Two of the paper's TD-CRs under one quadrotor (issue 12: several rods on one base).
+"""Two of the paper's TD-CRs under one quadrotor (several rods on one base).
 
 The drone hovers under a simple attitude/altitude stabilizer while the two rods bend in
 opposite directions (rod 0 pulls its +y tendon, rod 1 its -y tendon after 0.5 s).  Prints the

@@ -1,5 +1,5 @@
-"""The command-line entry points: clean stdout, exit codes, and every rejected input of
-issue 11 (exit 2 with a message naming the flag or key)."""
+"""The command-line entry points: clean stdout, exit codes, and rejected inputs (exit 2 with a
+message naming the flag or key)."""
 
 import json
 import os

@@ -130,7 +130,7 @@ def test_interrupted_campaign_resumes_and_scheduler_gives_same_rows(tmp_path, sc
 
 def test_parquet_store_has_a_fixed_schema(tmp_path):
     """pandas.read_parquet(OUT/results) works when a metric is None in one row and a number in
-    another (issue 11: 'Unsupported cast from double to null')."""
+    another (pyarrow otherwise fails with 'Unsupported cast from double to null')."""
     import pandas as pd
 
     from tdacm.campaign.store import COLUMNS, write_row

@@ -28,7 +28,7 @@ def test_short_closed_loop_on_estimates(tmp_path):
     assert not s["terminated"], s["termination_reason"]
     assert isinstance(sim.loop.estimator, FilterBlock)
     assert s["estimation_source"] == "estimated"
-    # issue 10: strain RMS error < 0.01 rad/m after 1 s, from a 0.3 rad/m initial error
+    # strain RMS error < 0.01 rad/m after 1 s, from a 0.3 rad/m initial error
     assert s["strain_estimation_rms"] < 0.01
     assert s["drone_position_estimation_rms"] < 0.01
     err = a["q_hat"] - a["q"]

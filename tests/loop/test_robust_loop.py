@@ -96,7 +96,8 @@ def test_paper_profile_selects_the_literal_choices():
 
 @pytest.mark.slow
 def test_noise_free_paper_in_fov_meets_the_convergence_targets():
-    """Issue 9: 0.01 within 3 s and 0.001 within 5 s (rendered camera, noise-free)."""
+    """The normalized RMSE reaches 0.01 within 3 s and 0.001 within 5 s (rendered camera,
+    noise-free)."""
     sc = load_scenario("paper-in-fov").with_overrides({"cameras": {"global_every": 0}})
     _, s = Simulation(sc).run()
     assert s["time_to_0.01"] <= 3.0 and s["time_to_0.001"] <= 5.0

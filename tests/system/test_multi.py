@@ -1,4 +1,4 @@
-"""Multi-section rods, tendons ending part-way, several rods on one drone (issue 12)."""
+"""Multi-section rods, tendons ending part-way, several rods on one drone."""
 
 import numpy as np
 import pytest

@@ -1,5 +1,5 @@
-"""The stiff integrators (Rosenbrock-W, Radau IIA in mass-matrix form) for stiff strain bases
-(issue 12)."""
+"""The stiff integrators (Rosenbrock-W, Radau IIA in mass-matrix form) for stiff strain
+bases."""
 
 import numpy as np
 import pytest
