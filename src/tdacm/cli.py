@@ -303,7 +303,7 @@ def _write_pictures(out: Path, sim, plot_run_dir, write_video) -> None:
     plot_run_dir(out)
     frames = sim.result.frames if sim.result is not None else []
     if frames:
-        write_video(out / "video.mp4", frames, 1.0 / sim.scenario["dt"])
+        write_video(out / "video.mp4", frames, 1.0 / sim.scenario.config.dt)
 
 
 def _cmd_plot(args) -> int:
@@ -333,7 +333,7 @@ def _cmd_scenarios(args) -> int:
 
     for name in list_scenarios():
         sc = load_scenario(name)
-        print(f"{name:18s} {sc['duration']:5.1f} s  {sc['description']}")
+        print(f"{name:18s} {sc.config.duration:5.1f} s  {sc.config.description}")
     return 0
 
 

@@ -135,7 +135,7 @@ class TipServoEnv(gym.Env):
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
         self._renderer = None
-        self.assembly = build_loop(sc, int(sc["seed"]))
+        self.assembly = build_loop(sc, int(sc.config.seed))
         self.loop, self.world = self.assembly.loop, self.assembly.world
         self._quiet_log()
         s = self.loop.plant.system
@@ -159,7 +159,7 @@ class TipServoEnv(gym.Env):
         low = -high
         high[14], low[14] = 1.0, 0.0
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
-        self._seed = int(sc["seed"])
+        self._seed = int(sc.config.seed)
         self._sensed = None
 
     def _quiet_log(self) -> None:

@@ -197,7 +197,7 @@ def write_run(
     extra = {}
     if scenario is not None:
         (out / "scenario.toml").write_text(scenario_to_toml(scenario))
-        extra["q_star"] = np.asarray(scenario["desired"]["q"], float)
+        extra["q_star"] = np.asarray(scenario.config.desired.q, float)
     np.savez_compressed(
         out / "timeseries.npz", desired_points=np.asarray(desired_pts), **extra, **a
     )

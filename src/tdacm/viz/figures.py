@@ -573,7 +573,7 @@ def plot_run(
     if scenario is not None:
         from ._scene import geometry
 
-        q_star = np.asarray(scenario["desired"]["q"], float)
+        q_star = np.asarray(scenario.config.desired.q, float)
         geom = geometry(scenario)
     elif "q_star" in arrays:
         q_star = np.asarray(arrays["q_star"], float)

@@ -221,7 +221,7 @@ def replay_run(
     t = np.asarray(arrays["t"])
     if len(t) == 0:
         raise RunDirError(f"{run_dir} holds no time steps")
-    duration = float(t[-1] - t[0]) if len(t) > 1 else float(scenario["dt"])
+    duration = float(t[-1] - t[0]) if len(t) > 1 else float(scenario.config.dt)
     out = Path(out) if out is not None else run_dir / "replay.gif"
     quantum = GIF_DELAY_QUANTUM if out.suffix.lower() == ".gif" else None
     stride, fps, actual = playback_plan(duration, len(t), fps, max_frames, speed, quantum)
