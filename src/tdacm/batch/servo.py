@@ -1,0 +1,561 @@
+"""The sensing half of one world's control period, compiled: the analytic tip camera with its
+imperfections, perception, the virtual camera, the paper's IBVS on the advanced features, the
+servo's joint-rate mapping with its command shaping, the mode switch and the safety monitor.
+
+Each function here is the compiled twin of a block of :mod:`tdacm.loop` (named in its
+docstring) on one world's plain arrays; :mod:`tdacm.batch.engine` calls them for every world of
+a batch. They are tested equal to the blocks (``tests/batch``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .._linalg import SVD_DAMPED, SVD_FLOOR, SVD_PINV, svd_solve
+from ..lie.euler import rot_zyx
+from ..system.kernels import chain_jacobian
+from ..vision.features import _features_kernel, _interaction_kernel, _wrap
+from ..vision.ippe import point_depths
+from . import random as R
+
+#: the servo's mode codes (:class:`tdacm.control.Mode`)
+IBVS, RECOVERY = 0, 1
+#: the virtual-camera compensation codes (``ibvs.compensation``)
+EXACT, ROTATION, APPROX = 0, 1, 2
+#: the interaction-matrix codes (``ibvs.mode``)
+CURRENT, DESIRED, MEAN = 0, 1, 2
+
+# indices of :attr:`ServoModel.camera` rows: a pinhole camera
+FX, FY, CX, CY, WIDTH, HEIGHT, NEAR, FAR = range(8)
+
+# indices of :attr:`ServoModel.params`
+(
+    P_GAIN,
+    P_MODE,
+    P_FLOOR,
+    P_DAMPED,
+    P_COMPENSATION,
+    P_SOFT_START,
+    P_RATE_FILTER,
+    P_MARGIN,
+    P_CONFIRM,
+    P_LOSE,
+    P_PIXEL_NOISE,
+    P_DROPOUT,
+    P_LATENCY,
+    P_SAFETY_ON,
+    P_GROWTH,
+    P_MIN_INCREASE,
+    P_GRACE,
+    N_PARAMS,
+) = range(18)
+
+
+class ServoModel(NamedTuple):
+    """The constants of the sensing half (the blocks' parameters as arrays). Rows with a
+    leading world axis (``N``) may differ between worlds; the others are shared.
+
+    ``camera`` (8,): the true C_L (``FX, ..., FAR``); ``ctl_camera`` (N, 8): the controller's
+    model of C_L (the intrinsics error of each world's seed); ``mount`` (4, 4) and
+    ``ad_mount`` (6, 6): ``g_{C_L}^L`` and its adjoint; ``corners`` (M, 4, 3) and ``features``
+    (4, 3): the target's marker corners and feature points in the world; ``object_2d`` (4, 2):
+    the feature points in the target plane's canonical frame (:func:`~tdacm.vision.ippe.canonical_frame`);
+    ``desired_points`` (N, 4, 2), ``desired_depths`` (N, 4), ``desired_features`` (N, 6),
+    ``desired_interaction`` (N, 6, 6): the reference snapshot in C_V; ``limits`` (n,): the
+    joint-rate limits of the shaping; ``commanded`` (k,): the commanded coordinates;
+    ``rod`` (2,): the first and last Magnus step of the camera's rod; ``params``: the scalars
+    (``P_*`` indices)."""
+
+    camera: np.ndarray
+    ctl_camera: np.ndarray
+    mount: np.ndarray
+    ad_mount: np.ndarray
+    corners: np.ndarray
+    features: np.ndarray
+    object_2d: np.ndarray
+    desired_points: np.ndarray
+    desired_depths: np.ndarray
+    desired_features: np.ndarray
+    desired_interaction: np.ndarray
+    limits: np.ndarray
+    commanded: np.ndarray
+    rod: np.ndarray
+    params: np.ndarray
+
+
+# ----------------------------------------------------------------------------- geometry
+@njit(cache=True)
+def tip_camera_pose(q, m, rod, mount, out):
+    """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`tdacm.vision.mounts.tip_camera_pose`) into
+    ``out`` (4, 4); returns the tip Jacobian ``J_L^L(q)`` of the same recursion."""
+    lo, hi = rod[0], rod[1]
+    g, j, _ = chain_jacobian(
+        q, np.zeros(q.shape[0]), m.floating, m.g_fixed, m.g_att[0], m.h[lo:hi], m.xi0s[lo:hi],
+        m.bs[lo:hi], m.step_col[lo:hi], m.step_nc[lo:hi],
+    )  # fmt: skip
+    _mul4(g, mount, out)
+    return j
+
+
+@njit(cache=True)
+def tip_jacobian(q, m, rod):
+    """``J_L^L(q)`` (6 x n) of the camera's rod (:meth:`tdacm.TDACM.tip_jacobian`)."""
+    lo, hi = rod[0], rod[1]
+    _, j, _ = chain_jacobian(
+        q, np.zeros(q.shape[0]), m.floating, m.g_fixed, m.g_att[0], m.h[lo:hi], m.xi0s[lo:hi],
+        m.bs[lo:hi], m.step_col[lo:hi], m.step_nc[lo:hi],
+    )  # fmt: skip
+    return j
+
+
+@njit(cache=True)
+def _mul4(a, b, out):
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j] + a[i, 3] * b[3, j]
+
+
+@njit(cache=True)
+def _inv4(g, out):
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = g[j, i]
+        out[3, i] = 0.0
+    for i in range(3):
+        out[i, 3] = -(out[i, 0] * g[0, 3] + out[i, 1] * g[1, 3] + out[i, 2] * g[2, 3])
+    out[3, 3] = 1.0
+
+
+@njit(cache=True)
+def base_pose(q, m, out):
+    """The drone pose ``g_b`` (eq. (1)) into ``out``; the clamp for a fixed base."""
+    if not m.floating:
+        out[:, :] = m.g_fixed
+        return
+    r = rot_zyx(q[0], q[1], q[2])
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = r[i, j]
+        out[i, 3] = q[3 + i]
+        out[3, i] = 0.0
+    out[3, 3] = 1.0
+
+
+@njit(cache=True)
+def virtual_transform(g_b, g_c, out):
+    """``g_{C_L}^{C_V} = g_{C_V}^-1 g_{C_L}`` with ``g_{C_V} = g_psi g_b^-1 g_{C_L}``
+    (:func:`tdacm.vision.virtual.virtual_transform`, eq. (18))."""
+    psi = np.arctan2(g_b[1, 0], g_b[0, 0])
+    c, s = np.cos(psi), np.sin(psi)
+    gy = np.eye(4)
+    gy[0, 0], gy[0, 1], gy[1, 0], gy[1, 1] = c, -s, s, c
+    for i in range(3):
+        gy[i, 3] = g_b[i, 3]
+    ib = np.empty((4, 4))
+    _inv4(g_b, ib)
+    a = np.empty((4, 4))
+    _mul4(gy, ib, a)
+    v = np.empty((4, 4))
+    _mul4(a, g_c, v)
+    iv = np.empty((4, 4))
+    _inv4(v, iv)
+    _mul4(iv, g_c, out)
+
+
+@njit(cache=True)
+def virtual_points(p, z, g, method, out_p, out_z):
+    """Points ``p`` (4, 2) with depths ``z`` of C_L in C_V (eq. (18),
+    :func:`tdacm.vision.virtual.virtual_points`): ``out_z`` the depths in C_V for ``EXACT``,
+    ``z^{C_V} / z^{C_L}`` for the other forms (times ``z`` by the caller, as the servo does).
+    False when a point maps behind the virtual camera."""
+    for k in range(p.shape[0]):
+        x, y = p[k, 0], p[k, 1]
+        if method == EXACT:
+            zk = z[k]
+            r0 = (x * zk) * g[0, 0] + (y * zk) * g[0, 1] + zk * g[0, 2] + g[0, 3]
+            r1 = (x * zk) * g[1, 0] + (y * zk) * g[1, 1] + zk * g[1, 2] + g[1, 3]
+            r2 = (x * zk) * g[2, 0] + (y * zk) * g[2, 1] + zk * g[2, 2] + g[2, 3]
+        else:
+            r0 = x * g[0, 0] + y * g[0, 1] + g[0, 2]
+            r1 = x * g[1, 0] + y * g[1, 1] + g[1, 2]
+            r2 = x * g[2, 0] + y * g[2, 1] + g[2, 2]
+        if method == APPROX:
+            out_p[k, 0], out_p[k, 1], out_z[k] = r0, r1, 1.0
+            continue
+        if not r2 > 0.0:
+            return False
+        out_p[k, 0], out_p[k, 1], out_z[k] = r0 / r2, r1 / r2, r2
+    return True
+
+
+# ----------------------------------------------------------------------------- camera
+@njit(cache=True)
+def _in_image(cam, u, v, margin):
+    return (
+        u >= margin - 0.5
+        and u <= cam[WIDTH] - 0.5 - margin
+        and v >= margin - 0.5
+        and v <= cam[HEIGHT] - 0.5 - margin
+    )
+
+
+@njit(cache=True)
+def detect(cam, g_c, corners, features, out_uv):
+    """The analytic front end (:class:`tdacm.loop.sensors.AnalyticFrontEnd`): True when every
+    corner of every marker lies between the clipping planes and inside the image, with the
+    feature points' pixels in ``out_uv`` (4, 2)."""
+    for mk in range(corners.shape[0]):
+        for k in range(4):
+            d0 = corners[mk, k, 0] - g_c[0, 3]
+            d1 = corners[mk, k, 1] - g_c[1, 3]
+            d2 = corners[mk, k, 2] - g_c[2, 3]
+            x = d0 * g_c[0, 0] + d1 * g_c[1, 0] + d2 * g_c[2, 0]
+            y = d0 * g_c[0, 1] + d1 * g_c[1, 1] + d2 * g_c[2, 1]
+            z = d0 * g_c[0, 2] + d1 * g_c[1, 2] + d2 * g_c[2, 2]
+            if not (z > 0.0 and z >= cam[NEAR] and z <= cam[FAR]):
+                return False
+            if not _in_image(cam, cam[FX] * x / z + cam[CX], cam[FY] * y / z + cam[CY], 0.0):
+                return False
+    for k in range(4):
+        d0 = features[k, 0] - g_c[0, 3]
+        d1 = features[k, 1] - g_c[1, 3]
+        d2 = features[k, 2] - g_c[2, 3]
+        x = d0 * g_c[0, 0] + d1 * g_c[1, 0] + d2 * g_c[2, 0]
+        y = d0 * g_c[0, 1] + d1 * g_c[1, 1] + d2 * g_c[2, 1]
+        z = d0 * g_c[0, 2] + d1 * g_c[1, 2] + d2 * g_c[2, 2]
+        out_uv[k, 0] = cam[FX] * x / z + cam[CX]
+        out_uv[k, 1] = cam[FY] * y / z + cam[CY]
+    return True
+
+
+@njit(cache=True)
+def imperfect(found, uv, noise, dropout, rng):
+    """The camera's imperfections (:meth:`tdacm.loop.sensors.CameraSensor._imperfect`): a
+    dropped frame with probability ``dropout``, else Gaussian pixel noise of std ``noise`` on
+    a detection (the world's own stream ``rng``). Returns whether the frame is detected."""
+    if dropout > 0.0 and R.uniform(rng) < dropout:
+        return False
+    if found and noise > 0.0:
+        for k in range(4):
+            uv[k, 0] += noise * R.normal(rng)
+            uv[k, 1] += noise * R.normal(rng)
+    return found
+
+
+@njit(cache=True)
+def perceive(ctl, object_2d, uv, out_xy, out_z):
+    """The perception block (:class:`tdacm.loop.perception.Perception`): normalized points
+    through the controller's camera model and their depths from the known target geometry
+    (planar PnP, IPPE); False for a frame no pose explains with the target in front."""
+    for k in range(4):
+        out_xy[k, 0] = (uv[k, 0] - ctl[CX]) / ctl[FX]
+        out_xy[k, 1] = (uv[k, 1] - ctl[CY]) / ctl[FY]
+    return point_depths(object_2d, out_xy, out_z)
+
+
+# ----------------------------------------------------------------------------- servo
+@njit(cache=True)
+def inside(ctl, uv, margin):
+    """All four pixels at least ``margin`` inside C_L's image (:meth:`ModeSwitch.inside`)."""
+    for k in range(4):
+        if not _in_image(ctl, uv[k, 0], uv[k, 1], margin):
+            return False
+    return True
+
+
+@njit(cache=True)
+def min_edge2(p):
+    """The smallest squared length of the arctangent terms' edges (features defined)."""
+    best = np.inf
+    pairs = ((0, 1), (3, 2), (1, 2), (0, 3))
+    for a, b in pairs:
+        dx = p[a, 0] - p[b, 0]
+        dy = p[a, 1] - p[b, 1]
+        best = min(best, dx * dx + dy * dy)
+    return best
+
+
+@njit(cache=True)
+def plain_solve(jac, e):
+    """``J^-1 e`` with the least-squares fallback (the paper profile's plain solve,
+    :func:`tdacm.vision.ibvs._solve`)."""
+    ok = True
+    x = np.zeros(6)
+    try:
+        x = np.linalg.solve(jac, e)
+    except Exception:  # noqa: BLE001 - numba raises on a singular matrix
+        ok = False
+    if ok:
+        big = 0.0
+        emax = 0.0
+        for i in range(6):
+            if not np.isfinite(x[i]):
+                ok = False
+            big = max(big, abs(x[i]))
+            emax = max(emax, abs(e[i]))
+        if ok and big < 1e8 * (1.0 + emax):
+            return x
+    return np.linalg.lstsq(jac, e, rcond=1e-10)[0]
+
+
+@njit(cache=True)
+def ibvs_twist(p, z, sm, w, out_f, out_e, out_v):
+    """Features, error and twist ``v = -lambda J_img^+ e`` (eqs. (19)-(21), (39);
+    :class:`tdacm.vision.ibvs.IBVSController`) of points ``p`` (4, 2) with depths ``z`` in
+    C_V, for world ``w``'s reference."""
+    prm = sm.params
+    floor = prm[P_FLOOR]
+    mode = int(prm[P_MODE])
+    gain = prm[P_GAIN]
+    if floor > 0.0:
+        f = _features_kernel(p)
+        jd = sm.desired_interaction[w]
+        if mode == DESIRED:
+            jac = jd
+        elif mode == CURRENT:
+            jac = _interaction_kernel(p, z)
+        else:
+            jac = 0.5 * (_interaction_kernel(p, z) + jd)
+        e = f - sm.desired_features[w]
+        for i in range(3):
+            e[i] = _wrap(e[i])
+        x = svd_solve(jac, e, SVD_DAMPED if prm[P_DAMPED] > 0.0 else SVD_FLOOR, floor)
+    else:
+        f = _features_kernel(p)
+        e = f - sm.desired_features[w]
+        for i in range(3):
+            e[i] = _wrap(e[i])
+        jd = sm.desired_interaction[w]
+        if mode == DESIRED:
+            jac = jd.copy()
+        elif mode == CURRENT:
+            jac = _interaction_kernel(p, z)
+        else:
+            jac = 0.5 * (_interaction_kernel(p, z) + jd)
+        x = plain_solve(jac, e)
+    for i in range(6):
+        out_f[i] = f[i]
+        out_e[i] = e[i]
+        out_v[i] = -gain * x[i]
+
+
+@njit(cache=True)
+def joint_rates(q, twist, m, sm, floating):
+    """``qdot_d[cmd] = (J_L^L(q_v)[:, cmd])^+ Ad(g_{C_L}^L) v`` with roll and pitch of ``q_v``
+    zero (:meth:`tdacm.loop.servo.VisualServo.joint_rates`)."""
+    n = q.shape[0]
+    qv = q.copy()
+    if floating:
+        qv[0] = 0.0
+        qv[1] = 0.0
+    jac = tip_jacobian(qv, m, sm.rod)
+    tip = np.zeros(6)
+    for i in range(6):
+        acc = 0.0
+        for k in range(6):
+            acc += sm.ad_mount[i, k] * twist[k]
+        tip[i] = acc
+    cmd = sm.commanded
+    jc = np.empty((6, cmd.shape[0]))
+    for i in range(6):
+        for c in range(cmd.shape[0]):
+            jc[i, c] = jac[i, cmd[c]]
+    x = svd_solve(jc, tip, SVD_PINV, 1e-8)
+    out = np.zeros(n)
+    for c in range(cmd.shape[0]):
+        out[cmd[c]] = x[c]
+    return out
+
+
+@njit(cache=True)
+def shape(rates, t, dt, ibvs_start, sm, q_d, qd_d):
+    """Limit, ramp and filter the joint rates into ``qd_d``; integrate ``q_d`` (in place;
+    :meth:`tdacm.loop.servo.VisualServo.shape`)."""
+    prm = sm.params
+    cmd = sm.commanded
+    lim = sm.limits
+    soft = prm[P_SOFT_START]
+    filt = prm[P_RATE_FILTER]
+    t_ib = t - ibvs_start
+    ramp = 1.0 - np.exp(-t_ib / soft) if soft > 0.0 else 1.0
+    scale = 1.0
+    for c in range(cmd.shape[0]):
+        scale = max(scale, abs(rates[cmd[c]]) / lim[cmd[c]])
+    a_f = min(1.0, dt / filt) if filt > 0.0 else 1.0
+    n = q_d.shape[0]
+    new = np.zeros(n)
+    for c in range(cmd.shape[0]):
+        new[cmd[c]] = rates[cmd[c]] / scale
+    for i in range(n):
+        qd_d[i] = qd_d[i] + a_f * (ramp * new[i] - qd_d[i])
+        q_d[i] = q_d[i] + qd_d[i] * dt
+
+
+@njit(cache=True)
+def switch_update(mode, counters, seen_inside, found, confirm, lose):
+    """The mode switch's hysteresis (:meth:`tdacm.control.ModeSwitch.update`): ``counters``
+    = (frames inside the margin while recovering, frames missed while servoing), updated in
+    place; returns the new mode."""
+    if mode == RECOVERY:
+        counters[0] = counters[0] + 1 if seen_inside else 0
+        if counters[0] >= confirm:
+            counters[1] = 0
+            return IBVS
+        return RECOVERY
+    counters[1] = 0 if found else counters[1] + 1
+    if counters[1] >= lose:
+        counters[0] = 0
+        return RECOVERY
+    return IBVS
+
+
+@njit(cache=True)
+def safety_check(sm, t, rmse, safety):
+    """The safety monitor (:class:`tdacm.loop.safety.SafetyMonitor`): ``safety`` = (armed at,
+    previous RMSE or NaN); False when the normalized RMSE grew beyond the limit."""
+    prm = sm.params
+    if prm[P_SAFETY_ON] == 0.0 or not np.isfinite(rmse):
+        return True
+    prev = safety[1]
+    safety[1] = rmse
+    if not np.isfinite(prev) or t - safety[0] < prm[P_GRACE]:
+        return True
+    return not (rmse > prev * (1.0 + prm[P_GROWTH]) and rmse - prev > prm[P_MIN_INCREASE])
+
+
+# ----------------------------------------------------------------------------- one period
+#: servo events (:class:`tdacm.loop.data.ServoEvent`)
+NO_EVENT, IBVS_ENGAGED, TARGET_LOST = 0, 1, 2
+
+# rows of a world's servo state ``sstate`` (float array): the mode, the switch's two
+# counters, the time IBVS engaged, the latency ring buffer's head and count
+S_MODE, S_GOOD, S_BAD, S_IBVS_START, S_HEAD, S_COUNT, N_SSTATE = range(7)
+
+
+@njit(cache=True)
+def measure(q, m, sm, rng, fifo_uv, fifo_found, sstate, out_uv):
+    """The tip camera's measurement of this period (:meth:`CameraSensor.measure`): the
+    analytic detection at the true ``q``, its imperfections, then the latency buffer (a frame
+    captured ``latency_steps`` periods ago, the first one until then). Returns whether the
+    delivered frame is a detection, its pixels in ``out_uv``."""
+    g_c = np.empty((4, 4))
+    tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
+    uv = np.empty((4, 2))
+    found = detect(sm.camera, g_c, sm.corners, sm.features, uv)
+    prm = sm.params
+    found = imperfect(found, uv, prm[P_PIXEL_NOISE], prm[P_DROPOUT], rng)
+    cap = fifo_found.shape[0]
+    head, count = int(sstate[S_HEAD]), int(sstate[S_COUNT])
+    if count < cap:
+        slot = (head + count) % cap
+        count += 1
+    else:
+        slot = head
+        head = (head + 1) % cap
+    fifo_uv[slot] = uv
+    fifo_found[slot] = found
+    sstate[S_HEAD], sstate[S_COUNT] = head, count
+    out_uv[:, :] = fifo_uv[head]
+    return fifo_found[head]
+
+
+@njit(cache=True)
+def first_mode(q, m, sm, w):
+    """The initial mode (:meth:`VisualServo.reset` on the first, ideal C_L view): IBVS when
+    the target is detected, its pose explicable and inside the switch's margin."""
+    g_c = np.empty((4, 4))
+    tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
+    uv = np.empty((4, 2))
+    if not detect(sm.camera, g_c, sm.corners, sm.features, uv):
+        return RECOVERY
+    xy = np.empty((4, 2))
+    z = np.empty(4)
+    if not perceive(sm.ctl_camera[w], sm.object_2d, uv, xy, z):
+        return RECOVERY
+    return IBVS if inside(sm.ctl_camera[w], uv, sm.params[P_MARGIN]) else RECOVERY
+
+
+@njit(cache=True)
+def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
+    """One period of :class:`tdacm.loop.servo.VisualServo` on the measured points (the
+    perception block first): the mode switch, the view in C_V, the IBVS twist (or
+    ``twist_in`` when it is finite: an external command), the joint rates shaped into
+    ``qd_d`` and ``q_d`` (in place), or a hold. ``out`` receives ``[rmse, event, failure,
+    twist (6), features (6)]``; failure 1: a point behind C_V (the loop's
+    ``BEHIND_CAMERA``), 2: recovery needed (not batched: the engine ends the world)."""
+    prm = sm.params
+    n = q.shape[0]
+    ctl = sm.ctl_camera[w]
+    xy = np.empty((4, 2))
+    z = np.empty(4)
+    seen = found and perceive(ctl, sm.object_2d, uv, xy, z)
+    prev = int(sstate[S_MODE])
+    counters = np.array([int(sstate[S_GOOD]), int(sstate[S_BAD])])
+    ins = seen and inside(ctl, uv, prm[P_MARGIN])
+    mode = switch_update(prev, counters, ins, seen, int(prm[P_CONFIRM]), int(prm[P_LOSE]))
+    sstate[S_MODE], sstate[S_GOOD], sstate[S_BAD] = mode, counters[0], counters[1]
+    event = NO_EVENT
+    if prev == RECOVERY and mode == IBVS:
+        sstate[S_IBVS_START] = t
+        event = IBVS_ENGAGED
+    elif prev == IBVS and mode == RECOVERY:
+        event = TARGET_LOST
+    out[:] = 0.0
+    out[0] = np.nan
+    out[1] = event
+    floating = m.floating
+    pv = np.empty((4, 2))
+    zv = np.empty(4)
+    if seen:
+        if floating:
+            g_b = np.empty((4, 4))
+            base_pose(q, m, g_b)
+            g_c = np.empty((4, 4))
+            tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
+            gv = np.empty((4, 4))
+            virtual_transform(g_b, g_c, gv)
+            method = int(prm[P_COMPENSATION])
+            if not virtual_points(xy, z, gv, method, pv, zv):
+                out[2] = 1
+                return mode
+            if method != EXACT:
+                for k in range(4):
+                    zv[k] = zv[k] * z[k]
+        else:
+            pv[:, :] = xy
+            zv[:] = z
+        dp = sm.desired_points[w]
+        acc = 0.0
+        for k in range(4):
+            dx = pv[k, 0] - dp[k, 0]
+            dy = pv[k, 1] - dp[k, 1]
+            acc += dx * dx + dy * dy
+        out[0] = np.sqrt(acc / 4.0)
+    external = np.isfinite(twist_in[0])
+    if mode == IBVS and (seen or external):
+        v = np.empty(6)
+        if external:
+            for i in range(6):
+                v[i] = twist_in[i]
+        else:
+            if min_edge2(pv) < 1e-24:  # coincident corners: the view cannot be servoed on
+                out[2] = 1
+                return mode
+            f = np.empty(6)
+            e = np.empty(6)
+            ibvs_twist(pv, zv, sm, w, f, e, v)
+            for i in range(6):
+                out[9 + i] = f[i]
+        for i in range(6):
+            out[3 + i] = v[i]
+        rates = joint_rates(q, v, m, sm, floating)
+        shape(rates, t, dt, sstate[S_IBVS_START], sm, q_d, qd_d)
+    elif mode == RECOVERY:
+        out[2] = 2
+    else:
+        for i in range(n):
+            qd_d[i] = 0.0
+    return mode
