@@ -60,7 +60,8 @@ TERMINATIONS = (
 class BatchModel(NamedTuple):
     """The constants of a batch: the sensing half (:class:`~tdacm.batch.servo.ServoModel`),
     the controller (:class:`~tdacm.batch.control.ControllerArrays`, with the per-world rows
-    ``coord`` (N, 5, n) and ``damping`` (N, n, n): each world's model error), the plant
+    ``coord`` (N, 5, n), ``damping`` (N, n, n) and ``control_params`` (N, p): each world's
+    model error, its rotor-drag estimate included), the plant
     (:class:`~tdacm.batch.plant.PlantArrays`), the control period ``dt`` and the number of
     periods of a run ``steps`` (a run has ``steps + 1`` samples, the last without a plant
     step, as :meth:`~tdacm.loop.ClosedLoop.run`)."""
@@ -69,6 +70,7 @@ class BatchModel(NamedTuple):
     control: CT.ControllerArrays
     coord: np.ndarray
     damping: np.ndarray
+    control_params: np.ndarray
     plant: PL.PlantArrays
     dt: float
     steps: int
@@ -229,7 +231,8 @@ def _period(model, data, w, twist_in):
         return
     # the low-level controller on this world's model error
     base = model.control
-    ca = CT.ControllerArrays(base.model, base.system, base.loads, base.params, model.coord[w],
+    ca = CT.ControllerArrays(base.model, base.system, base.loads, model.control_params[w],
+                             model.coord[w],
                              model.damping[w], base.gains, base.g4_lu, base.g4_piv)  # fmt: skip
     tau = np.empty(n)
     q_ref = np.empty(n)

@@ -38,12 +38,13 @@ def build_batch(scenario, seeds, duration=None, q0=None) -> Batch:
         base = controller_arrays(loop.controller, loop.dt)
         pa = plant_arrays(loop.plant)
         # the per-world rows: each seed's model error, drawn as build_loop draws it
-        coords, dampings = [], []
+        coords, dampings, params = [], [], []
         for s in seeds:
             a.model.reseed(int(s))
             ca = controller_arrays(loop.controller, loop.dt)
             coords.append(ca.coord)
             dampings.append(ca.damping)
+            params.append(ca.params)
         a.model.reseed(int(seeds[0]))
         ctl, refs = None, None
         err = loop.sensors.local.model.intrinsics_error
@@ -64,7 +65,8 @@ def build_batch(scenario, seeds, duration=None, q0=None) -> Batch:
     dur = float(sc.data["duration"] if duration is None else duration)
     steps = int(round(dur / loop.dt))
     model = BatchModel(
-        sm, base, np.ascontiguousarray(coords), np.ascontiguousarray(dampings), pa,
+        sm, base, np.ascontiguousarray(coords), np.ascontiguousarray(dampings),
+        np.ascontiguousarray(params), pa,
         float(loop.dt), steps,
     )  # fmt: skip
     q0 = a.world.q0 if q0 is None else q0
