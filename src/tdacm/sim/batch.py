@@ -22,11 +22,12 @@ from .assemble import build_loop, reference_snapshot
 from .scenario import Scenario, ScenarioError, load_scenario
 
 
-def build_batch(scenario, seeds, duration=None, q0=None) -> Batch:
+def build_batch(scenario, seeds, duration=None, q0=None, threads=None) -> Batch:
     """A :class:`~tdacm.batch.Batch` of ``scenario`` (a name, path or
     :class:`~tdacm.sim.scenario.Scenario`) with one world per seed of ``seeds``, for
     ``duration`` seconds (default the scenario's), from ``q0`` ((N, n) or (n,); default the
-    scenario's initial state). A scenario the engine does not run raises
+    scenario's initial state), stepped by ``threads`` threads (default: the machine's cores;
+    the results do not depend on it). A scenario the engine does not run raises
     :class:`~tdacm.sim.scenario.ScenarioError` naming the key."""
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     seeds = np.asarray(seeds, np.int64).ravel()
@@ -71,7 +72,7 @@ def build_batch(scenario, seeds, duration=None, q0=None) -> Batch:
     )  # fmt: skip
     q0 = a.world.q0 if q0 is None else q0
     n_u = loop.plant.system.n_u
-    return Batch(model, seeds, q0, a.world.qd0, n_u)
+    return Batch(model, seeds, q0, a.world.qd0, n_u, threads)
 
 
 def run_batch(scenario, seeds, duration=None, q0=None, log_states=False) -> BatchResult:
