@@ -84,7 +84,8 @@ class BatchData(NamedTuple):
     buffer; the safety monitor's (armed at, previous RMSE); the controller's ``delta_hat``,
     ``att``, ``att_rate``, ``att_set``; the wind's state and each world's aerodynamics copy;
     the random streams of the sensors and of the plant; the last period's outputs (``u``,
-    ``rmse``, ``found``, ``twist``, ``features``)."""
+    ``rmse``, ``found``, ``twist``, ``features``); the frame the tip camera delivered at the
+    start of the current period (``meas_found``, ``meas_uv``: :func:`sense_worlds`)."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -110,6 +111,8 @@ class BatchData(NamedTuple):
     found: np.ndarray
     twist: np.ndarray
     features: np.ndarray
+    meas_found: np.ndarray
+    meas_uv: np.ndarray
 
 
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
@@ -142,6 +145,8 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         found=np.zeros(n_worlds, np.bool_),
         twist=np.zeros((n_worlds, 6)),
         features=np.zeros((n_worlds, 6)),
+        meas_found=np.zeros(n_worlds, np.bool_),
+        meas_uv=np.zeros((n_worlds, 4, 2)),
     )
 
 
@@ -197,8 +202,27 @@ def _end(data, w, code):
 
 
 @njit(cache=True)
+def _sense(model, data, w):
+    """The first half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.sense`): the
+    tip camera's frame at the current state, kept in ``meas_found``, ``meas_uv``."""
+    uv = data.meas_uv[w]
+    data.meas_found[w] = S.measure(data.q[w], model.plant.model, model.servo,
+                                   data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
+                                   data.sstate[w], uv)  # fmt: skip
+
+
+@njit(cache=True)
 def _period(model, data, w, twist_in):
-    """One control period of world ``w`` (module docstring)."""
+    """One control period of world ``w`` (module docstring): :func:`_sense`, :func:`_act`."""
+    _sense(model, data, w)
+    _act(model, data, w, twist_in)
+
+
+@njit(cache=True)
+def _act(model, data, w, twist_in):
+    """The second half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.act`) on the
+    frame :func:`_sense` kept: the servo (or ``twist_in`` when finite), the controller, the
+    safety monitor and the plant."""
     sm = model.servo
     pa = model.plant
     m = pa.model
@@ -208,13 +232,10 @@ def _period(model, data, w, twist_in):
     q = data.q[w]
     qd = data.qd[w]
     n = q.shape[0]
-    # sensors, then the servo (on the true state: the estimator is a pass-through)
-    uv = np.empty((4, 2))
-    found = S.measure(q, m, sm, data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
-                      data.sstate[w], uv)  # fmt: skip
+    found = data.meas_found[w]
     out = np.empty(15)
-    mode = S.servo_step(t, dt, q, found, uv, m, sm, w, data.sstate[w], data.q_d[w],
-                        data.qd_d[w], twist_in, out)  # fmt: skip
+    mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
+                        data.q_d[w], data.qd_d[w], twist_in, out)  # fmt: skip
     data.found[w] = found
     data.rmse[w] = out[0]
     for i in range(6):
@@ -282,6 +303,43 @@ def step_worlds(model, data, twist, lo, hi):
     for w in range(lo, hi):
         if data.active[w]:
             _period(model, data, w, twist[w])
+
+
+@njit(cache=True, nogil=True)
+def sense_worlds(model, data, lo, hi):
+    """The first half of the period (:func:`_sense`) of the active worlds ``lo <= w < hi``:
+    what an agent observes before it acts (the Gymnasium vector env)."""
+    for w in range(lo, hi):
+        if data.active[w]:
+            _sense(model, data, w)
+
+
+@njit(cache=True, nogil=True)
+def act_worlds(model, data, twist, lo, hi):
+    """The second half of the period (:func:`_act`) of the active worlds ``lo <= w < hi``
+    on the frames :func:`sense_worlds` kept, with the external twists ``twist`` (N, 6)."""
+    for w in range(lo, hi):
+        if data.active[w]:
+            _act(model, data, w, twist[w])
+
+
+@njit(cache=True, nogil=True)
+def observe_worlds(model, data, points, error, status, lo, hi):
+    """What each world ``lo <= w < hi`` sees in the frame :func:`sense_worlds` kept, without
+    changing its state (the env's observation, :meth:`VisualServo.observe`): the points in the
+    servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles wrapped)
+    and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``."""
+    sm = model.servo
+    m = model.plant.model
+    zv = np.empty(4)
+    for w in range(lo, hi):
+        st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w, points[w], zv)
+        status[w] = st
+        if st == S.SEEN:
+            f = S._features_kernel(points[w])
+            for i in range(6):
+                e = f[i] - sm.desired_features[w, i]
+                error[w, i] = S._wrap(e) if i < 3 else e
 
 
 @njit(cache=True, nogil=True)

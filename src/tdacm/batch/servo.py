@@ -478,6 +478,50 @@ def first_mode(q, m, sm, w):
     return IBVS if inside(sm.ctl_camera[w], uv, sm.params[P_MARGIN]) else RECOVERY
 
 
+#: what :func:`servo_view` found: no view, a view in C_V, a point behind C_V
+NOT_SEEN, SEEN, BEHIND = 0, 1, 2
+
+
+@njit(cache=True)
+def servo_view(q, found, uv, m, sm, w, pv, zv):
+    """The delivered frame in the servo's camera (:meth:`VisualServo.observe`): perception
+    (normalized points, IPPE depths), then C_V for a floating base (eq. (18)); the points and
+    depths into ``pv`` (4, 2), ``zv`` (4,). Returns :data:`NOT_SEEN`, :data:`SEEN` or
+    :data:`BEHIND` (a point maps behind C_V)."""
+    xy = np.empty((4, 2))
+    z = np.empty(4)
+    if not (found and perceive(sm.ctl_camera[w], sm.object_2d, uv, xy, z)):
+        return NOT_SEEN
+    if not m.floating:
+        pv[:, :] = xy
+        zv[:] = z
+        return SEEN
+    g_b = np.empty((4, 4))
+    base_pose(q, m, g_b)
+    g_c = np.empty((4, 4))
+    tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
+    gv = np.empty((4, 4))
+    virtual_transform(g_b, g_c, gv)
+    method = int(sm.params[P_COMPENSATION])
+    if not virtual_points(xy, z, gv, method, pv, zv):
+        return BEHIND
+    if method != EXACT:
+        for k in range(4):
+            zv[k] = zv[k] * z[k]
+    return SEEN
+
+
+@njit(cache=True)
+def rmse_to(pv, dp):
+    """``sqrt(mean_k |p_k - p_k^d|^2)`` (:func:`tdacm.loop.servo.normalized_rmse`)."""
+    acc = 0.0
+    for k in range(4):
+        dx = pv[k, 0] - dp[k, 0]
+        dy = pv[k, 1] - dp[k, 1]
+        acc += dx * dx + dy * dy
+    return np.sqrt(acc / 4.0)
+
+
 @njit(cache=True)
 def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
     """One period of :class:`tdacm.loop.servo.VisualServo` on the measured points (the
@@ -489,9 +533,10 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
     prm = sm.params
     n = q.shape[0]
     ctl = sm.ctl_camera[w]
-    xy = np.empty((4, 2))
-    z = np.empty(4)
-    seen = found and perceive(ctl, sm.object_2d, uv, xy, z)
+    pv = np.empty((4, 2))
+    zv = np.empty(4)
+    status = servo_view(q, found, uv, m, sm, w, pv, zv)
+    seen = status != NOT_SEEN
     prev = int(sstate[S_MODE])
     counters = np.array([int(sstate[S_GOOD]), int(sstate[S_BAD])])
     ins = seen and inside(ctl, uv, prm[P_MARGIN])
@@ -506,34 +551,11 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
     out[:] = 0.0
     out[0] = np.nan
     out[1] = event
-    floating = m.floating
-    pv = np.empty((4, 2))
-    zv = np.empty(4)
+    if status == BEHIND:
+        out[2] = 1
+        return mode
     if seen:
-        if floating:
-            g_b = np.empty((4, 4))
-            base_pose(q, m, g_b)
-            g_c = np.empty((4, 4))
-            tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
-            gv = np.empty((4, 4))
-            virtual_transform(g_b, g_c, gv)
-            method = int(prm[P_COMPENSATION])
-            if not virtual_points(xy, z, gv, method, pv, zv):
-                out[2] = 1
-                return mode
-            if method != EXACT:
-                for k in range(4):
-                    zv[k] = zv[k] * z[k]
-        else:
-            pv[:, :] = xy
-            zv[:] = z
-        dp = sm.desired_points[w]
-        acc = 0.0
-        for k in range(4):
-            dx = pv[k, 0] - dp[k, 0]
-            dy = pv[k, 1] - dp[k, 1]
-            acc += dx * dx + dy * dy
-        out[0] = np.sqrt(acc / 4.0)
+        out[0] = rmse_to(pv, sm.desired_points[w])
     external = np.isfinite(twist_in[0])
     if mode == IBVS and (seen or external):
         v = np.empty(6)
@@ -551,7 +573,7 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
                 out[9 + i] = f[i]
         for i in range(6):
             out[3 + i] = v[i]
-        rates = joint_rates(q, v, m, sm, floating)
+        rates = joint_rates(q, v, m, sm, m.floating)
         shape(rates, t, dt, sstate[S_IBVS_START], sm, q_d, qd_d)
     elif mode == RECOVERY:
         out[2] = 2
