@@ -1,0 +1,1 @@
+"""Batched closed loops: N worlds in lockstep as compiled code over arrays."""
