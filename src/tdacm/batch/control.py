@@ -417,11 +417,11 @@ def _rotor_damping(q, p):
     r[2, 0] = -st
     r[2, 1] = ct * sf
     r[2, 2] = ct * cf
-    out = np.empty((3, 3))
+    rk = np.empty((3, 3))
     for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for c in range(3):
-                acc += r[i, c] * p[P_ROTOR_DRAG_K + c] * r[j, c]
-            out[i, j] = acc
+        for c in range(3):
+            rk[i, c] = r[i, c] * p[P_ROTOR_DRAG_K + c]
+    # np.dot: the BLAS product numpy's (r * k) @ r.T makes, to the bit (a loop differs by
+    # ulps, which the tendon allocation's weak common mode amplifies about 1e5 times)
+    out = np.dot(rk, r.T)
     return out
