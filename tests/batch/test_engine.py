@@ -43,6 +43,8 @@ def _scenario(name, extra=None, duration=None):
         ("ground-test-a", None, 1.5),
         ("custom-robot-example", None, 1.5),
         ("flight-test-c", STEADY_AIR, 1.5),
+        ("paper-out-of-fov", None, 3.0),  # the recovery: a C_G snapshot, the plan, the cubic
+        ("ground-test-b", None, 2.0),
     ],
 )
 def test_each_world_equals_the_block_loop(name, extra, duration):
@@ -90,9 +92,17 @@ def test_unsupported_scenarios_are_refused_naming_the_key():
         build_batch(sc, [0])
 
 
-def test_a_world_that_loses_the_target_ends_named():
-    """A start with the target out of C_L's view needs the recovery, which the engine ends as
-    ``recovery needed`` (the block loop runs it)."""
-    res = build_batch(_scenario("paper-out-of-fov", duration=0.5), [0]).run()
-    assert res.termination == ["recovery needed"]
-    assert res.samples[0] == 1
+def test_recovery_failure_ends_the_world_named():
+    """A recovery whose C_G snapshot does not see the target ends as ``recovery failed``,
+    as in the block loop (the drone too high for C_G to see the whole target)."""
+    sc = _scenario("paper-out-of-fov", duration=0.5)
+    q0 = sc.data["initial"]["q"]
+    q_far = list(q0)
+    q_far[3] += 3.0  # far to the side: neither camera sees the target
+    sc = sc.with_overrides(
+        {"initial": {"q": q_far}, "expect": {"initial_in_global_fov": False}}, "t"
+    )
+    res = build_batch(sc, [0]).run()
+    r = build_loop(sc, 0).loop.run(0.5)
+    assert res.termination == ["recovery failed"]
+    assert r.termination == "recovery failed"

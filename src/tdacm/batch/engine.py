@@ -43,13 +43,12 @@ from .random import normal
 
 #: termination codes of :attr:`BatchData.termination` (0: running or ran to the end), in the
 #: order of :data:`TERMINATIONS`
-RUNNING, SAFETY, RECOVERY_NEEDED, PLANT_FAILED, BEHIND_CAMERA, TUMBLED, NON_FINITE = range(7)
-#: the :class:`~tdacm.loop.data.Termination` value of each code (``RECOVERY_NEEDED``: the
-#: target left C_L's view; the engine does not run the recovery, the block loop does)
+RUNNING, SAFETY, RECOVERY_FAILED, PLANT_FAILED, BEHIND_CAMERA, TUMBLED, NON_FINITE = range(7)
+#: the :class:`~tdacm.loop.data.Termination` value of each code
 TERMINATIONS = (
     None,
     "safety",
-    "recovery needed",
+    "recovery failed",
     "plant failed",
     "behind camera",
     "tumbled",
@@ -80,7 +79,8 @@ class BatchData(NamedTuple):
     """The state of every world (leading axis ``N``): the plant's ``q``, ``qd`` and period
     count ``k`` (``t = k dt``), whether it still runs (``active``) and why it ended
     (``termination``, :data:`TERMINATIONS`); the servo's ``sstate``
-    (:data:`~tdacm.batch.servo.N_SSTATE` rows), its reference ``q_d``, ``qd_d``; the latency
+    (:data:`~tdacm.batch.servo.N_SSTATE` rows) and recovery trajectory ``rstate``, its
+    reference ``q_d``, ``qd_d``; the latency
     buffer; the safety monitor's (armed at, previous RMSE); the controller's ``delta_hat``,
     ``att``, ``att_rate``, ``att_set``; the wind's state and each world's aerodynamics copy;
     the random streams of the sensors and of the plant; the last period's outputs (``u``,
@@ -93,6 +93,7 @@ class BatchData(NamedTuple):
     active: np.ndarray
     termination: np.ndarray
     sstate: np.ndarray
+    rstate: np.ndarray
     q_d: np.ndarray
     qd_d: np.ndarray
     fifo_uv: np.ndarray
@@ -118,6 +119,7 @@ class BatchData(NamedTuple):
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
     """Zeroed state for ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs (then
     :func:`reset_worlds`)."""
+    n_strains = n - (6 if model.plant.model.floating else 0)
     cap = int(model.servo.params[S.P_LATENCY]) + 1
     na = model.plant.aero.shape[0]
     return BatchData(
@@ -127,6 +129,7 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         active=np.zeros(n_worlds, np.bool_),
         termination=np.zeros(n_worlds, np.int64),
         sstate=np.zeros((n_worlds, S.N_SSTATE)),
+        rstate=np.zeros((n_worlds, 3 + 2 * n_strains)),
         q_d=np.zeros((n_worlds, n)),
         qd_d=np.zeros((n_worlds, n)),
         fifo_uv=np.zeros((n_worlds, cap, 4, 2)),
@@ -178,6 +181,9 @@ def reset_worlds(model, data, which, q0, qd0):
         for i in range(S.N_SSTATE):
             data.sstate[w, i] = 0.0
         data.sstate[w, S.S_MODE] = S.first_mode(q0[w], m, sm, w)
+        # a start in recovery asks C_G for its first period (ClosedLoop.reset)
+        data.sstate[w, S.S_REQUEST] = 1.0 if data.sstate[w, S.S_MODE] == S.RECOVERY else 0.0
+        data.rstate[w, S.R_ON] = 0.0
         data.safety[w, 0] = 0.0
         data.safety[w, 1] = np.nan
         for i in range(2):
@@ -234,8 +240,10 @@ def _act(model, data, w, twist_in):
     n = q.shape[0]
     found = data.meas_found[w]
     out = np.empty(15)
+    qdd_d = np.empty(n)
     mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
-                        data.q_d[w], data.qd_d[w], twist_in, out)  # fmt: skip
+                        data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
+                        out)  # fmt: skip
     data.found[w] = found
     data.rmse[w] = out[0]
     for i in range(6):
@@ -248,7 +256,7 @@ def _act(model, data, w, twist_in):
         _end(data, w, BEHIND_CAMERA)
         return
     if out[2] == 2.0:
-        _end(data, w, RECOVERY_NEEDED)
+        _end(data, w, RECOVERY_FAILED)
         return
     # the low-level controller on this world's model error
     base = model.control
@@ -259,7 +267,7 @@ def _act(model, data, w, twist_in):
     q_ref = np.empty(n)
     work = np.zeros((CT.N_WORK, n))
     CT.controller_period(ca, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
-                         q, qd, data.q_d[w], data.qd_d[w], np.zeros(n), dt, data.u[w], tau,
+                         q, qd, data.q_d[w], data.qd_d[w], qdd_d, dt, data.u[w], tau,
                          q_ref, work)  # fmt: skip
     for i in range(data.u.shape[1]):
         if not np.isfinite(data.u[w, i]):
@@ -387,8 +395,6 @@ def parallel(kernel, args, n_worlds: int, threads: int | None = None) -> None:
     if _POOL is None or _POOL._max_workers < k:
         _POOL = ThreadPoolExecutor(max_workers=k, thread_name_prefix="tdacm-batch")
     bounds = np.linspace(0, n_worlds, k + 1).round().astype(int)
-    futures = [
-        _POOL.submit(kernel, *args, int(bounds[i]), int(bounds[i + 1])) for i in range(k)
-    ]
+    futures = [_POOL.submit(kernel, *args, int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
     for f in futures:
         f.result()

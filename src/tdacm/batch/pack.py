@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..control.planner import PLAN_BOUND, _square
 from ..loop.estimation import TrueState
 from ..loop.sensors import AnalyticFrontEnd
 from ..loop.servo import RobustServo, VisualServo
 from ..vision.ibvs import MODES
 from ..vision.ippe import canonical_frame
+from ..vision.targets import ArucoMarker
 from ..vision.virtual import METHODS
 from . import servo as S
 
@@ -55,6 +57,11 @@ def check_loop(loop) -> None:
         raise Unsupported("servoing into contact is not batched (touch.enabled)")
     if loop.sensors.global_ is None:
         raise Unsupported("the engine needs the global camera C_G")
+    if not isinstance(loop.sensors.global_.front_end, AnalyticFrontEnd):
+        raise Unsupported(
+            "the engine's global camera is analytic: set cameras.global_renderer = 'planar' "
+            "(with the analytic C_L)"
+        )
 
 
 def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S.ServoModel:
@@ -108,6 +115,17 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
     prm[S.P_GROWTH] = sf.growth_limit
     prm[S.P_MIN_INCREASE] = sf.min_increase
     prm[S.P_GRACE] = sf.grace
+    prm[S.P_MAX_SPEED] = rc.max_speed
+    prm[S.P_GLOBAL_EVERY] = loop.sensors.global_every
+    prm[S.P_Z_MIN] = servo.local_camera.near
+    prm[S.P_BOUND] = PLAN_BOUND
+    target = loop.perception.target
+    ids = tuple(getattr(target, "ids", ())) if not isinstance(target, ArucoMarker) else ()
+    prm[S.P_LARGEST_TAG] = 1.0 if ids else 0.0
+    marker_ids = ids or (target.marker_id,)
+    corners_t = [target.corner_points(i) for i in marker_ids]
+    side = float(np.linalg.norm(corners_t[0][1] - corners_t[0][0]))
+    gfe = loop.sensors.global_.front_end
     return S.ServoModel(
         camera=camera_row(fe.camera),
         ctl_camera=np.array([camera_row(c) for c in ctl]),
@@ -124,4 +142,9 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
         commanded=np.ascontiguousarray(servo._cmd, np.int64),
         rod=np.array([m.rod_steps[0], m.rod_steps[1]], np.int64),
         params=prm,
+        global_camera=camera_row(gfe.camera),
+        drone_mount=np.ascontiguousarray(loop.sensors.global_.mount, float),
+        mount_inv=np.ascontiguousarray(np.linalg.inv(sensor.mount)),
+        square=_square(side),
+        marker_centres=np.ascontiguousarray([c.mean(axis=0) for c in corners_t]),
     )

@@ -15,10 +15,11 @@ import numpy as np
 from numba import njit
 
 from .._linalg import SVD_DAMPED, SVD_FLOOR, SVD_PINV, svd_solve
+from ..control.planner import _IPPE_ORDER, plan_kernel, square_pose
 from ..lie.euler import rot_zyx
 from ..system.kernels import chain_jacobian
 from ..vision.features import _features_kernel, _interaction_kernel, _wrap
-from ..vision.ippe import point_depths
+from ..vision.ippe import DEPTHS_OK, point_depths
 from . import random as R
 
 #: the servo's mode codes (:class:`tdacm.control.Mode`)
@@ -50,8 +51,13 @@ FX, FY, CX, CY, WIDTH, HEIGHT, NEAR, FAR = range(8)
     P_GROWTH,
     P_MIN_INCREASE,
     P_GRACE,
+    P_MAX_SPEED,
+    P_GLOBAL_EVERY,
+    P_Z_MIN,
+    P_BOUND,
+    P_LARGEST_TAG,
     N_PARAMS,
-) = range(18)
+) = range(23)
 
 
 class ServoModel(NamedTuple):
@@ -67,7 +73,10 @@ class ServoModel(NamedTuple):
     ``desired_interaction`` (N, 6, 6): the reference snapshot in C_V; ``limits`` (n,): the
     joint-rate limits of the shaping; ``commanded`` (k,): the commanded coordinates;
     ``rod`` (2,): the first and last Magnus step of the camera's rod; ``params``: the scalars
-    (``P_*`` indices)."""
+    (``P_*`` indices). The recovery: ``global_camera`` (8,) C_G, ``drone_mount`` (4, 4)
+    ``g_{C_G}^b``, ``mount_inv`` (4, 4) ``(g_{C_L}^L)^-1``, ``square`` (4, 2) a marker's
+    corners in its plane (:func:`tdacm.control.planner.square_pose`), ``marker_centres``
+    (M, 3) each marker's centre in the target frame."""
 
     camera: np.ndarray
     ctl_camera: np.ndarray
@@ -84,6 +93,11 @@ class ServoModel(NamedTuple):
     commanded: np.ndarray
     rod: np.ndarray
     params: np.ndarray
+    global_camera: np.ndarray
+    drone_mount: np.ndarray
+    mount_inv: np.ndarray
+    square: np.ndarray
+    marker_centres: np.ndarray
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -115,7 +129,9 @@ def tip_jacobian(q, m, rod):
 def _mul4(a, b, out):
     for i in range(4):
         for j in range(4):
-            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j] + a[i, 3] * b[3, j]
+            out[i, j] = (
+                a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j] + a[i, 3] * b[3, j]
+            )
 
 
 @njit(cache=True)
@@ -253,7 +269,7 @@ def perceive(ctl, object_2d, uv, out_xy, out_z):
     for k in range(4):
         out_xy[k, 0] = (uv[k, 0] - ctl[CX]) / ctl[FX]
         out_xy[k, 1] = (uv[k, 1] - ctl[CY]) / ctl[FY]
-    return point_depths(object_2d, out_xy, out_z)
+    return point_depths(object_2d, out_xy, out_z) == DEPTHS_OK
 
 
 # ----------------------------------------------------------------------------- servo
@@ -432,7 +448,10 @@ NO_EVENT, IBVS_ENGAGED, TARGET_LOST = 0, 1, 2
 
 # rows of a world's servo state ``sstate`` (float array): the mode, the switch's two
 # counters, the time IBVS engaged, the latency ring buffer's head and count
-S_MODE, S_GOOD, S_BAD, S_IBVS_START, S_HEAD, S_COUNT, N_SSTATE = range(7)
+S_MODE, S_GOOD, S_BAD, S_IBVS_START, S_HEAD, S_COUNT, S_REQUEST, S_PERIOD, N_SSTATE = range(9)
+# the recovery's cubic trajectory, from ``R_Q0`` (n_s) toward ``R_Q0 + R_D`` (n_s): rows of
+# a world's ``rstate`` (float array of ``3 + 2 n_s``)
+R_ON, R_T0, R_TF, R_Q0 = 0, 1, 2, 3
 
 
 @njit(cache=True)
@@ -523,18 +542,129 @@ def rmse_to(pv, dp):
 
 
 @njit(cache=True)
-def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
+def detect_global(q, m, sm, corners_uv):
+    """C_G's analytic detection at the drone's pose (:class:`AnalyticFrontEnd` of the global
+    camera, ideal): True when every marker's corners are in its view, their pixels (OpenCV
+    order) in ``corners_uv`` (M, 4, 2)."""
+    g_b = np.empty((4, 4))
+    base_pose(q, m, g_b)
+    g = np.empty((4, 4))
+    _mul4(g_b, sm.drone_mount, g)
+    cam = sm.global_camera
+    for mk in range(sm.corners.shape[0]):
+        for k in range(4):
+            d0 = sm.corners[mk, k, 0] - g[0, 3]
+            d1 = sm.corners[mk, k, 1] - g[1, 3]
+            d2 = sm.corners[mk, k, 2] - g[2, 3]
+            x = d0 * g[0, 0] + d1 * g[1, 0] + d2 * g[2, 0]
+            y = d0 * g[0, 1] + d1 * g[1, 1] + d2 * g[2, 1]
+            z = d0 * g[0, 2] + d1 * g[1, 2] + d2 * g[2, 2]
+            if not (z > 0.0 and z >= cam[NEAR] and z <= cam[FAR]):
+                return False
+            u = cam[FX] * x / z + cam[CX]
+            v = cam[FY] * y / z + cam[CY]
+            if not _in_image(cam, u, v, 0.0):
+                return False
+            corners_uv[mk, k, 0] = u
+            corners_uv[mk, k, 1] = v
+    return True
+
+
+@njit(cache=True)
+def plan_recovery(t, q, m, sm, corners_uv, rstate):
+    """The recovery plan from one C_G snapshot (:meth:`VisualServo.plan`): the target's pose
+    in C_G from one square marker (the largest tag of a pattern), its centre in the body
+    frame, the strains that put it on C_L's optical axis (:func:`plan_kernel`) and the cubic
+    trajectory there (``rstate``, :class:`tdacm.control.CubicTrajectory.with_speed`). False
+    when the marker's corners admit no pose."""
+    prm = sm.params
+    cam = sm.global_camera
+    mk = 0
+    if prm[P_LARGEST_TAG] > 0.0:
+        best = -1.0
+        for i in range(corners_uv.shape[0]):
+            ext = 0.0
+            for a in range(2):
+                lo_, hi_ = np.inf, -np.inf
+                for k in range(4):
+                    lo_ = min(lo_, corners_uv[i, k, a])
+                    hi_ = max(hi_, corners_uv[i, k, a])
+                ext += hi_ - lo_
+            if ext > best:
+                best, mk = ext, i
+    xy = np.empty((4, 2))
+    for k in range(4):
+        src = _IPPE_ORDER[k]
+        xy[k, 0] = (corners_uv[mk, src, 0] - cam[CX]) / cam[FX]
+        xy[k, 1] = (corners_uv[mk, src, 1] - cam[CY]) / cam[FY]
+    g = np.empty((4, 4))
+    if not square_pose(sm.square, xy, sm.marker_centres[mk], g):
+        return False
+    p_body = np.empty(3)
+    dm = sm.drone_mount
+    for i in range(3):
+        p_body[i] = dm[i, 0] * g[0, 3] + dm[i, 1] * g[1, 3] + dm[i, 2] * g[2, 3] + dm[i, 3]
+    n = q.shape[0]
+    ns = (rstate.shape[0] - 3) // 2
+    qs_now = q[n - ns :].copy()
+    x, _, _, _ = plan_kernel(qs_now, m, sm.rod[0], sm.rod[1], sm.mount_inv, p_body,
+                             prm[P_Z_MIN], prm[P_BOUND], True)  # fmt: skip
+    big = 0.0
+    for i in range(ns):
+        big = max(big, abs(x[i] - qs_now[i]))
+    rstate[R_ON] = 1.0
+    rstate[R_T0] = t
+    rstate[R_TF] = t + max(0.5, 1.5 * big / prm[P_MAX_SPEED])
+    for i in range(ns):
+        rstate[R_Q0 + i] = qs_now[i]
+        rstate[R_Q0 + ns + i] = x[i] - qs_now[i]
+    return True
+
+
+@njit(cache=True)
+def follow_recovery(t, rstate, q_d, qd_d, qdd_d):
+    """The cubic trajectory at ``t`` into the strains of ``q_d``, ``qd_d``, ``qdd_d``
+    (:meth:`tdacm.control.CubicTrajectory.__call__`; the drone's rows held)."""
+    n = q_d.shape[0]
+    ns = (rstate.shape[0] - 3) // 2
+    t0, tf = rstate[R_T0], rstate[R_TF]
+    h = tf - t0
+    tt = min(max(t - t0, 0.0), h)
+    moving = not (t >= tf or t < t0)
+    for i in range(n):
+        qd_d[i] = 0.0
+    for i in range(ns):
+        d = rstate[R_Q0 + ns + i]
+        a2 = 3 * d / h**2
+        a3 = -2 * d / h**3
+        j = n - ns + i
+        q_d[j] = rstate[R_Q0 + i] + a2 * tt**2 + a3 * tt**3
+        if moving:
+            qd_d[j] = 2 * a2 * tt + 3 * a3 * tt**2
+            qdd_d[j] = 2 * a2 + 6 * a3 * tt
+
+
+@njit(cache=True)
+def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, twist_in, out):
     """One period of :class:`tdacm.loop.servo.VisualServo` on the measured points (the
     perception block first): the mode switch, the view in C_V, the IBVS twist (or
     ``twist_in`` when it is finite: an external command), the joint rates shaped into
-    ``qd_d`` and ``q_d`` (in place), or a hold. ``out`` receives ``[rmse, event, failure,
-    twist (6), features (6)]``; failure 1: a point behind C_V (the loop's
-    ``BEHIND_CAMERA``), 2: recovery needed (not batched: the engine ends the world)."""
+    ``qd_d`` and ``q_d`` (in place), a hold, or the recovery (a plan from a C_G snapshot when
+    C_G is read this period, then its cubic trajectory; ``qdd_d`` its acceleration). ``out``
+    receives ``[rmse, event, failure, twist (6), features (6)]``; failure 1: a point behind
+    C_V (the loop's ``BEHIND_CAMERA``), 2: the recovery failed (C_G does not see the target,
+    or its corners admit no pose)."""
     prm = sm.params
     n = q.shape[0]
     ctl = sm.ctl_camera[w]
     pv = np.empty((4, 2))
     zv = np.empty(4)
+    # C_G is offered this period every `global_every` periods or when the servo asked
+    k = int(sstate[S_PERIOD])
+    every = int(prm[P_GLOBAL_EVERY])
+    offered = sstate[S_REQUEST] > 0.0 or (every > 0 and k % every == 0)
+    sstate[S_PERIOD] = k + 1
+    sstate[S_REQUEST] = 0.0
     status = servo_view(q, found, uv, m, sm, w, pv, zv)
     seen = status != NOT_SEEN
     prev = int(sstate[S_MODE])
@@ -545,12 +675,15 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
     event = NO_EVENT
     if prev == RECOVERY and mode == IBVS:
         sstate[S_IBVS_START] = t
+        rstate[R_ON] = 0.0
         event = IBVS_ENGAGED
     elif prev == IBVS and mode == RECOVERY:
         event = TARGET_LOST
     out[:] = 0.0
     out[0] = np.nan
     out[1] = event
+    for i in range(n):
+        qdd_d[i] = 0.0
     if status == BEHIND:
         out[2] = 1
         return mode
@@ -576,7 +709,27 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, q_d, qd_d, twist_in, out):
         rates = joint_rates(q, v, m, sm, m.floating)
         shape(rates, t, dt, sstate[S_IBVS_START], sm, q_d, qd_d)
     elif mode == RECOVERY:
-        out[2] = 2
+        if rstate[R_ON] == 0.0:
+            if not offered:  # hold and ask C_G for the next period
+                for i in range(n):
+                    qd_d[i] = 0.0
+                sstate[S_REQUEST] = 1.0
+                return mode
+            corners_uv = np.empty((sm.corners.shape[0], 4, 2))
+            if not detect_global(q, m, sm, corners_uv):
+                for i in range(n):
+                    qd_d[i] = 0.0
+                out[2] = 2
+                return mode
+            if not plan_recovery(t, q, m, sm, corners_uv, rstate):
+                out[2] = 2
+                return mode
+            for i in range(n):
+                q_d[i] = q[i]
+            if m.floating:
+                q_d[0] = 0.0
+                q_d[1] = 0.0
+        follow_recovery(t, rstate, q_d, qd_d, qdd_d)
     else:
         for i in range(n):
             qd_d[i] = 0.0

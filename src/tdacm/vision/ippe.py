@@ -256,21 +256,26 @@ def ippe_poses(obj, xy, rots, trans, errors):
     return True
 
 
+#: :func:`point_depths` results
+DEPTHS_OK, NO_POSE, BEHIND = 0, 1, 2
+
+
 @njit(cache=True)
 def point_depths(obj, xy, depths):
     """Depths (into ``depths``, (k,)) of the canonical planar points ``obj`` (k, 2) seen at
     ``xy`` (k, 2) under the better IPPE pose: the paper's depth estimation from the known
-    target geometry. False when no pose puts every point in front of the camera."""
+    target geometry. Returns :data:`DEPTHS_OK`, :data:`NO_POSE` (a degenerate view) or
+    :data:`BEHIND` (the better pose puts a point behind the camera)."""
     rots = np.empty((2, 3, 3))
     trans = np.empty((2, 3))
     errors = np.empty(2)
     if not ippe_poses(obj, xy, rots, trans, errors):
-        return False
+        return NO_POSE
     r = rots[0]
     t = trans[0]
     for k in range(obj.shape[0]):
         z = r[2, 0] * obj[k, 0] + r[2, 1] * obj[k, 1] + t[2]
         if not z > 0.0:
-            return False
+            return BEHIND
         depths[k] = z
-    return True
+    return DEPTHS_OK
