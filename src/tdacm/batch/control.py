@@ -20,8 +20,8 @@ stacks inside compiled code (:func:`tdacm.batch.plant.model_of_world`; tested in
 are flat (no NamedTuple inside a NamedTuple): numba's parallel loops refuse nested ones. A
 world is one call with one world's rows: the function allocates only what the model kernels
 it calls return (``coupled_terms``, ``tendon_matrix``, the tendon allocation's small
-least-squares arrays) and a 3 x 3 product with the rotor drag, so one world per GPU thread is a
-translation (there, the rotor drag's ``np.dot``, kept here for numpy's bits, becomes a loop).
+least-squares arrays) and two 3 x 3 temporaries with the rotor drag, so one world per GPU
+thread is a translation.
 """
 
 from __future__ import annotations
@@ -432,11 +432,11 @@ def _rotor_damping(q, p):
     r[2, 0] = -st
     r[2, 1] = ct * sf
     r[2, 2] = ct * cf
-    rk = np.empty((3, 3))
+    out = np.empty((3, 3))
     for i in range(3):
-        for c in range(3):
-            rk[i, c] = r[i, c] * p[P_ROTOR_DRAG_K + c]
-    # np.dot: the BLAS product numpy's (r * k) @ r.T makes, to the bit (a loop differs by
-    # ulps, which the tendon allocation's weak common mode amplifies about 1e5 times)
-    out = np.dot(rk, r.T)
+        for j in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += r[i, c] * p[P_ROTOR_DRAG_K + c] * r[j, c]
+            out[i, j] = acc
     return out
