@@ -70,7 +70,10 @@ AIR_DRYDEN = {**AIR, "wind": {**AIR["wind"], "turbulence_wind20": 1.0}}
 #: case: (scenario, overrides, the reference's amplitude, the exact attitude inversion)
 CASES = {
     "paper-in-fov": ("paper-in-fov", None, 0.05, False),
+    "paper-out-of-fov": ("paper-out-of-fov", None, 0.05, False),
     "ground-test-a": ("ground-test-a", None, 0.05, False),
+    "ground-test-b": ("ground-test-b", None, 0.05, False),
+    "custom-robot-example": ("custom-robot-example", None, 0.05, False),
     "flight-test-c-air": ("flight-test-c", AIR, 0.05, False),
     "flight-test-c-dryden": ("flight-test-c", AIR_DRYDEN, 0.05, False),
     # the paper's literal model (gravity in Delta_hat), the exact ZYX inversion and a reference
