@@ -35,7 +35,7 @@ from numba import njit
 from ..aero import layout as AL
 from ..aero.wind import DrydenTurbulence, Gust, SteadyWind, Wind, _Sum
 from ..loop.plant import MAX_TILT_RAD, Plant
-from ..system.kernels import LOAD_SLICES, ModelArrays, rk4_run_aero
+from ..system.kernels import LOAD_SLICES, ModelArrays, forward_dynamics_aero, rk4_run_aero
 
 _BW = LOAD_SLICES["base_wrench"].start
 _RF = LOAD_SLICES["rod_force"].start
@@ -111,19 +111,14 @@ def plant_arrays(plant: Plant) -> tuple[PlantArrays, ModelArrays]:
     arrays.
 
     Refused (``ValueError`` naming the scenario key): contact (``scene.obstacles`` or
-    ``scene.contact.target_box``) and the accelerations for an IMU (``estimation.source =
-    "estimated"``)."""
+    ``scene.contact.target_box``). The accelerations an IMU senses (a block with
+    ``accelerations``, ``estimation.source = "estimated"``) are :func:`plant_accelerations`."""
     if type(plant) is not Plant:
         raise ValueError(f"the batched plant packs a tdacm.loop.plant.Plant, got {plant!r}")
     if plant.contact is not None:
         raise ValueError(
             "scene.obstacles / scene.contact.target_box: the batched plant has no contact "
             "(run the scenario with the block loop)"
-        )
-    if plant.accelerations:
-        raise ValueError(
-            "estimation.source: the batched plant gives no accelerations for the IMU "
-            "(estimated-state scenarios run with the block loop)"
         )
     d = plant.disturbances
     floating = plant.system.floating
@@ -343,3 +338,18 @@ def plant_period(
         finite = finite and np.isfinite(q_out[i]) and np.isfinite(qd_out[i])
     tumbled = m.floating and max(abs(q_out[0]), abs(q_out[1])) > MAX_TILT_RAD
     return ok and finite, tumbled, t0 + (k + 1) * dt
+
+
+@njit(cache=True)
+def plant_accelerations(m, aero, loads, q, qd, u, qdd_out):
+    """The accelerations at the end of a period (what an accelerometer senses, the
+    ``PlantState.qdd`` of a :class:`~tdacm.loop.plant.Plant` with ``accelerations``): the
+    forward dynamics (paper eq. (9)) at the period's end state ``q, qd`` under its input ``u``,
+    loads and wind (the ``loads`` and ``aero`` :func:`plant_period` just used) into
+    ``qdd_out``; returns ``ok`` (false: a singular mass matrix, ``qdd_out`` unchanged). Call it
+    only after a period that ended ``ok``, as the block does."""
+    qdd, ok = forward_dynamics_aero(q, qd, u, m, loads, aero)
+    if ok:
+        for i in range(qdd.shape[0]):
+            qdd_out[i] = qdd[i]
+    return ok
