@@ -6,17 +6,22 @@
 in the hierarchical drone loop (two passes with the roll/pitch command filter), the thrust
 allocation through the rows ``[0, 1, 2, 5]`` of ``Gamma`` and the tendon allocation, and the
 adaptation ``Delta_hat <- Delta_hat - A_a s_q dt``. Its inputs are a :class:`ControllerArrays`
-(built once from the Python block by :func:`controller_arrays`, so the compiled controller is
-the block's twin and never a second truth), the controller state (:func:`controller_state`),
-a scratch array (:func:`controller_work`) and the estimate and reference of the period.
+and the model arrays of the controller's model (both built once from the Python block by
+:func:`controller_arrays`, so the compiled controller is the block's twin and never a second
+truth), the controller state (:func:`controller_state`), a scratch array
+(:func:`controller_work`) and the estimate and reference of the period.
 
 Per-world parameters: every array of :class:`ControllerArrays` may be stacked along a leading
-world axis (the engine indexes it inside its ``prange`` loop): the model's stiffness, damping,
-step masses and drone inertia (:class:`~tdacm.system.kernels.ModelArrays`), the model errors
-(``coord``), the gains and the scalars of ``params``; worlds that share a robot share the
-rest of the model arrays. A world is one call with one world's slices: the function allocates
-only what the model kernels it calls return (``coupled_terms``, ``tendon_matrix``, the tendon
-allocation's small least-squares arrays), so one world per GPU thread is a translation.
+world axis (the engine indexes it inside its ``prange`` loop), and so may the model's
+stiffness, damping, step masses and drone inertia: numba builds a world's
+:class:`~tdacm.system.kernels.ModelArrays` and :class:`ControllerArrays` from rows of the
+stacks inside compiled code (:func:`tdacm.batch.plant.model_of_world`; tested in a
+``prange`` loop); worlds that share a robot share the rest of the model arrays. The records
+are flat (no NamedTuple inside a NamedTuple): numba's parallel loops refuse nested ones. A
+world is one call with one world's rows: the function allocates only what the model kernels
+it calls return (``coupled_terms``, ``tendon_matrix``, the tendon allocation's small
+least-squares arrays) and two 3 x 3 temporaries with the rotor drag, so one world per GPU
+thread is a translation.
 """
 
 from __future__ import annotations
@@ -81,21 +86,20 @@ N_WORK = 8
 
 
 class ControllerArrays(NamedTuple):
-    """The low-level controller of one world as arrays (:func:`controller_arrays`).
+    """The low-level controller of one world as arrays (:func:`controller_arrays`), besides
+    the model arrays of its private gravity-only model (a
+    :class:`~tdacm.system.kernels.ModelArrays`, passed apart: numba's parallel loops take no
+    NamedTuple inside a NamedTuple).
 
-    ``model``: the model arrays of the controller's private gravity-only model (the estimated
-    terms); ``system``: the true system's (the tendon matrix ``B_s(q)``, the base kind);
     ``loads`` (27,): the private model's packed loads (gravity only); ``params``
     (:data:`N_PARAMS`,): the scalars, by the ``P_*`` indices; ``coord`` (:data:`N_COORD`, n):
     the model errors and ``beta``, by the ``C_*`` rows; ``damping`` (n, n): the constant
-    ``D_hat = S_d D S_d``; ``gains`` (3, n, n): ``A_d, A_p, A_a``; ``g4_lu`` (4, 4) and
-    ``g4_piv`` (4,): the LU factors of ``Gamma[[0, 1, 2, 5]]`` (zeros for a fixed base).
-    May differ per world: ``model``'s stiffness, damping, step masses and ``mb6``,
-    ``damping``, ``coord``, ``gains``, ``params``.
+    ``D_hat = S_d D S_d``; ``gains`` (3, n, n): ``A_d, A_p, A_a`` by the ``G_*`` indices;
+    ``g4_lu`` (4, 4) and ``g4_piv`` (4,): the LU factors of ``Gamma[[0, 1, 2, 5]]`` (identity
+    for a fixed base). All may differ per world (a leading world axis); so may the model's
+    stiffness, damping, step masses and ``mb6`` (:func:`tdacm.batch.plant.model_of_world`).
     """
 
-    model: ModelArrays
-    system: ModelArrays
     loads: np.ndarray
     params: np.ndarray
     coord: np.ndarray
@@ -105,9 +109,16 @@ class ControllerArrays(NamedTuple):
     g4_piv: np.ndarray
 
 
-def controller_arrays(low_level, dt: float) -> ControllerArrays:
-    """The arrays of the scenario's low-level block ``low_level`` (``loop.controller``, an
-    :class:`~tdacm.loop.lowlevel.AdaptiveLowLevel`) for the control period ``dt``.
+#: the model arrays :func:`tendon_matrix` reads (B_s(q)): the controller computes the tendon
+#: matrix on its model, which must have the true system's tendon geometry
+_TENDON_FIELDS = ("bg", "xi0g", "wq", "g_col", "g_nc", "tendon_d", "tendon_dd", "tendon_on")
+
+
+def controller_arrays(low_level, dt: float) -> tuple[ControllerArrays, ModelArrays]:
+    """``(arrays, model)`` of the scenario's low-level block ``low_level``
+    (``loop.controller``, an :class:`~tdacm.loop.lowlevel.AdaptiveLowLevel`) for the control
+    period ``dt``: the :class:`ControllerArrays` and the model arrays of the controller's
+    private gravity-only model (:class:`tdacm.control.EstimatedModel`).
 
     Refused (``ValueError`` naming the scenario key): a user controller or the PD law
     (``controller.class``) and the truth ablation (``estimation.controller_truth``)."""
@@ -156,6 +167,11 @@ def controller_arrays(low_level, dt: float) -> ControllerArrays:
     coord[C_GRAVITY_SCALE] = 1.0 + model.d_g
     coord[C_BETA] = g.beta
     mp = model.system.model_arrays
+    ms = sysm.model_arrays
+    if mp.floating != ms.floating or any(
+        not np.array_equal(getattr(mp, f), getattr(ms, f)) for f in _TENDON_FIELDS
+    ):
+        raise ValueError("robot: the controller's model has another tendon geometry")
     sd = model.damping_scale
     damping = sd[:, None] * mp.damping * sd[None, :]  # as EstimatedModel.terms
     gains = np.ascontiguousarray(np.stack([g.A_d, g.A_p, g.A_a]), dtype=float)
@@ -165,10 +181,8 @@ def controller_arrays(low_level, dt: float) -> ControllerArrays:
         if not ok:
             raise ValueError("robot.drone: the motor layout's Gamma rows [0, 1, 2, 5] are singular")
     else:
-        lu, piv = np.zeros((4, 4)), np.arange(4, dtype=np.int64)
-    return ControllerArrays(
-        mp,
-        sysm.model_arrays,
+        lu, piv = np.eye(4), np.arange(4, dtype=np.int64)
+    arrays = ControllerArrays(
         model.system.loads.packed().copy(),
         p,
         coord,
@@ -177,6 +191,7 @@ def controller_arrays(low_level, dt: float) -> ControllerArrays:
         lu,
         piv,
     )
+    return arrays, mp
 
 
 def _max_tension(sysm) -> float:
@@ -251,11 +266,12 @@ def _law_into(mh, cd, kh, q, qd, q_d, work, beta, a_d, a_p, delta_hat, tau):
 
 @njit(cache=True)
 def controller_period(
-    ca, delta_hat, att, att_rate, att_set, q, qd, q_d, qd_d, qdd_d, dt, u, tau, q_ref, work
+    ca, m, delta_hat, att, att_rate, att_set, q, qd, q_d, qd_d, qdd_d, dt, u, tau, q_ref, work
 ):
     """One period of the low-level controller of one world (module docstring):
     :meth:`tdacm.control.TDACMController.step` on the arrays ``ca`` (a
-    :class:`ControllerArrays`).
+    :class:`ControllerArrays`) and the model arrays ``m`` of the controller's model (the
+    estimated terms and the tendon matrix ``B_s(q)``; :func:`controller_arrays`).
 
     State (updated in place): ``delta_hat`` (n,), ``att`` (2,) and ``att_rate`` (2,) (the
     filtered roll/pitch command and its rate), ``att_set`` (1,) bool (``att`` holds a command;
@@ -272,10 +288,9 @@ def controller_period(
     ``(1 + d_g) tau_ext`` with the gravity feed-forward, of the model at ``(q, qd)`` (paper
     eq. (9)); the law ``tau_a = M_hat qdd_r + (C_hat + D_hat) qd_r + K_hat - A_d edot - A_p e
     + Delta_hat`` (eqs. S2-S10)."""
-    m = ca.model
     p = ca.params
     n = q.shape[0]
-    floating = ca.system.floating
+    floating = m.floating
     off = 6 if floating else 0
     sm = ca.coord[C_MASS_SCALE]
     beta = ca.coord[C_BETA]
@@ -377,7 +392,7 @@ def controller_period(
     else:
         v = _law_into(mh, cd, kh, q, qd, q_ref, work, beta, a_d, a_p, delta_hat, tau)
     # tendons: B_s(q) T = tau_s with 0 <= T <= T_max and the pretension
-    b_s = tendon_matrix(q[off:], ca.system)
+    b_s = tendon_matrix(q[off:], m)
     tau_s = tau[off:]
     tens, resid, at_max, at_zero = _allocate_tensions_kernel(
         b_s, tau_s, p[P_MAX_TENSION], p[P_PRETENSION], 1e-3
@@ -417,11 +432,11 @@ def _rotor_damping(q, p):
     r[2, 0] = -st
     r[2, 1] = ct * sf
     r[2, 2] = ct * cf
-    rk = np.empty((3, 3))
+    out = np.empty((3, 3))
     for i in range(3):
-        for c in range(3):
-            rk[i, c] = r[i, c] * p[P_ROTOR_DRAG_K + c]
-    # np.dot: the BLAS product numpy's (r * k) @ r.T makes, to the bit (a loop differs by
-    # ulps, which the tendon allocation's weak common mode amplifies about 1e5 times)
-    out = np.dot(rk, r.T)
+        for j in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += r[i, c] * p[P_ROTOR_DRAG_K + c] * r[j, c]
+            out[i, j] = acc
     return out

@@ -17,10 +17,11 @@ the first period none; its initial state takes 5 more (:func:`wind_start`). The 
 used in the order of :class:`tdacm.aero.wind.DrydenTurbulence` (``u``, then ``v``'s two, then
 ``w``'s two), so the same normals give its samples.
 
-Per-world parameters: ``model`` (:class:`~tdacm.system.kernels.ModelArrays`: stiffness,
-damping, step masses, ``mb6``), ``loads``, ``disturbances``, ``aero`` and ``wind`` may differ
-per world (a leading world axis; each world integrates with its own ``aero`` copy, whose
-wind slot the period overwrites).
+Per-world parameters: the model arrays' stiffness, damping, step masses and ``mb6``
+(:func:`model_of_world` builds a world's :class:`~tdacm.system.kernels.ModelArrays` inside
+compiled code), ``loads``, ``disturbances``, ``aero`` and ``wind`` may differ per world (a
+leading world axis; each world integrates with its own ``aero`` copy, whose wind slot the
+period overwrites).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from numba import njit
 from ..aero import layout as AL
 from ..aero.wind import DrydenTurbulence, Gust, SteadyWind, Wind, _Sum
 from ..loop.plant import MAX_TILT_RAD, Plant
-from ..system.kernels import LOAD_SLICES, ModelArrays, rk4_run_aero
+from ..system.kernels import LOAD_SLICES, ModelArrays, forward_dynamics_aero, rk4_run_aero
 
 _BW = LOAD_SLICES["base_wrench"].start
 _RF = LOAD_SLICES["rod_force"].start
@@ -87,15 +88,16 @@ N_WIND_NORMALS = 5
 
 
 class PlantArrays(NamedTuple):
-    """The plant of one world as arrays (:func:`plant_arrays`).
+    """The plant of one world as arrays (:func:`plant_arrays`), besides the system's model
+    arrays (a :class:`~tdacm.system.kernels.ModelArrays`, passed apart: numba's parallel loops
+    take no NamedTuple inside a NamedTuple).
 
-    ``model``: the system's model arrays; ``loads`` (27,): the packed loads without the
+    ``loads`` (27,): the packed loads without the
     disturbances (gravity and the system's own loads); ``disturbances``
     (:data:`N_DISTURBANCES`,) by the ``D_*`` indices; ``aero``: the packed aerodynamics
     (:mod:`tdacm.aero.layout`; empty: none), a template each world copies; ``wind``
     (:data:`N_WIND`,) by the ``W_*`` indices; ``substeps``: RK4 steps a period."""
 
-    model: ModelArrays
     loads: np.ndarray
     disturbances: np.ndarray
     aero: np.ndarray
@@ -103,24 +105,20 @@ class PlantArrays(NamedTuple):
     substeps: int
 
 
-def plant_arrays(plant: Plant) -> PlantArrays:
-    """The arrays of the scenario's plant block (``loop.plant``, a
-    :class:`~tdacm.loop.plant.Plant`).
+def plant_arrays(plant: Plant) -> tuple[PlantArrays, ModelArrays]:
+    """``(arrays, model)`` of the scenario's plant block (``loop.plant``, a
+    :class:`~tdacm.loop.plant.Plant`): the :class:`PlantArrays` and the system's model
+    arrays.
 
     Refused (``ValueError`` naming the scenario key): contact (``scene.obstacles`` or
-    ``scene.contact.target_box``) and the accelerations for an IMU (``estimation.source =
-    "estimated"``)."""
+    ``scene.contact.target_box``). The accelerations an IMU senses (a block with
+    ``accelerations``, ``estimation.source = "estimated"``) are :func:`plant_accelerations`."""
     if type(plant) is not Plant:
         raise ValueError(f"the batched plant packs a tdacm.loop.plant.Plant, got {plant!r}")
     if plant.contact is not None:
         raise ValueError(
             "scene.obstacles / scene.contact.target_box: the batched plant has no contact "
             "(run the scenario with the block loop)"
-        )
-    if plant.accelerations:
-        raise ValueError(
-            "estimation.source: the batched plant gives no accelerations for the IMU "
-            "(estimated-state scenarios run with the block loop)"
         )
     d = plant.disturbances
     floating = plant.system.floating
@@ -134,14 +132,10 @@ def plant_arrays(plant: Plant) -> PlantArrays:
     dist[D_DOWNWASH : D_DOWNWASH + 3] = d.downwash
     dist[D_DOWNWASH_NOISE] = d.downwash_noise
     aero = np.empty(0) if plant.aero is None else plant.aero.copy()
-    return PlantArrays(
-        plant.system.model_arrays,
-        plant._base.copy(),
-        dist,
-        aero,
-        wind_array(plant.wind),
-        int(plant.substeps),
+    arrays = PlantArrays(
+        plant._base.copy(), dist, aero, wind_array(plant.wind), int(plant.substeps)
     )
+    return arrays, plant.system.model_arrays
 
 
 def wind_array(wind: Wind | None) -> np.ndarray:
@@ -202,6 +196,21 @@ def plant_state(plant: Plant):
     :func:`wind_start`)."""
     s = plant.state
     return s.q.copy(), s.qd.copy(), np.zeros(N_WIND_STATE)
+
+
+@njit(cache=True)
+def model_of_world(m, mb6, stiffness, damping, step_mass):
+    """``m`` (:class:`~tdacm.system.kernels.ModelArrays`) with one world's drone inertia
+    ``mb6`` (6,), ``stiffness`` and ``damping`` (n, n) and ``step_mass`` (n_steps, 6), for
+    an engine that stacks these along a world axis: built inside compiled code (numba
+    constructs the NamedTuple; it has no ``_replace``). Pass C-contiguous rows of C-contiguous
+    stacks (``stack[w]``): the record then has the type of ``m`` and the kernels run their
+    compiled build (no new specialization)."""
+    return ModelArrays(
+        m.floating, m.g_fixed, m.g_att, m.rod_steps, m.h, m.xi0s, m.bs, m.step_col, m.step_nc,
+        m.step_w, step_mass, m.step_load, mb6, stiffness, damping, m.gamma, m.wq, m.xi0g, m.bg,
+        m.g_col, m.g_nc, m.tendon_d, m.tendon_dd, m.tendon_on,
+    )  # fmt: skip
 
 
 @njit(cache=True)
@@ -291,11 +300,11 @@ def wind_velocity(wind, state, t, normals, out):
 
 @njit(cache=True)
 def plant_period(
-    pa, aero, q, qd, wind_state, u, dt, t0, k, dist_normals, wind_normals, loads, q_out, qd_out
+    pa, m, aero, q, qd, wind_state, u, dt, t0, k, dist_normals, wind_normals, loads, q_out, qd_out
 ):
     """One control period of the plant of one world (module docstring):
     :meth:`tdacm.loop.plant.Plant.advance` without contact on the arrays ``pa`` (a
-    :class:`PlantArrays`).
+    :class:`PlantArrays`) and the system's model arrays ``m`` (:func:`plant_arrays`).
 
     ``aero``: the world's own copy of ``pa.aero`` (its wind slot is set here); ``q, qd`` (n,)
     the state at the period's start ``t = t0 + k dt``; ``wind_state`` (:data:`N_WIND_STATE`,)
@@ -320,12 +329,27 @@ def plant_period(
     if pa.wind[W_ON] != 0.0:
         wind_velocity(pa.wind, wind_state, t, wind_normals, aero[AL.WIND : AL.WIND + 3])
     n = pa.substeps
-    qs, qds, ok = rk4_run_aero(q, qd, u, dt / n, n, n, pa.model, loads, aero)
+    qs, qds, ok = rk4_run_aero(q, qd, u, dt / n, n, n, m, loads, aero)
     last = qs.shape[0] - 1
     finite = True
     for i in range(q.shape[0]):
         q_out[i] = qs[last, i]
         qd_out[i] = qds[last, i]
         finite = finite and np.isfinite(q_out[i]) and np.isfinite(qd_out[i])
-    tumbled = pa.model.floating and max(abs(q_out[0]), abs(q_out[1])) > MAX_TILT_RAD
+    tumbled = m.floating and max(abs(q_out[0]), abs(q_out[1])) > MAX_TILT_RAD
     return ok and finite, tumbled, t0 + (k + 1) * dt
+
+
+@njit(cache=True)
+def plant_accelerations(m, aero, loads, q, qd, u, qdd_out):
+    """The accelerations at the end of a period (what an accelerometer senses, the
+    ``PlantState.qdd`` of a :class:`~tdacm.loop.plant.Plant` with ``accelerations``): the
+    forward dynamics (paper eq. (9)) at the period's end state ``q, qd`` under its input ``u``,
+    loads and wind (the ``loads`` and ``aero`` :func:`plant_period` just used) into
+    ``qdd_out``; returns ``ok`` (false: a singular mass matrix, ``qdd_out`` unchanged). Call it
+    only after a period that ended ``ok``, as the block does."""
+    qdd, ok = forward_dynamics_aero(q, qd, u, m, loads, aero)
+    if ok:
+        for i in range(qdd.shape[0]):
+            qdd_out[i] = qdd[i]
+    return ok
