@@ -60,17 +60,20 @@ class BatchModel(NamedTuple):
     """The constants of a batch: the sensing half (:class:`~tdacm.batch.servo.ServoModel`),
     the controller (:class:`~tdacm.batch.control.ControllerArrays`, with the per-world rows
     ``coord`` (N, 5, n), ``damping`` (N, n, n) and ``control_params`` (N, p): each world's
-    model error, its rotor-drag estimate included), the plant
-    (:class:`~tdacm.batch.plant.PlantArrays`), the control period ``dt`` and the number of
+    model error, its rotor-drag estimate included) with its model's
+    :class:`~tdacm.system.kernels.ModelArrays` ``control_model``, the plant
+    (:class:`~tdacm.batch.plant.PlantArrays`) with the system's ``plant_model``, the control period ``dt`` and the number of
     periods of a run ``steps`` (a run has ``steps + 1`` samples, the last without a plant
     step, as :meth:`~tdacm.loop.ClosedLoop.run`)."""
 
     servo: S.ServoModel
     control: CT.ControllerArrays
+    control_model: object
     coord: np.ndarray
     damping: np.ndarray
     control_params: np.ndarray
     plant: PL.PlantArrays
+    plant_model: object
     dt: float
     steps: int
 
@@ -119,7 +122,7 @@ class BatchData(NamedTuple):
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
     """Zeroed state for ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs (then
     :func:`reset_worlds`)."""
-    n_strains = n - (6 if model.plant.model.floating else 0)
+    n_strains = n - (6 if model.plant_model.floating else 0)
     cap = int(model.servo.params[S.P_LATENCY]) + 1
     na = model.plant.aero.shape[0]
     return BatchData(
@@ -161,7 +164,7 @@ def reset_worlds(model, data, which, q0, qd0):
     and the latency buffer cleared, the turbulence's initial state drawn from the world's
     plant stream. The random streams are not rewound: set ``data.rng_*`` to restart them."""
     sm = model.servo
-    m = model.plant.model
+    m = model.plant_model
     for w in range(which.shape[0]):
         if not which[w]:
             continue
@@ -212,7 +215,7 @@ def _sense(model, data, w):
     """The first half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.sense`): the
     tip camera's frame at the current state, kept in ``meas_found``, ``meas_uv``."""
     uv = data.meas_uv[w]
-    data.meas_found[w] = S.measure(data.q[w], model.plant.model, model.servo,
+    data.meas_found[w] = S.measure(data.q[w], model.plant_model, model.servo,
                                    data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
                                    data.sstate[w], uv)  # fmt: skip
 
@@ -231,7 +234,7 @@ def _act(model, data, w, twist_in):
     safety monitor and the plant."""
     sm = model.servo
     pa = model.plant
-    m = pa.model
+    m = model.plant_model
     dt = model.dt
     k = data.k[w]
     t = k * dt
@@ -260,13 +263,12 @@ def _act(model, data, w, twist_in):
         return
     # the low-level controller on this world's model error
     base = model.control
-    ca = CT.ControllerArrays(base.model, base.system, base.loads, model.control_params[w],
-                             model.coord[w],
+    ca = CT.ControllerArrays(base.loads, model.control_params[w], model.coord[w],
                              model.damping[w], base.gains, base.g4_lu, base.g4_piv)  # fmt: skip
     tau = np.empty(n)
     q_ref = np.empty(n)
     work = np.zeros((CT.N_WORK, n))
-    CT.controller_period(ca, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
+    CT.controller_period(ca, model.control_model, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
                          q, qd, data.q_d[w], data.qd_d[w], qdd_d, dt, data.u[w], tau,
                          q_ref, work)  # fmt: skip
     for i in range(data.u.shape[1]):
@@ -291,7 +293,7 @@ def _act(model, data, w, twist_in):
     loads = np.empty(pa.loads.shape[0])
     q_out = np.empty(n)
     qd_out = np.empty(n)
-    ok, tumbled, _ = PL.plant_period(pa, data.aero[w], q, qd, data.wind[w], data.u[w], dt, 0.0,
+    ok, tumbled, _ = PL.plant_period(pa, m, data.aero[w], q, qd, data.wind[w], data.u[w], dt, 0.0,
                                      k, dn, wn, loads, q_out, qd_out)  # fmt: skip
     for i in range(n):
         q[i] = q_out[i]
@@ -338,7 +340,7 @@ def observe_worlds(model, data, points, error, status, lo, hi):
     servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles wrapped)
     and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``."""
     sm = model.servo
-    m = model.plant.model
+    m = model.plant_model
     zv = np.empty(4)
     for w in range(lo, hi):
         st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w, points[w], zv)

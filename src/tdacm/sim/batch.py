@@ -36,13 +36,13 @@ def build_batch(scenario, seeds, duration=None, q0=None, threads=None) -> Batch:
     a = build_loop(sc, int(seeds[0]))
     loop = a.loop
     try:
-        base = controller_arrays(loop.controller, loop.dt)
-        pa = plant_arrays(loop.plant)
+        base, cm = controller_arrays(loop.controller, loop.dt)
+        pa, pm = plant_arrays(loop.plant)
         # the per-world rows: each seed's model error, drawn as build_loop draws it
         coords, dampings, params = [], [], []
         for s in seeds:
             a.model.reseed(int(s))
-            ca = controller_arrays(loop.controller, loop.dt)
+            ca, _ = controller_arrays(loop.controller, loop.dt)
             coords.append(ca.coord)
             dampings.append(ca.damping)
             params.append(ca.params)
@@ -66,8 +66,8 @@ def build_batch(scenario, seeds, duration=None, q0=None, threads=None) -> Batch:
     dur = float(sc.data["duration"] if duration is None else duration)
     steps = int(round(dur / loop.dt))
     model = BatchModel(
-        sm, base, np.ascontiguousarray(coords), np.ascontiguousarray(dampings),
-        np.ascontiguousarray(params), pa,
+        sm, base, cm, np.ascontiguousarray(coords), np.ascontiguousarray(dampings),
+        np.ascontiguousarray(params), pa, pm,
         float(loop.dt), steps,
     )  # fmt: skip
     q0 = a.world.q0 if q0 is None else q0
