@@ -90,3 +90,25 @@ def test_mode_switch_margin_and_hysteresis():
     assert sw.update(None) == "ibvs"
     assert sw.update(None) == "ibvs"
     assert sw.update(None) == "recovery"
+
+
+def test_plan_jacobian_matches_finite_differences():
+    """The planner's ``d r^{C_L} / d q_s`` (``[r^] J_w - J_v``) against central differences."""
+    from tdacm.control.planner import _point_and_jacobian
+
+    s = paper_system()
+    m = s.model_arrays
+    mount_inv = np.linalg.inv(tip_camera_mount(s.attachment))
+    p_body = np.array([0.3, -0.2, -1.5])
+    qs = np.array([0.3, -0.2])
+    p, jac = np.empty(3), np.empty((3, 2))
+    args = (m, int(m.rod_steps[0]), int(m.rod_steps[1]), mount_inv, p_body)
+    _point_and_jacobian(qs, *args, p, jac)
+    h = 1e-6
+    for c in range(2):
+        e = np.zeros(2)
+        e[c] = h
+        pp, pm, jj = np.empty(3), np.empty(3), np.empty((3, 2))
+        _point_and_jacobian(qs + e, *args, pp, jj)
+        _point_and_jacobian(qs - e, *args, pm, jj)
+        np.testing.assert_allclose(jac[:, c], (pp - pm) / (2 * h), atol=1e-7)

@@ -2,12 +2,18 @@
 Trajectory Tracking").
 
 1. :func:`estimate_target_pose`: pose of the target in the global camera C_G from one
-   snapshot (``cv2.solvePnP(..., flags=cv2.SOLVEPNP_IPPE_SQUARE)`` on a square marker: the
-   ArUco marker itself, or one tag of the AprilTag pattern, shifted to the pattern's centre).
+   snapshot (planar pose by IPPE, :mod:`tdacm.vision.ippe`, on a square marker: the ArUco
+   marker itself, or the largest tag of the AprilTag pattern, shifted to the pattern's
+   centre; the pose of ``cv2.solvePnP(..., SOLVEPNP_IPPE_SQUARE)``).
 2. :func:`target_in_local_camera`: the target centre in C_L through the kinematic chain
    ``r^{C_L} = (g_{C_L}^L)^-1 (g_L^a(q_s))^-1 (g_a^b)^-1 g_{C_G}^b r^{C_G}``.
 3. :func:`plan_rod_configuration`: ``q_s^d = argmin |[x, y]| s.t. z > 0`` of that point
-   (SLSQP from several starts; ``z >= z_min`` with ``z_min`` the camera's near plane).
+   (``z >= z_min`` with ``z_min`` the camera's near plane, ``|q_s| <= bound``), from the
+   current strains and from the straight rod: Levenberg-Marquardt on the residuals
+   ``[x, y, sqrt(mu) max(0, z_min - z)]`` with the analytic Jacobian
+   ``d r^{C_L} / d q_s = [r^]_x J_w - J_v`` (``[J_w; J_v] = Ad(g_{C_L}^L)^-1 J_L^L``, the
+   camera's twist per strain rate), steps projected onto the bounds
+   (:func:`plan_kernel`, compiled: the batched engine calls it too).
 4. The cubic trajectory (:class:`~.trajectory.CubicTrajectory`) to ``q_s^d``.
 5. :class:`ModeSwitch`: IBVS takes over as soon as all four features are at least
    ``margin_px`` inside C_L's image for ``confirm`` consecutive frames; it hands back to
@@ -20,10 +26,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-import cv2
 import numpy as np
-from scipy.optimize import minimize
+from numba import njit
 
+from ..system.kernels import chain_jacobian
+from ..vision.ippe import ippe_poses
 from ..vision.targets import ArucoMarker
 
 #: order of OpenCV's marker corners (TL, TR, BR, BL) that IPPE_SQUARE expects
@@ -31,9 +38,16 @@ from ..vision.targets import ArucoMarker
 _IPPE_ORDER = (3, 2, 1, 0)
 
 
+def _square(side: float) -> np.ndarray:
+    """A square marker's corners in the target frame's axes (x right, y down), in the order
+    of :data:`_IPPE_ORDER`'s pixels (bottom-left, bottom-right, top-right, top-left)."""
+    h = 0.5 * side
+    return np.array([[-h, h], [h, h], [h, -h], [-h, -h]])
+
+
 def estimate_target_pose(detection, camera, target) -> np.ndarray:
     """4x4 pose of the target frame in the camera frame from a detection (raw corners per
-    marker id) with ``SOLVEPNP_IPPE_SQUARE``."""
+    marker id): IPPE on one square marker (module docstring)."""
     if detection is None or not detection.corners:
         raise ValueError("no marker corners in the detection")
     if isinstance(target, ArucoMarker):
@@ -45,23 +59,42 @@ def estimate_target_pose(detection, camera, target) -> np.ndarray:
         if not seen:
             raise ValueError("no tag of the pattern detected")
         mid = max(seen, key=lambda i: np.ptp(detection.corners[i], axis=0).sum())
+    if camera.has_distortion:
+        raise ValueError("the snapshot's pose needs a camera without lens distortion")
     obj = target.corner_points(mid)  # OpenCV order, target frame
     centre = obj.mean(axis=0)
     side = float(np.linalg.norm(obj[1] - obj[0]))
-    h = side / 2
-    obj_sq = np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
     img = np.asarray(detection.corners[mid], float)[list(_IPPE_ORDER)]
-    dist = np.asarray(camera.distortion) if camera.has_distortion else None
-    ok, rvec, tvec = cv2.solvePnP(
-        obj_sq, img.reshape(-1, 1, 2), camera.K, dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
-    )
-    if not ok:
-        raise ValueError("solvePnP failed")
-    r, _ = cv2.Rodrigues(rvec)
+    xy = np.column_stack(((img[:, 0] - camera.cx) / camera.fx, (img[:, 1] - camera.cy) / camera.fy))
     g = np.eye(4)
-    g[:3, :3] = r
-    g[:3, 3] = tvec.ravel() - r @ centre  # marker centre sits at `centre` in the target frame
+    if not square_pose(_square(side), np.ascontiguousarray(xy), centre, g):
+        raise ValueError("the marker's corners admit no pose")
     return g
+
+
+@njit(cache=True)
+def square_pose(square, xy, centre, out):
+    """The target's pose (into ``out``, 4x4) in a camera that sees a square marker's corners
+    (canonical plane points ``square`` (4, 2), :func:`_square`) at normalized points ``xy``
+    (4, 2): the better IPPE pose of the marker (whose frame has the target frame's axes),
+    shifted by the marker's ``centre`` (3,) in the target frame. False when no pose explains
+    the corners."""
+    rots = np.empty((2, 3, 3))
+    trans = np.empty((2, 3))
+    errors = np.empty(2)
+    if not ippe_poses(square, xy, rots, trans, errors):
+        return False
+    r = rots[0]
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = r[i, j]
+    for i in range(3):
+        out[i, 3] = trans[0, i] - (
+            out[i, 0] * centre[0] + out[i, 1] * centre[1] + out[i, 2] * centre[2]
+        )
+        out[3, i] = 0.0
+    out[3, 3] = 1.0
+    return True
 
 
 def _rod_tip_in_body(system, q_s, base_q=None) -> np.ndarray:
@@ -92,38 +125,159 @@ class PlanResult:
     success: bool
 
 
+#: bound on each planned strain coordinate (rad/m): the rod's range of validity
+PLAN_BOUND = 1.5
+#: weight ``mu`` of the near-plane constraint's penalty residual (1/m^2 of violation)
+_PENALTY = 1e8
+#: Levenberg-Marquardt iterations per start
+_ITERATIONS = 100
+
+
+@njit(cache=True)
+def _point_and_jacobian(qs, m, lo, hi, mount_inv, p_body, p, jac):
+    """The body-frame point ``p_body`` in C_L at strains ``qs`` (into ``p`` (3,)) and its
+    derivative ``d p / d q_s`` (into ``jac`` (3, n_s)): ``[p^] J_w - J_v``."""
+    ns = qs.shape[0]
+    off = 6 if m.floating else 0
+    q = np.zeros(off + ns)
+    for i in range(ns):
+        q[off + i] = qs[i]
+    g, j, _ = chain_jacobian(
+        q, np.zeros(q.shape[0]), m.floating, m.g_fixed, m.g_att[0], m.h[lo:hi], m.xi0s[lo:hi],
+        m.bs[lo:hi], m.step_col[lo:hi], m.step_nc[lo:hi],
+    )  # fmt: skip
+    if not m.floating:  # relative to the clamp
+        gi = np.linalg.inv(m.g_fixed)
+        g = gi @ g
+    gc = g @ np.linalg.inv(mount_inv)  # camera pose in the body frame
+    for i in range(3):
+        acc = 0.0
+        for k in range(3):
+            acc += gc[k, i] * (p_body[k] - gc[k, 3])
+        p[i] = acc
+    # the camera's twist per strain rate: Ad(mount)^-1 J (columns of the strains)
+    r = mount_inv[:3, :3]
+    t = mount_inv[:3, 3]
+    for c in range(ns):
+        jw = np.empty(3)
+        jv = np.empty(3)
+        w0, w1, w2 = j[0, off + c], j[1, off + c], j[2, off + c]
+        v0, v1, v2 = j[3, off + c], j[4, off + c], j[5, off + c]
+        for i in range(3):
+            jw[i] = r[i, 0] * w0 + r[i, 1] * w1 + r[i, 2] * w2
+        # v_c = R v + t x (R w)
+        for i in range(3):
+            jv[i] = r[i, 0] * v0 + r[i, 1] * v1 + r[i, 2] * v2
+        jv[0] += t[1] * jw[2] - t[2] * jw[1]
+        jv[1] += t[2] * jw[0] - t[0] * jw[2]
+        jv[2] += t[0] * jw[1] - t[1] * jw[0]
+        # d p / dt = -w x p - v = p x w - v
+        jac[0, c] = p[1] * jw[2] - p[2] * jw[1] - jv[0]
+        jac[1, c] = p[2] * jw[0] - p[0] * jw[2] - jv[1]
+        jac[2, c] = p[0] * jw[1] - p[1] * jw[0] - jv[2]
+
+
+@njit(cache=True)
+def _residuals(p, z_min, r):
+    r[0] = p[0]
+    r[1] = p[1]
+    r[2] = np.sqrt(_PENALTY) * max(0.0, z_min - p[2])
+    return r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+
+
+@njit(cache=True)
+def _solve_from(x0, m, lo, hi, mount_inv, p_body, z_min, bound):
+    """Levenberg-Marquardt from ``x0`` (module docstring): the strains and the final point."""
+    ns = x0.shape[0]
+    x = x0.copy()
+    for i in range(ns):
+        x[i] = min(max(x[i], -bound), bound)
+    p = np.empty(3)
+    jac = np.empty((3, ns))
+    r = np.empty(3)
+    _point_and_jacobian(x, m, lo, hi, mount_inv, p_body, p, jac)
+    cost = _residuals(p, z_min, r)
+    lam = 1e-3
+    pt = np.empty(3)
+    jt = np.empty((3, ns))
+    rt = np.empty(3)
+    for _ in range(_ITERATIONS):
+        # the penalty row's Jacobian: -sqrt(mu) dz/dq while violated
+        jr = np.zeros((3, ns))
+        for c in range(ns):
+            jr[0, c] = jac[0, c]
+            jr[1, c] = jac[1, c]
+            jr[2, c] = -np.sqrt(_PENALTY) * jac[2, c] if r[2] > 0.0 else 0.0
+        a = jr.T @ jr
+        g = jr.T @ r
+        improved = False
+        for _ in range(30):
+            h = a.copy()
+            for i in range(ns):
+                h[i, i] += lam * (a[i, i] + 1e-12)
+            step = np.linalg.solve(h, -g)
+            xn = x + step
+            for i in range(ns):
+                xn[i] = min(max(xn[i], -bound), bound)
+            _point_and_jacobian(xn, m, lo, hi, mount_inv, p_body, pt, jt)
+            cn = _residuals(pt, z_min, rt)
+            if cn < cost:
+                move = 0.0
+                for i in range(ns):
+                    move = max(move, abs(xn[i] - x[i]))
+                x = xn
+                p[:] = pt
+                jac[:, :] = jt
+                r[:] = rt
+                cost = cn
+                lam = max(lam * 0.3, 1e-12)
+                improved = True
+                break
+            lam *= 10.0
+        if not improved or cost < 1e-24 or move < 1e-14:
+            break
+    return x, p
+
+
+@njit(cache=True)
+def plan_kernel(qs_now, m, lo, hi, mount_inv, p_body, z_min, bound, has_start):
+    """``(q_s, point_local, cost, feasible)`` of the plan (module docstring): the better of
+    the solutions from the current strains ``qs_now`` (when ``has_start``) and from the
+    straight rod, judged by feasibility first, then by ``|[x, y]|``."""
+    ns = qs_now.shape[0]
+    best_x = np.zeros(ns)
+    best_p = np.zeros(3)
+    best_key = (True, np.inf)
+    for s in range(2):
+        if s == 0 and not has_start:
+            continue
+        x0 = qs_now.copy() if s == 0 else np.zeros(ns)
+        x, p = _solve_from(x0, m, lo, hi, mount_inv, p_body, z_min, bound)
+        key = (not (p[2] >= z_min - 1e-6), np.hypot(p[0], p[1]))
+        if key < best_key:
+            best_key = key
+            best_x = x
+            best_p = p
+    return best_x, best_p, best_key[1], not best_key[0]
+
+
 def plan_rod_configuration(
-    system, point_body, tip_mount, q_s0=None, z_min: float = 0.5, bound: float = 1.5
+    system, point_body, tip_mount, q_s0=None, z_min: float = 0.5, bound: float = PLAN_BOUND
 ) -> PlanResult:
     """``q_s^d`` of the paper's constrained minimization (see module docstring)."""
+    m = system.model_arrays
+    if len(m.rod_steps) > 2:
+        raise ValueError("the recovery plans the strains of one arm")
     ns = system.n_s
-    starts = [np.zeros(ns)] if q_s0 is None else [np.asarray(q_s0, float), np.zeros(ns)]
-
-    def pt(x):
-        return target_in_local_camera(system, x, point_body, tip_mount)
-
-    def cost(x):
-        p = pt(x)
-        return float(p[0] ** 2 + p[1] ** 2)
-
-    cons = [{"type": "ineq", "fun": lambda x: pt(x)[2] - z_min}]
-    best = None
-    for x0 in starts:
-        res = minimize(
-            cost,
-            x0,
-            method="SLSQP",
-            constraints=cons,
-            bounds=[(-bound, bound)] * ns,
-            options={"ftol": 1e-14, "maxiter": 200},
-        )
-        p = pt(res.x)
-        feasible = p[2] >= z_min - 1e-6
-        cand = (not feasible, float(np.hypot(p[0], p[1])), res.x, p)
-        if best is None or cand[:2] < best[:2]:
-            best = cand
-    infeasible, c, x, p = best
-    return PlanResult(np.asarray(x), p, c, bool(not infeasible and c < 1e-3))
+    has = q_s0 is not None
+    start = np.asarray(q_s0, float) if has else np.zeros(ns)
+    mount_inv = np.linalg.inv(np.asarray(tip_mount, float))
+    x, p, c, feasible = plan_kernel(
+        np.ascontiguousarray(start), m, int(m.rod_steps[0]), int(m.rod_steps[1]),
+        np.ascontiguousarray(mount_inv), np.ascontiguousarray(point_body, dtype=float),
+        float(z_min), float(bound), has,
+    )  # fmt: skip
+    return PlanResult(np.asarray(x), np.asarray(p), float(c), bool(feasible and c < 1e-3))
 
 
 class Mode(StrEnum):

@@ -2,7 +2,7 @@
 
 The controller interprets pixels with *its* model of the camera (intrinsics possibly wrong,
 ``sensors.intrinsics_error``): ``x = (u - c_x) / f_x``, ``y = (v - c_y) / f_y``, and
-the depths of the four points come from the known target geometry (planar PnP,
+the depths of the four points come from the known target geometry (planar PnP by IPPE,
 :func:`~tdacm.vision.features.estimate_depths`) - the paper's depth estimation. A detection
 whose corners admit no pose with the target in front of the camera (large pixel noise does
 that) is rejected: the view is "not seen" that period, as a missed frame.
@@ -13,6 +13,7 @@ from __future__ import annotations
 from ..vision import _checks as C
 from ..vision.camera import PinholeCamera
 from ..vision.features import _estimate_depths
+from ..vision.ippe import canonical_frame
 from .data import CameraMeasurement, DeferredMeasurement, GlobalView, LocalView
 
 
@@ -24,6 +25,7 @@ class Perception:
         self.global_camera = global_camera
         self.target = target
         self._object = C.array("target.feature_points", target.feature_points, (4, 3))
+        self._object_2d = canonical_frame(self._object)[0]  # the IPPE depths' plane frame
 
     def reset(self) -> None:
         pass
@@ -35,7 +37,7 @@ class Perception:
         # checked once here: the servo and its target filter take the view's arrays as they are
         uv = C.array("detection.points", det.points, (4, 2))
         xy = self.local_camera.normalize_checked(uv)
-        z, _ = _estimate_depths(xy, self._object)
+        z, _ = _estimate_depths(xy, self._object, self._object_2d)
         if z is None:  # no pose puts the target in front: a corrupted frame, rejected
             return LocalView(m.t_capture)
         return LocalView(m.t_capture, True, uv, xy, z)

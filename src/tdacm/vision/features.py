@@ -50,11 +50,11 @@ permuted by :data:`LINEAR_TO_ANGULAR`); pass ``order="linear_first"`` for the Vi
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from numba import njit
 
 from . import _checks as C
+from .ippe import BEHIND, NO_POSE, canonical_frame, point_depths
 
 #: Column permutation taking a linear-first ``[v; w]`` matrix to angular-first ``[w; v]``.
 LINEAR_TO_ANGULAR = np.array([3, 4, 5, 0, 1, 2])
@@ -349,7 +349,8 @@ def feature_error(features, desired) -> np.ndarray:
 def estimate_depths(points, object_points) -> np.ndarray:
     """Depths ``(4,)`` of the four feature points from their normalized image coordinates
     and the known target geometry (``object_points`` ``(4, 3)``, same order, planar), by
-    planar PnP (``cv2.solvePnP`` with ``SOLVEPNP_IPPE`` and unit intrinsics)."""
+    planar PnP (the better IPPE pose, :mod:`tdacm.vision.ippe`: the pose of
+    ``cv2.solvePnP`` with ``SOLVEPNP_IPPE`` and unit intrinsics)."""
     z, why = _estimate_depths(
         _check_points(points), C.array("object_points", object_points, (4, 3))
     )
@@ -358,19 +359,19 @@ def estimate_depths(points, object_points) -> np.ndarray:
     return z
 
 
-def _estimate_depths(p: np.ndarray, obj: np.ndarray) -> tuple[np.ndarray | None, str | None]:
-    """:func:`estimate_depths` on checked points ``(4, 2)`` and object points ``(4, 3)`` (the
-    perception block checks the constant target geometry once, not every period):
-    ``(depths, None)``, or ``(None, why)`` when the points admit no pose with the target in
-    front of the camera (noisy corners do: the perception block then rejects the frame)."""
-    ok, rvec, tvec = cv2.solvePnP(
-        obj, p.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
-    )
-    if not ok:
+def _estimate_depths(p: np.ndarray, obj: np.ndarray, obj_2d=None):
+    """:func:`estimate_depths` on checked points ``(4, 2)`` and object points ``(4, 3)`` (or
+    their canonical plane coordinates ``obj_2d``, :func:`~tdacm.vision.ippe.canonical_frame`,
+    computed once by the perception block): ``(depths, None)``, or ``(None, why)`` when the
+    points admit no pose with the target in front of the camera (noisy corners do: the
+    perception block then rejects the frame)."""
+    if obj_2d is None:
+        obj_2d = canonical_frame(obj)[0]
+    z = np.empty(4)
+    status = point_depths(obj_2d, np.ascontiguousarray(p, dtype=float), z)
+    if status == NO_POSE:
         return None, "pose estimation failed for these points"
-    r, _ = cv2.Rodrigues(rvec)
-    z = (obj @ r.T + tvec.reshape(1, 3))[:, 2]
-    if not np.all(z > 0.0):  # also false for NaN
+    if status == BEHIND:
         return None, "pose estimation put the target behind the camera"
     return z, None
 

@@ -1,0 +1,28 @@
+"""The batched engine's speed: world-periods/s over batch sizes and threads, one world's
+real-time factor, the first call cold and warm.
+
+    python benchmarks/bench_batch.py [--sizes 1 4 16 64 256 1024] [--repeats 3] [--out out/bench]
+
+Writes the ``batch`` section of ``OUT/bench.json`` (see :mod:`tdacm.bench.batch`).
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+from tdacm.bench.batch import batch_bench
+
+if __name__ == "__main__":
+    p = argparse.ArgumentParser()
+    p.add_argument("--sizes", type=int, nargs="+", default=[1, 4, 16, 64, 256, 1024])
+    p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--out", default="out/bench")
+    a = p.parse_args()
+    res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats)
+    path = Path(a.out) / "bench.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    data["batch"] = res
+    path.write_text(json.dumps(data, indent=2))
+    print(json.dumps(res, indent=2))

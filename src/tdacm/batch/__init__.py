@@ -1,0 +1,153 @@
+"""The batched engine: N closed loops in lockstep as one compiled control period.
+
+:class:`Batch` holds a :class:`~tdacm.batch.engine.BatchModel` (the constants, packed from the
+blocks of an assembled :class:`~tdacm.loop.ClosedLoop`) and a
+:class:`~tdacm.batch.engine.BatchData` (the state of every world) and steps them with
+:func:`~tdacm.batch.engine.step_worlds` / :func:`~tdacm.batch.engine.run_worlds`.
+:func:`tdacm.sim.batch.build_batch` builds one from a scenario and seeds; the engine is tested
+equal to the block loop (``tests/batch``). docs/batch.md: what runs batched, the speed, the
+GPU port.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import engine as E
+from .engine import TERMINATIONS, BatchData, BatchModel
+from .random import stream_state
+
+__all__ = ["Batch", "BatchModel", "BatchData", "BatchResult", "TERMINATIONS"]
+
+#: random streams of a world's seed: the sensors', the plant's
+SENSOR_STREAM, PLANT_STREAM = 1, 2
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """A batch run: per world (axis 1 of the series, axis 0 of the rest) the sample times
+    ``t`` (samples,), the servo's normalized RMSE ``rmse`` and mode ``mode`` (0 IBVS,
+    1 recovery, -1 after the world ended) per sample, the states ``q`` (samples, N, n) when
+    logged, the final state ``q_final`` (N, n), the number of samples each world ran
+    ``samples`` (N,) and why it ended (``termination``: a
+    :class:`~tdacm.loop.data.Termination` value, or ``None`` when it ran to its end)."""
+
+    t: np.ndarray
+    rmse: np.ndarray
+    mode: np.ndarray
+    q: np.ndarray | None
+    u: np.ndarray | None
+    q_final: np.ndarray
+    samples: np.ndarray
+    termination: list
+
+    @property
+    def final_rmse(self) -> np.ndarray:
+        """Each world's last finite RMSE (NaN if none)."""
+        out = np.full(self.rmse.shape[1], np.nan)
+        for w in range(self.rmse.shape[1]):
+            f = np.flatnonzero(np.isfinite(self.rmse[:, w]))
+            if f.size:
+                out[w] = self.rmse[f[-1], w]
+        return out
+
+    def late_rmse(self, seconds: float = 1.0) -> np.ndarray:
+        """Each world's RMS of the finite RMSE samples of its last ``seconds`` (the campaigns'
+        windowed success criterion, :func:`tdacm.sim.runner.late_rmse`)."""
+        out = np.full(self.rmse.shape[1], np.nan)
+        for w in range(self.rmse.shape[1]):
+            t_end = self.t[self.samples[w] - 1] if self.samples[w] else 0.0
+            sel = (self.t >= t_end - seconds - 1e-9) & np.isfinite(self.rmse[:, w])
+            if sel.any():
+                out[w] = float(np.sqrt(np.mean(self.rmse[sel, w] ** 2)))
+        return out
+
+
+class Batch:
+    """N worlds of one scenario in lockstep (module docstring).
+
+    Parameters
+    ----------
+    model:
+        The constants (:func:`tdacm.sim.batch.build_batch` packs them).
+    seeds:
+        One seed per world: its random streams (sensor noise and dropouts, downwash noise,
+        turbulence); its model error and camera model are in ``model`` already.
+    q0, qd0:
+        Initial states (N, n) (``qd0`` default zero).
+    n_u:
+        Number of inputs (thrusts and tensions).
+    threads:
+        Threads stepping disjoint ranges of worlds (default: the machine's cores); the
+        results do not depend on it.
+    """
+
+    def __init__(self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None):
+        self.model = model
+        self.threads = threads
+        self.seeds = np.asarray(seeds, np.int64).ravel()
+        q0 = np.atleast_2d(np.asarray(q0, float))
+        n_worlds = self.seeds.shape[0]
+        if q0.shape[0] == 1 and n_worlds > 1:
+            q0 = np.repeat(q0, n_worlds, axis=0)
+        if q0.shape[0] != n_worlds:
+            raise ValueError(f"q0 needs one row per world ({n_worlds}), got {q0.shape[0]}")
+        self.q0 = np.ascontiguousarray(q0)
+        self.qd0 = np.zeros_like(self.q0) if qd0 is None else np.broadcast_to(qd0, q0.shape).copy()
+        self.n_worlds = n_worlds
+        self.data = E.empty_data(model, n_worlds, q0.shape[1], n_u)
+        self.reset()
+
+    @property
+    def dt(self) -> float:
+        return self.model.dt
+
+    def reset(self, which=None, q0=None, qd0=None) -> None:
+        """Restart the worlds ``which`` (bool mask, default all) from ``q0``/``qd0`` (rows
+        for those worlds; default the batch's initial states), their random streams rewound
+        to their seeds' starts."""
+        which = np.ones(self.n_worlds, np.bool_) if which is None else np.asarray(which, bool)
+        q0s, qd0s = self.q0.copy(), self.qd0.copy()
+        if q0 is not None:
+            q0s[which] = q0
+        if qd0 is not None:
+            qd0s[which] = qd0
+        d = self.data
+        d.rng_sensors[which] = stream_state(self.seeds[which], SENSOR_STREAM)
+        d.rng_plant[which] = stream_state(self.seeds[which], PLANT_STREAM)
+        E.reset_worlds(self.model, d, which, q0s, qd0s)
+
+    def step(self, twist=None) -> None:
+        """One control period of every running world; ``twist`` (N, 6) replaces the IBVS
+        twist (NaN rows: the IBVS twist)."""
+        if twist is None:
+            twist = np.full((self.n_worlds, 6), np.nan)
+        args = (self.model, self.data, np.ascontiguousarray(twist, float))
+        E.parallel(E.step_worlds, args, self.n_worlds, self.threads)
+
+    def run(self, log_states: bool = False, log_inputs: bool = False) -> BatchResult:
+        """Reset, then run every world to its end (``model.steps + 1`` samples or a
+        termination)."""
+        self.reset()
+        d = self.data
+        periods = self.model.steps + 1
+        nw, n = d.q.shape
+        log_q = np.zeros((periods if log_states else 0, nw, n))
+        log_u = np.zeros((periods if log_inputs else 0, nw, d.u.shape[1]))
+        log_rmse = np.full((periods, nw), np.nan)
+        log_mode = np.full((periods, nw), -1, np.int64)
+        args = (self.model, d, periods, log_q, log_rmse, log_mode, log_u)
+        E.parallel(E.run_worlds, args, self.n_worlds, self.threads)
+        samples = np.minimum(d.k + 1, periods)
+        return BatchResult(
+            t=np.arange(periods) * self.model.dt,
+            rmse=log_rmse,
+            mode=log_mode,
+            q=log_q if log_states else None,
+            u=log_u if log_inputs else None,
+            q_final=d.q.copy(),
+            samples=samples,
+            termination=[TERMINATIONS[c] for c in d.termination],
+        )

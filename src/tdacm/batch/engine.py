@@ -1,0 +1,402 @@
+"""N closed loops in lockstep: one compiled control period over a structure of arrays.
+
+:func:`step_worlds` is :meth:`tdacm.loop.ClosedLoop.step` for every world of a batch at once,
+as compiled code parallel over the worlds (numba ``prange``), with no Python per world per
+period. One period of one world, in the block loop's order:
+
+    sensors     the tip camera's analytic detection at the true state, its pixel noise,
+                dropped frames and latency (the world's own random stream)
+    estimation  the true state
+    servo       perception (normalized points, IPPE depths), the mode switch, the view in
+                the virtual camera C_V (eq. (18)), the paper's IBVS on the advanced features
+                (eqs. (19)-(21), (39)) or an external twist, the joint-rate mapping and its
+                command shaping
+    controller  the adaptive sliding-mode law with its model error, the hierarchical drone
+                loop and the allocation (eqs. S2-S10; :mod:`tdacm.batch.control`)
+    safety      the error-growth monitor
+    plant       RK4 substeps of the coupled model (eq. (9)) with the disturbances, the
+                aerodynamics and the wind (:mod:`tdacm.batch.plant`)
+
+A world that ends (a :class:`~tdacm.loop.data.Termination`, or its last period) stops; the
+others go on. The state of all worlds is a :class:`BatchData` (arrays with a leading world
+axis); the constants are a :class:`BatchModel` (shared arrays, and per-world rows where
+worlds differ: the controller's model error, its camera model and reference snapshot, the
+initial state). A world's result depends only on its own seed and parameters, not on the
+batch size, its index or the thread count (every random draw comes from its own
+counter-based stream, :mod:`tdacm.batch.random`).
+
+GPU: one world per thread is a translation of :func:`_period` (plain arrays, no Python
+objects, the world's slices); docs/batch.md says what a port needs.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from . import control as CT
+from . import plant as PL
+from . import servo as S
+from .random import normal
+
+#: termination codes of :attr:`BatchData.termination` (0: running or ran to the end), in the
+#: order of :data:`TERMINATIONS`
+RUNNING, SAFETY, RECOVERY_FAILED, PLANT_FAILED, BEHIND_CAMERA, TUMBLED, NON_FINITE = range(7)
+#: the :class:`~tdacm.loop.data.Termination` value of each code
+TERMINATIONS = (
+    None,
+    "safety",
+    "recovery failed",
+    "plant failed",
+    "behind camera",
+    "tumbled",
+    "non-finite command",
+)
+
+
+class BatchModel(NamedTuple):
+    """The constants of a batch: the sensing half (:class:`~tdacm.batch.servo.ServoModel`),
+    the controller (:class:`~tdacm.batch.control.ControllerArrays`, with the per-world rows
+    ``coord`` (N, 5, n), ``damping`` (N, n, n) and ``control_params`` (N, p): each world's
+    model error, its rotor-drag estimate included) with its model's
+    :class:`~tdacm.system.kernels.ModelArrays` ``control_model``, the plant
+    (:class:`~tdacm.batch.plant.PlantArrays`) with the system's ``plant_model``, the control period ``dt`` and the number of
+    periods of a run ``steps`` (a run has ``steps + 1`` samples, the last without a plant
+    step, as :meth:`~tdacm.loop.ClosedLoop.run`)."""
+
+    servo: S.ServoModel
+    control: CT.ControllerArrays
+    control_model: object
+    coord: np.ndarray
+    damping: np.ndarray
+    control_params: np.ndarray
+    plant: PL.PlantArrays
+    plant_model: object
+    dt: float
+    steps: int
+
+
+class BatchData(NamedTuple):
+    """The state of every world (leading axis ``N``): the plant's ``q``, ``qd`` and period
+    count ``k`` (``t = k dt``), whether it still runs (``active``) and why it ended
+    (``termination``, :data:`TERMINATIONS`); the servo's ``sstate``
+    (:data:`~tdacm.batch.servo.N_SSTATE` rows) and recovery trajectory ``rstate``, its
+    reference ``q_d``, ``qd_d``; the latency
+    buffer; the safety monitor's (armed at, previous RMSE); the controller's ``delta_hat``,
+    ``att``, ``att_rate``, ``att_set``; the wind's state and each world's aerodynamics copy;
+    the random streams of the sensors and of the plant; the last period's outputs (``u``,
+    ``rmse``, ``found``, ``twist``, ``features``); the frame the tip camera delivered at the
+    start of the current period (``meas_found``, ``meas_uv``: :func:`sense_worlds`)."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    k: np.ndarray
+    active: np.ndarray
+    termination: np.ndarray
+    sstate: np.ndarray
+    rstate: np.ndarray
+    q_d: np.ndarray
+    qd_d: np.ndarray
+    fifo_uv: np.ndarray
+    fifo_found: np.ndarray
+    safety: np.ndarray
+    delta_hat: np.ndarray
+    att: np.ndarray
+    att_rate: np.ndarray
+    att_set: np.ndarray
+    wind: np.ndarray
+    aero: np.ndarray
+    rng_sensors: np.ndarray
+    rng_plant: np.ndarray
+    u: np.ndarray
+    rmse: np.ndarray
+    found: np.ndarray
+    twist: np.ndarray
+    features: np.ndarray
+    meas_found: np.ndarray
+    meas_uv: np.ndarray
+
+
+def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
+    """Zeroed state for ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs (then
+    :func:`reset_worlds`)."""
+    n_strains = n - (6 if model.plant_model.floating else 0)
+    cap = int(model.servo.params[S.P_LATENCY]) + 1
+    na = model.plant.aero.shape[0]
+    return BatchData(
+        q=np.zeros((n_worlds, n)),
+        qd=np.zeros((n_worlds, n)),
+        k=np.zeros(n_worlds, np.int64),
+        active=np.zeros(n_worlds, np.bool_),
+        termination=np.zeros(n_worlds, np.int64),
+        sstate=np.zeros((n_worlds, S.N_SSTATE)),
+        rstate=np.zeros((n_worlds, 3 + 2 * n_strains)),
+        q_d=np.zeros((n_worlds, n)),
+        qd_d=np.zeros((n_worlds, n)),
+        fifo_uv=np.zeros((n_worlds, cap, 4, 2)),
+        fifo_found=np.zeros((n_worlds, cap), np.bool_),
+        safety=np.zeros((n_worlds, 2)),
+        delta_hat=np.zeros((n_worlds, n)),
+        att=np.zeros((n_worlds, 2)),
+        att_rate=np.zeros((n_worlds, 2)),
+        att_set=np.zeros((n_worlds, 1), np.bool_),
+        wind=np.zeros((n_worlds, PL.N_WIND_STATE)),
+        aero=np.zeros((n_worlds, na)),
+        rng_sensors=np.zeros((n_worlds, 2), np.uint64),
+        rng_plant=np.zeros((n_worlds, 2), np.uint64),
+        u=np.zeros((n_worlds, n_u)),
+        rmse=np.full(n_worlds, np.nan),
+        found=np.zeros(n_worlds, np.bool_),
+        twist=np.zeros((n_worlds, 6)),
+        features=np.zeros((n_worlds, 6)),
+        meas_found=np.zeros(n_worlds, np.bool_),
+        meas_uv=np.zeros((n_worlds, 4, 2)),
+    )
+
+
+@njit(cache=True)
+def reset_worlds(model, data, which, q0, qd0):
+    """Start the worlds ``which`` (bool, N) at ``(q0, qd0)`` (N, n), as
+    :meth:`~tdacm.loop.ClosedLoop.reset`: time 0, the initial mode from the first (ideal) C_L
+    view, the reference at ``q0`` (roll and pitch zero), the controller, the safety monitor
+    and the latency buffer cleared, the turbulence's initial state drawn from the world's
+    plant stream. The random streams are not rewound: set ``data.rng_*`` to restart them."""
+    sm = model.servo
+    m = model.plant_model
+    for w in range(which.shape[0]):
+        if not which[w]:
+            continue
+        n = q0.shape[1]
+        for i in range(n):
+            data.q[w, i] = q0[w, i]
+            data.qd[w, i] = qd0[w, i]
+            data.q_d[w, i] = q0[w, i]
+            data.qd_d[w, i] = 0.0
+            data.delta_hat[w, i] = 0.0
+        if m.floating:
+            data.q_d[w, 0] = 0.0
+            data.q_d[w, 1] = 0.0
+        data.k[w] = 0
+        data.active[w] = True
+        data.termination[w] = RUNNING
+        for i in range(S.N_SSTATE):
+            data.sstate[w, i] = 0.0
+        data.sstate[w, S.S_MODE] = S.first_mode(q0[w], m, sm, w)
+        # a start in recovery asks C_G for its first period (ClosedLoop.reset)
+        data.sstate[w, S.S_REQUEST] = 1.0 if data.sstate[w, S.S_MODE] == S.RECOVERY else 0.0
+        data.rstate[w, S.R_ON] = 0.0
+        data.safety[w, 0] = 0.0
+        data.safety[w, 1] = np.nan
+        for i in range(2):
+            data.att[w, i] = 0.0
+            data.att_rate[w, i] = 0.0
+        data.att_set[w, 0] = False
+        normals = np.empty(PL.N_WIND_NORMALS)
+        if model.plant.wind[PL.W_TURB_ON] != 0.0:
+            for i in range(PL.N_WIND_NORMALS):
+                normals[i] = normal(data.rng_plant[w])
+        PL.wind_start(model.plant.wind, normals, data.wind[w])
+        for i in range(model.plant.aero.shape[0]):
+            data.aero[w, i] = model.plant.aero[i]
+        data.rmse[w] = np.nan
+        data.found[w] = False
+
+
+@njit(cache=True)
+def _end(data, w, code):
+    data.active[w] = False
+    data.termination[w] = code
+
+
+@njit(cache=True)
+def _sense(model, data, w):
+    """The first half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.sense`): the
+    tip camera's frame at the current state, kept in ``meas_found``, ``meas_uv``."""
+    uv = data.meas_uv[w]
+    data.meas_found[w] = S.measure(data.q[w], model.plant_model, model.servo,
+                                   data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
+                                   data.sstate[w], uv)  # fmt: skip
+
+
+@njit(cache=True)
+def _period(model, data, w, twist_in):
+    """One control period of world ``w`` (module docstring): :func:`_sense`, :func:`_act`."""
+    _sense(model, data, w)
+    _act(model, data, w, twist_in)
+
+
+@njit(cache=True)
+def _act(model, data, w, twist_in):
+    """The second half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.act`) on the
+    frame :func:`_sense` kept: the servo (or ``twist_in`` when finite), the controller, the
+    safety monitor and the plant."""
+    sm = model.servo
+    pa = model.plant
+    m = model.plant_model
+    dt = model.dt
+    k = data.k[w]
+    t = k * dt
+    q = data.q[w]
+    qd = data.qd[w]
+    n = q.shape[0]
+    found = data.meas_found[w]
+    out = np.empty(15)
+    qdd_d = np.empty(n)
+    mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
+                        data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
+                        out)  # fmt: skip
+    data.found[w] = found
+    data.rmse[w] = out[0]
+    for i in range(6):
+        data.twist[w, i] = out[3 + i]
+        data.features[w, i] = out[9 + i]
+    if out[1] == S.IBVS_ENGAGED:  # the safety monitor re-arms (its grace period)
+        data.safety[w, 0] = t
+        data.safety[w, 1] = np.nan
+    if out[2] == 1.0:
+        _end(data, w, BEHIND_CAMERA)
+        return
+    if out[2] == 2.0:
+        _end(data, w, RECOVERY_FAILED)
+        return
+    # the low-level controller on this world's model error
+    base = model.control
+    ca = CT.ControllerArrays(base.loads, model.control_params[w], model.coord[w],
+                             model.damping[w], base.gains, base.g4_lu, base.g4_piv)  # fmt: skip
+    tau = np.empty(n)
+    q_ref = np.empty(n)
+    work = np.zeros((CT.N_WORK, n))
+    CT.controller_period(ca, model.control_model, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
+                         q, qd, data.q_d[w], data.qd_d[w], qdd_d, dt, data.u[w], tau,
+                         q_ref, work)  # fmt: skip
+    for i in range(data.u.shape[1]):
+        if not np.isfinite(data.u[w, i]):
+            _end(data, w, NON_FINITE)
+            return
+    if mode == S.IBVS and not S.safety_check(sm, t, out[0], data.safety[w]):
+        _end(data, w, SAFETY)
+        return
+    if k >= model.steps:  # the last sample: recorded, no plant step
+        data.active[w] = False
+        return
+    # the plant over the period
+    dn = np.zeros(3)
+    if pa.disturbances[PL.D_DOWNWASH_ON] != 0.0:
+        for i in range(3):
+            dn[i] = normal(data.rng_plant[w])
+    wn = np.zeros((1, PL.N_WIND_NORMALS))
+    if pa.wind[PL.W_TURB_ON] != 0.0 and k >= 1:
+        for i in range(PL.N_WIND_NORMALS):
+            wn[0, i] = normal(data.rng_plant[w])
+    loads = np.empty(pa.loads.shape[0])
+    q_out = np.empty(n)
+    qd_out = np.empty(n)
+    ok, tumbled, _ = PL.plant_period(pa, m, data.aero[w], q, qd, data.wind[w], data.u[w], dt, 0.0,
+                                     k, dn, wn, loads, q_out, qd_out)  # fmt: skip
+    for i in range(n):
+        q[i] = q_out[i]
+        qd[i] = qd_out[i]
+    data.k[w] = k + 1
+    if not ok:
+        _end(data, w, PLANT_FAILED)
+    elif tumbled:
+        _end(data, w, TUMBLED)
+
+
+@njit(cache=True, nogil=True)
+def step_worlds(model, data, twist, lo, hi):
+    """One control period of every active world of ``lo <= w < hi`` (``twist`` (N, 6): an
+    external twist per world replacing the IBVS twist, NaN rows for none). Releases the GIL:
+    :func:`parallel` runs disjoint ranges of worlds in threads."""
+    for w in range(lo, hi):
+        if data.active[w]:
+            _period(model, data, w, twist[w])
+
+
+@njit(cache=True, nogil=True)
+def sense_worlds(model, data, lo, hi):
+    """The first half of the period (:func:`_sense`) of the active worlds ``lo <= w < hi``:
+    what an agent observes before it acts (the Gymnasium vector env)."""
+    for w in range(lo, hi):
+        if data.active[w]:
+            _sense(model, data, w)
+
+
+@njit(cache=True, nogil=True)
+def act_worlds(model, data, twist, lo, hi):
+    """The second half of the period (:func:`_act`) of the active worlds ``lo <= w < hi``
+    on the frames :func:`sense_worlds` kept, with the external twists ``twist`` (N, 6)."""
+    for w in range(lo, hi):
+        if data.active[w]:
+            _act(model, data, w, twist[w])
+
+
+@njit(cache=True, nogil=True)
+def observe_worlds(model, data, points, error, status, lo, hi):
+    """What each world ``lo <= w < hi`` sees in the frame :func:`sense_worlds` kept, without
+    changing its state (the env's observation, :meth:`VisualServo.observe`): the points in the
+    servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles wrapped)
+    and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``."""
+    sm = model.servo
+    m = model.plant_model
+    zv = np.empty(4)
+    for w in range(lo, hi):
+        st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w, points[w], zv)
+        status[w] = st
+        if st == S.SEEN:
+            f = S._features_kernel(points[w])
+            for i in range(6):
+                e = f[i] - sm.desired_features[w, i]
+                error[w, i] = S._wrap(e) if i < 3 else e
+
+
+@njit(cache=True, nogil=True)
+def run_worlds(model, data, periods, log_q, log_rmse, log_mode, log_u, lo, hi):
+    """``periods`` control periods of every world with the IBVS twist, logging each world's
+    state at the start of each period (``log_q`` (periods, N, n), or (0, N, n): not logged),
+    the servo's normalized RMSE and mode (``log_rmse``, ``log_mode`` (periods, N); NaN / -1
+    once a world has ended) and the inputs (``log_u`` (periods, N, n_u) or (0, ...)), for
+    the worlds ``lo <= w < hi``. Each world runs all its periods in one call (no
+    synchronization between periods); releases the GIL (:func:`parallel`)."""
+    for w in range(lo, hi):
+        nan6 = np.full(6, np.nan)
+        for p in range(periods):
+            if not data.active[w]:
+                log_rmse[p, w] = np.nan
+                log_mode[p, w] = -1
+                continue
+            if log_q.shape[0] > 0:
+                for i in range(data.q.shape[1]):
+                    log_q[p, w, i] = data.q[w, i]
+            _period(model, data, w, nan6)
+            log_rmse[p, w] = data.rmse[w]
+            log_mode[p, w] = int(data.sstate[w, S.S_MODE])
+            if log_u.shape[0] > 0:
+                for i in range(data.u.shape[1]):
+                    log_u[p, w, i] = data.u[w, i]
+
+
+_POOL = None
+
+
+def parallel(kernel, args, n_worlds: int, threads: int | None = None) -> None:
+    """Call ``kernel(*args, lo, hi)`` on ``threads`` disjoint ranges of the ``n_worlds``
+    worlds at once (threads of one process: the kernels release the GIL; default: the
+    machine's cores). The worlds are independent, so the result does not depend on the
+    split."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    global _POOL
+    k = max(1, min(int(threads or os.cpu_count() or 1), n_worlds))
+    if k == 1:
+        kernel(*args, 0, n_worlds)
+        return
+    if _POOL is None or _POOL._max_workers < k:
+        _POOL = ThreadPoolExecutor(max_workers=k, thread_name_prefix="tdacm-batch")
+    bounds = np.linspace(0, n_worlds, k + 1).round().astype(int)
+    futures = [_POOL.submit(kernel, *args, int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
+    for f in futures:
+        f.result()

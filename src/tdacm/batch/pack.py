@@ -1,0 +1,150 @@
+"""Packing the block loop's blocks into the engine's arrays (set-up code, once per batch).
+
+The engine is the block loop's compiled twin, never a second truth: its constants are read
+from the blocks that :func:`tdacm.sim.assemble.build_loop` assembled (the cameras, the
+perception's camera model, the servo's reference snapshot, gains and limits, the safety
+monitor), not from the scenario again. What the engine does not run is refused here with one
+line naming the scenario key that selects it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..control.planner import PLAN_BOUND, _square
+from ..loop.estimation import TrueState
+from ..loop.sensors import AnalyticFrontEnd
+from ..loop.servo import RobustServo, VisualServo
+from ..vision.ibvs import MODES
+from ..vision.ippe import canonical_frame
+from ..vision.targets import ArucoMarker
+from ..vision.virtual import METHODS
+from . import servo as S
+
+
+class Unsupported(ValueError):
+    """A scenario the engine does not run; the message names the key."""
+
+
+def camera_row(cam) -> np.ndarray:
+    """A pinhole camera as the engine's row ``[fx, fy, cx, cy, width, height, near, far]``."""
+    if cam.has_distortion:
+        raise Unsupported("the engine's cameras have no lens distortion (robot.cameras.*)")
+    return np.array(
+        [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near, cam.far], float
+    )
+
+
+def check_loop(loop) -> None:
+    """Refuse (:class:`Unsupported`, naming the key) the blocks the engine does not run."""
+    if not isinstance(loop.sensors.local.front_end, AnalyticFrontEnd):
+        raise Unsupported(
+            "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"
+        )
+    if isinstance(loop.servo, RobustServo):
+        raise Unsupported(
+            "the robust servo's target filter (ibvs.features = 'predicted') is not batched: "
+            "set ibvs.features = 'measured'"
+        )
+    if type(loop.servo) is not VisualServo:
+        raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched (touch.enabled)")
+    if not isinstance(loop.estimator, TrueState):
+        raise Unsupported(
+            "the engine runs on the true state: set estimation.source = 'true' "
+            "(the EKF is not batched)"
+        )
+    if loop.force is not None:
+        raise Unsupported("servoing into contact is not batched (touch.enabled)")
+    if loop.sensors.global_ is None:
+        raise Unsupported("the engine needs the global camera C_G")
+    if not isinstance(loop.sensors.global_.front_end, AnalyticFrontEnd):
+        raise Unsupported(
+            "the engine's global camera is analytic: set cameras.global_renderer = 'planar' "
+            "(with the analytic C_L)"
+        )
+
+
+def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S.ServoModel:
+    """The :class:`~tdacm.batch.servo.ServoModel` of an assembled loop, for ``n_worlds``
+    worlds sharing its controller camera and reference snapshot unless ``ctl_cameras``
+    (``n_worlds`` cameras) and ``references`` (``n_worlds`` pairs ``(points, depths)`` in
+    C_V) give each world its own (an intrinsics error drawn per seed)."""
+    check_loop(loop)
+    sensor = loop.sensors.local
+    fe = sensor.front_end
+    servo = loop.servo
+    ib = servo.ibvs
+    system = servo.system
+    m = system.model_arrays
+    if len(m.rod_steps) > 2:
+        raise Unsupported("the engine runs one arm (robot.arms)")
+    ctl = [loop.perception.local_camera] * n_worlds if ctl_cameras is None else list(ctl_cameras)
+    refs = (
+        [(servo.desired_points, servo.desired_depths)] * n_worlds
+        if references is None
+        else list(references)
+    )
+    if len(ctl) != n_worlds or len(refs) != n_worlds:
+        raise ValueError("ctl_cameras and references need one entry per world")
+    from ..vision.features import advanced_features, feature_interaction_matrix
+
+    dpts = np.array([np.asarray(p, float) for p, _ in refs])
+    dz = np.array([np.broadcast_to(np.asarray(z, float), (4,)) for _, z in refs])
+    dfeat = np.array([advanced_features(p) for p in dpts])
+    dint = np.array([feature_interaction_matrix(p, z) for p, z in zip(dpts, dz, strict=True)])
+    obj2d, _ = canonical_frame(loop.perception.target.feature_points)
+    sm = servo.shaping
+    rc = servo.recovery
+    sf = loop.safety
+    cam_model = sensor.model
+    prm = np.zeros(S.N_PARAMS)
+    prm[S.P_GAIN] = ib.gain
+    prm[S.P_MODE] = MODES.index(ib.mode)
+    prm[S.P_FLOOR] = ib.floor
+    prm[S.P_DAMPED] = 1.0 if ib.solver == "damped" else 0.0
+    prm[S.P_COMPENSATION] = METHODS.index(servo.compensation)
+    prm[S.P_SOFT_START] = sm.soft_start
+    prm[S.P_RATE_FILTER] = sm.rate_filter
+    prm[S.P_MARGIN] = rc.margin_px
+    prm[S.P_CONFIRM] = rc.confirm
+    prm[S.P_LOSE] = rc.lose
+    prm[S.P_PIXEL_NOISE] = cam_model.pixel_noise
+    prm[S.P_DROPOUT] = cam_model.dropout
+    prm[S.P_LATENCY] = cam_model.latency_steps
+    prm[S.P_SAFETY_ON] = 1.0 if sf.enabled else 0.0
+    prm[S.P_GROWTH] = sf.growth_limit
+    prm[S.P_MIN_INCREASE] = sf.min_increase
+    prm[S.P_GRACE] = sf.grace
+    prm[S.P_MAX_SPEED] = rc.max_speed
+    prm[S.P_GLOBAL_EVERY] = loop.sensors.global_every
+    prm[S.P_Z_MIN] = servo.local_camera.near
+    prm[S.P_BOUND] = PLAN_BOUND
+    target = loop.perception.target
+    ids = tuple(getattr(target, "ids", ())) if not isinstance(target, ArucoMarker) else ()
+    prm[S.P_LARGEST_TAG] = 1.0 if ids else 0.0
+    marker_ids = ids or (target.marker_id,)
+    corners_t = [target.corner_points(i) for i in marker_ids]
+    side = float(np.linalg.norm(corners_t[0][1] - corners_t[0][0]))
+    gfe = loop.sensors.global_.front_end
+    return S.ServoModel(
+        camera=camera_row(fe.camera),
+        ctl_camera=np.array([camera_row(c) for c in ctl]),
+        mount=np.ascontiguousarray(sensor.mount, float),
+        ad_mount=np.ascontiguousarray(servo._ad_mount, float),
+        corners=np.ascontiguousarray(np.array(fe._corners_w, float)),
+        features=np.ascontiguousarray(fe._features_w, float),
+        object_2d=obj2d,
+        desired_points=np.ascontiguousarray(dpts),
+        desired_depths=np.ascontiguousarray(dz),
+        desired_features=np.ascontiguousarray(dfeat),
+        desired_interaction=np.ascontiguousarray(dint),
+        limits=np.ascontiguousarray(servo._lim, float),
+        commanded=np.ascontiguousarray(servo._cmd, np.int64),
+        rod=np.array([m.rod_steps[0], m.rod_steps[1]], np.int64),
+        params=prm,
+        global_camera=camera_row(gfe.camera),
+        drone_mount=np.ascontiguousarray(loop.sensors.global_.mount, float),
+        mount_inv=np.ascontiguousarray(np.linalg.inv(sensor.mount)),
+        square=_square(side),
+        marker_centres=np.ascontiguousarray([c.mean(axis=0) for c in corners_t]),
+    )
