@@ -36,6 +36,7 @@ from ..control.adaptive import AdaptiveController
 from ..control.allocation import _allocate_tensions_kernel
 from ..control.hierarchical import TDACMController
 from ..control.model import EstimatedModel
+from ..loop.ablation import TruthAblation
 from ..loop.lowlevel import AdaptiveLowLevel
 from ..system.kernels import ModelArrays, coupled_terms, tendon_matrix
 
@@ -122,7 +123,7 @@ def controller_arrays(low_level, dt: float) -> tuple[ControllerArrays, ModelArra
 
     Refused (``ValueError`` naming the scenario key): a user controller or the PD law
     (``controller.class``) and the truth ablation (``estimation.controller_truth``)."""
-    if type(low_level).__name__ == "TruthAblation":
+    if isinstance(low_level, TruthAblation):
         raise ValueError(
             "estimation.controller_truth: the batched controller reads the estimate only "
             "(the truth ablation is a block-loop diagnostic)"
@@ -156,7 +157,11 @@ def controller_arrays(low_level, dt: float) -> tuple[ControllerArrays, ModelArra
     p[P_DT] = dt
     if sysm.floating:
         p[P_MAX_THRUST] = sysm.base.max_thrust
-    p[P_MAX_TENSION] = sysm.tendons.max_tension if sysm.n_rods == 1 else _max_tension(sysm)
+    if sysm.n_rods != 1:  # TDACMController.step reads system.tendons, a single-rod property
+        raise ValueError(
+            f"robot: the adaptive controller allocates the tendons of one rod, got {sysm.n_rods}"
+        )
+    p[P_MAX_TENSION] = sysm.tendons.max_tension
     if model.nominal_rotor_drag is not None:
         p[P_ROTOR_DRAG] = 1.0
         p[P_ROTOR_DRAG_K : P_ROTOR_DRAG_K + 3] = model.rotor_drag
@@ -192,15 +197,6 @@ def controller_arrays(low_level, dt: float) -> tuple[ControllerArrays, ModelArra
         piv,
     )
     return arrays, mp
-
-
-def _max_tension(sysm) -> float:
-    """The tension bound of a multi-rod system: the allocation has one bound for all tendons
-    (:meth:`TDACMController.step` reads ``system.tendons``, a single-rod property)."""
-    raise ValueError(
-        "robot: the adaptive controller allocates the tendons of a single rod "
-        f"(this robot has {sysm.n_rods})"
-    )
 
 
 def controller_state(n: int):
