@@ -56,11 +56,14 @@ def test_make_vec_gives_the_vector_env_with_the_single_spaces(single):
         env.close()
 
 
-def test_each_world_follows_the_single_env(single):
+@pytest.mark.parametrize("overrides", [None, {"sensors": {"intrinsics_error": 0.03}}])
+def test_each_world_follows_the_single_env(overrides):
     """Worlds 0 and 2 of ``reset(seed=7)`` against ``TipServoEnv.reset(seed=7 + i)`` under a
     fixed twist: the observation (1e-9; float32 equal), the plant state (1e-9), the reward and
-    the flags at each of 20 steps."""
-    env = _vec(3)
+    the flags at each of 20 steps; also with a camera intrinsics error (each world's own
+    camera model and reference snapshot, drawn from its seed)."""
+    env = _vec(3, overrides=overrides)
+    single = TipServoEnv(overrides=overrides)
     try:
         obs, info = env.reset(seed=7)
         a = np.tile(np.array([0.1, -0.2, 0.3, 0.2, -0.1, 0.4], np.float32), (3, 1))
@@ -87,6 +90,7 @@ def test_each_world_follows_the_single_env(single):
         assert not np.allclose(traj[-1][0][0], traj[-1][0][2])  # other seeds, other runs
     finally:
         env.close()
+        single.close()
 
 
 def test_autoreset_next_step_after_truncation():
