@@ -33,7 +33,7 @@ What differs from the single env: the twist action only; the engine's scenario s
 robust servo's target filter, the EKF, contact and the multi-arm robots are refused naming the
 key); the recovery: where the single env's loop would run the global camera's recovery after
 the target left C_L's view (``recovery.lose`` frames), a world ends with ``"recovery needed"``
-(a failure ending; the lead adds the recovery to the engine). No ``render``.
+(a failure ending: the engine does not run the recovery yet). No ``render``.
 """
 
 from __future__ import annotations
