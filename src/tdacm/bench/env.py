@@ -111,3 +111,69 @@ def env_bench(steps: int = 1000, repeats: int = 5, progress=print) -> dict:
         f"{res['async2_steps_per_s']:.0f} env-steps/s, reset {res['reset_ms']:.2f} ms"
     )
     return res
+
+
+#: the vector env's env-steps/s at 256 worlds (issue target, a ratio >= 1 meets it)
+VECTOR_TARGET = 8000.0
+
+
+def vector_bench(
+    num_envs=(1, 16, 64, 256),
+    threads=(1, 2),
+    env_steps: int = 4096,
+    repeats: int = 3,
+    progress=print,
+) -> dict:
+    """Env steps per second of the vector env on the batched engine,
+    ``gym.make_vec("tdacm/TipServo-v0", num_envs=N, vectorization_mode="vector_entry_point")``
+    with uniform random twists (a new array per step; a world that ends is reset by the env's
+    autoreset), for each ``N`` of ``num_envs`` and each thread count of ``threads``: the
+    median of ``repeats`` runs of about ``env_steps`` env steps (``env_steps // N`` vector
+    steps, at least 10) after a warm-up of 10 vector steps; with the CPU time per env step
+    (the process's, all threads). Rows ``{"num_envs", "threads", "steps_per_s", "all",
+    "cpu_us_per_env_step"}``; ``ratio``: the best figure at 256 worlds over
+    :data:`VECTOR_TARGET`."""
+    import gymnasium as gym
+
+    import tdacm.envs  # noqa: F401  (registers the id)
+
+    rows = []
+    rng = np.random.default_rng(0)
+    for n in num_envs:
+        env = gym.make_vec("tdacm/TipServo-v0", num_envs=n, vectorization_mode="vector_entry_point")
+        try:
+            env.reset(seed=0)
+            vsteps = max(10, env_steps // n)
+            for t in threads:
+                env.unwrapped.threads = t
+                for _ in range(10):  # warm-up
+                    env.step(rng.uniform(-1, 1, (n, 6)).astype(np.float32))
+                runs, cpus = [], []
+                for _ in range(repeats):
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    for _ in range(vsteps):
+                        env.step(rng.uniform(-1, 1, (n, 6)).astype(np.float32))
+                    runs.append(n * vsteps / (time.perf_counter() - t0))
+                    cpus.append((time.process_time() - c0) / (n * vsteps) * 1e6)
+                rows.append(
+                    {
+                        "num_envs": n,
+                        "threads": t,
+                        "steps_per_s": float(np.median(runs)),
+                        "all": runs,
+                        "cpu_us_per_env_step": float(np.median(cpus)),
+                    }
+                )
+                progress(
+                    f"  vector env N={n:4d} threads={t}: {rows[-1]['steps_per_s']:8.0f} "
+                    f"env-steps/s, {rows[-1]['cpu_us_per_env_step']:.0f} us CPU per env step"
+                )
+        finally:
+            env.close()
+    at256 = [r["steps_per_s"] for r in rows if r["num_envs"] == 256]
+    return {
+        "rows": rows,
+        "repeats": repeats,
+        "target_256": VECTOR_TARGET,
+        "ratio": max(at256) / VECTOR_TARGET if at256 else None,
+    }

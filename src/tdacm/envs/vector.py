@@ -1,0 +1,387 @@
+"""The servoing task as a Gymnasium vector env on the batched engine (``tdacm/TipServo-v0``).
+
+``gym.make_vec("tdacm/TipServo-v0", num_envs=N, vectorization_mode="vector_entry_point")``
+returns a :class:`TipServoVectorEnv`: N worlds of the scenario stepped in lockstep by the
+compiled engine (:mod:`tdacm.batch`), with no Python per world per step. Each world is the
+single env :class:`~tdacm.envs.servo.TipServoEnv` with the twist action: the same
+observation (layout, scaling, float32, clipped), reward, success and failure endings and
+``info`` keys (Gymnasium's vector form: one array per key and a ``_key`` mask of the worlds that
+returned it, as :class:`gymnasium.vector.SyncVectorEnv` over single envs gives).
+
+A step: the scaled twists replace the IBVS twists of the running worlds
+(:func:`~tdacm.batch.engine.act_worlds`: the servo's mapping and shaping, the low-level
+controller, the plant), then each world's tip camera delivers its next frame
+(:func:`~tdacm.batch.engine.sense_worlds`) and the env reads it
+(:func:`~tdacm.batch.engine.observe_worlds`). Endings: the engine's (:data:`ENGINE_ENDINGS`)
+and the env's own, in the single env's order: out of envelope (roll/pitch beyond
+:data:`~tdacm.envs.servo.MAX_TILT` or a non-finite state), behind camera, target lost for
+``max_lost`` steps, success.
+
+Autoreset: Gymnasium's default for vector envs, ``AutoresetMode.NEXT_STEP``: the step after a
+world's episode ends resets that world (its action is ignored) and returns its first
+observation with reward 0 and both flags false; the other worlds keep running.
+
+Seeds: world ``i`` has its own generator, ``reset(seed=s)`` seeds it with ``s + i`` (a list
+gives one seed per world), and a reset world draws from it, as the single env does after
+``reset(seed=...)``, its loop seed (its model error, its sensor noise and disturbance streams)
+then its initial offset (``init_noise``, roll and pitch kept). So world ``i`` starts as
+``TipServoEnv.reset(seed=s + i)`` and its whole history depends on ``s + i`` only, not on the
+number of worlds or the threads (tested). Unlike the single env, every reset (the autoreset
+too) draws a new loop seed: each episode has another model error and noise.
+
+What differs from the single env: the twist action only; the engine's scenario support (the
+robust servo's target filter, the EKF, contact and the multi-arm robots are refused naming the
+key); the recovery: where the single env's loop would run the global camera's recovery after
+the target left C_L's view (``recovery.lose`` frames), a world ends with ``"recovery needed"``
+(a failure ending: the engine does not run the recovery yet). No ``render``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..batch import engine as E
+from ..batch import servo as BS
+from ..loop.data import Termination
+from .servo import (
+    ANGLE_SCALE,
+    ENV_DEFAULTS,
+    FEATURE_SCALE,
+    MAX_TILT,
+    OBS_CLIP,
+    POSITION_SCALE,
+    STRAIN_SCALE,
+    _merge,
+)
+
+
+def _ending(name):
+    """A :data:`~tdacm.batch.engine.TERMINATIONS` name as the single env's ``termination``
+    (a :class:`~tdacm.loop.data.Termination`; the engine's own names stay strings)."""
+    try:
+        return Termination(name)
+    except ValueError:
+        return name
+
+
+#: the engine's termination codes (:data:`~tdacm.batch.engine.TERMINATIONS`) as the env's
+#: ``info["termination"]`` values
+ENGINE_ENDINGS = tuple(None if n is None else _ending(n) for n in E.TERMINATIONS)
+
+_REASONS = {
+    Termination.TARGET_LOST: "target not detected for {lost} steps",
+    Termination.OUT_OF_ENVELOPE: f"roll/pitch beyond {MAX_TILT} rad or not finite",
+    Termination.BEHIND_CAMERA: "a detected point maps behind the virtual camera",
+}
+
+
+class TipServoVectorEnv(VectorEnv):
+    """``num_envs`` worlds of the servoing task on the batched engine (module docstring).
+
+    Options as :class:`~tdacm.envs.servo.TipServoEnv` (``scenario``, ``max_steps``,
+    ``init_noise``, ``success_rmse``, ``success_bonus``, ``lost_penalty``, ``max_lost``,
+    ``max_angular``, ``max_linear``, ``overrides``, ``safety``), plus ``threads``: threads
+    stepping disjoint ranges of worlds (default: the machine's cores; the results do not
+    depend on it). ``max_episode_steps`` (what ``make_vec`` passes from the registration)
+    truncates as ``gym.make``'s time limit does the single env.
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        scenario: str = "paper-in-fov",
+        action_type: str = "twist",
+        max_steps: int = 250,
+        init_noise: float = 0.02,
+        success_rmse: float = 0.01,
+        success_bonus: float = 10.0,
+        lost_penalty: float = 1.0,
+        max_lost: int = 10,
+        max_angular: float = 0.5,
+        max_linear: float = 0.5,
+        overrides: dict | None = None,
+        safety: bool = False,
+        render_mode: str | None = None,
+        max_episode_steps: int | None = None,
+        threads: int | None = None,
+    ):
+        from ..sim.assemble import build_loop
+        from ..sim.batch import build_batch
+        from ..sim.scenario import ScenarioError, load_scenario
+
+        if action_type != "twist":
+            raise ValueError(
+                f"action_type: the vector env takes 'twist' only (the engine's act path), "
+                f"got {action_type!r}; use gym.make for 'actuators'"
+            )
+        if render_mode is not None:
+            raise ValueError(f"render_mode: the vector env does not render, got {render_mode!r}")
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps!r}")
+        if max_episode_steps is not None and max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps!r}")
+        if threads is not None and int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads!r}")
+        if not np.isfinite(init_noise) or init_noise < 0:
+            raise ValueError(f"init_noise must be finite and >= 0, got {init_noise!r}")
+        sc = load_scenario(scenario)
+        ov = _merge(ENV_DEFAULTS, overrides or {})
+        if not safety:
+            ov = _merge(ov, {"safety": {"enabled": False}})
+        sc = sc.with_overrides(ov, "env overrides")
+        self.scenario = sc
+        self.num_envs = N = int(num_envs)
+        self.max_steps = int(max_steps)
+        self.horizon = min(self.max_steps, int(max_episode_steps or self.max_steps))
+        self.init_noise = float(init_noise)
+        self.success_rmse = float(success_rmse)
+        self.success_bonus = float(success_bonus)
+        self.lost_penalty = float(lost_penalty)
+        self.max_lost = int(max_lost)
+        self.scale = np.array([max_angular] * 3 + [max_linear] * 3, float)
+        self.render_mode = None
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.data["dt"])))
+
+        seed0 = int(sc["seed"])
+        self.assembly = a = build_loop(sc, seed0)
+        loop = a.loop
+        # the engine never ends a world by its duration: the env truncates
+        duration = (self.horizon + 2) * loop.dt
+        try:
+            self.batch = build_batch(sc, [seed0] * N, duration, threads=threads, assembly=a)
+        except ScenarioError as exc:
+            loop.close()
+            raise ValueError(f"scenario: {exc}") from None
+        self.threads = threads
+        s = loop.plant.system
+        self.n = n = s.n
+        self.floating = bool(s.floating)
+        self.q0 = np.asarray(a.world.q0, float)
+        self.qd0 = np.asarray(a.world.qd0, float)
+        self.q_star = np.asarray(a.world.q_star, float)
+        cam = loop.perception.local_camera
+        self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
+        q_scale = np.full(n, STRAIN_SCALE)
+        if s.floating:
+            q_scale[:3] = ANGLE_SCALE
+            q_scale[3:6] = POSITION_SCALE
+        self.q_scale = q_scale
+
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
+        high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
+        low = -high
+        high[14], low[14] = 1.0, 0.0
+        self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, N)
+        self.observation_space = batch_space(self.single_observation_space, N)
+
+        # per world: its generator, its episode's steps and lost count, the autoreset flag
+        self._rngs = [None] * N
+        self.steps = np.zeros(N, np.int64)
+        self.lost = np.zeros(N, np.int64)
+        self._autoreset = np.zeros(N, np.bool_)
+        self._obs = np.zeros((N, 15 + 2 * n), np.float32)
+        self._rmse = np.full(N, np.nan)
+        self._status = np.zeros(N, np.int64)
+        self._points = np.zeros((N, 4, 2))
+        self._error = np.zeros((N, 6))
+        self._started = False
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def loop_seeds(self) -> np.ndarray:
+        """Each world's loop seed (its model error and random streams), (N,)."""
+        return self.batch.seeds.copy()
+
+    def _parallel(self, kernel, args) -> None:
+        E.parallel(kernel, args, self.num_envs, self.threads)
+
+    def _start(self, which: np.ndarray) -> None:
+        """Reset the worlds ``which``: a new loop seed then an initial offset, each drawn
+        from the world's generator (module docstring)."""
+        from ..sim.batch import reseed_world
+
+        idx = np.flatnonzero(which)
+        q0 = np.empty((idx.size, self.n))
+        for j, w in enumerate(idx):
+            rng = self._rngs[w]
+            reseed_world(self.batch, self.assembly, int(w), int(rng.integers(2**31)))
+            q = self.q0 + rng.normal(0.0, self.init_noise, size=self.n)
+            if self.floating:
+                q[:2] = self.q0[:2]  # roll/pitch are not free: start level as the scenario
+            q0[j] = q
+        self.batch.reset(which, q0, self.qd0)
+        self.steps[which] = 0
+        self.lost[which] = 0
+        self._autoreset[which] = False
+
+    def _sense_observe(self, which: np.ndarray) -> None:
+        """The next frame of the worlds ``which`` (whether the engine still runs them or not)
+        and their observation, RMSE and view status into the env's buffers."""
+        d = self.batch.data
+        running = d.active.copy()
+        d.active[:] = which & np.isfinite(d.q).all(axis=1)
+        try:
+            self._parallel(E.sense_worlds, (self.batch.model, d))
+        finally:
+            d.active[:] = running
+        self._parallel(
+            E.observe_worlds, (self.batch.model, d, self._points, self._error, self._status)
+        )
+        n = self.n
+        seen = self._status == BS.SEEN
+        obs = np.zeros((self.num_envs, 15 + 2 * n))
+        obs[:, :6] = np.where(seen[:, None], self._error / FEATURE_SCALE, 0.0)
+        pts = self._points / self.point_scale
+        obs[:, 6:14] = np.where(seen[:, None], pts.reshape(-1, 8), 0.0)
+        obs[:, 14] = seen
+        obs[:, 15 : 15 + n] = (d.q - self.q_star) / self.q_scale
+        obs[:, 15 + n :] = d.qd / self.q_scale
+        np.nan_to_num(obs, copy=False, nan=0.0)
+        np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
+        dp = self.batch.model.servo.desired_points
+        with np.errstate(invalid="ignore"):
+            rmse = np.sqrt(np.mean(np.sum((self._points - dp) ** 2, axis=2), axis=1))
+        rmse = np.where(seen, rmse, np.nan)
+        self._obs[which] = obs[which]
+        self._rmse[which] = rmse[which]
+
+    # ------------------------------------------------------------------ the API
+    def reset(self, *, seed=None, options=None):
+        """Reset every world (or those of ``options["reset_mask"]``, a bool array (N,)).
+        ``seed``: an int (world ``i`` gets ``seed + i``) or a list of N ints; ``None``
+        keeps the worlds' generators (fresh ones on the first reset)."""
+        N = self.num_envs
+        which = np.ones(N, np.bool_)
+        if options and "reset_mask" in options:
+            which = np.asarray(options["reset_mask"])
+            if which.shape != (N,) or which.dtype != np.bool_ or not which.any():
+                raise ValueError(
+                    f"options['reset_mask'] must be a bool array of shape ({N},) with a True"
+                )
+        if seed is None:
+            seeds = [None] * N
+        elif isinstance(seed, int | np.integer):
+            super().reset(seed=int(seed))
+            seeds = [int(seed) + i for i in range(N)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != N:
+                raise ValueError(f"seed: one per world ({N}), got {len(seeds)}")
+        for w in np.flatnonzero(which):
+            if seeds[w] is not None or self._rngs[w] is None:
+                self._rngs[w], _ = seeding.np_random(seeds[w])
+        if not self._started and not which.all():
+            raise ValueError("options['reset_mask']: the first reset resets every world")
+        self._started = True
+        self._start(which)
+        self._sense_observe(which)
+        status = self._status
+        info = {
+            "rmse": self._rmse.copy(),
+            "_rmse": which.copy(),
+            "detected": which & (status != BS.NOT_SEEN),
+            "_detected": which.copy(),
+            "loop_seed": np.where(which, self.batch.seeds, 0).astype(np.int32),
+            "_loop_seed": which.copy(),
+        }
+        return self._obs.copy(), info
+
+    def step(self, actions):
+        if not self._started:
+            raise RuntimeError("call reset before step")
+        N = self.num_envs
+        a = np.asarray(actions, dtype=float)
+        if a.shape != (N, 6) or not np.all(np.isfinite(a)):
+            raise ValueError(
+                f"actions must be a finite array of shape ({N}, 6), got shape {a.shape}"
+            )
+        twist = np.clip(a, -1.0, 1.0) * self.scale
+        d = self.batch.data
+        resetting = self._autoreset.copy()
+        stepping = ~resetting
+        self._parallel(E.act_worlds, (self.batch.model, d, twist))
+        engine_end = stepping & ~d.active
+        code = d.termination.copy()
+        if resetting.any():
+            self._start(resetting)
+        self._sense_observe(np.ones(N, np.bool_))
+        self.steps[stepping] += 1
+
+        # the endings, in the single env's order (the first one names the ending)
+        q = d.q
+        out = ~np.isfinite(q).all(axis=1)
+        if self.floating:
+            with np.errstate(invalid="ignore"):
+                out |= np.abs(q[:, :2]).max(axis=1) > MAX_TILT
+        status, rmse = self._status, self._rmse
+        seen = status == BS.SEEN
+        self.lost[stepping] = np.where(seen[stepping], 0, self.lost[stepping] + 1)
+        envelope = stepping & ~engine_end & out
+        free = stepping & ~engine_end & ~out
+        behind = free & (status == BS.BEHIND)
+        free &= ~behind
+        lost = free & (self.lost >= self.max_lost)
+        free &= ~lost
+        with np.errstate(invalid="ignore"):
+            success = free & seen & (rmse <= self.success_rmse)
+        terminated = engine_end | envelope | behind | lost | success
+        failed = terminated & ~success
+
+        reward = np.where(seen, -np.nan_to_num(rmse), -self.lost_penalty)
+        reward += np.where(success, self.success_bonus, 0.0)
+        reward -= np.where(failed, self.lost_penalty * (self.max_steps - self.steps), 0.0)
+        truncated = stepping & ~terminated & (self.steps >= self.horizon)
+        reward[resetting] = 0.0
+
+        termination = np.full(N, None, object)
+        reason = np.full(N, None, object)
+        for w in np.flatnonzero(terminated):
+            if engine_end[w]:
+                termination[w] = ENGINE_ENDINGS[code[w]]
+                reason[w] = f"the engine ended the world: {E.TERMINATIONS[code[w]]}"
+            elif success[w]:
+                termination[w] = Termination.SUCCESS
+                reason[w] = f"rmse {rmse[w]:.4g} <= {self.success_rmse}"
+            else:
+                t = (
+                    Termination.OUT_OF_ENVELOPE
+                    if envelope[w]
+                    else Termination.BEHIND_CAMERA
+                    if behind[w]
+                    else Termination.TARGET_LOST
+                )
+                termination[w] = t
+                reason[w] = _REASONS[t].format(lost=self.lost[w])
+        done = terminated | truncated
+        d.active[done] = False  # the engine stops them; the next step resets them
+        self._autoreset = done
+        info = {
+            "rmse": rmse.copy(),
+            "_rmse": np.ones(N, np.bool_),
+            "detected": np.where(resetting, status != BS.NOT_SEEN, seen),
+            "_detected": np.ones(N, np.bool_),
+            "success": success,
+            "_success": stepping.copy(),
+            "termination": termination,
+            "_termination": stepping.copy(),
+            "reason": reason,
+            "_reason": stepping.copy(),
+        }
+        if resetting.any():
+            info["loop_seed"] = np.where(resetting, self.batch.seeds, 0).astype(np.int32)
+            info["_loop_seed"] = resetting.copy()
+        return self._obs.copy(), reward.astype(np.float64), terminated, truncated, info
+
+    def close_extras(self, **kwargs):
+        if self.assembly is not None:
+            self.assembly.loop.close()
+            self.assembly = None

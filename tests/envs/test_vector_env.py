@@ -1,0 +1,235 @@
+"""The vector env on the batched engine: Gymnasium's vector API, each world the single env,
+autoreset per Gymnasium (``NEXT_STEP``), a world's run independent of the number of worlds.
+
+Seeds: world ``i`` of ``reset(seed=s)`` draws its loop seed and initial offset from its own
+generator seeded ``s + i``, exactly as ``TipServoEnv.reset(seed=s + i)`` does, so the single
+env and the world share the model error and the offset: the comparison runs the default
+configuration (init offset and model perturbation on) without overriding them. The scenario's
+sensors are noise-free; with noise, the engine's streams (counter-based) differ from the block
+loop's, so equality with the single env is tested noise-free and the noisy runs are compared
+between vector envs of different sizes.
+"""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+import tdacm.envs  # noqa: F401  (registers the id)
+from tdacm.envs import TipServoEnv, TipServoVectorEnv
+from tdacm.loop.data import Termination
+
+ID = "tdacm/TipServo-v0"
+
+
+def _vec(num_envs, **kw):
+    return gym.make_vec(ID, num_envs=num_envs, vectorization_mode="vector_entry_point", **kw)
+
+
+@pytest.fixture(scope="module")
+def single():
+    e = TipServoEnv()
+    yield e
+    e.close()
+
+
+def test_make_vec_gives_the_vector_env_with_the_single_spaces(single):
+    env = _vec(3)
+    try:
+        assert isinstance(env, VectorEnv) and isinstance(env, TipServoVectorEnv)
+        assert env.num_envs == 3
+        assert env.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+        assert env.single_observation_space == single.observation_space
+        assert env.single_action_space == single.action_space
+        assert env.observation_space == batch_space(single.observation_space, 3)
+        assert env.action_space == batch_space(single.action_space, 3)
+        obs, info = env.reset(seed=0)
+        assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+        assert info["_rmse"].all() and info["detected"].all()
+        obs, reward, term, trunc, info = env.step(env.action_space.sample())
+        assert env.observation_space.contains(obs)
+        assert reward.shape == term.shape == trunc.shape == (3,)
+        for key in ("rmse", "detected", "success", "termination", "reason"):
+            assert info[key].shape == (3,) and info[f"_{key}"].all()
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("overrides", [None, {"sensors": {"intrinsics_error": 0.03}}])
+def test_each_world_follows_the_single_env(overrides):
+    """Worlds 0 and 2 of ``reset(seed=7)`` against ``TipServoEnv.reset(seed=7 + i)`` under a
+    fixed twist: the observation (1e-9; float32 equal), the plant state (1e-9), the reward and
+    the flags at each of 20 steps; also with a camera intrinsics error (each world's own
+    camera model and reference snapshot, drawn from its seed)."""
+    env = _vec(3, overrides=overrides)
+    single = TipServoEnv(overrides=overrides)
+    try:
+        obs, info = env.reset(seed=7)
+        a = np.tile(np.array([0.1, -0.2, 0.3, 0.2, -0.1, 0.4], np.float32), (3, 1))
+        traj = [(obs, None, None, None)]
+        states = [env.unwrapped.batch.data.q.copy()]
+        for _ in range(20):
+            o, r, te, tr, _ = env.step(a)
+            traj.append((o, r, te, tr))
+            states.append(env.unwrapped.batch.data.q.copy())
+        seeds = info["loop_seed"]
+        for w in (0, 2):
+            o1, i1 = single.reset(seed=7 + w)
+            assert i1["loop_seed"] == seeds[w]
+            np.testing.assert_allclose(traj[0][0][w], o1, rtol=0, atol=1e-9)
+            for k in range(1, 21):
+                o1, r1, te1, tr1, _ = single.step(a[w])
+                o, r, te, tr = traj[k]
+                np.testing.assert_allclose(o[w], o1, rtol=0, atol=1e-9)
+                np.testing.assert_allclose(
+                    states[k][w], single.loop.plant.state.q, rtol=0, atol=1e-9
+                )
+                assert r[w] == pytest.approx(r1, abs=1e-9)
+                assert (te[w], tr[w]) == (te1, tr1) == (False, False)
+        assert not np.allclose(traj[-1][0][0], traj[-1][0][2])  # other seeds, other runs
+    finally:
+        env.close()
+        single.close()
+
+
+def test_autoreset_next_step_after_truncation():
+    """After ``max_steps`` the worlds truncate; the next step returns each world's reset
+    observation (reward 0, flags false) from the next draws of its generator: a new loop seed,
+    a new initial offset (roll, pitch and the velocities as the scenario's start)."""
+    env = _vec(2, max_steps=3)
+    u = env.unwrapped
+    try:
+        _, info0 = env.reset(seed=3)
+        zero = np.zeros((2, 6), np.float32)
+        for k in range(3):
+            _, r, te, tr, info = env.step(zero)
+            assert not te.any() and tr.all() == (k == 2)
+            assert np.all(r < 0)
+        assert list(info["termination"]) == [None, None]
+        obs, r, te, tr, info = env.step(np.ones((2, 6), np.float32))  # ignored: a reset
+        assert np.all(r == 0) and not te.any() and not tr.any()
+        assert info["_loop_seed"].all() and not info["_success"].any()
+        n = u.n
+        for w in range(2):
+            rng = np.random.default_rng(3 + w)  # the world's generator: Gymnasium's seeding
+            assert int(rng.integers(2**31)) == info0["loop_seed"][w]
+            rng.normal(0.0, u.init_noise, size=n)
+            assert int(rng.integers(2**31)) == info["loop_seed"][w] != info0["loop_seed"][w]
+            q = u.q0 + rng.normal(0.0, u.init_noise, size=n)
+            q[:2] = u.q0[:2]
+            expect = np.clip((q - u.q_star) / u.q_scale, -5, 5)
+            np.testing.assert_allclose(obs[w, 15 : 15 + n], expect, atol=1e-6)
+            assert np.all(obs[w, 15 + n :] == 0)  # at rest
+        _, r, te, tr, _ = env.step(zero)  # the new episode runs
+        assert np.all(r < 0) and not (te | tr).any()
+    finally:
+        env.close()
+
+
+def test_a_success_ends_then_the_world_restarts():
+    """With a success threshold every start meets, each step ends the episode (``success``,
+    the bonus) and the next one restarts it (reward 0, not done): Gymnasium's NEXT_STEP."""
+    env = _vec(2, success_rmse=10.0, success_bonus=5.0)
+    try:
+        env.reset(seed=0)
+        zero = np.zeros((2, 6), np.float32)
+        for _ in range(2):
+            _, r, te, tr, info = env.step(zero)
+            assert te.all() and not tr.any() and info["success"].all()
+            assert all(t == Termination.SUCCESS for t in info["termination"])
+            np.testing.assert_allclose(r, 5.0 - info["rmse"])
+            obs, r, te, tr, info = env.step(zero)
+            assert np.all(r == 0) and not (te | tr).any() and np.all(obs[:, 14] == 1)
+    finally:
+        env.close()
+
+
+def test_a_failure_pays_the_steps_left_as_lost():
+    """Twists that turn the camera away: the target leaves the view and the world ends as a
+    failure (the engine's ``recovery needed`` once the servo would switch to the recovery, or
+    the env's ``target lost``), with ``-lost_penalty`` for each step left."""
+    env = _vec(1, max_steps=100, lost_penalty=2.0, max_lost=3)
+    try:
+        env.reset(seed=1)
+        a = np.array([[1.0, 1.0, 1.0, 1.0, 1.0, 0.0]], np.float32)
+        k, te = 0, [False]
+        while not te[0] and k < 99:
+            _, r, te, tr, info = env.step(a)
+            k += 1
+        assert te[0] and not info["success"][0]
+        assert info["termination"][0] in ("recovery needed", Termination.TARGET_LOST)
+        assert r[0] <= -2.0 * (100 - k)
+    finally:
+        env.close()
+
+
+def test_a_world_does_not_depend_on_the_number_of_worlds():
+    """With pixel noise and dropped frames, random actions and autoresets, world 3 of
+    ``reset(seed=10)`` with 5 worlds on 2 threads gives bit-identical observations, rewards and
+    flags as the only world of ``reset(seed=13)`` on 1 thread."""
+    kw = {
+        "max_steps": 6,
+        "overrides": {"sensors": {"pixel_noise": 1.0, "dropout": 0.1}},
+    }
+    e5, e1 = _vec(5, threads=2, **kw), _vec(1, threads=1, **kw)
+    try:
+        o5, _ = e5.reset(seed=10)
+        o1, _ = e1.reset(seed=13)
+        np.testing.assert_array_equal(o5[3], o1[0])
+        rng = np.random.default_rng(0)
+        dones = 0
+        for _ in range(16):
+            a = rng.uniform(-1, 1, (5, 6)).astype(np.float32)
+            o5, r5, te5, tr5, _ = e5.step(a)
+            o1, r1, te1, tr1, _ = e1.step(a[3:4])
+            np.testing.assert_array_equal(o5[3], o1[0])
+            assert r5[3] == r1[0] and te5[3] == te1[0] and tr5[3] == tr1[0]
+            dones += bool(te1[0] or tr1[0])
+        assert dones >= 2  # autoresets happened
+        assert not np.array_equal(o5[2], o5[3])
+    finally:
+        e5.close()
+        e1.close()
+
+
+def test_resetting_some_worlds_leaves_the_others_running():
+    """``reset(options={"reset_mask": ...})`` restarts only the masked worlds; world 1 runs on
+    exactly as in an env where nothing was reset."""
+    a = np.tile(np.array([0.2, 0.0, -0.2, 0.1, 0.1, 0.0], np.float32), (2, 1))
+    ref, env = _vec(2), _vec(2)
+    try:
+        ref.reset(seed=4)
+        env.reset(seed=4)
+        for _ in range(3):
+            ref.step(a)
+            env.step(a)
+        obs, info = env.reset(options={"reset_mask": np.array([True, False])})
+        assert info["_loop_seed"].tolist() == [True, False]
+        for _ in range(3):
+            o_ref, r_ref, *_ = ref.step(a)
+            o, r, *_ = env.step(a)
+            np.testing.assert_array_equal(o[1], o_ref[1])
+            assert r[1] == r_ref[1]
+            assert not np.array_equal(o[0], o_ref[0])
+    finally:
+        ref.close()
+        env.close()
+
+
+def test_refusals_name_the_option():
+    with pytest.raises(ValueError, match="action_type"):
+        TipServoVectorEnv(2, action_type="actuators")
+    with pytest.raises(ValueError, match="render_mode"):
+        TipServoVectorEnv(2, render_mode="rgb_array")
+    with pytest.raises(ValueError, match="ibvs.features"):
+        TipServoVectorEnv(1, overrides={"ibvs": {"features": "predicted"}})
+    env = _vec(2)
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="actions"):
+            env.step(np.zeros((3, 6)))
+        with pytest.raises(ValueError, match="actions"):
+            env.step(np.full((2, 6), np.nan))
+    finally:
+        env.close()
