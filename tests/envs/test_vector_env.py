@@ -147,8 +147,8 @@ def test_a_success_ends_then_the_world_restarts():
 
 def test_a_failure_pays_the_steps_left_as_lost():
     """Twists that turn the camera away: the target leaves the view and the world ends as a
-    failure (the engine's ``recovery needed`` once the servo would switch to the recovery, or
-    the env's ``target lost``), with ``-lost_penalty`` for each step left."""
+    failure (the env's ``target lost`` after ``max_lost`` = 3 frames, before the servo's
+    recovery starts after ``recovery.lose`` = 5), with ``-lost_penalty`` for each step left."""
     env = _vec(1, max_steps=100, lost_penalty=2.0, max_lost=3)
     try:
         env.reset(seed=1)
@@ -158,7 +158,7 @@ def test_a_failure_pays_the_steps_left_as_lost():
             _, r, te, tr, info = env.step(a)
             k += 1
         assert te[0] and not info["success"][0]
-        assert info["termination"][0] in ("recovery needed", Termination.TARGET_LOST)
+        assert info["termination"][0] == Termination.TARGET_LOST
         assert r[0] <= -2.0 * (100 - k)
     finally:
         env.close()

@@ -31,9 +31,8 @@ too) draws a new loop seed: each episode has another model error and noise.
 
 What differs from the single env: the twist action only; the engine's scenario support (the
 robust servo's target filter, the EKF, contact and the multi-arm robots are refused naming the
-key); the recovery: where the single env's loop would run the global camera's recovery after
-the target left C_L's view (``recovery.lose`` frames), a world ends with ``"recovery needed"``
-(a failure ending: the engine does not run the recovery yet). No ``render``.
+key). The recovery with the global camera runs batched as in the single env's loop (its
+failure ends a world as ``recovery failed``). No ``render``.
 """
 
 from __future__ import annotations

@@ -93,7 +93,7 @@ def reseed_world(batch: Batch, assembly, w: int, seed: int) -> None:
         raise ValueError(f"seed must be a non-negative integer, got {seed}")
     loop, model = assembly.loop, batch.model
     assembly.model.reseed(seed)
-    ca = controller_arrays(loop.controller, loop.dt)
+    ca, _ = controller_arrays(loop.controller, loop.dt)
     model.coord[w] = ca.coord
     model.damping[w] = ca.damping
     model.control_params[w] = ca.params
