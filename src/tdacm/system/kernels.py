@@ -527,6 +527,10 @@ def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
     forces at the rod's nodes (the rod base, its Gauss points and its tip) entering
     ``tau_ext`` through the node Jacobians (eq. (16)).  Empty arrays: none (the arithmetic of
     :func:`coupled_terms`)."""
+    if not want_c:  # the same arithmetic, faster (tdacm.system.forward)
+        m_out, cqd, tau, g, jt, jd = _F.forward_terms(q, qd, m, loads, u, aero, contact)
+        n = q.shape[0]
+        return m_out, np.zeros((n, n)), cqd, tau, g, np.ascontiguousarray(jt.T), jd
     floating = m.floating
     n = q.shape[0]
     off = 6 if floating else 0
@@ -826,7 +830,7 @@ def forward_dynamics_aero(q, qd, u, m, loads, aero):
 def forward_dynamics_env(q, qd, u, m, loads, aero, contact):
     """:func:`forward_dynamics` with the environment's loads (:func:`coupled_terms_env`:
     aerodynamics and contact; empty arrays: none, bit-identical)."""
-    mm, _, cqd, tau, _, _, _ = coupled_terms_env(q, qd, m, loads, False, u, aero, contact)
+    mm, cqd, tau, _, _, _ = _F.forward_terms(q, qd, m, loads, u, aero, contact)
     rhs = (
         _matvec(input_matrix(q, m), u)
         + tau
@@ -966,3 +970,6 @@ def contact_nodes(q, qd, m, contact):
                     clearance = min(clearance, d - contact[CL.TIP_RADIUS])
             node += 1
     return points, forces, tip, clearance, speed
+
+
+from . import forward as _F  # noqa: E402  (it uses this module's helpers)
