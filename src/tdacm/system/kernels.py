@@ -830,15 +830,9 @@ def forward_dynamics_aero(q, qd, u, m, loads, aero):
 def forward_dynamics_env(q, qd, u, m, loads, aero, contact):
     """:func:`forward_dynamics` with the environment's loads (:func:`coupled_terms_env`:
     aerodynamics and contact; empty arrays: none, bit-identical)."""
-    mm, cqd, tau, _, _, _ = _F.forward_terms(q, qd, m, loads, u, aero, contact)
-    rhs = (
-        _matvec(input_matrix(q, m), u)
-        + tau
-        - cqd
-        - _matvec(m.damping, qd)
-        - _matvec(m.stiffness, q)
-    )
-    return cholesky_solve(mm, rhs)
+    qdd = np.empty(q.shape[0])
+    ok = _F.forward_dynamics_ws(q, qd, u, m, loads, aero, contact, _F.workspace(q.shape[0], m), qdd)
+    return qdd, ok
 
 
 @njit(cache=True)
@@ -862,35 +856,7 @@ def rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, aero):
 def rk4_run_env(q0, qd0, u, dt, nsteps, every, m, loads, aero, contact):
     """:func:`rk4_run` with the environment's loads (:func:`forward_dynamics_env`: the packed
     aerodynamics and contact arrays, held over the call; empty: none)."""
-    n = q0.shape[0]
-    nrec = nsteps // every + 1
-    qs = np.empty((nrec, n))
-    qds = np.empty((nrec, n))
-    q = q0.copy()
-    qd = qd0.copy()
-    qs[0] = q
-    qds[0] = qd
-    rec = 1
-    for k in range(nsteps):
-        a1, ok1 = forward_dynamics_env(q, qd, u, m, loads, aero, contact)
-        a2, ok2 = forward_dynamics_env(
-            q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, aero, contact
-        )
-        a3, ok3 = forward_dynamics_env(
-            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads, aero, contact
-        )
-        a4, ok4 = forward_dynamics_env(
-            q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, aero, contact
-        )
-        if not (ok1 and ok2 and ok3 and ok4):
-            return qs[:rec], qds[:rec], False
-        q = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)
-        qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-        if (k + 1) % every == 0:
-            qs[rec] = q
-            qds[rec] = qd
-            rec += 1
-    return qs[:rec], qds[:rec], True
+    return _F.rk4_steps(q0, qd0, u, dt, nsteps, every, m, loads, aero, contact)
 
 
 @njit(cache=True)
