@@ -150,9 +150,9 @@ def compile_second_half() -> None:
     from ..vision.ibvs import _twist_kernel
     from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 
-    # rk4_run last: by then the main process has cached the rod callees it shares with
-    # coupled_terms (rod_step, ...), which load instead of compiling twice (measured: 18 s
-    # for rk4_run instead of 28 s when it comes first)
+    # rk4_run last: by then the main process has cached the model callees it shares with
+    # coupled_terms (tdacm.system.forward, the Lie-group blocks), which load instead of
+    # compiling twice
     rc = np.tile(np.eye(3), (2, 1, 1))  # the target filter's window: C-contiguous frames
     pc = np.zeros((2, 3))
     obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])

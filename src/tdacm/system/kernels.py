@@ -32,10 +32,13 @@ node Jacobians of the same recursion (the previous node's kept for the capsule's
 
 Flags: numba compiles a separate specialization of a kernel for each literal flag
 (``True`` / ``False``) it receives from jitted code, besides the one for Python callers (a
-plain ``bool``). The forward dynamics keeps its ``want_c = False`` specialization (the plant's
-hot path: measured 7 % faster RK4 than with a run-time flag); the other jitted callers pass
-``bool(1)``, typed as a plain ``bool``, and share the Python callers' build (one ``rod_step``
-and, for the estimator, one ``coupled_terms`` build fewer on a cold start).
+plain ``bool``). The jitted callers pass ``bool(1)``, typed as a plain ``bool``, and share the
+Python callers' build.
+
+The forward dynamics (``forward_dynamics*``, ``rk4_run*``, and ``coupled_terms*`` with
+``want_c = False``) runs the recursion of :mod:`tdacm.system.forward`: the same arithmetic as the
+recursion below without ``C`` (bit-identical results), over ``J^T``, without ``J_dot``, with one
+scratch buffer per call.
 """
 
 from __future__ import annotations
