@@ -10,6 +10,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[all,dev]"
+	$(PY) -m tdacm.loop.precompile --install   # numba's cache: the first run loads, not compiles
 	touch $(STAMP)
 
 demo: $(STAMP)

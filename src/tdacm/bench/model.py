@@ -4,7 +4,9 @@ Measured in one run, for the paper system (``n = 8``) and a richer rod (torsion 
 bendings of order 3, ``n = 18``):
 
 * ``terms``: one full :meth:`TDACM.terms` call (M, C, D, K, tau_ext, B) from Python;
-* ``forward_dynamics`` through the Python API and through the numba kernel (what integrators use);
+* ``forward_dynamics`` through the Python API, through the numba kernel called from Python (its
+  dispatch included: numba types and unboxes the 26 arrays of the model at every call) and
+  inside numba (a compiled loop of calls: what the integrators and batched callers pay);
 * the real-time factor of 5 s of passive motion with the default integrator (RK4 at
   :meth:`TDACM.suggested_dt`), from a bent, moving initial state.
 
@@ -19,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from .._log import REPORT
 from .._timing import batch_times
@@ -46,6 +49,16 @@ def _stage(text: str, end: bool = False) -> None:
     sys.stderr.flush()
 
 
+@njit(cache=True)
+def _fd_loop(q, qd, u, m, loads, count):
+    """``count`` forward-dynamics evaluations inside numba (no Python dispatch per call)."""
+    acc = 0.0
+    for _ in range(count):
+        a, _ok = K.forward_dynamics(q, qd, u, m, loads)
+        acc += a[0]
+    return acc
+
+
 def _median_time(fn, number, repeats):
     a = np.array(batch_times(fn, number, repeats))
     return float(np.median(a)), float(np.percentile(a, 75) - np.percentile(a, 25))
@@ -67,6 +80,8 @@ def bench_system(name, system, repeats=7, duration=5.0):
     t_terms = _median_time(lambda: system.terms(q, qd), 2000, repeats)
     t_fd_api = _median_time(lambda: system.forward_dynamics(q, qd, u), 5000, repeats)
     t_fd_kernel = _median_time(lambda: K.forward_dynamics(q, qd, u, m, loads), 5000, repeats)
+    _fd_loop(q, qd, u, m, loads, 1)
+    loop = _median_time(lambda: _fd_loop(q, qd, u, m, loads, 1000), 1, repeats)
     dt = system.suggested_dt()
     walls = []
     for _ in range(max(3, repeats // 2)):
@@ -83,6 +98,7 @@ def bench_system(name, system, repeats=7, duration=5.0):
         "forward_dynamics_api_us": t_fd_api[0] * 1e6,
         "forward_dynamics_kernel_us": t_fd_kernel[0] * 1e6,
         "forward_dynamics_kernel_iqr_us": t_fd_kernel[1] * 1e6,
+        "forward_dynamics_in_numba_us": loop[0] / 1000 * 1e6,
         "rk4_dt_s": dt,
         "passive_sim_s": duration,
         "passive_wall_s": wall,
@@ -187,12 +203,14 @@ def run_model_bench(out="out/bench", repeats=7) -> dict:
         rows.append(bench_system(name, s, repeats, duration=d))
     _stage("model: done", end=True)
     report.info(
-        f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} {'RK4 dt':>9s} {'RTF':>8s}"
+        f"{'system':38s} {'n':>3s} {'terms':>10s} {'fd(api)':>10s} {'fd(kernel)':>11s} "
+        f"{'fd(numba)':>10s} {'RK4 dt':>9s} {'RTF':>8s}"
     )
     for r in rows:
         report.info(
             f"{r['system']:38s} {r['n']:3d} {r['terms_us']:8.1f}us {r['forward_dynamics_api_us']:8.1f}us "
-            f"{r['forward_dynamics_kernel_us']:9.1f}us {r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
+            f"{r['forward_dynamics_kernel_us']:9.1f}us {r.get('forward_dynamics_in_numba_us', np.nan):8.1f}us "
+            f"{r['rk4_dt_s']:9.2e} {r['real_time_factor']:7.1f}x"
         )
     full = paper_system(basis=StrainBasis.full(2))
     stiff = []

@@ -25,6 +25,10 @@ Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache):
 process, 42-43 s with the second one; 88.5 s against 60.1 s in a bench run at a slower moment
 of the machine (docs/benchmarks.md, "Cold start").
 
+At install time (``make``'s install step) ``python -m tdacm.loop.precompile --install``
+(:func:`fill_cache`) runs ``tdacm run paper-in-fov --duration 1`` once, so that numba's on-disk
+cache already holds the kernels at the user's first run (docs/benchmarks.md, "Cold start").
+
 The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
 machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod
 callees compiled twice would make the run slower. Anything that goes wrong in the second
@@ -146,9 +150,9 @@ def compile_second_half() -> None:
     from ..vision.ibvs import _twist_kernel
     from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 
-    # rk4_run last: by then the main process has cached the rod callees it shares with
-    # coupled_terms (rod_step, ...), which load instead of compiling twice (measured: 18 s
-    # for rk4_run instead of 28 s when it comes first)
+    # rk4_run last: by then the main process has cached the model callees it shares with
+    # coupled_terms (tdacm.system.forward, the Lie-group blocks), which load instead of
+    # compiling twice
     rc = np.tile(np.eye(3), (2, 1, 1))  # the target filter's window: C-contiguous frames
     pc = np.zeros((2, 3))
     obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
@@ -180,5 +184,42 @@ def compile_second_half() -> None:
     rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 
-if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start()
-    compile_second_half()
+#: What :func:`fill_cache` runs: the README's first command, on one simulated second.
+WARM_UP_RUN = ("run", "paper-in-fov", "--duration", "1")
+
+
+def fill_cache(timeout: float = 1800.0) -> int:
+    """Fill numba's on-disk cache at install time (the Makefile's install step runs
+    ``python -m tdacm.loop.precompile --install``): one ``tdacm run paper-in-fov --duration 1``
+    into a temporary folder, which compiles every kernel the scenario runs (in two processes,
+    as any cold run) and caches them, so that the user's first run loads them.  Returns the
+    run's exit code; a failure only costs the user that compile at the first run."""
+    import tempfile
+
+    t0 = time.perf_counter()
+    print(
+        "tdacm: compiling the numba kernels of `tdacm run paper-in-fov` into numba's cache "
+        "(once, about a minute)...",
+        flush=True,
+    )
+    with tempfile.TemporaryDirectory() as out:
+        cmd = [sys.executable, "-m", "tdacm.cli", "-q", *WARM_UP_RUN, "--out", out]
+        try:
+            proc = subprocess.run(
+                cmd, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout
+            )
+        except subprocess.TimeoutExpired:
+            print(f"tdacm: the warm-up run took over {timeout:.0f} s; stopped", flush=True)
+            return 1
+    if proc.returncode != 0:
+        print(f"tdacm: the warm-up run failed:\n{proc.stderr[-2000:]}", flush=True)
+    else:
+        print(f"tdacm: kernels cached in {time.perf_counter() - t0:.0f} s", flush=True)
+    return proc.returncode
+
+
+if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start() and make
+    if sys.argv[1:] == ["--install"]:
+        fill_cache()  # never fails the install: the kernels then compile at the first run
+    else:
+        compile_second_half()

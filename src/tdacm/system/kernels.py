@@ -32,10 +32,13 @@ node Jacobians of the same recursion (the previous node's kept for the capsule's
 
 Flags: numba compiles a separate specialization of a kernel for each literal flag
 (``True`` / ``False``) it receives from jitted code, besides the one for Python callers (a
-plain ``bool``). The forward dynamics keeps its ``want_c = False`` specialization (the plant's
-hot path: measured 7 % faster RK4 than with a run-time flag); the other jitted callers pass
-``bool(1)``, typed as a plain ``bool``, and share the Python callers' build (one ``rod_step``
-and, for the estimator, one ``coupled_terms`` build fewer on a cold start).
+plain ``bool``). The jitted callers pass ``bool(1)``, typed as a plain ``bool``, and share the
+Python callers' build.
+
+The forward dynamics (``forward_dynamics*``, ``rk4_run*``, and ``coupled_terms*`` with
+``want_c = False``) runs the recursion of :mod:`tdacm.system.forward`: the same arithmetic as the
+recursion below without ``C`` (bit-identical results), over ``J^T``, without ``J_dot``, with one
+scratch buffer per call.
 """
 
 from __future__ import annotations
@@ -527,6 +530,10 @@ def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
     forces at the rod's nodes (the rod base, its Gauss points and its tip) entering
     ``tau_ext`` through the node Jacobians (eq. (16)).  Empty arrays: none (the arithmetic of
     :func:`coupled_terms`)."""
+    if not want_c:  # the same arithmetic, faster (tdacm.system.forward)
+        m_out, cqd, tau, g, jt, jd = _F.forward_terms(q, qd, m, loads, u, aero, contact)
+        n = q.shape[0]
+        return m_out, np.zeros((n, n)), cqd, tau, g, np.ascontiguousarray(jt.T), jd
     floating = m.floating
     n = q.shape[0]
     off = 6 if floating else 0
@@ -826,15 +833,9 @@ def forward_dynamics_aero(q, qd, u, m, loads, aero):
 def forward_dynamics_env(q, qd, u, m, loads, aero, contact):
     """:func:`forward_dynamics` with the environment's loads (:func:`coupled_terms_env`:
     aerodynamics and contact; empty arrays: none, bit-identical)."""
-    mm, _, cqd, tau, _, _, _ = coupled_terms_env(q, qd, m, loads, False, u, aero, contact)
-    rhs = (
-        _matvec(input_matrix(q, m), u)
-        + tau
-        - cqd
-        - _matvec(m.damping, qd)
-        - _matvec(m.stiffness, q)
-    )
-    return cholesky_solve(mm, rhs)
+    qdd = np.empty(q.shape[0])
+    ok = _F.forward_dynamics_ws(q, qd, u, m, loads, aero, contact, _F.workspace(q.shape[0], m), qdd)
+    return qdd, ok
 
 
 @njit(cache=True)
@@ -858,35 +859,7 @@ def rk4_run_aero(q0, qd0, u, dt, nsteps, every, m, loads, aero):
 def rk4_run_env(q0, qd0, u, dt, nsteps, every, m, loads, aero, contact):
     """:func:`rk4_run` with the environment's loads (:func:`forward_dynamics_env`: the packed
     aerodynamics and contact arrays, held over the call; empty: none)."""
-    n = q0.shape[0]
-    nrec = nsteps // every + 1
-    qs = np.empty((nrec, n))
-    qds = np.empty((nrec, n))
-    q = q0.copy()
-    qd = qd0.copy()
-    qs[0] = q
-    qds[0] = qd
-    rec = 1
-    for k in range(nsteps):
-        a1, ok1 = forward_dynamics_env(q, qd, u, m, loads, aero, contact)
-        a2, ok2 = forward_dynamics_env(
-            q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, aero, contact
-        )
-        a3, ok3 = forward_dynamics_env(
-            q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, u, m, loads, aero, contact
-        )
-        a4, ok4 = forward_dynamics_env(
-            q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, aero, contact
-        )
-        if not (ok1 and ok2 and ok3 and ok4):
-            return qs[:rec], qds[:rec], False
-        q = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)
-        qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-        if (k + 1) % every == 0:
-            qs[rec] = q
-            qds[rec] = qd
-            rec += 1
-    return qs[:rec], qds[:rec], True
+    return _F.rk4_steps(q0, qd0, u, dt, nsteps, every, m, loads, aero, contact)
 
 
 @njit(cache=True)
@@ -966,3 +939,6 @@ def contact_nodes(q, qd, m, contact):
                     clearance = min(clearance, d - contact[CL.TIP_RADIUS])
             node += 1
     return points, forces, tip, clearance, speed
+
+
+from . import forward as _F  # noqa: E402  (it uses this module's helpers)

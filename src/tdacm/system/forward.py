@@ -1,0 +1,742 @@
+"""The forward-dynamics terms ``M``, ``C qdot`` and ``tau_ext`` (paper eqs. (9)-(11), (16)) in
+one recursion along the rods, written for speed.
+
+The same recursion and the same floating-point operations, in the same order, as
+:func:`tdacm.system.kernels.coupled_terms_env` with ``want_c = False`` (the arithmetic of each
+entry is unchanged, so the results are identical), but:
+
+* the Jacobian is stored transposed, ``J^T`` (n x 6): each column of ``J`` is a contiguous
+  twist, and ``Ad^-1``, ``ad`` and the tangent operator act on one twist at a time held in
+  registers;
+* only the columns of ``J`` that can be non-zero are visited: a column of a strain coordinate
+  becomes non-zero at the first Magnus step of its section (eq. (9): the rod's columns before
+  that step are exactly zero), so the products and sums with the later sections' columns,
+  which add exact zeros, are skipped;
+* ``J_dot`` is not propagated (the forward dynamics needs only ``J_dot qdot``), nor ``Z_dot``;
+* ``J^T Mb`` is formed once per column for ``M += w J^T Mb J`` (eq. (10)); the tangent
+  coefficients are scalars; the drone's rotation and Euler-rate matrix serve both the
+  Jacobian and ``B(q)``, and ``B u`` is summed without forming ``B``;
+* every scratch array of an evaluation is a view of one buffer (:func:`workspace`), which
+  :func:`rk4_steps` allocates once per call instead of once per evaluation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..aero import layout as AL
+from ..lie.blocks import expmap_rp_into
+from ..lie.euler import euler_rate_matrix, euler_rate_matrix_dot, rot_zyx
+from ..lie.se3 import _A1, _A2, _A3, _A4, SMALL_ANGLE, _dseries, _series
+from . import kernels as K
+
+_C4 = np.sqrt(3.0) / 12.0
+
+
+@njit(cache=True)
+def tangent_coefficients_scalar(th):
+    """:func:`tdacm.lie.se3.tangent_coefficients` as eight scalars (the same arithmetic)."""
+    if th < SMALL_ANGLE:
+        t2 = th * th
+        return (
+            _series(_A1, t2), _series(_A2, t2), _series(_A3, t2), _series(_A4, t2),
+            _dseries(_A1, t2), _dseries(_A2, t2), _dseries(_A3, t2), _dseries(_A4, t2),
+        )  # fmt: skip
+    s = np.sin(th)
+    c = np.cos(th)
+    t2 = th * th
+    t3 = t2 * th
+    t4 = t2 * t2
+    a0 = (4.0 - 4.0 * c - th * s) / (2.0 * t2)
+    a1 = (4.0 * th - 5.0 * s + th * c) / (2.0 * t3)
+    a2 = (2.0 - 2.0 * c - th * s) / (2.0 * t4)
+    a3 = (2.0 * th - 3.0 * s + th * c) / (2.0 * t4 * th)
+    p = 5.0 * th * s - t2 * c - 8.0 + 8.0 * c
+    r = -8.0 * th - 7.0 * th * c - t2 * s + 15.0 * s
+    return (
+        a0, a1, a2, a3,
+        p / (2.0 * t4), r / (2.0 * t4 * th), p / (2.0 * t4 * t2), r / (2.0 * t4 * t3),
+    )  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _ad(k0, k1, k2, u0, u1, u2, a0, a1, a2, b0, b1, b2):
+    """``ad(xi) x`` for ``xi = [k; u]``, ``x = [a; b]`` (:func:`tdacm.lie.blocks.ad_apply`)."""
+    return (
+        k1 * a2 - k2 * a1,
+        k2 * a0 - k0 * a2,
+        k0 * a1 - k1 * a0,
+        u1 * a2 - u2 * a1 + k1 * b2 - k2 * b1,
+        u2 * a0 - u0 * a2 + k2 * b0 - k0 * b2,
+        u0 * a1 - u1 * a0 + k0 * b1 - k1 * b0,
+    )
+
+
+@njit(cache=True)
+def _tangent_row(om, co, x, c, out):
+    """``out[c] = T(Omega) x[c]`` for one twist ``x[c]`` (6,): ``x + sum a_i ad(Omega)^i x``,
+    the recursion of :func:`tdacm.lie.blocks.tangent_apply_into`; ``co = (a_1..a_4, ...)``."""
+    k0, k1, k2, u0, u1, u2 = om[0], om[1], om[2], om[3], om[4], om[5]
+    p0, p1, p2, p3, p4, p5 = x[c, 0], x[c, 1], x[c, 2], x[c, 3], x[c, 4], x[c, 5]
+    t0, t1, t2, t3, t4, t5 = p0, p1, p2, p3, p4, p5
+    for i in range(4):
+        ai = co[i]
+        p0, p1, p2, p3, p4, p5 = _ad(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        t0 += ai * p0
+        t1 += ai * p1
+        t2 += ai * p2
+        t3 += ai * p3
+        t4 += ai * p4
+        t5 += ai * p5
+    out[c, 0], out[c, 1], out[c, 2], out[c, 3], out[c, 4], out[c, 5] = t0, t1, t2, t3, t4, t5
+
+
+@njit(cache=True)
+def _tangent_rate_row(om, co, x, out, dout):
+    """``out = T(Omega) x`` and ``dout = T_dot x`` for one twist (the rate recursion of
+    :func:`tdacm.lie.blocks.tangent_apply_into`: ``D_i = ad(Omega_dot) P_{i-1} + ad(Omega)
+    D_{i-1}``, ``T_dot x = sum b_i (w . w_dot) P_i + a_i D_i``), for ``x = Omega_dot``
+    (``x[0]``; result in ``out[0]``)."""
+    k0, k1, k2, u0, u1, u2 = om[0], om[1], om[2], om[3], om[4], om[5]
+    e0, e1, e2, e3, e4, e5 = x[0, 0], x[0, 1], x[0, 2], x[0, 3], x[0, 4], x[0, 5]
+    wwd = om[0] * e0 + om[1] * e1 + om[2] * e2
+    p0, p1, p2, p3, p4, p5 = e0, e1, e2, e3, e4, e5
+    t0, t1, t2, t3, t4, t5 = p0, p1, p2, p3, p4, p5
+    d0 = d1 = d2 = d3 = d4 = d5 = 0.0
+    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
+    for i in range(4):
+        ai = co[i]
+        bi = co[4 + i] * wwd
+        c0, c1, c2, c3, c4, c5 = _ad(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        f0, f1, f2, f3, f4, f5 = _ad(e0, e1, e2, e3, e4, e5, p0, p1, p2, p3, p4, p5)
+        g0, g1, g2, g3, g4, g5 = _ad(k0, k1, k2, u0, u1, u2, d0, d1, d2, d3, d4, d5)
+        d0, d1, d2, d3, d4, d5 = f0 + g0, f1 + g1, f2 + g2, f3 + g3, f4 + g4, f5 + g5
+        t0 += ai * c0
+        t1 += ai * c1
+        t2 += ai * c2
+        t3 += ai * c3
+        t4 += ai * c4
+        t5 += ai * c5
+        s0 += bi * c0 + ai * d0
+        s1 += bi * c1 + ai * d1
+        s2 += bi * c2 + ai * d2
+        s3 += bi * c3 + ai * d3
+        s4 += bi * c4 + ai * d4
+        s5 += bi * c5 + ai * d5
+        p0, p1, p2, p3, p4, p5 = c0, c1, c2, c3, c4, c5
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4], out[0, 5] = t0, t1, t2, t3, t4, t5
+    dout[0], dout[1], dout[2], dout[3], dout[4], dout[5] = s0, s1, s2, s3, s4, s5
+
+
+@njit(cache=True)
+def _adinv_row(r, p, x):
+    """``x <- Ad(g)^-1 x`` for one twist ``x`` (6,), ``g = (r, p)``
+    (:func:`tdacm.lie.blocks.adinv_apply`)."""
+    a0, a1, a2 = x[0], x[1], x[2]
+    b0 = x[3] - (p[1] * a2 - p[2] * a1)
+    b1 = x[4] - (p[2] * a0 - p[0] * a2)
+    b2 = x[5] - (p[0] * a1 - p[1] * a0)
+    for i in range(3):
+        x[i] = r[0, i] * a0 + r[1, i] * a1 + r[2, i] * a2
+        x[3 + i] = r[0, i] * b0 + r[1, i] * b1 + r[2, i] * b2
+
+
+@njit(cache=True)
+def _rows_adinv(r, p, x, ncols):
+    """``Ad(g)^-1`` applied to the first ``ncols`` rows of ``x`` (twists as rows)."""
+    r00, r01, r02 = r[0, 0], r[0, 1], r[0, 2]
+    r10, r11, r12 = r[1, 0], r[1, 1], r[1, 2]
+    r20, r21, r22 = r[2, 0], r[2, 1], r[2, 2]
+    p0, p1, p2 = p[0], p[1], p[2]
+    for c in range(ncols):
+        a0, a1, a2 = x[c, 0], x[c, 1], x[c, 2]
+        b0 = x[c, 3] - (p1 * a2 - p2 * a1)
+        b1 = x[c, 4] - (p2 * a0 - p0 * a2)
+        b2 = x[c, 5] - (p0 * a1 - p1 * a0)
+        x[c, 0] = r00 * a0 + r10 * a1 + r20 * a2
+        x[c, 1] = r01 * a0 + r11 * a1 + r21 * a2
+        x[c, 2] = r02 * a0 + r12 * a1 + r22 * a2
+        x[c, 3] = r00 * b0 + r10 * b1 + r20 * b2
+        x[c, 4] = r01 * b0 + r11 * b1 + r21 * b2
+        x[c, 5] = r02 * b0 + r12 * b1 + r22 * b2
+
+
+@njit(cache=True)
+def _matvec_t(jt, x, ncols, out):
+    """``out = J x`` (6,) from ``J^T`` (n x 6), over its first ``ncols`` rows (the others are
+    zero)."""
+    for i in range(6):
+        acc = 0.0
+        for k in range(ncols):
+            acc += jt[k, i] * x[k]
+        out[i] = acc
+
+
+@njit(cache=True)
+def _tmatvec_add_t(jt, f, weight, ncols, out):
+    """``out += weight J^T f`` (:func:`tdacm.system.kernels._tmatvec_add`) from ``J^T``."""
+    f0, f1, f2, f3, f4, f5 = f[0], f[1], f[2], f[3], f[4], f[5]
+    for k in range(ncols):
+        out[k] += weight * (
+            0.0 + jt[k, 0] * f0 + jt[k, 1] * f1 + jt[k, 2] * f2 + jt[k, 3] * f3 + jt[k, 4] * f4
+            + jt[k, 5] * f5
+        )  # fmt: skip
+
+
+@njit(cache=True)
+def _add_body_t(mass6, jt, eta, jdq, weight, ncols, m_out, cqd_out, mj):
+    """``M += w J^T Mb J`` and ``C qdot += w J^T (Mb J_dot qdot + coad(eta) Mb eta)`` (paper eqs.
+    (10), (11)) with ``J^T`` (n x 6) over its first ``ncols`` rows; ``mj`` is an (n, 6)
+    scratch array (:func:`tdacm.system.kernels._add_body`, ``want_c = False``)."""
+    for a in range(ncols):
+        for r in range(6):
+            mj[a, r] = jt[a, r] * mass6[r]
+    for a in range(ncols):
+        x0, x1, x2, x3, x4, x5 = mj[a, 0], mj[a, 1], mj[a, 2], mj[a, 3], mj[a, 4], mj[a, 5]
+        acc = 0.0 + x0 * jt[a, 0] + x1 * jt[a, 1] + x2 * jt[a, 2] + x3 * jt[a, 3]
+        acc = acc + x4 * jt[a, 4] + x5 * jt[a, 5]
+        m_out[a, a] += weight * acc
+        for b in range(a + 1, ncols):
+            acc = 0.0 + x0 * jt[b, 0] + x1 * jt[b, 1] + x2 * jt[b, 2] + x3 * jt[b, 3]
+            acc = acc + x4 * jt[b, 4] + x5 * jt[b, 5]
+            m_out[a, b] += weight * acc
+            m_out[b, a] += weight * acc
+    m0, m1, m2 = mass6[0] * eta[0], mass6[1] * eta[1], mass6[2] * eta[2]
+    p0, p1, p2 = mass6[3] * eta[3], mass6[4] * eta[4], mass6[5] * eta[5]
+    w0, w1, w2, v0, v1, v2 = eta[0], eta[1], eta[2], eta[3], eta[4], eta[5]
+    f0 = mass6[0] * jdq[0] - (m1 * w2 - m2 * w1 + p1 * v2 - p2 * v1)
+    f1 = mass6[1] * jdq[1] - (m2 * w0 - m0 * w2 + p2 * v0 - p0 * v2)
+    f2 = mass6[2] * jdq[2] - (m0 * w1 - m1 * w0 + p0 * v1 - p1 * v0)
+    f3 = mass6[3] * jdq[3] - (p1 * w2 - p2 * w1)
+    f4 = mass6[4] * jdq[4] - (p2 * w0 - p0 * w2)
+    f5 = mass6[5] * jdq[5] - (p0 * w1 - p1 * w0)
+    for a in range(ncols):
+        cqd_out[a] += weight * (
+            jt[a, 0] * f0 + jt[a, 1] * f1 + jt[a, 2] * f2 + jt[a, 3] * f3 + jt[a, 4] * f4
+            + jt[a, 5] * f5
+        )  # fmt: skip
+
+
+@njit(cache=True)
+def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
+    """One Magnus step of the pose / Jacobian recursion (paper eqs. (7), (9)) with ``J^T``
+    (n x 6), the twist ``eta = J qdot`` and ``J_dot qdot`` updated in place; the arithmetic of
+    :func:`tdacm.system.kernels.rod_step` with ``full_rate = False``.  The step's strain
+    coordinates are ``off .. off + len(qs)``; only the first ``ncols`` rows of ``J^T`` can be
+    non-zero after it (the others are left untouched: zero)."""
+    r, gr, xc, tx, xiv = ws
+    omega = xiv[4]
+    p = xiv[5, 0:3]
+    tdx = xiv[3]  # rows 0-3 hold xi1, xi2, v1, v2 until Z is formed, then T_dot Omega_dot, w, v, e
+    ns = qs.shape[0]
+    order4 = xi0s.shape[0] == 2
+    # Magnus step (tdacm.lie.magnus.magnus_step_into): Omega, Z^T (rows 1..ns), Z_dot qdot
+    if not order4:
+        b = bs[0]
+        for rr in range(6):
+            acc = xi0s[0, rr]
+            for c in range(ns):
+                acc += b[rr, c] * qs[c]
+            omega[rr] = acc * h
+            for c in range(ns):
+                xc[1 + c, rr] = h * b[rr, c]
+    else:
+        b0 = bs[0]
+        b1 = bs[1]
+        xi1, xi2, v1, v2 = xiv[0], xiv[1], xiv[2], xiv[3]
+        for rr in range(6):
+            a1 = xi0s[0, rr]
+            a2 = xi0s[1, rr]
+            s1 = 0.0
+            s2 = 0.0
+            for c in range(ns):
+                a1 += b0[rr, c] * qs[c]
+            for c in range(ns):
+                a2 += b1[rr, c] * qs[c]
+            for c in range(ns):
+                s1 += b0[rr, c] * qsd[c]
+            for c in range(ns):
+                s2 += b1[rr, c] * qsd[c]
+            xi1[rr], xi2[rr], v1[rr], v2[rr] = a1, a2, s1, s2
+        c4 = _C4 * h * h
+        a12 = _ad(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
+                  xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5])  # fmt: skip
+        v12 = _ad(v1[0], v1[1], v1[2], v1[3], v1[4], v1[5],
+                  v2[0], v2[1], v2[2], v2[3], v2[4], v2[5])  # fmt: skip
+        for rr in range(6):
+            omega[rr] = 0.5 * h * (xi1[rr] + xi2[rr]) + c4 * a12[rr]
+            xc[ns + 1, rr] = 2.0 * c4 * v12[rr]
+        for c in range(ns):
+            t1 = _ad(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
+                     b1[0, c], b1[1, c], b1[2, c], b1[3, c], b1[4, c], b1[5, c])  # fmt: skip
+            t2 = _ad(xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5],
+                     b0[0, c], b0[1, c], b0[2, c], b0[3, c], b0[4, c], b0[5, c])  # fmt: skip
+            for rr in range(6):
+                xc[1 + c, rr] = 0.5 * h * (b0[rr, c] + b1[rr, c]) + c4 * (t1[rr] - t2[rr])
+    # Omega_dot = Z qdot
+    for i in range(6):
+        acc = 0.0
+        for c in range(ns):
+            acc += xc[1 + c, i] * qsd[c]
+        xc[0, i] = acc
+    expmap_rp_into(omega, r, p)
+    th = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
+    co = tangent_coefficients_scalar(th)
+    _tangent_rate_row(omega, co, xc, tx, tdx)
+    for c in range(1, ns + 1):
+        _tangent_row(omega, co, xc, c, tx)
+    if order4:
+        _tangent_row(omega, co, xc, ns + 1, tx)
+    # increments before the change of frame; T Omega_dot is the relative twist of the step
+    w = xiv[0]
+    v = xiv[1]
+    e = xiv[2]
+    for c in range(ns):
+        for i in range(6):
+            jt[off + c, i] += tx[1 + c, i]
+    for i in range(6):
+        w[i] = tx[0, i]
+        v[i] = jdq[i] + tdx[i] + (tx[ns + 1, i] if order4 else 0.0)
+        e[i] = eta[i] + tx[0, i]
+    _rows_adinv(r, p, jt, ncols)
+    _adinv_row(r, p, w)
+    _adinv_row(r, p, v)
+    _adinv_row(r, p, e)
+    t = _ad(w[0], w[1], w[2], w[3], w[4], w[5], e[0], e[1], e[2], e[3], e[4], e[5])
+    for i in range(6):
+        eta[i] = e[i]
+        jdq[i] = v[i] - t[i]
+    # g <- g exp(Omega)
+    for i in range(3):
+        for k in range(3):
+            gr[i, k] = g[i, k]
+    for i in range(3):
+        acc = 0.0
+        for k in range(3):
+            acc += gr[i, k] * p[k]
+        g[i, 3] += acc
+        for c in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += gr[i, k] * r[k, c]
+            g[i, c] = acc
+
+
+@njit(cache=True)
+def _add_point_force_t(jt, g, fx, fy, fz, ncols, tau, f):
+    """``tau += J^T [0; R^T f]`` (:func:`tdacm.system.kernels._add_point_force`); ``f`` (6,)
+    scratch."""
+    for i in range(3):
+        f[i] = 0.0
+        f[3 + i] = g[0, i] * fx + g[1, i] * fy + g[2, i] * fz
+    _tmatvec_add_t(jt, f, 1.0, ncols, tau)
+
+
+@njit(cache=True)
+def _carve(buf, at, rows, cols):
+    """A C-contiguous (rows, cols) view of ``buf`` at offset ``at``, and the next offset."""
+    end = at + rows * cols
+    return buf[at:end].reshape((rows, cols)), end
+
+
+@njit(cache=True)
+def workspace(n, m):
+    """Every scratch array of one evaluation of :func:`forward_terms_ws` and
+    :func:`forward_dynamics_ws` for a system of ``n`` coordinates with model arrays ``m``, as
+    views of one buffer (one allocation)."""
+    ns = m.bs.shape[3]
+    nst = max(n - (6 if m.floating else 0), 1)
+    na = m.tendon_d.shape[1]
+    size = 8 * n * n + 6 * 6 * n + 2 * ns * 6 + nst * na + 8 * n + 400
+    buf = np.empty(size)
+    at = 0
+    m_out, at = _carve(buf, at, n, n)
+    vn, at = _carve(buf, at, 6, n)  # C qdot, tau, B u, rhs, y, scratch
+    gb, at = _carve(buf, at, 4, 4)
+    jbt, at = _carve(buf, at, n, 6)
+    jbdt, at = _carve(buf, at, n, 6)
+    v6, at = _carve(buf, at, 12, 6)  # f, eta_b, J_dot_b qdot, eta, J_dot qdot, prev, fa, ...
+    rot, at = _carve(buf, at, 4, 8)  # the rotors' states (tdacm.aero.layout.ROTOR_STATE)
+    xc, at = _carve(buf, at, ns + 2, 6)
+    tx, at = _carve(buf, at, ns + 2, 6)
+    m33, at = _carve(buf, at, 6, 9)  # R and R copy of the step, R_a, R_b, T, T_dot
+    xiv, at = _carve(buf, at, 7, 6)  # xi1, xi2, v1, v2, w, v, e
+    mj, at = _carve(buf, at, n, 6)
+    g, at = _carve(buf, at, 4, 4)
+    jt, at = _carve(buf, at, n, 6)
+    jdt, at = _carve(buf, at, n, 6)
+    g_prev, at = _carve(buf, at, 4, 4)
+    jt_prev, at = _carve(buf, at, n, 6)
+    bs_t, at = _carve(buf, at, nst, na)
+    lo, at = _carve(buf, at, n, n)
+    return (
+        m_out, vn, gb, jbt, jbdt, v6, rot, xc, tx, m33, xiv, mj, g, jt, jdt, g_prev, jt_prev,
+        bs_t, lo,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _base_into(q, qd, floating, g_fixed, gb, jbt, jbdt, m33):
+    """:func:`tdacm.system.kernels.base_state` written into ``gb`` and the transposed ``jbt``,
+    ``jbdt`` (the same arithmetic); keeps ``R`` and ``T`` in ``m33[3]``, ``m33[4]``."""
+    n = q.shape[0]
+    for c in range(n):
+        for i in range(6):
+            jbt[c, i] = 0.0
+            jbdt[c, i] = 0.0
+    if not floating:
+        gb[:, :] = g_fixed
+        return
+    r = rot_zyx(q[0], q[1], q[2])
+    t = euler_rate_matrix(q[0], q[1])
+    td = euler_rate_matrix_dot(q[0], q[1], qd[0], qd[1])
+    for i in range(4):
+        for k in range(4):
+            gb[i, k] = 1.0 if i == k else 0.0
+    for i in range(3):
+        for k in range(3):
+            gb[i, k] = r[i, k]
+            m33[3, 3 * i + k] = r[i, k]
+            m33[4, 3 * i + k] = t[i, k]
+        gb[i, 3] = q[3 + i]
+    w0 = w1 = w2 = 0.0
+    for k in range(3):
+        w0 += t[0, k] * qd[k]
+        w1 += t[1, k] * qd[k]
+        w2 += t[2, k] * qd[k]
+    for i in range(3):
+        for k in range(3):
+            jbt[k, i] = t[i, k]
+            jbdt[k, i] = td[i, k]
+            jbt[3 + k, 3 + i] = r[k, i]
+    w = (w0, w1, w2)
+    for i in range(3):
+        for k in range(3):
+            acc = 0.0
+            for p in range(3):
+                acc -= _skew_entry(w, i, p) * r[k, p]
+            jbdt[3 + k, 3 + i] = acc
+
+
+@njit(cache=True, inline="always")
+def _skew_entry(w, i, p):
+    """:func:`tdacm.system.kernels.skew_entry` on a tuple."""
+    if i == p:
+        return 0.0
+    if i == 0:
+        return -w[2] if p == 1 else w[1]
+    if i == 1:
+        return w[2] if p == 0 else -w[0]
+    return -w[1] if p == 0 else w[0]
+
+
+@njit(cache=True)
+def forward_terms(q, qd, m, loads, u, aero, contact):
+    """``M``, ``C qdot``, ``tau_ext`` (paper eqs. (10), (11), (16)), the last rod's tip pose,
+    its ``J^T`` (n x 6) and its base's ``J_dot`` (6 x n): the outputs of
+    :func:`tdacm.system.kernels.coupled_terms_env` with ``want_c = False``, computed with the
+    same arithmetic (module docstring); fresh arrays."""
+    ws = workspace(q.shape[0], m)
+    forward_terms_ws(q, qd, m, loads, u, aero, contact, ws)
+    m_out, vn, g, jt, jdt = ws[0], ws[1], ws[12], ws[13], ws[14]
+    return m_out.copy(), vn[0].copy(), vn[1].copy(), g.copy(), jt.copy(), jdt.T.copy()
+
+
+@njit(cache=True)
+def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
+    """:func:`forward_terms` into the :func:`workspace` ``ws``: ``M`` in ``ws[0]``, ``C qdot``
+    and ``tau_ext`` in ``ws[1][0]``, ``ws[1][1]``, the tip pose, ``J^T`` and the rod base's
+    ``J_dot^T`` in ``ws[12]``, ``ws[13]``, ``ws[14]``."""
+    m_out, vn, gb, jbt, jbdt, v6, rot, xc, tx, m33, xiv, mj, g, jt, jdt, g_prev, jt_prev = ws[:17]
+    floating = m.floating
+    n = q.shape[0]
+    off = 6 if floating else 0
+    cqd = vn[0]
+    tau = vn[1]
+    for i in range(n):
+        cqd[i] = 0.0
+        tau[i] = 0.0
+        for k in range(n):
+            m_out[i, k] = 0.0
+    grav = loads[0:3]
+    _base_into(q, qd, floating, m.g_fixed, gb, jbt, jbdt, m33)
+    nb = off  # the base's Jacobian has non-zero columns only for the drone's coordinates
+    f, eb, ebd, eta, jdq, prev, fa = v6[0], v6[1], v6[2], v6[3], v6[4], v6[5], v6[6]
+    fb, mb = v6[7, 0:3], v6[7, 3:6]
+    air = aero.shape[0] > 0
+    drone_air = air and floating and aero[AL.DRONE_ON] > 0.0
+    rod_air = air and aero[AL.ROD_ON] > 0.0
+    wake = rod_air and aero[AL.WAKE_ON] > 0.0
+    ax = ay = az = 0.0
+    if wake:
+        ax, ay, az = K._rotor_setup(q, qd, u, m, gb, aero, rot)
+    nst = m.h.shape[0]
+    if floating:
+        _matvec_t(jbt, qd, n, eb)
+        _matvec_t(jbdt, qd, n, ebd)
+        _add_body_t(m.mb6, jbt, eb, ebd, 1.0, nb, m_out, cqd, mj)
+        for i in range(6):
+            f[i] = loads[3 + i]
+        for i in range(3):
+            for k in range(3):
+                f[3 + i] += m.mb6[3] * gb[k, i] * grav[k]
+        if drone_air:
+            d0, d1, d2 = K._air_on_drone(gb, eb, aero)
+            f[3] += d0
+            f[4] += d1
+            f[5] += d2
+        _tmatvec_add_t(jbt, f, 1.0, nb, tau)
+    cont = contact.shape[0] > 0
+    for i in range(3):
+        mb[i] = 0.0
+    probe = cont and K._has_probe(contact)
+    ra = m33[2].reshape((3, 3))
+    rws = (m33[0].reshape((3, 3)), m33[1].reshape((3, 3)), xc, tx, xiv)
+    pa = xiv[6, 0:3]
+    for rod in range(m.rod_steps.shape[0] - 1):
+        # rod base: J_a = Ad(g_a^b)^-1 J_b^b (kernels.rod_start)
+        ga = m.g_att[rod]
+        for i in range(3):
+            pa[i] = ga[i, 3]
+            for k in range(3):
+                ra[i, k] = ga[i, k]
+        for c in range(n):
+            for i in range(6):
+                jt[c, i] = jbt[c, i]
+                jdt[c, i] = jbdt[c, i]
+        _rows_adinv(ra, pa, jt, n)
+        _rows_adinv(ra, pa, jdt, n)
+        for i in range(4):  # g = g_b g_a^b (kernels._matmul)
+            for c in range(4):
+                g[i, c] = 0.0
+            for k in range(4):
+                aik = gb[i, k]
+                for c in range(4):
+                    g[i, c] += aik * ga[k, c]
+        _matvec_t(jdt, qd, n, jdq)
+        _matvec_t(jt, qd, n, eta)
+        nact = nb
+        if cont:
+            K._rod_base_node(g, eta, prev)
+            g_prev[:] = g
+            jt_prev[:] = jt
+        for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
+            c0 = off + m.step_col[k]
+            c1 = c0 + m.step_nc[k]
+            if c1 > nact:
+                nact = c1
+            rod_step_rate(
+                m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, jt, nact, eta, jdq, rws
+            )
+            w = m.step_w[k]
+            if w == 0.0:
+                continue
+            mass6 = m.step_mass[k]
+            if mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0:
+                pass
+            else:
+                _add_body_t(mass6, jt, eta, jdq, w, nact, m_out, cqd, mj)
+            lo = m.step_load[k]
+            if lo == K.LOAD_GRAVITY:
+                for i in range(6):
+                    f[i] = 0.0
+                for i in range(3):
+                    for kk in range(3):
+                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk])
+            else:
+                for i in range(6):
+                    f[i] = loads[lo + i]
+                for i in range(3):
+                    for kk in range(3):
+                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
+                if rod_air:
+                    a0, a1, a2 = K._air_on_body(
+                        g, eta, k, lo == K.LOAD_TIP, aero, nst, rot, ax, ay, az, wake
+                    )
+                    f[3] += a0
+                    f[4] += a1
+                    f[5] += a2
+            _tmatvec_add_t(jt, f, w, nact, tau)
+            if cont and lo != K.LOAD_GRAVITY:
+                hit_a, hit_b = K._node_contact(contact, k, g, eta, prev, fa, fb)
+                mb[0] = mb[1] = mb[2] = 0.0
+                if lo == K.LOAD_TIP and K._tip_contact(contact, g, eta, fb, mb):
+                    hit_b = True
+                if hit_a:
+                    _add_point_force_t(jt_prev, g_prev, fa[0], fa[1], fa[2], n, tau, f)
+                if hit_b:
+                    _add_point_force_t(jt, g, fb[0], fb[1], fb[2], nact, tau, f)
+                    if probe and lo == K.LOAD_TIP:
+                        for i in range(3):
+                            f[i] = mb[i]
+                            f[3 + i] = 0.0
+                        _tmatvec_add_t(jt, f, 1.0, nact, tau)
+                g_prev[:] = g
+                jt_prev[:] = jt
+
+
+@njit(cache=True)
+def _input_force(q, u, m, ws, out):
+    """``out = B(q) u`` (paper eqs. (14)-(16); :func:`tdacm.system.kernels.input_matrix`
+    times ``u`` with the same arithmetic, the zero blocks of ``B`` skipped); uses ``R`` and
+    ``T`` kept by :func:`_base_into`."""
+    n = q.shape[0]
+    bs_t, m33 = ws[17], ws[9]
+    na = m.tendon_d.shape[1]
+    off = 6 if m.floating else 0
+    ut = 4 if m.floating else 0  # first tension in u
+    # B_s(q) (n_s x n_a): kernels.tendon_lengths_and_matrix without the lengths
+    for c in range(n - off):
+        for i in range(na):
+            bs_t[c, i] = 0.0
+    qs = q[off:]
+    xi = ws[10][0]
+    col = ws[10][1]
+    for gi in range(m.bg.shape[0]):
+        b = m.bg[gi]
+        c0 = m.g_col[gi]
+        nc = m.g_nc[gi]
+        for r in range(6):
+            acc = 0.0
+            for c in range(nc):
+                acc += b[r, c] * qs[c0 + c]
+            xi[r] = acc + m.xi0g[gi, r]
+        k0, k1, k2 = xi[0], xi[1], xi[2]
+        for i in range(na):
+            if m.tendon_on[gi, i] == 0.0:
+                continue
+            d0, d1, d2 = m.tendon_d[gi, i, 0], m.tendon_d[gi, i, 1], m.tendon_d[gi, i, 2]
+            v0 = k1 * d2 - k2 * d1 + xi[3] + m.tendon_dd[gi, i, 0]
+            v1 = k2 * d0 - k0 * d2 + xi[4] + m.tendon_dd[gi, i, 1]
+            v2 = k0 * d1 - k1 * d0 + xi[5] + m.tendon_dd[gi, i, 2]
+            nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            t0, t1, t2 = v0 / nv, v1 / nv, v2 / nv
+            col[0] = -(d1 * t2 - d2 * t1)
+            col[1] = -(d2 * t0 - d0 * t2)
+            col[2] = -(d0 * t1 - d1 * t0)
+            col[3] = -t0
+            col[4] = -t1
+            col[5] = -t2
+            wq = m.wq[gi]
+            for c in range(nc):
+                acc = 0.0
+                for r in range(6):
+                    acc += b[r, c] * col[r]
+                bs_t[c0 + c, i] += wq * acc
+    if m.floating:
+        r = m33[3]
+        t = m33[4]
+        g = m.gamma
+        for i in range(3):
+            acc_a = 0.0
+            acc_b = 0.0
+            for c in range(4):
+                a0 = 0.0
+                a1 = 0.0
+                for k in range(3):
+                    a0 += t[3 * k + i] * g[k, c]
+                    a1 += r[3 * i + k] * g[3 + k, c]
+                acc_a += a0 * u[c]
+                acc_b += a1 * u[c]
+            out[i] = acc_a
+            out[3 + i] = acc_b
+    for c in range(n - off):
+        acc = 0.0
+        for i in range(na):
+            acc += bs_t[c, i] * u[ut + i]
+        out[off + c] = acc
+
+
+@njit(cache=True)
+def forward_dynamics_ws(q, qd, u, m, loads, aero, contact, ws, qdd):
+    """``qdd = M^-1 (B u + tau_ext - C qdot - D qdot - K)`` (paper eq. (9)) into ``qdd``,
+    with the :func:`workspace` ``ws``; returns ``ok`` (False when ``M`` is not positive
+    definite).  The arithmetic of :func:`tdacm.system.kernels.forward_dynamics_env`."""
+    n = q.shape[0]
+    forward_terms_ws(q, qd, m, loads, u, aero, contact, ws)
+    mm, vn, lo = ws[0], ws[1], ws[18]
+    cqd, tau, bu, rhs, y = vn[0], vn[1], vn[2], vn[3], vn[4]
+    _input_force(q, u, m, ws, bu)
+    dmp = m.damping
+    stf = m.stiffness
+    for i in range(n):
+        a = 0.0
+        for k in range(n):
+            a += dmp[i, k] * qd[k]
+        b = 0.0
+        for k in range(n):
+            b += stf[i, k] * q[k]
+        rhs[i] = bu[i] + tau[i] - cqd[i] - a - b
+    # kernels.cholesky_solve
+    for i in range(n):
+        for k in range(i + 1):
+            s = mm[i, k]
+            for p in range(k):
+                s -= lo[i, p] * lo[k, p]
+            if i == k:
+                if s <= 0.0:
+                    for c in range(n):
+                        qdd[c] = 0.0
+                    return False
+                lo[i, i] = np.sqrt(s)
+            else:
+                lo[i, k] = s / lo[k, k]
+    for i in range(n):
+        s = rhs[i]
+        for p in range(i):
+            s -= lo[i, p] * y[p]
+        y[i] = s / lo[i, i]
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for p in range(i + 1, n):
+            s -= lo[p, i] * qdd[p]
+        qdd[i] = s / lo[i, i]
+    return True
+
+
+@njit(cache=True)
+def rk4_steps(q0, qd0, u, dt, nsteps, every, m, loads, aero, contact):
+    """:func:`tdacm.system.kernels.rk4_run_env` (classical RK4 at constant input, every
+    ``every``-th state kept) with one :func:`workspace` for all its evaluations; the same
+    arithmetic."""
+    n = q0.shape[0]
+    nrec = nsteps // every + 1
+    qs = np.empty((nrec, n))
+    qds = np.empty((nrec, n))
+    ws = workspace(n, m)
+    st = np.empty((8, n))
+    a1, a2, a3, a4, qs_, qds_, q, qd = st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7]
+    h2 = 0.5 * dt
+    d6 = dt * dt / 6.0
+    t6 = dt / 6.0
+    for i in range(n):
+        q[i] = q0[i]
+        qd[i] = qd0[i]
+    qs[0] = q
+    qds[0] = qd
+    rec = 1
+    for k in range(nsteps):
+        ok1 = forward_dynamics_ws(q, qd, u, m, loads, aero, contact, ws, a1)
+        for i in range(n):
+            qs_[i] = q[i] + h2 * qd[i]
+            qds_[i] = qd[i] + h2 * a1[i]
+        ok2 = forward_dynamics_ws(qs_, qds_, u, m, loads, aero, contact, ws, a2)
+        for i in range(n):
+            qs_[i] = q[i] + h2 * (qd[i] + h2 * a1[i])
+            qds_[i] = qd[i] + h2 * a2[i]
+        ok3 = forward_dynamics_ws(qs_, qds_, u, m, loads, aero, contact, ws, a3)
+        for i in range(n):
+            qs_[i] = q[i] + dt * (qd[i] + h2 * a2[i])
+            qds_[i] = qd[i] + dt * a3[i]
+        ok4 = forward_dynamics_ws(qs_, qds_, u, m, loads, aero, contact, ws, a4)
+        if not (ok1 and ok2 and ok3 and ok4):
+            return qs[:rec], qds[:rec], False
+        for i in range(n):
+            q[i] = q[i] + dt * qd[i] + d6 * (a1[i] + a2[i] + a3[i])
+            qd[i] = qd[i] + t6 * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i])
+        if (k + 1) % every == 0:
+            qs[rec] = q
+            qds[rec] = qd
+            rec += 1
+    return qs[:rec], qds[:rec], True
