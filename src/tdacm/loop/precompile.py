@@ -199,7 +199,7 @@ def fill_cache(timeout: float = 1800.0) -> int:
     t0 = time.perf_counter()
     print(
         "tdacm: compiling the numba kernels of `tdacm run paper-in-fov` into numba's cache "
-        "(once, about a minute)...",
+        "(once; a minute or more on two cores)...",
         flush=True,
     )
     with tempfile.TemporaryDirectory() as out:
