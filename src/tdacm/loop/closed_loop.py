@@ -141,10 +141,12 @@ class ClosedLoop:
 
     # ------------------------------------------------------------------ run control
     def reset(self, q0=None, qd0=None) -> StateEstimate:
-        """Start a run at ``(q0, qd0)`` (default: the plant's initial state)."""
+        """Start a run at ``(q0, qd0)`` at t = 0: without ``q0``, the plant's initial state
+        (:attr:`.plant.Plant.initial`); without ``qd0``, at rest. Every block starts over, so
+        :meth:`run` twice gives the same run twice when nothing random is drawn (sensor noise,
+        disturbances and the like go on with their random streams)."""
         p = self.plant
-        if q0 is not None:
-            p.reset(q0, p.state.qd * 0 if qd0 is None else qd0)
+        p.reset(q0, qd0)
         self.sensors.reset()
         self.perception.reset()
         self.safety.reset()
