@@ -321,6 +321,11 @@ def _run_checked(args, sc, out: Path) -> int:
     _write_pictures(out, sim, plot_run_dir, write_video)
     print(json.dumps(summary, indent=2))
     _note(f"Run written to {out.resolve()}/")
+    if (failure := summary.get("controller_failure")) is not None:
+        # a user's controller broke: its error and its own line, also with -q
+        print(f"controller failed: {failure['error']}", file=sys.stderr)
+        if failure["code"]:
+            print(f"    {failure['code']}", file=sys.stderr)
     if args.rerun is not None:
         from .viz import record_run
 
