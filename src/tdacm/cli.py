@@ -259,6 +259,8 @@ def _cmd_run(args) -> int:
         return _err(problem)
     if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
         return _err(f"--rerun must name a .rrd file, got {args.rerun}")
+    if args.rerun is not None and (problem := _out_error("--rerun", args.rerun, False)):
+        return _err(problem)
     if args.rerun is not None:
         from ._extras import require
 
