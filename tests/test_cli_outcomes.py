@@ -291,3 +291,23 @@ def test_the_actuation_figure_draws_a_malformed_u(tmp_path, run_dir):
     arrays["u"] = arrays["u"][:, :3]  # three entries where a flying TD-ACM has eight
     np.savez(bad / "timeseries.npz", **arrays)
     assert plot_run_dir(bad, formats=("png",), kinds=("actuation",))
+
+
+def test_a_rod_too_heavy_to_fly_is_named_as_the_cause(tmp_path, capsys):
+    cfg = tmp_path / "thick.toml"
+    cfg.write_text("[robot.rod]\ndiameter = 0.5\n")
+    assert main(["-q", "run", "paper-in-fov", "--config", str(cfg),
+                 "--out", str(tmp_path / "o")]) == 2  # fmt: skip
+    _one_error(capsys, "the rod is the heaviest part", "robot.rod.diameter = 0.5 m")
+
+
+def test_a_topic_map_without_its_topics_table_is_named(tmp_path, capsys):
+    from tdacm.recording import RecordingError, load_topic_map
+
+    tmap = tmp_path / "lab.toml"
+    tmap.write_text('[topic]\n"/vicon/drone/pose" = "drone_pose"\n')
+    with pytest.raises(RecordingError, match=r"has no \[topics\] table \(\[topic\] is not"):
+        load_topic_map(tmap)
+    tmap.write_text('"/vicon/drone/pose" = "drone_pose"\n"/arm" = { position = "strains" }\n')
+    assert load_topic_map(tmap) == {"/vicon/drone/pose": "drone_pose",
+                                    "/arm": {"position": "strains"}}  # fmt: skip

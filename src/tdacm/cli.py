@@ -156,9 +156,9 @@ def _compile_notice(parallel: bool = False) -> None:
 
         two = parallel and start()
         _note(
-            "tdacm: compiling the numba kernels on first use ("
-            + ("40-60 s, in two processes" if two else "30-90 s")
-            + ", cached afterwards)"
+            "tdacm: compiling the numba kernels on first use (about a minute on 2 free cores, "
+            + ("in two processes, " if two else "")
+            + "longer on a busy machine; cached afterwards)"
         )
 
 
