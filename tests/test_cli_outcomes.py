@@ -311,3 +311,17 @@ def test_a_topic_map_without_its_topics_table_is_named(tmp_path, capsys):
     tmap.write_text('"/vicon/drone/pose" = "drone_pose"\n"/arm" = { position = "strains" }\n')
     assert load_topic_map(tmap) == {"/vicon/drone/pose": "drone_pose",
                                     "/arm": {"position": "strains"}}  # fmt: skip
+
+
+def test_ctrl_c_while_the_figures_are_written_says_interrupted(tmp_path, capsys, monkeypatch):
+    import tdacm.viz
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tdacm.viz, "plot_run_dir", interrupted)
+    code, out = _run(tmp_path, "cut", "", duration="0.1")
+    cap = capsys.readouterr()
+    assert code == 130 and cap.out == ""
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] and (out / "timeseries.npz").is_file()

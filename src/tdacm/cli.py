@@ -320,7 +320,14 @@ def _run_checked(args, sc, out: Path) -> int:
             )
         )
         return 130
-    _write_pictures(out, sim, plot_run_dir, write_video)
+    try:
+        _write_pictures(out, sim, plot_run_dir, write_video)
+    except KeyboardInterrupt:  # the run's data is written: the summary says it was cut short
+        summary["interrupted"] = True
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        _note(f"interrupted (Ctrl-C) while writing the figures: the run's data is in "
+              f"{out.resolve()}/ (`tdacm plot {out}` draws them)")  # fmt: skip
+        return 130
     print(json.dumps(summary, indent=2))
     _note(f"Run written to {out.resolve()}/")
     if (failure := summary.get("controller_failure")) is not None:
