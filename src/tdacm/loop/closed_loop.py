@@ -17,9 +17,8 @@ diverging, a non-finite command, the low-level controller raising or returning a
 command (:attr:`~.data.Termination.CONTROLLER_FAILED`, its frame in
 :attr:`ClosedLoop.controller_failure`: the boundary with a user's code), or Ctrl-C. Whatever
 state the plant, cameras, estimator or servo reach ends the run this way; an exception means a
-bug. A C_L frame whose corners admit
-no pose with the target in front of the camera (large pixel noise) is a missed frame, not an
-end.
+bug. A C_L frame whose corners admit no pose with the target in front of the camera (large
+pixel noise) is a missed frame, not an end.
 
 ``tdacm run``, campaigns and the Gymnasium env all drive this class
 (:func:`tdacm.sim.assemble.build_loop` assembles it from a scenario).
