@@ -279,6 +279,7 @@ def test_extends_in_a_config_file_is_one_error_line(tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.filterwarnings("ignore:No artists with labels")  # no tensions to draw
 def test_the_actuation_figure_draws_a_malformed_u(tmp_path, run_dir):
     import shutil
 
