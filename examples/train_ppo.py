@@ -104,7 +104,9 @@ def _models(env):
             x = nn.tanh(nn.Dense(64)(inputs["observations"]))
             x = nn.tanh(nn.Dense(64)(x))
             mean = nn.tanh(nn.Dense(self.num_actions)(x))
-            log_std = self.param("log_std", lambda _: jnp.full(self.num_actions, -0.5))
+            log_std = self.param(
+                "log_std", lambda _: jnp.full(self.num_actions, -0.5, dtype=jnp.float32)
+            )
             return mean, {"log_std": log_std}
 
     class Value(DeterministicMixin, Model):
