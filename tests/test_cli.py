@@ -66,9 +66,11 @@ def test_demo_writes_plot_data_and_bends_toward_static_value(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["completed"]
-    # the tendon step bends the rod about z; the hovering drone keeps it near the static curvature
-    kz, expected = summary["final_q_s"][1], summary["expected_q_s_static"][1]
-    assert np.sign(kz) == np.sign(expected) and abs(kz) > 0.3 * abs(expected)
+    # the tendon step bends the rod about z; it oscillates about the static curvature with the
+    # drone held (0.113 1/m: the rod's weight and the camera pull it back from 0.255)
+    kz, static = summary["final_q_s"][1], summary["static_q_s_drone_held"][1]
+    assert static == pytest.approx(0.1130, abs=5e-4)
+    assert 0.7 * static < kz < 1.3 * static
     cap = capsys.readouterr()
     json.loads(cap.out)  # stdout: the summary only
     assert "Demo output written to" in cap.err

@@ -230,3 +230,99 @@ def test_an_error_after_ctrl_c_during_a_compilation_exits_130(monkeypatch, capsy
     hook(Unraisable())
     assert len(seen) == 3
     sys.unraisablehook = sys.__unraisablehook__
+
+
+def test_rerun_under_a_file_is_one_error_line_before_the_run(tmp_path, capsys):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    out = tmp_path / "run"
+    assert main(["run", "paper-in-fov", "--rerun", str(f / "x.rrd"), "--out", str(out)]) == 2
+    _one_error(capsys, "--rerun", "is a file, not a folder")
+    assert not out.exists()  # nothing run
+
+
+SPEC = 'scenario = "paper-in-fov"\nruns = 2\nseed = 7\nduration = 0.06\n'
+
+
+@pytest.mark.parametrize("address", ["not-an-address", "tcp://127.0.0.1:1"])
+def test_a_bad_or_unreachable_scheduler_is_one_error_line(tmp_path, capsys, address):
+    pytest.importorskip("distributed")
+    import time
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    t0 = time.perf_counter()
+    code = main(["-q", "campaign", str(spec), "--scheduler", address,
+                 "--out", str(tmp_path / "c")])  # fmt: skip
+    assert code == 2
+    _one_error(capsys, "--scheduler", address)
+    assert time.perf_counter() - t0 < 20  # not the 30 s default connect timeout
+
+
+def test_identify_on_a_truncated_timeseries_is_one_error_line(tmp_path, run_dir, capsys):
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(run_dir, bad)
+    data = (bad / "timeseries.npz").read_bytes()
+    (bad / "timeseries.npz").write_bytes(data[: len(data) // 2])
+    assert main(["-q", "identify", str(bad), "--params", "E", "--out", str(tmp_path / "id")]) == 2
+    _one_error(capsys, "timeseries.npz", "cannot be read")
+
+
+def test_extends_in_a_config_file_is_one_error_line(tmp_path, capsys):
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text('extends = "ground-test-a"\n')
+    out = tmp_path / "run"
+    assert main(["run", "paper-in-fov", "--config", str(cfg), "--out", str(out)]) == 2
+    _one_error(capsys, "extends", str(cfg), "paper-in-fov")
+    assert not out.exists()
+
+
+@pytest.mark.filterwarnings("ignore:No artists with labels")  # no tensions to draw
+def test_the_actuation_figure_draws_a_malformed_u(tmp_path, run_dir):
+    import shutil
+
+    from tdacm.viz import plot_run_dir
+
+    bad = tmp_path / "bad"
+    shutil.copytree(run_dir, bad)
+    with np.load(bad / "timeseries.npz") as d:
+        arrays = {k: d[k] for k in d.files}
+    arrays["u"] = arrays["u"][:, :3]  # three entries where a flying TD-ACM has eight
+    np.savez(bad / "timeseries.npz", **arrays)
+    assert plot_run_dir(bad, formats=("png",), kinds=("actuation",))
+
+
+def test_a_rod_too_heavy_to_fly_is_named_as_the_cause(tmp_path, capsys):
+    cfg = tmp_path / "thick.toml"
+    cfg.write_text("[robot.rod]\ndiameter = 0.5\n")
+    assert main(["-q", "run", "paper-in-fov", "--config", str(cfg),
+                 "--out", str(tmp_path / "o")]) == 2  # fmt: skip
+    _one_error(capsys, "the rod is the heaviest part", "robot.rod.diameter = 0.5 m")
+
+
+def test_a_topic_map_without_its_topics_table_is_named(tmp_path, capsys):
+    from tdacm.recording import RecordingError, load_topic_map
+
+    tmap = tmp_path / "lab.toml"
+    tmap.write_text('[topic]\n"/vicon/drone/pose" = "drone_pose"\n')
+    with pytest.raises(RecordingError, match=r"has no \[topics\] table \(\[topic\] is not"):
+        load_topic_map(tmap)
+    tmap.write_text('"/vicon/drone/pose" = "drone_pose"\n"/arm" = { position = "strains" }\n')
+    assert load_topic_map(tmap) == {"/vicon/drone/pose": "drone_pose",
+                                    "/arm": {"position": "strains"}}  # fmt: skip
+
+
+def test_ctrl_c_while_the_figures_are_written_says_interrupted(tmp_path, capsys, monkeypatch):
+    import tdacm.viz
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tdacm.viz, "plot_run_dir", interrupted)
+    code, out = _run(tmp_path, "cut", "", duration="0.1")
+    cap = capsys.readouterr()
+    assert code == 130 and cap.out == ""
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] and (out / "timeseries.npz").is_file()

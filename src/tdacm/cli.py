@@ -96,9 +96,9 @@ def _compile_notice(parallel: bool = False) -> None:
 
         two = parallel and start()
         _note(
-            "tdacm: compiling the numba kernels on first use ("
-            + ("40-60 s, in two processes" if two else "30-90 s")
-            + ", cached afterwards)"
+            "tdacm: compiling the numba kernels on first use (about a minute on 2 free cores, "
+            + ("in two processes, " if two else "")
+            + "longer on a busy machine; cached afterwards)"
         )
 
 
@@ -228,6 +228,8 @@ def _cmd_run(args) -> int:
         return _err(problem)
     if args.rerun is not None and Path(args.rerun).suffix != ".rrd":
         return _err(f"--rerun must name a .rrd file, got {args.rerun}")
+    if args.rerun is not None and (problem := _out_error("--rerun", args.rerun, False)):
+        return _err(problem)
     if args.rerun is not None:
         from ._extras import require
 
@@ -287,9 +289,21 @@ def _run_checked(args, sc, out: Path) -> int:
             )
         )
         return 130
-    _write_pictures(out, sim, plot_run_dir, write_video)
+    try:
+        _write_pictures(out, sim, plot_run_dir, write_video)
+    except KeyboardInterrupt:  # the run's data is written: the summary says it was cut short
+        summary["interrupted"] = True
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        _note(f"interrupted (Ctrl-C) while writing the figures: the run's data is in "
+              f"{out.resolve()}/ (`tdacm plot {out}` draws them)")  # fmt: skip
+        return 130
     print(json.dumps(summary, indent=2))
     _note(f"Run written to {out.resolve()}/")
+    if (failure := summary.get("controller_failure")) is not None:
+        # a user's controller broke: its error and its own line, also with -q
+        print(f"controller failed: {failure['error']}", file=sys.stderr)
+        if failure["code"]:
+            print(f"    {failure['code']}", file=sys.stderr)
     if args.rerun is not None:
         from .viz import record_run
 

@@ -1,5 +1,7 @@
 """Campaign specs, seeding, the failure path, resume, and local vs separate scheduler."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -294,3 +296,40 @@ def test_success_window_criterion(scenario_data):
                        ("success_window = 5.0", "must not exceed duration")):  # fmt: skip
         with pytest.raises(CampaignSpecError, match=match):
             parse_spec(base + bad, "s", scenario_data)
+
+
+def test_the_report_draws_success_and_error_against_every_sampled_parameter(
+    tmp_path, scenario_data
+):
+    """One sensitivity figure per sampled parameter (a panel per component that varies)."""
+    from tdacm.campaign.report import sampled_values, write_report
+    from tdacm.campaign.store import write_row
+
+    spec = parse_spec(
+        'scenario = "paper-in-fov"\nruns = 24\nseed = 3\n[distributions]\n'
+        '"initial.q" = { kind = "normal", std = [0, 0, 0.02, 0.05, 0.05, 0.05, 0.02, 0.02] }\n'
+        '"model.perturbation" = { kind = "uniform", low = 0.05, high = 0.15 }\n'
+        '"cameras.local_renderer" = { kind = "choice", values = ["planar", "analytic"] }\n',
+        "s",
+        scenario_data,
+    )
+    store = tmp_path / "results"
+    store.mkdir()
+    rng = np.random.default_rng(0)
+    for i, seed in enumerate(spec.run_seeds()):
+        over = sample_overrides(spec, scenario_data, int(seed))
+        final = float(over["model"]["perturbation"] * rng.uniform(0.05, 0.2))
+        write_row(store, {"run": i, "seed": int(seed), "status": "ok", "success": final < 0.01,
+                          "final_rmse": final, "overrides": json.dumps(over)})  # fmt: skip
+    write_row(store, {"run": 24, "seed": 1, "status": "error", "success": False,
+                      "error": "worker failure", "overrides": ""})  # fmt: skip
+    report = write_report(spec, tmp_path)
+    names = {"sensitivity/initial.q.png", "sensitivity/model.perturbation.png",
+             "sensitivity/cameras.local_renderer.png"}  # fmt: skip
+    assert set(report["sensitivity"]) == names
+    for name in names:
+        assert (tmp_path / name).stat().st_size > 10_000
+    assert "sensitivity/model.perturbation.png" in (tmp_path / "report.md").read_text()
+    cols = sampled_values(read_results(tmp_path), "initial.q")
+    assert list(cols) == [f"initial.q[{i}]" for i in range(2, 8)]  # the components that vary
+    assert np.isnan(cols["initial.q[2]"][-1])  # the failed run has no sampled value

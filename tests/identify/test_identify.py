@@ -147,7 +147,13 @@ def test_cli_identify_writes_the_report_and_names_bad_flags(tmp_path, capsys):
     assert code == 0
     for name in ("identification.json", "robot.toml", "identification.png"):
         assert (out / name).is_file()
-    assert "[robot.rod]" in capsys.readouterr().out
+    cap = capsys.readouterr()
+    assert "[robot.rod]" in cap.out
+    # progress on stderr: what is fitted, then each iteration
+    assert "identify: fitting E, tip_mass to 1 recording" in cap.err
+    assert "identify: iteration 1, cost " in cap.err
+    assert main(["-q", "identify", str(tmp_path / "rec"), "--params", "E", "--out", str(out)]) == 0
+    assert "identify" not in capsys.readouterr().err  # -q: no progress
     assert main(["identify", str(tmp_path / "rec"), "--params", "E,bogus"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: --params")

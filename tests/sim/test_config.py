@@ -150,11 +150,12 @@ def test_extends_chains_paths_and_cycles(tmp_path):
     (tmp_path / "c.toml").write_text('extends = "sub/b.toml"\n[ibvs]\ngain = 0.7\n')
     sc = load_scenario(str(tmp_path / "c.toml"))
     assert sc["duration"] == 1.5 and sc["ibvs"]["gain"] == 0.7 and sc.name == "ground-test-a"
-    # a --config file extends too: its chain is merged before it overrides the scenario
+    # a --config file overrides the scenario named with it: an extends there is refused
     cfg = tmp_path / "cfg.toml"
     cfg.write_text('extends = "sub/b.toml"\nseed = 3\n')
-    sc = load_scenario("paper-in-fov", cfg)
-    assert sc["seed"] == 3 and sc["duration"] == 1.5 and sc["system"]["base"] == "fixed"
+    with pytest.raises(ScenarioError, match="extends is not allowed in a --config file") as exc:
+        load_scenario("paper-in-fov", cfg)
+    assert str(cfg) in str(exc.value) and "'paper-in-fov'" in str(exc.value)
     (tmp_path / "x.toml").write_text('extends = "y.toml"\n')
     (tmp_path / "y.toml").write_text('extends = "x.toml"\n')
     with pytest.raises(ScenarioError, match="extends cycle") as exc:

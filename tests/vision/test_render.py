@@ -213,3 +213,23 @@ def test_egl_backend_in_subprocess():
     assert out.returncode == 0, out.stderr[-2000:]
     rms = float(out.stdout.split("RMS")[-1])
     assert rms < 0.8
+
+
+def test_pybullet_prints_no_banner_unless_debug_logging_is_on():
+    """pybullet's C-level output (build time, the EGL plugin's GL banner) is dropped: stdout
+    and stderr stay empty; with the ``tdacm`` logger at DEBUG (``tdacm -v``) it goes to
+    stderr."""
+    code = (
+        "import logging, sys\n"
+        "if sys.argv[1] == 'debug': logging.getLogger('tdacm').setLevel(logging.DEBUG)\n"
+        "from tdacm.vision.render import PyBulletRenderer\n"
+        "r = PyBulletRenderer(backend='auto'); print(r.backend, file=sys.stderr); r.close()\n"
+    )
+    quiet = subprocess.run([sys.executable, "-c", code, "quiet"], capture_output=True, text=True)
+    assert quiet.returncode == 0, quiet.stderr
+    backend = quiet.stderr.strip()
+    assert quiet.stdout == "" and backend in ("egl", "tiny"), quiet.stderr
+    debug = subprocess.run([sys.executable, "-c", code, "debug"], capture_output=True, text=True)
+    assert debug.stdout == ""
+    if backend == "egl":
+        assert "GL_VERSION" in debug.stderr

@@ -1,4 +1,6 @@
-"""Campaign report: success rate with a Wilson interval, distributions, worst runs, plots."""
+"""Campaign report: success rate with a Wilson interval, distributions, worst runs, plots, and
+the sensitivity to each sampled parameter (``sensitivity/KEY.png``: final error and success
+against the sampled value, a panel per component that varies)."""
 
 from __future__ import annotations
 
@@ -127,11 +129,118 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
                     "error": _first_line(r.get("error")),
                 }
             )
+    report["sensitivity"] = (
+        [str(p.relative_to(out)) for p in write_sensitivity(df, spec, out)] if n else []
+    )
     (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
     _write_markdown(report, out)
     if n:
         _plot(df, spec, out)
     return report
+
+
+def sampled_values(df, key: str) -> dict:
+    """``{label: values per run}`` of the sampled parameter ``key`` (a dotted scenario key of
+    the spec's ``[distributions]``) from the rows' ``overrides``: one entry for a number, one per
+    component that varies for a vector (``key[i]``; none for a number that did not vary), the
+    category's text for a string or a bool; ``NaN`` (``None`` for text) where a row has no
+    value (a worker failure)."""
+    parts = key.split(".")
+    raw = []
+    for text in df["overrides"] if "overrides" in df else [""] * len(df):
+        node = json.loads(text) if isinstance(text, str) and text else {}
+        for part in parts:
+            node = node.get(part) if isinstance(node, dict) else None
+        raw.append(node)
+    present = [v for v in raw if v is not None]
+    if not present:
+        return {}
+    if isinstance(present[0], bool | str):
+        return {key: [None if v is None else str(v) for v in raw]}
+    if isinstance(present[0], list):
+        width = len(present[0])
+        rows = np.array([v if isinstance(v, list) and len(v) == width else [np.nan] * width
+                         for v in raw], float)  # fmt: skip
+        return {
+            f"{key}[{i}]": rows[:, i]
+            for i in range(width)
+            if np.nanmax(rows[:, i]) > np.nanmin(rows[:, i])
+        }
+    x = np.array([np.nan if v is None else v for v in raw], float)
+    return {key: x} if np.nanmax(x) > np.nanmin(x) else {}
+
+
+def write_sensitivity(df, spec, out: Path, bins: int = 6) -> list[Path]:
+    """``OUT/sensitivity/KEY.png`` for every sampled parameter of the spec: per component
+    that varies, the final normalized RMSE of each run against its sampled value (green:
+    success, red: not) and the success rate in ``bins`` quantile bins of the value (95 %
+    Wilson interval). Returns the files written (a parameter that did not vary: none)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = out / "sensitivity"
+    success = df["success"].to_numpy(bool)
+    final = (
+        df["final_rmse"].astype(float).to_numpy()
+        if "final_rmse" in df
+        else np.full(len(df), np.nan)
+    )
+    paths = []
+    for key in sorted(spec.distributions):
+        columns = sampled_values(df, key)
+        if not columns:
+            continue
+        k = len(columns)
+        fig, axes = plt.subplots(2, k, figsize=(3.4 * k + 1.0, 5.8), squeeze=False)
+        for j, (label, x) in enumerate(columns.items()):
+            top, bottom = axes[0, j], axes[1, j]
+            if isinstance(x, list):  # categories: their index on the axis
+                names = sorted({v for v in x if v is not None})
+                x = np.array([np.nan if v is None else names.index(v) for v in x], float)
+                for ax in (top, bottom):
+                    ax.set_xticks(range(len(names)), names)
+                centres = [(np.flatnonzero(x == i), float(i)) for i in range(len(names))]
+            else:
+                x = np.asarray(x, float)
+                good = np.isfinite(x)
+                edges = np.unique(np.quantile(x[good], np.linspace(0, 1, bins + 1)))
+                idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+                centres = [
+                    (np.flatnonzero(good & (idx == b)), 0.5 * (edges[b] + edges[b + 1]))
+                    for b in range(max(len(edges) - 1, 1))
+                ]
+            ok = np.isfinite(x) & np.isfinite(final) & (final > 0)
+            top.scatter(x[ok], final[ok], c=np.where(success[ok], "C2", "C3"), s=10)
+            if ok.any():
+                top.set_yscale("log")
+            top.axhline(spec.success_rmse, color="k", ls="--", lw=0.8)
+            top.set_title(label, fontsize=9)
+            rate, lo, hi, at = [], [], [], []
+            for members, centre in centres:
+                if members.size:
+                    hits = int(success[members].sum())
+                    a, b = wilson_interval(hits, members.size)
+                    rate.append(hits / members.size)
+                    lo.append(rate[-1] - a)
+                    hi.append(b - rate[-1])
+                    at.append(centre)
+            bottom.errorbar(at, rate, yerr=[lo, hi], fmt="o-", color="C0", capsize=3)
+            bottom.set_ylim(-0.05, 1.05)
+            bottom.set_xlabel("sampled value")
+            for ax in (top, bottom):
+                ax.grid(alpha=0.3)
+        axes[0, 0].set_ylabel("final normalized RMSE")
+        axes[1, 0].set_ylabel("success rate (95 % CI)")
+        fig.suptitle(f"{spec.scenario}, {len(df)} runs:\nsensitivity to {key}", fontsize=10)
+        fig.tight_layout()
+        folder.mkdir(exist_ok=True)
+        path = folder / f"{key}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths
 
 
 def _write_markdown(report, out: Path):
@@ -187,6 +296,9 @@ def _write_markdown(report, out: Path):
         lines.append(
             f"| {w['run']} | {w['seed']} | {w['status']} | {w['final_rmse']} | `{w['replay']}` |"
         )
+    if report.get("sensitivity"):
+        lines += ["", "## Sensitivity to the sampled parameters", ""]
+        lines += [f"- [{Path(p).stem}]({p})" for p in report["sensitivity"]]
     (out / "report.md").write_text("\n".join(lines) + "\n")
 
 

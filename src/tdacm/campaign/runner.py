@@ -125,6 +125,37 @@ def _prepare_out(spec: CampaignSpec, out: Path) -> Path:
     return store
 
 
+#: s: how long a campaign waits for the Dask scheduler named by ``scheduler`` to answer
+SCHEDULER_TIMEOUT_S = 5.0
+
+
+def _check_scheduler_address(address: str) -> None:
+    """A ``CampaignSpecError`` naming ``--scheduler`` unless ``address`` reads as a Dask
+    address (``tcp://host:port``; a bare ``host:port`` is TCP)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, loc = parse_address(address)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(loc)
+    except ValueError as exc:
+        raise CampaignSpecError(
+            f"--scheduler {address!r} is not a Dask scheduler address (tcp://host:port): {exc}"
+        ) from None
+
+
+def _connect(Client, address: str):
+    """A client of the scheduler at ``address``, or a ``CampaignSpecError`` naming
+    ``--scheduler`` when none answers within :data:`SCHEDULER_TIMEOUT_S`."""
+    try:
+        return Client(address, timeout=SCHEDULER_TIMEOUT_S)
+    except (OSError, TimeoutError) as exc:
+        raise CampaignSpecError(
+            f"--scheduler {address}: no Dask scheduler answered within "
+            f"{SCHEDULER_TIMEOUT_S:g} s ({type(exc).__name__})"
+        ) from None
+
+
 def run_campaign(
     spec_or_path,
     out,
@@ -144,6 +175,8 @@ def run_campaign(
 
     from ..sim.scenario import load_scenario
 
+    if scheduler:
+        _check_scheduler_address(scheduler)
     spec = load_spec(spec_or_path) if not isinstance(spec_or_path, CampaignSpec) else spec_or_path
     out = Path(out)
     store = _prepare_out(spec, out)
@@ -161,7 +194,7 @@ def run_campaign(
     if todo:
         cluster = None
         if scheduler:
-            client = Client(scheduler)
+            client = _connect(Client, scheduler)
         else:
             n = workers or max(1, (os.cpu_count() or 1))
             if int(n) < 1:

@@ -222,8 +222,7 @@ class TipServoEnv(gym.Env):
         q = w.q0 + self.np_random.normal(0.0, self.init_noise, size=self.n)
         if loop.plant.system.floating:
             q[:2] = w.q0[:2]  # roll/pitch are not free: start level as the scenario
-        loop.plant.reset(q, w.qd0)
-        loop.reset()
+        loop.reset(q, w.qd0)
         self.steps = 0
         self.lost = 0
         obs, view, _, rmse, _ = self._observe()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import tomllib
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -172,8 +173,7 @@ def _load_folder(path: Path, scenario) -> Recording:
     if not npz.is_file():
         raise RecordingInputError(f"RECORDING {path} has no timeseries.npz")
     model, world = model_of_scenario(_scenario_for(path, scenario))
-    with np.load(npz) as d:
-        arrays = {k: d[k] for k in d.files}
+    arrays = _read_npz(npz, path)
     for key in ("t", "q", "u"):
         if key not in arrays:
             raise RecordingInputError(f"RECORDING {path}: timeseries.npz has no {key!r}")
@@ -191,8 +191,7 @@ def _load_folder(path: Path, scenario) -> Recording:
     meas = path / "measurements.npz"
     pixels = None
     if meas.is_file():
-        with np.load(meas) as d:
-            m = {k: d[k] for k in d.files}
+        m = _read_npz(meas, path)
         t = m["t"]
         u = m["u"]
         tip = pose7_to_matrix(m["tip_pose"]) if "tip_pose" in m else None
@@ -209,6 +208,18 @@ def _load_folder(path: Path, scenario) -> Recording:
         path.name, t, u, model, tip, drone if sysm.floating else None, pixels,
         world.scene.target_points_world(), world.robot.local_camera, truth, q, added,
     )  # fmt: skip
+
+
+def _read_npz(npz: Path, path: Path) -> dict:
+    """The arrays of ``npz`` (of the recording ``path``), or one-line error if it cannot be
+    read (truncated, or not an ``.npz``)."""
+    try:
+        with np.load(npz) as d:
+            return {k: d[k] for k in d.files}
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:
+        raise RecordingInputError(
+            f"RECORDING {path}: {npz.name} cannot be read (truncated or not an .npz): {exc}"
+        ) from None
 
 
 def _added(path: Path) -> dict:

@@ -373,6 +373,7 @@ def identify(
     substeps: int = 1,
     fixed: dict | None = None,
     decimate: int = 1,
+    stage: str | None = None,
 ) -> Identification:
     """Estimate ``params`` (names of :data:`~tdacm.identify.params.PARAMETERS`) from
     ``recordings`` (one :class:`~tdacm.identify.data.Recording` or several of the same robot).
@@ -385,7 +386,9 @@ def identify(
     fitted that replace the nominal ones (e.g. an earlier stage's estimates); ``decimate``:
     fit every k-th sample with RK4 steps of k sample periods (halves the cost at k = 2 and
     100 Hz: 20 ms steps keep the paper robot's RK4 error near 2e-5 m, far below the motion
-    capture's noise; the inputs are averaged over each step)."""
+    capture's noise; the inputs are averaged over each step). Progress (the parameters, then
+    each iteration's cost) is logged at INFO (stderr with ``tdacm identify``, hidden by
+    ``-q``), each line starting with ``stage`` when given."""
     t0 = time.perf_counter()
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
     if not recs:
@@ -415,8 +418,21 @@ def identify(
             lb[i], ub[i] = z0[i] - SEARCH_FACTOR, z0[i] + SEARCH_FACTOR
             if PARAMETERS[n].nonnegative:
                 lb[i] = max(lb[i], 0.0)  # friction only dissipates
+    label = f"identify ({stage})" if stage else "identify"
+    log.info("%s: fitting %s to %d recording%s (at most %d evaluations)", label,
+             ", ".join(names), len(recs), "s" if len(recs) != 1 else "", max_nfev)  # fmt: skip
+    iterations = 0
+
+    def jacobian(z):  # once per iteration of the solver: its progress
+        nonlocal iterations
+        iterations += 1
+        r = prob.residual(z)
+        log.info("%s: iteration %d, cost %.6g (%.0f s)", label, iterations, float(r @ r),
+                 time.perf_counter() - t0)  # fmt: skip
+        return prob.jacobian(z)
+
     sol = least_squares(
-        prob.residual, z0, jac=prob.jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
+        prob.residual, z0, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
         ftol=1e-7, xtol=1e-7, gtol=1e-8, max_nfev=max_nfev,
     )  # fmt: skip
     jac = sol.jac
@@ -451,7 +467,8 @@ def identify(
             e = pred.base[:, :3, 3] - rec.drone[:, :3, 3]
             rms["drone_m"] = float(np.sqrt(np.mean(e**2)))
         res.rms[key] = rms
-    log.info("identified %s in %.1f s (%d evaluations)", names, res.seconds, res.nfev)
+    log.info("%s: identified %s in %.1f s (%d evaluations)", label, ", ".join(names),
+             res.seconds, res.nfev)  # fmt: skip
     return res
 
 
@@ -469,8 +486,9 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
     rod = [n for n in params if n not in drone]
     if not (clamped and flying and rod and drone):
         return identify(recs, params, start, **kw)
-    a = identify(clamped, rod, start, **kw)
-    b = identify(flying, drone, start, fixed=a.values, **kw)
+    a = identify(clamped, rod, start, stage="stage 1/2, the rod, clamped recordings", **kw)
+    b = identify(flying, drone, start, fixed=a.values,
+                 stage="stage 2/2, the drone, flying recordings", **kw)  # fmt: skip
     names = rod + drone
     corr = np.zeros((len(names), len(names)))
     corr[: len(rod), : len(rod)] = a.corr

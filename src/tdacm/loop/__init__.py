@@ -17,6 +17,7 @@ from .closed_loop import ClosedLoop, LoopStep, RunResult
 from .data import (
     ActuatorCommand,
     CameraMeasurement,
+    ControllerFailure,
     GlobalView,
     LocalView,
     PlantState,
@@ -43,6 +44,7 @@ __all__ = [
     "CameraSensor",
     "ClosedLoop",
     "ControllerContext",
+    "ControllerFailure",
     "Disturbances",
     "Estimator",
     "GlobalView",

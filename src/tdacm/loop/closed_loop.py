@@ -13,10 +13,12 @@ One period of :meth:`ClosedLoop.step`, data flowing one way::
 A run ends at its duration or with a :class:`~.data.Termination` (``LoopStep.termination``,
 with the reason in words): the safety monitor, a failed recovery, the plant's integration
 failing, the drone tumbling, a detected point behind the virtual camera, the estimator
-diverging, a non-finite command, or Ctrl-C. Whatever state the plant, cameras, estimator or
-servo reach ends the run this way; an exception means a bug. A C_L frame whose corners admit
-no pose with the target in front of the camera (large pixel noise) is a missed frame, not an
-end.
+diverging, a non-finite command, the low-level controller raising or returning a malformed
+command (:attr:`~.data.Termination.CONTROLLER_FAILED`, its frame in
+:attr:`ClosedLoop.controller_failure`: the boundary with a user's code), or Ctrl-C. Whatever
+state the plant, cameras, estimator or servo reach ends the run this way; an exception means a
+bug. A C_L frame whose corners admit no pose with the target in front of the camera (large
+pixel noise) is a missed frame, not an end.
 
 ``tdacm run``, campaigns and the Gymnasium env all drive this class
 (:func:`tdacm.sim.assemble.build_loop` assembles it from a scenario).
@@ -24,8 +26,11 @@ end.
 
 from __future__ import annotations
 
+import sys
 import time
+import traceback
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -33,6 +38,7 @@ from ..control import Mode
 from ..vision.virtual import BehindVirtualCamera
 from .data import (
     ActuatorCommand,
+    ControllerFailure,
     ForceReading,
     GlobalView,
     LocalView,
@@ -85,6 +91,7 @@ class RunResult:
     plan: dict | None
     interrupted: bool = False
     termination: Termination | None = None
+    controller_failure: ControllerFailure | None = None
 
 
 class ClosedLoop:
@@ -138,13 +145,18 @@ class ClosedLoop:
         self._request_global = False
         self.switch_time = None
         self.plan = None
+        #: why the low-level controller ended the run (it raised, or returned a malformed
+        #: command), with its own frame; ``None`` while it works
+        self.controller_failure: ControllerFailure | None = None
 
     # ------------------------------------------------------------------ run control
     def reset(self, q0=None, qd0=None) -> StateEstimate:
-        """Start a run at ``(q0, qd0)`` (default: the plant's initial state)."""
+        """Start a run at ``(q0, qd0)`` at t = 0: without ``q0``, the plant's initial state
+        (:attr:`.plant.Plant.initial`); without ``qd0``, at rest. Every block starts over, so
+        :meth:`run` twice gives the same run twice when nothing random is drawn (sensor noise,
+        disturbances and the like go on with their random streams)."""
         p = self.plant
-        if q0 is not None:
-            p.reset(q0, p.state.qd * 0 if qd0 is None else qd0)
+        p.reset(q0, qd0)
         self.sensors.reset()
         self.perception.reset()
         self.safety.reset()
@@ -154,7 +166,13 @@ class ClosedLoop:
         # the initial mode from the first C_L view (an ideal look, no noise drawn)
         first = self.perception.local(self.sensors.first_look(p.state.t, p.state.q))
         self.servo.reset(est.q, first)
-        self.controller.reset(est)
+        self.controller_failure = None
+        try:
+            self.controller.reset(est)
+        except Exception as exc:  # a user's controller: the first period ends the run
+            if caused_by_interrupt(exc):
+                raise
+            self.controller_failure = _raised(exc, self.controller, "reset")
         self._u = None
         self._request_global = self.servo.mode == Mode.RECOVERY
         self.switch_time = None
@@ -216,7 +234,12 @@ class ClosedLoop:
                 t, view, est, cmd, _hold(est), True, cmd.failure, Termination.RECOVERY_FAILED
             )
         if u is None:
-            act = self.controller.step(est, cmd, dt)
+            if self.controller_failure is None:
+                act = self._control(est, cmd, dt)
+            if self.controller_failure is not None:
+                return LoopStep(t, view, est, cmd, _hold(est), True,
+                                self.controller_failure.error,
+                                Termination.CONTROLLER_FAILED)  # fmt: skip
         else:
             act = ActuatorCommand(np.asarray(u, float), np.zeros(len(est.q)), cmd.q_d)
         if not _finite(act.u):
@@ -241,6 +264,23 @@ class ClosedLoop:
         if getattr(plant, "over_limit", None) is not None:
             return LoopStep(t, view, est, cmd, act, True, plant.over_limit, Termination.FORCE_LIMIT)
         return LoopStep(t, view, est, cmd, act, False, None)
+
+    def _control(self, est: StateEstimate, cmd: ServoCommand, dt: float):
+        """The controller's command, checked (the boundary with a user's code): an exception
+        or a malformed command sets :attr:`controller_failure` and returns ``None``."""
+        try:
+            act = self.controller.step(est, cmd, dt)
+        except Exception as exc:
+            if caused_by_interrupt(exc):  # Ctrl-C inside a kernel: the run's to handle
+                raise
+            self.controller_failure = _raised(exc, self.controller, "step")
+            return None
+        act, problem = checked_actuation(act, self.plant.system.n_u, len(est.q))
+        if problem is not None:
+            self.controller_failure = ControllerFailure(
+                f"controller {controller_name(self.controller)} {problem}"
+            )
+        return act
 
     def step(self, twist=None, u=None, last: bool = False) -> LoopStep:
         """One control period: :meth:`sense` then :meth:`act`."""
@@ -292,6 +332,7 @@ class ClosedLoop:
             self.plan,
             interrupted,
             termination,
+            self.controller_failure if termination == Termination.CONTROLLER_FAILED else None,
         )
 
     def close(self) -> None:
@@ -307,6 +348,74 @@ def caused_by_interrupt(exc: BaseException) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+def controller_name(controller) -> str:
+    """``module:Class`` of a controller (the ``controller.class`` that would build it)."""
+    cls = type(controller)
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _raised(exc: Exception, controller, method: str) -> ControllerFailure:
+    """The failure of ``controller.method`` raising ``exc``: the message and the innermost
+    frame of the controller's own package (else the innermost frame outside tdacm)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = str(Path(__file__).resolve().parents[1])  # the tdacm package
+    top = sys.modules.get(type(controller).__module__.split(".")[0])
+    home = getattr(top, "__file__", None)
+    home = str(Path(home).resolve().parent) if home else None
+
+    def under(frame, folder):
+        return folder is not None and str(Path(frame.filename).resolve()).startswith(folder)
+
+    own = [f for f in frames if under(f, home)] or [f for f in frames if not under(f, ours)]
+    frame = (own or frames or [None])[-1]
+    text = str(exc).strip().splitlines()
+    error = f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+    what = f"controller {controller_name(controller)} raised {error} in {method}"
+    if frame is None:
+        return ControllerFailure(what)
+    return ControllerFailure(
+        f"{what} ({frame.filename}:{frame.lineno})",
+        frame.filename,
+        frame.lineno,
+        frame.name,
+        (frame.line or "").strip() or None,
+    )
+
+
+def checked_actuation(act, n_u: int, n: int):
+    """``(command, None)``: the controller's ``act`` with ``u`` of ``n_u`` and ``tau``,
+    ``q_ref`` (and ``delta_hat`` if set) of ``n`` float entries; ``(None, what is wrong)``
+    otherwise. A well-formed :class:`~.data.ActuatorCommand` is returned as it is."""
+    try:
+        u, tau, q_ref = act.u, act.tau, act.q_ref
+    except AttributeError:
+        return None, f"returned {type(act).__name__}, not an ActuatorCommand"
+    dh = getattr(act, "delta_hat", None)
+    fields = {"u": (u, n_u), "tau": (tau, n), "q_ref": (q_ref, n)}
+    if dh is not None:
+        fields["delta_hat"] = (dh, n)
+    fixed = {}
+    for name, (v, size) in fields.items():
+        if type(v) is np.ndarray and v.dtype == np.float64 and v.shape == (size,):
+            continue
+        try:
+            a = np.asarray(v, float)
+        except (TypeError, ValueError):
+            return None, f"returned {name} of type {type(v).__name__}, not {size} numbers"
+        if a.shape != (size,):
+            return None, f"returned {name} of shape {a.shape}, not ({size},)"
+        fixed[name] = a
+    try:
+        V = float(getattr(act, "V", float("nan")))
+        flags = [bool(getattr(act, k, False)) for k in ("thrust_saturated", "tension_saturated")]
+    except (TypeError, ValueError) as exc:
+        return None, f"returned a malformed V or saturation flag ({exc})"
+    if not fixed and type(act) is ActuatorCommand:
+        return act, None
+    uu, tt, qq = (fixed.get(k, v) for k, v in (("u", u), ("tau", tau), ("q_ref", q_ref)))
+    return ActuatorCommand(uu, tt, qq, V, fixed.get("delta_hat", dh), *flags), None
 
 
 def _finite(*arrays) -> bool:

@@ -39,6 +39,27 @@ class Termination(StrEnum):
     TUMBLED = "tumbled"  # the drone's roll or pitch beyond plant.MAX_TILT_RAD
     ESTIMATOR_FAILED = "estimator failed"  # the filter diverged (non-finite or singular model)
     NON_FINITE = "non-finite command"  # a twist or actuator command with NaN or inf
+    CONTROLLER_FAILED = "controller failed"  # the low-level controller raised or its output
+    # was malformed (not an ActuatorCommand, or u not n_u numbers)
+
+
+@dataclass(frozen=True)
+class ControllerFailure:
+    """Why the low-level controller ended a run (:attr:`Termination.CONTROLLER_FAILED`):
+    ``error`` in words, naming the controller; when it raised, the innermost frame of the
+    controller's own code (``file``, ``line``, ``function`` and that line's ``code``)."""
+
+    error: str
+    file: str | None = None
+    line: int | None = None
+    function: str | None = None
+    code: str | None = None
+
+    def where(self) -> str | None:
+        """The frame as a traceback prints it (``File "...", line N, in f``), or ``None``."""
+        if self.file is None:
+            return None
+        return f'File "{self.file}", line {self.line}, in {self.function}'
 
 
 #: The phases of servoing into contact (:mod:`tdacm.loop.touch`), in order (logged as their

@@ -157,10 +157,20 @@ class Plant:
         self._base = system.loads.packed().copy()
         #: also compute the accelerations at the end of each period (for an IMU)
         self.accelerations = bool(accelerations)
-        self.reset(q0, qd0)
+        #: the state the plant was built with, at t = 0: where :meth:`reset` without ``q0``
+        #: starts
+        self.initial = PlantState(0.0, np.array(q0, float), np.array(qd0, float))
+        self.reset()
 
-    def reset(self, q0, qd0, t: float = 0.0) -> PlantState:
-        self.state = PlantState(float(t), np.array(q0, float), np.array(qd0, float))
+    def reset(self, q0=None, qd0=None, t: float = 0.0) -> PlantState:
+        """Start at ``(q0, qd0)`` at time ``t``: without ``q0``, the initial state
+        (:attr:`initial`); without ``qd0``, at rest. The disturbances' random stream goes on
+        (a seeded wind replays from its start)."""
+        if q0 is None:
+            q0, qd0 = self.initial.q, self.initial.qd if qd0 is None else qd0
+        q0 = np.array(q0, float)
+        qd0 = np.zeros_like(q0) if qd0 is None else np.array(qd0, float)
+        self.state = PlantState(float(t), q0, qd0)
         self.ok = True
         self.over_limit = None
         self.tumbled = False

@@ -107,7 +107,8 @@ class Signal:
 
 def load_topic_map(source) -> dict:
     """A topic map from a dict, or a TOML file whose ``[topics]`` table (or top level) maps
-    topics to signals; checked (a name per topic, no signal twice)."""
+    topics to signals; checked (a name per topic, no signal twice; without ``[topics]``, a
+    table whose name is not a topic, ``/...``, is refused as a misnamed section)."""
     if isinstance(source, dict):
         raw = source
     else:
@@ -118,6 +119,13 @@ def load_topic_map(source) -> dict:
             raw = tomllib.loads(p.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise RecordingError(f"topic map {p}: {exc}") from None
+        if "topics" not in raw:  # the map at the top level: a table there is a misnamed section
+            for key, value in raw.items():
+                if isinstance(value, dict) and not key.startswith("/"):
+                    raise RecordingError(
+                        f"topic map {p} has no [topics] table ([{key}] is not a topic: "
+                        "write the map under [topics])"
+                    )
         raw = raw.get("topics", raw)
     seen = set()
     out = {}

@@ -126,7 +126,7 @@ class ScenarioConfig(ConfigModel):
     name: str | None = Field(
         None, description="scenario name", json_schema_extra={"required_in_file": True}
     )
-    description: str = Field("", description="one line shown by `tdacm list`")
+    description: str = Field("", description="one line shown by `tdacm scenarios`")
     duration: float = Field(5.0, gt=0, description="s, simulated time")
     dt: float = Field(0.02, gt=0, description="s, control period")
     substeps: int = Field(4, ge=1, description="plant RK4 steps per control period")

@@ -327,7 +327,7 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
         base = FixedBase(pose=held.base_pose(q))
     system = TDACM(rod, tendons, base, attachment)
     if system.floating:
-        _check_thrust(system, robot.drone)
+        _check_thrust(system, robot.drone, robot.rod)
     cams = robot.cameras
     local = _camera(LOCAL_CAMERA, cams.local, "robot.cameras.local")
     glob = _camera(GLOBAL_CAMERA, cams.global_, "robot.cameras.global")
@@ -339,17 +339,29 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
     return Robot(system, local, glob, tip_mount, drone_mount, robot.tip.probe_length)
 
 
-def _check_thrust(system: TDACM, drone: DroneConfig) -> None:
-    """The rotors' total thrust against the robot's weight (:data:`MIN_THRUST_TO_WEIGHT`)."""
+def _check_thrust(system: TDACM, drone: DroneConfig, rod: RodConfig) -> None:
+    """The rotors' total thrust against the robot's weight (:data:`MIN_THRUST_TO_WEIGHT`); the
+    message names the heaviest part (the drone, or the rod with its dimensions)."""
     weight = system.total_mass * float(np.linalg.norm(system.loads.gravity))
     total = 4 * drone.max_thrust
     if total < MIN_THRUST_TO_WEIGHT * weight:
+        rod_mass = sum(a.rod.mass for a in system.arms)
+        tip_mass = sum(a.rod.tip_mass for a in system.arms)
+        parts = (f"drone {drone.mass:.4g} kg, rod {rod_mass:.4g} kg, "
+                 f"tip {tip_mass:.4g} kg")  # fmt: skip
+        need = f"{MIN_THRUST_TO_WEIGHT * weight / 4:.4g} N"
+        if rod_mass > drone.mass:
+            fix = (
+                f"the rod is the heaviest part: check robot.rod.diameter = {rod.diameter:g} "
+                f"m, length = {rod.length:g} m and density = {rod.density:g} kg/m^3 "
+                f"(or raise robot.drone.max_thrust to at least {need})"
+            )
+        else:
+            fix = f"raise robot.drone.max_thrust to at least {need} or lower robot.drone.mass"
         raise RobotError(
             f"robot.drone: 4 x max_thrust = {total:g} N cannot fly the robot: its weight is "
-            f"{weight:.4g} N ({system.total_mass:.4g} kg: robot.drone.mass = {drone.mass:g} "
-            f"kg plus rod and tip) and the rotors need {MIN_THRUST_TO_WEIGHT:g} times it; raise "
-            f"robot.drone.max_thrust to at least {MIN_THRUST_TO_WEIGHT * weight / 4:.4g} N or "
-            "lower robot.drone.mass"
+            f"{weight:.4g} N ({system.total_mass:.4g} kg: {parts}) and the rotors need "
+            f"{MIN_THRUST_TO_WEIGHT:g} times it; {fix}"
         )
 
 

@@ -11,12 +11,15 @@ coordinates (C_V for a floating base, C_L for a fixed one).
 
 from __future__ import annotations
 
+import inspect
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..lie.se3 import rotation_angle
-from ..loop.closed_loop import ClosedLoop
+from ..loop.ablation import TruthAblation
+from ..loop.closed_loop import ClosedLoop, controller_name
 from ..loop.data import PHASES
 from ..loop.safety import SafetyMonitor
 from ..loop.sensors import RenderedFrontEnd
@@ -166,12 +169,51 @@ class Simulation:
             "profile": cfg.controller.profile,
             # an ablation (tdacm.loop.ablation): the controller read these from the plant
             "controller_truth": cfg.estimation.controller_truth or None,
+            "controller": controller_provenance(loop.controller),
+            "controller_failure": _failure(result.controller_failure),
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
             **touch_summary(a, cfg),
             **_target_merit(loop, assembly.world),
             **estimation_summary(a, s, cfg.estimation.source, loop),
         }
+
+
+def controller_provenance(controller) -> dict:
+    """How to get the low-level controller back: its ``class`` (``module:Class``, the
+    ``controller.class`` that builds it), the ``file`` of its module and the ``version`` of its
+    module or top-level package (``__version__``; ``None`` without one)."""
+    if isinstance(controller, TruthAblation):
+        controller = controller.controller
+    cls = type(controller)
+    try:
+        file = inspect.getsourcefile(cls)
+    except TypeError:  # defined interactively
+        file = None
+    module = cls.__module__
+    version = None
+    for name in (module, module.split(".")[0]):
+        version = getattr(sys.modules.get(name), "__version__", None)
+        if version is not None:
+            break
+    return {
+        "class": controller_name(controller),
+        "file": str(Path(file).resolve()) if file else None,
+        "version": None if version is None else str(version),
+    }
+
+
+def _failure(failure) -> dict | None:
+    """The summary's ``controller_failure``: the error and the controller's own frame."""
+    if failure is None:
+        return None
+    return {
+        "error": failure.error,
+        "file": failure.file,
+        "line": failure.line,
+        "function": failure.function,
+        "code": failure.code,
+    }
 
 
 def touch_summary(a: dict, cfg) -> dict:

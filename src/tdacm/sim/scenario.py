@@ -6,8 +6,9 @@ except ``name``, ``initial.q`` and ``desired.q``; the defaults, ranges and meani
 records, listed in docs/scenario-reference.md). Unknown sections or keys, wrong types, values
 out of range and wrong vector lengths raise :class:`ScenarioError` of one line naming the file
 and the dotted key. ``--config FILE`` overrides use the same layout (merged section by
-section). ``extends = "NAME"`` (a shipped scenario, or a TOML file relative to the extending
-file) inherits every value the file does not set; chains are followed, cycles rejected.
+section; an ``extends`` there is refused). ``extends = "NAME"`` (a shipped scenario, or a TOML
+file relative to the extending file) inherits every value the file does not set; chains are
+followed, cycles rejected.
 """
 
 from __future__ import annotations
@@ -312,9 +313,10 @@ def list_scenarios() -> list[str]:
 
 def load_scenario(name_or_path, config=None) -> Scenario:
     """Load a shipped scenario by name, a TOML file by path, or pass a :class:`Scenario`
-    through; ``config`` (a path) overrides (its own ``extends`` chain merged in first).
-    Errors (unknown name, a directory, a missing or non-UTF-8 file, invalid TOML or values, an
-    ``extends`` cycle) raise :class:`ScenarioError` naming the file."""
+    through; ``config`` (a path) overrides it. Errors (unknown name, a directory, a missing or
+    non-UTF-8 file, invalid TOML or values, an ``extends`` cycle, an ``extends`` in ``config``,
+    which would replace the scenario it overrides) raise :class:`ScenarioError` naming the
+    file."""
     if isinstance(name_or_path, Scenario):
         sc = name_or_path
     else:
@@ -337,7 +339,12 @@ def load_scenario(name_or_path, config=None) -> Scenario:
     if config is not None:
         cp = Path(config)
         text = _read_text(cp, "--config file")
-        data = _extends(_parse_toml(text, str(cp)), str(cp), cp.parent, (str(cp.resolve()),))
+        data = _parse_toml(text, str(cp))
+        if "extends" in data:
+            raise ScenarioError(
+                f"{cp}: extends is not allowed in a --config file: it would replace the "
+                f"scenario {sc.name!r} it overrides (run `tdacm run {cp}` to run the file alone)"
+            )
         sc = sc.with_overrides(data, str(cp))
     return sc
 

@@ -199,11 +199,12 @@ def fig_actuation(rd: RunData, out, formats):
     rows = 2 if rd.floating else 1
     fig, axes = plt.subplots(rows, 1, figsize=(6.4, 2.1 * rows + 0.6), sharex=True, squeeze=False)
     axes = axes[:, 0]
+    n_f = min(4, u.shape[1]) if rd.floating else 0  # a malformed u draws what it has
     if rd.floating:
-        for i in range(4):
+        for i in range(n_f):
             axes[0].plot(t, u[:, i], label=f"$f_{i + 1}$")
         axes[0].set_ylabel("rotor thrust (N)")
-    n_a = u.shape[1] - (4 if rd.floating else 0)
+    n_a = u.shape[1] - n_f
     for i in range(n_a):
         axes[-1].plot(t, u[:, -n_a + i], label=f"$T_{i + 1}$")
     axes[-1].set_ylabel("tendon tension (N)")

@@ -100,26 +100,38 @@ def _flush_c_stdio() -> None:
 
 
 class _quiet_stdout:
-    """Send the process's stdout (file descriptor 1, also C-level writes such as the EGL
-    plugin's ``ven = Mesa/X.org`` and ``Destroy EGL OpenGL window.``) to stderr for a while, so
-    that stdout carries only the program's own output (``tdacm run ... | python -m json.tool``)."""
+    """Keep pybullet's C-level writes (its build time at import, the EGL plugin's 12-line GL
+    banner, ``Destroy EGL OpenGL window.``) off the program's output for a while: dropped
+    (file descriptors 1 and 2 on ``/dev/null``), or sent to stderr when the ``tdacm`` logger
+    shows debug messages (``tdacm -v``). So stdout carries only the program's own output
+    (``tdacm run ... | python -m json.tool``) and ``tdacm -q`` prints no banner."""
 
     def __enter__(self):
+        import logging
         import sys
 
         sys.stdout.flush()
+        sys.stderr.flush()
+        self._saved = []
+        verbose = logging.getLogger("tdacm").isEnabledFor(logging.DEBUG)
         try:
-            self._saved = os.dup(1)
-            os.dup2(2, 1)
+            null = None if verbose else os.open(os.devnull, os.O_WRONLY)
+            for fd, target in ((1, 2),) if verbose else ((1, null), (2, null)):
+                self._saved.append((fd, os.dup(fd)))
+                os.dup2(target, fd)
+            if null is not None:
+                os.close(null)
         except OSError:
-            self._saved = None
+            self.__exit__()
         return self
 
     def __exit__(self, *exc):
-        if self._saved is not None:
-            _flush_c_stdio()  # C's stdout buffer (a pipe is block-buffered) goes to stderr too
-            os.dup2(self._saved, 1)
-            os.close(self._saved)
+        if self._saved:
+            _flush_c_stdio()  # C's stdout buffer (a pipe is block-buffered) goes along
+        for fd, saved in reversed(self._saved):
+            os.dup2(saved, fd)
+            os.close(saved)
+        self._saved = []
 
 
 def _quat(r: np.ndarray) -> list:
@@ -182,7 +194,8 @@ class PyBulletRenderer(Renderer):
         backend: str = "tiny",
         light=(0.65, 0.35, 0.0),
     ):
-        import pybullet as p
+        with _quiet_stdout():  # pybullet prints its build time when first imported
+            import pybullet as p
 
         self._p = p
         self.scene = SceneConfig() if scene is None else scene
