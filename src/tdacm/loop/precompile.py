@@ -60,14 +60,15 @@ def numba_cache_is_cold() -> bool:
     CPU (first use in a checkout or cache folder, or after an edit): they will compile, which
     takes tens of seconds.
 
-    Asks numba's own cache index of ``rk4_run`` and ``forward_dynamics`` (the folder numba
-    really uses, e.g. a user-wide one when the package folder is read-only; entries for this
-    CPU and the current source only); falls back to looking for the index files if numba's
-    private cache API is not there."""
+    Asks numba's own cache index of ``rk4_run`` and ``coupled_terms``, which every run calls
+    (the plant's step, the warm-up's terms), in the folder numba really uses (e.g. a user-wide
+    one when the package folder is read-only; entries for this CPU and the current source
+    only); falls back to looking for the index files if numba's private cache API is not
+    there."""
     try:
         from ..system import kernels as K
 
-        for kernel in (K.rk4_run, K.forward_dynamics):
+        for kernel in (K.rk4_run, K.coupled_terms):
             index = kernel._cache._cache_file._load_index()  # {} if stale or missing
             magic = kernel.targetctx.codegen().magic_tuple()
             if not any(key[1] == magic for key in index):
@@ -85,7 +86,7 @@ def _index_files_missing() -> bool:
         return False
     src = Path(spec.origin)
     cache_dir = os.environ.get("NUMBA_CACHE_DIR")
-    for kernel in ("rk4_run", "forward_dynamics"):
+    for kernel in ("rk4_run", "coupled_terms"):
         pattern = f"kernels.{kernel}-*.nbi"  # numba's index file of a cached function
         if cache_dir:  # numba mirrors the source folder's path under NUMBA_CACHE_DIR
             found = Path(cache_dir).is_dir() and any(Path(cache_dir).rglob(pattern))
