@@ -36,6 +36,7 @@ from ..control.adaptive import AdaptiveController
 from ..control.allocation import _allocate_tensions_kernel
 from ..control.hierarchical import TDACMController
 from ..control.model import EstimatedModel
+from ..lie.euler import rot_zyx
 from ..loop.ablation import TruthAblation
 from ..loop.lowlevel import AdaptiveLowLevel
 from ..system.kernels import ModelArrays, coupled_terms, tendon_matrix
@@ -415,19 +416,7 @@ def controller_period(
 def _rotor_damping(q, p):
     """``R diag(k_r_hat) R^T`` (3 x 3), the model's rotor drag on the drone's position rows
     (``R = Rz Ry Rx`` at the attitude of ``q``; :meth:`EstimatedModel.rotor_damping`)."""
-    cf, sf = np.cos(q[0]), np.sin(q[0])
-    ct, st = np.cos(q[1]), np.sin(q[1])
-    cp, sp = np.cos(q[2]), np.sin(q[2])
-    r = np.empty((3, 3))
-    r[0, 0] = cp * ct
-    r[0, 1] = cp * st * sf - sp * cf
-    r[0, 2] = cp * st * cf + sp * sf
-    r[1, 0] = sp * ct
-    r[1, 1] = sp * st * sf + cp * cf
-    r[1, 2] = sp * st * cf - cp * sf
-    r[2, 0] = -st
-    r[2, 1] = ct * sf
-    r[2, 2] = ct * cf
+    r = rot_zyx(q[0], q[1], q[2])
     out = np.empty((3, 3))
     for i in range(3):
         for j in range(3):

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from ..system.kernels import chain_jacobian
-from ..vision.ippe import ippe_poses
+from ..vision.ippe import best_pose
 from ..vision.targets import ArucoMarker
 
 #: order of OpenCV's marker corners (TL, TR, BR, BL) that IPPE_SQUARE expects
@@ -79,19 +79,15 @@ def square_pose(square, xy, centre, out):
     (4, 2): the better IPPE pose of the marker (whose frame has the target frame's axes),
     shifted by the marker's ``centre`` (3,) in the target frame. False when no pose explains
     the corners."""
-    rots = np.empty((2, 3, 3))
-    trans = np.empty((2, 3))
-    errors = np.empty(2)
-    if not ippe_poses(square, xy, rots, trans, errors):
+    r = np.empty((3, 3))
+    t = np.empty(3)
+    if not best_pose(square, xy, r, t):
         return False
-    r = rots[0]
     for i in range(3):
         for j in range(3):
             out[i, j] = r[i, j]
     for i in range(3):
-        out[i, 3] = trans[0, i] - (
-            out[i, 0] * centre[0] + out[i, 1] * centre[1] + out[i, 2] * centre[2]
-        )
+        out[i, 3] = t[i] - (out[i, 0] * centre[0] + out[i, 1] * centre[1] + out[i, 2] * centre[2])
         out[3, i] = 0.0
     out[3, 3] = 1.0
     return True

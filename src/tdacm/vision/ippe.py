@@ -256,6 +256,20 @@ def ippe_poses(obj, xy, rots, trans, errors):
     return True
 
 
+@njit(cache=True)
+def best_pose(obj, xy, r, t):
+    """The better IPPE pose (:func:`ippe_poses`) into ``r`` (3, 3) and ``t`` (3,); False when
+    the points admit none."""
+    rots = np.empty((2, 3, 3))
+    trans = np.empty((2, 3))
+    errors = np.empty(2)
+    if not ippe_poses(obj, xy, rots, trans, errors):
+        return False
+    r[:, :] = rots[0]
+    t[:] = trans[0]
+    return True
+
+
 #: :func:`point_depths` results
 DEPTHS_OK, NO_POSE, BEHIND = 0, 1, 2
 
@@ -266,13 +280,10 @@ def point_depths(obj, xy, depths):
     ``xy`` (k, 2) under the better IPPE pose: the paper's depth estimation from the known
     target geometry. Returns :data:`DEPTHS_OK`, :data:`NO_POSE` (a degenerate view) or
     :data:`BEHIND` (the better pose puts a point behind the camera)."""
-    rots = np.empty((2, 3, 3))
-    trans = np.empty((2, 3))
-    errors = np.empty(2)
-    if not ippe_poses(obj, xy, rots, trans, errors):
+    r = np.empty((3, 3))
+    t = np.empty(3)
+    if not best_pose(obj, xy, r, t):
         return NO_POSE
-    r = rots[0]
-    t = trans[0]
     for k in range(obj.shape[0]):
         z = r[2, 0] * obj[k, 0] + r[2, 1] * obj[k, 1] + t[2]
         if not z > 0.0:
