@@ -590,40 +590,7 @@ def _input_force(q, u, m, ws, out):
     for c in range(n - off):
         for i in range(na):
             bs_t[c, i] = 0.0
-    qs = q[off:]
-    xi = ws[10][0]
-    col = ws[10][1]
-    for gi in range(m.bg.shape[0]):
-        b = m.bg[gi]
-        c0 = m.g_col[gi]
-        nc = m.g_nc[gi]
-        for r in range(6):
-            acc = 0.0
-            for c in range(nc):
-                acc += b[r, c] * qs[c0 + c]
-            xi[r] = acc + m.xi0g[gi, r]
-        k0, k1, k2 = xi[0], xi[1], xi[2]
-        for i in range(na):
-            if m.tendon_on[gi, i] == 0.0:
-                continue
-            d0, d1, d2 = m.tendon_d[gi, i, 0], m.tendon_d[gi, i, 1], m.tendon_d[gi, i, 2]
-            v0 = k1 * d2 - k2 * d1 + xi[3] + m.tendon_dd[gi, i, 0]
-            v1 = k2 * d0 - k0 * d2 + xi[4] + m.tendon_dd[gi, i, 1]
-            v2 = k0 * d1 - k1 * d0 + xi[5] + m.tendon_dd[gi, i, 2]
-            nv = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-            t0, t1, t2 = v0 / nv, v1 / nv, v2 / nv
-            col[0] = -(d1 * t2 - d2 * t1)
-            col[1] = -(d2 * t0 - d0 * t2)
-            col[2] = -(d0 * t1 - d1 * t0)
-            col[3] = -t0
-            col[4] = -t1
-            col[5] = -t2
-            wq = m.wq[gi]
-            for c in range(nc):
-                acc = 0.0
-                for r in range(6):
-                    acc += b[r, c] * col[r]
-                bs_t[c0 + c, i] += wq * acc
+    K.tendon_accumulate(q[off:], m, ws[10][0], ws[10][1], bs_t, ws[10][0], False)
     if m.floating:
         r = m33[3]
         t = m33[4]

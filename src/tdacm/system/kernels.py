@@ -743,13 +743,21 @@ def tendon_lengths_and_matrix(qs, m):
     """Tendon path lengths ``l_i = int_0^{end_i} |k x d_i + u + d_i'| ds`` and
     ``B_s(q) = int B_q^T B_a ds = -dl/dq_s`` (n_s x n_a), ``B_a = -[d~ t; t]`` (paper eq. (13)),
     on the same Gauss points; each tendon integrates where it runs (``m.tendon_on``)."""
-    ng = m.bg.shape[0]
-    ns = qs.shape[0]
     na = m.tendon_d.shape[1]
     lengths = np.zeros(na)
-    out = np.zeros((ns, na))
-    col = np.empty(6)
-    xi = np.empty(6)
+    out = np.zeros((qs.shape[0], na))
+    tendon_accumulate(qs, m, np.empty(6), np.empty(6), out, lengths, True)
+    return lengths, out
+
+
+@njit(cache=True)
+def tendon_accumulate(qs, m, xi, col, out, lengths, want_lengths):
+    """Add ``B_s(q)`` (:func:`tendon_lengths_and_matrix`) into ``out`` (rows ``0..n_s``) and,
+    when ``want_lengths``, the path lengths into ``lengths``; ``xi`` and ``col`` are (6,)
+    scratch. Shared by :func:`tendon_lengths_and_matrix` and the forward dynamics' ``B u``
+    (:mod:`tdacm.system.forward`), so both sum in the same order."""
+    ng = m.bg.shape[0]
+    na = m.tendon_d.shape[1]
     for gi in range(ng):
         b = m.bg[gi]
         c0 = m.g_col[gi]
@@ -776,13 +784,13 @@ def tendon_lengths_and_matrix(qs, m):
             col[4] = -t1
             col[5] = -t2
             wq = m.wq[gi]
-            lengths[i] += wq * nv
+            if want_lengths:
+                lengths[i] += wq * nv
             for c in range(nc):
                 acc = 0.0
                 for r in range(6):
                     acc += b[r, c] * col[r]
                 out[c0 + c, i] += wq * acc
-    return lengths, out
 
 
 @njit(cache=True)
