@@ -45,6 +45,9 @@ def released18(rod18):
     return q0, u, np.array([rod18.tip_pose(q)[:3, 3] for q in ref.q])
 
 
+# ~40 s each: slow. The default suite keeps Radau against DOP853 on this rod
+# (test_radau_converges_to_dop853_with_the_step) and Rosenbrock's order on the paper system.
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["auto", "rosenbrock"])  # auto -> radau (10 ms steps)
 def test_stiff_integrators_match_dop853_on_the_18_dof_rod(rod18, released18, method):
     q0, u, tref = released18
