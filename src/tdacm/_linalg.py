@@ -157,3 +157,38 @@ def svd_solve(a, b, kind, param):
             acc += vt[i, c] * w[i]
         x[c] = acc
     return x
+
+
+@njit(cache=True)
+def cholesky_into(a, n, lo):
+    """``a[:n, :n] = L L^T`` into the lower triangle of ``lo`` (row by row); ``False`` if ``a``
+    is not positive definite (a pivot ``<= 0``). Only the lower triangle of ``a`` is read."""
+    for i in range(n):
+        for k in range(i + 1):
+            s = a[i, k]
+            for p in range(k):
+                s -= lo[i, p] * lo[k, p]
+            if i == k:
+                if s <= 0.0:
+                    return False
+                lo[i, i] = np.sqrt(s)
+            else:
+                lo[i, k] = s / lo[k, k]
+    return True
+
+
+@njit(cache=True)
+def cholesky_substitute(lo, n, b, y, x):
+    """``x = L^-T L^-1 b`` for the lower factor ``lo`` of :func:`cholesky_into`: forward
+    substitution into ``y``, backward into ``x``. ``b``, ``y`` and ``x`` may be one array
+    (the same operations in the same order either way)."""
+    for i in range(n):
+        s = b[i]
+        for p in range(i):
+            s -= lo[i, p] * y[p]
+        y[i] = s / lo[i, i]
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for p in range(i + 1, n):
+            s -= lo[p, i] * x[p]
+        x[i] = s / lo[i, i]

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .._linalg import cholesky_substitute
 from .._linalg import solve as _solve
 
 
@@ -54,16 +55,7 @@ def _solve_free(h, c, x, w, out):
             for s in range(p):
                 v -= a[t, s] * a[p, s]
             a[t, p] = v / d
-    for p in range(nf):  # forward, then backward substitution
-        v = r[p]
-        for s in range(p):
-            v -= a[p, s] * r[s]
-        r[p] = v / a[p, p]
-    for p in range(nf - 1, -1, -1):
-        v = r[p]
-        for s in range(p + 1, nf):
-            v -= a[s, p] * r[s]
-        r[p] = v / a[p, p]
+    cholesky_substitute(a, nf, r, r, r)
     out[:] = x
     for p in range(nf):
         out[idx[p]] = r[p]

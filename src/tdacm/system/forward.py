@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..lie.blocks import expmap_rp_into
 from ..lie.euler import euler_rate_matrix, euler_rate_matrix_dot, rot_zyx
@@ -635,30 +636,11 @@ def forward_dynamics_ws(q, qd, u, m, loads, aero, contact, ws, qdd):
         for k in range(n):
             b += stf[i, k] * q[k]
         rhs[i] = bu[i] + tau[i] - cqd[i] - a - b
-    # kernels.cholesky_solve
-    for i in range(n):
-        for k in range(i + 1):
-            s = mm[i, k]
-            for p in range(k):
-                s -= lo[i, p] * lo[k, p]
-            if i == k:
-                if s <= 0.0:
-                    for c in range(n):
-                        qdd[c] = 0.0
-                    return False
-                lo[i, i] = np.sqrt(s)
-            else:
-                lo[i, k] = s / lo[k, k]
-    for i in range(n):
-        s = rhs[i]
-        for p in range(i):
-            s -= lo[i, p] * y[p]
-        y[i] = s / lo[i, i]
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for p in range(i + 1, n):
-            s -= lo[p, i] * qdd[p]
-        qdd[i] = s / lo[i, i]
+    if not cholesky_into(mm, n, lo):
+        for c in range(n):
+            qdd[c] = 0.0
+        return False
+    cholesky_substitute(lo, n, rhs, y, qdd)
     return True
 
 

@@ -48,6 +48,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..aero.drag import quadratic_drag, rod_force
 from ..aero.wake import rotor_states, wake_at
@@ -712,29 +713,10 @@ def cholesky_solve(a, b):
     ``(x, ok)`` with ``ok = False`` when ``a`` is not positive definite."""
     n = a.shape[0]
     lo = np.zeros((n, n))
-    for i in range(n):
-        for k in range(i + 1):
-            s = a[i, k]
-            for p in range(k):
-                s -= lo[i, p] * lo[k, p]
-            if i == k:
-                if s <= 0.0:
-                    return np.zeros(n), False
-                lo[i, i] = np.sqrt(s)
-            else:
-                lo[i, k] = s / lo[k, k]
-    y = np.empty(n)
-    for i in range(n):
-        s = b[i]
-        for p in range(i):
-            s -= lo[i, p] * y[p]
-        y[i] = s / lo[i, i]
+    if not cholesky_into(a, n, lo):
+        return np.zeros(n), False
     x = np.empty(n)
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for p in range(i + 1, n):
-            s -= lo[p, i] * x[p]
-        x[i] = s / lo[i, i]
+    cholesky_substitute(lo, n, b, np.empty(n), x)
     return x, True
 
 
