@@ -120,6 +120,8 @@ def test_target_validation():
         ArucoMarker(size=-0.2)
     with pytest.raises(ValueError, match="ids"):
         AprilTagPattern(ids=(1, 1, 2, 3))
+    with pytest.raises(ValueError, match=r"ids must lie in \[0, 50\)"):
+        AprilTagPattern(ids=(0, 1, 2, 60), dictionary=0)  # DICT_4X4_50 has ids 0..49
     import cv2
 
     m = ArucoMarker(marker_id=65, dictionary=cv2.aruco.DICT_APRILTAG_36h11)

@@ -25,7 +25,7 @@ import numpy as np
 from .. import paper_values as PV
 from ..lie.euler import rot_zyx
 from ..system import Loads, SingularConfigurationError, Terms
-from ..system.tdacm import default_attachment
+from ..system.tdacm import default_attachment, energy_record
 from .codegen import generated_module
 from .derivation import DerivationSpec
 
@@ -268,15 +268,7 @@ class CCLagrangian:
             mass = self.rod_mass + self.tip_mass
             vg -= mass * self.loads.gravity @ t
             vl -= self.loads.tip_force @ t
-        pot = vg + ve + vl
-        return {
-            "kinetic": kin,
-            "gravity": vg,
-            "elastic": ve,
-            "loads": vl,
-            "potential": pot,
-            "total": kin + pot,
-        }
+        return energy_record(kin, vg, ve, vl)
 
     def tip_pose(self, q) -> np.ndarray:
         """Tip pose ``g_L`` (4x4, inertial)."""

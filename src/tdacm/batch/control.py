@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from .._linalg import lu_factor, lu_solve_into
-from ..control.adaptive import AdaptiveController
+from ..control.adaptive import AdaptiveController, law_into
 from ..control.allocation import _allocate_tensions_kernel
 from ..control.hierarchical import TDACMController
 from ..control.model import EstimatedModel
@@ -242,23 +242,9 @@ def _law_into(mh, cd, kh, q, qd, q_d, work, beta, a_d, a_p, delta_hat, tau):
     for i in range(n):
         e[i] = q[i] - q_d[i]
         edot[i] = qd[i] - qd_d[i]
-    for i in range(n):
-        qd_r[i] = qd_d[i] - beta[i] * e[i]
-        qdd_r[i] = qdd_d[i] - beta[i] * edot[i]
-        s[i] = edot[i] + beta[i] * e[i]
-    v = 0.0
-    for i in range(n):
-        acc = kh[i] + delta_hat[i]
-        ms = 0.0
-        ve = 0.0
-        for j in range(n):
-            acc += mh[i, j] * qdd_r[j] + cd[i, j] * qd_r[j]
-            acc -= a_d[i, j] * edot[j] + a_p[i, j] * e[j]
-            ms += mh[i, j] * s[j]
-            ve += (beta[i] * a_d[i, j] + a_p[i, j]) * e[j]
-        tau[i] = acc
-        v += 0.5 * (s[i] * ms + e[i] * ve)
-    return v
+    return law_into(
+        mh, cd, kh, e, edot, qd_d, qdd_d, beta, a_d, a_p, delta_hat, qd_r, qdd_r, s, tau
+    )
 
 
 @njit(cache=True)

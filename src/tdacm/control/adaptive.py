@@ -153,33 +153,43 @@ class AdaptiveOutput:
 
 
 @njit(cache=True)
-def _law_kernel(m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta_hat):
-    """The law (module docstring) on plain arrays: ``e = q - q_d``, ``qdot_r = qdot_d -
-    beta e``, ``s = edot + beta e``, ``tau_a = M qdd_r + (C + D) qdot_r + K - A_d edot - A_p e
-    + Delta_hat`` and ``V`` without the ``Delta_tilde`` term."""
-    n = q.shape[0]
-    e = q - q_d
-    edot = qd - qd_d
-    qd_r = np.empty(n)
-    qdd_r = np.empty(n)
-    s = np.empty(n)
+def law_into(m, cd, k, e, edot, qd_d, qdd_d, beta, a_d, a_p, delta_hat, qd_r, qdd_r, s, tau):
+    """The law (module docstring) in place, for the errors ``e = q - q_d`` and ``edot`` and
+    ``cd = C + D``: ``qdot_r = qdot_d - beta e``, ``s = edot + beta e`` (written with
+    ``qdd_r``), ``tau_a = M qdd_r + (C + D) qdot_r + K - A_d edot - A_p e + Delta_hat``
+    (written); returns ``V`` without the ``Delta_tilde`` term. The batched engine's controller
+    calls it too."""
+    n = e.shape[0]
     for i in range(n):
         qd_r[i] = qd_d[i] - beta[i] * e[i]
         qdd_r[i] = qdd_d[i] - beta[i] * edot[i]
         s[i] = edot[i] + beta[i] * e[i]
-    tau = np.empty(n)
     v = 0.0
     for i in range(n):
         acc = k[i] + delta_hat[i]
         ms = 0.0
         ve = 0.0
         for j in range(n):
-            acc += m[i, j] * qdd_r[j] + (c[i, j] + d[i, j]) * qd_r[j]
+            acc += m[i, j] * qdd_r[j] + cd[i, j] * qd_r[j]
             acc -= a_d[i, j] * edot[j] + a_p[i, j] * e[j]
             ms += m[i, j] * s[j]
             ve += (beta[i] * a_d[i, j] + a_p[i, j]) * e[j]
         tau[i] = acc
         v += 0.5 * (s[i] * ms + e[i] * ve)
+    return v
+
+
+@njit(cache=True)
+def _law_kernel(m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta_hat):
+    """:func:`law_into` on fresh arrays from the state and the reference."""
+    n = q.shape[0]
+    e = q - q_d
+    edot = qd - qd_d
+    qd_r = np.empty(n)
+    qdd_r = np.empty(n)
+    s = np.empty(n)
+    tau = np.empty(n)
+    v = law_into(m, c + d, k, e, edot, qd_d, qdd_d, beta, a_d, a_p, delta_hat, qd_r, qdd_r, s, tau)
     return tau, e, edot, s, qd_r, qdd_r, v
 
 

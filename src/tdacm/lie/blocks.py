@@ -19,33 +19,37 @@ def _cross_into(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
+@njit(cache=True, inline="always")
+def ad_scalars(k0, k1, k2, u0, u1, u2, a0, a1, a2, b0, b1, b2):
+    """``ad(xi) x`` for ``xi = [k; u]`` and ``x = [a; b]`` given as scalars:
+    ``[k x a; u x a + k x b]`` (a 6-tuple)."""
+    return (
+        k1 * a2 - k2 * a1,
+        k2 * a0 - k0 * a2,
+        k0 * a1 - k1 * a0,
+        u1 * a2 - u2 * a1 + k1 * b2 - k2 * b1,
+        u2 * a0 - u0 * a2 + k2 * b0 - k0 * b2,
+        u0 * a1 - u1 * a0 + k0 * b1 - k1 * b0,
+    )
+
+
 @njit(cache=True)
 def ad_apply(xi, x, out):
     """``out = ad(xi) @ x``: each column ``[a; b]`` -> ``[k x a; u x a + k x b]``."""
     k0, k1, k2, u0, u1, u2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
     for c in range(x.shape[1]):
-        a0, a1, a2 = x[0, c], x[1, c], x[2, c]
-        b0, b1, b2 = x[3, c], x[4, c], x[5, c]
-        out[0, c] = k1 * a2 - k2 * a1
-        out[1, c] = k2 * a0 - k0 * a2
-        out[2, c] = k0 * a1 - k1 * a0
-        out[3, c] = u1 * a2 - u2 * a1 + k1 * b2 - k2 * b1
-        out[4, c] = u2 * a0 - u0 * a2 + k2 * b0 - k0 * b2
-        out[5, c] = u0 * a1 - u1 * a0 + k0 * b1 - k1 * b0
+        out[0, c], out[1, c], out[2, c], out[3, c], out[4, c], out[5, c] = ad_scalars(
+            k0, k1, k2, u0, u1, u2, x[0, c], x[1, c], x[2, c], x[3, c], x[4, c], x[5, c]
+        )
 
 
 @njit(cache=True)
 def ad_vec(xi, v):
     """``ad(xi) @ v`` for one twist ``v``."""
     out = np.empty(6)
-    k0, k1, k2, u0, u1, u2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
-    a0, a1, a2, b0, b1, b2 = v[0], v[1], v[2], v[3], v[4], v[5]
-    out[0] = k1 * a2 - k2 * a1
-    out[1] = k2 * a0 - k0 * a2
-    out[2] = k0 * a1 - k1 * a0
-    out[3] = u1 * a2 - u2 * a1 + k1 * b2 - k2 * b1
-    out[4] = u2 * a0 - u0 * a2 + k2 * b0 - k0 * b2
-    out[5] = u0 * a1 - u1 * a0 + k0 * b1 - k1 * b0
+    out[0], out[1], out[2], out[3], out[4], out[5] = ad_scalars(
+        xi[0], xi[1], xi[2], xi[3], xi[4], xi[5], v[0], v[1], v[2], v[3], v[4], v[5]
+    )
     return out
 
 
@@ -75,6 +79,24 @@ def skew_apply_sub(mu, x, out):
         out[3, c] -= f1 * a2 - f2 * a1
         out[4, c] -= f2 * a0 - f0 * a2
         out[5, c] -= f0 * a1 - f1 * a0
+
+
+@njit(cache=True)
+def compose_rp_into(g, gr, r, p):
+    """``g <- g [r p; 0 1]`` in place for a 4x4 (or 3x4) pose ``g``; ``gr`` is 3x3 scratch."""
+    for i in range(3):
+        for k in range(3):
+            gr[i, k] = g[i, k]
+    for i in range(3):
+        acc = 0.0
+        for k in range(3):
+            acc += gr[i, k] * p[k]
+        g[i, 3] += acc
+        for c in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += gr[i, k] * r[k, c]
+            g[i, c] = acc
 
 
 @njit(cache=True)

@@ -27,7 +27,7 @@ from numba import njit
 
 from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
-from ..lie.blocks import expmap_rp_into
+from ..lie.blocks import ad_scalars, compose_rp_into, expmap_rp_into
 from ..lie.euler import euler_rate_matrix, euler_rate_matrix_dot, rot_zyx
 from ..lie.se3 import _A1, _A2, _A3, _A4, SMALL_ANGLE, _dseries, _series
 from . import kernels as K
@@ -61,19 +61,6 @@ def tangent_coefficients_scalar(th):
     )  # fmt: skip
 
 
-@njit(cache=True, inline="always")
-def _ad(k0, k1, k2, u0, u1, u2, a0, a1, a2, b0, b1, b2):
-    """``ad(xi) x`` for ``xi = [k; u]``, ``x = [a; b]`` (:func:`tdacm.lie.blocks.ad_apply`)."""
-    return (
-        k1 * a2 - k2 * a1,
-        k2 * a0 - k0 * a2,
-        k0 * a1 - k1 * a0,
-        u1 * a2 - u2 * a1 + k1 * b2 - k2 * b1,
-        u2 * a0 - u0 * a2 + k2 * b0 - k0 * b2,
-        u0 * a1 - u1 * a0 + k0 * b1 - k1 * b0,
-    )
-
-
 @njit(cache=True)
 def _tangent_row(om, co, x, c, out):
     """``out[c] = T(Omega) x[c]`` for one twist ``x[c]`` (6,): ``x + sum a_i ad(Omega)^i x``,
@@ -83,7 +70,7 @@ def _tangent_row(om, co, x, c, out):
     t0, t1, t2, t3, t4, t5 = p0, p1, p2, p3, p4, p5
     for i in range(4):
         ai = co[i]
-        p0, p1, p2, p3, p4, p5 = _ad(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        p0, p1, p2, p3, p4, p5 = ad_scalars(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
         t0 += ai * p0
         t1 += ai * p1
         t2 += ai * p2
@@ -109,9 +96,9 @@ def _tangent_rate_row(om, co, x, out, dout):
     for i in range(4):
         ai = co[i]
         bi = co[4 + i] * wwd
-        c0, c1, c2, c3, c4, c5 = _ad(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
-        f0, f1, f2, f3, f4, f5 = _ad(e0, e1, e2, e3, e4, e5, p0, p1, p2, p3, p4, p5)
-        g0, g1, g2, g3, g4, g5 = _ad(k0, k1, k2, u0, u1, u2, d0, d1, d2, d3, d4, d5)
+        c0, c1, c2, c3, c4, c5 = ad_scalars(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        f0, f1, f2, f3, f4, f5 = ad_scalars(e0, e1, e2, e3, e4, e5, p0, p1, p2, p3, p4, p5)
+        g0, g1, g2, g3, g4, g5 = ad_scalars(k0, k1, k2, u0, u1, u2, d0, d1, d2, d3, d4, d5)
         d0, d1, d2, d3, d4, d5 = f0 + g0, f1 + g1, f2 + g2, f3 + g3, f4 + g4, f5 + g5
         t0 += ai * c0
         t1 += ai * c1
@@ -203,15 +190,7 @@ def _add_body_t(mass6, jt, eta, jdq, weight, ncols, m_out, cqd_out, mj):
             acc = acc + x4 * jt[b, 4] + x5 * jt[b, 5]
             m_out[a, b] += weight * acc
             m_out[b, a] += weight * acc
-    m0, m1, m2 = mass6[0] * eta[0], mass6[1] * eta[1], mass6[2] * eta[2]
-    p0, p1, p2 = mass6[3] * eta[3], mass6[4] * eta[4], mass6[5] * eta[5]
-    w0, w1, w2, v0, v1, v2 = eta[0], eta[1], eta[2], eta[3], eta[4], eta[5]
-    f0 = mass6[0] * jdq[0] - (m1 * w2 - m2 * w1 + p1 * v2 - p2 * v1)
-    f1 = mass6[1] * jdq[1] - (m2 * w0 - m0 * w2 + p2 * v0 - p0 * v2)
-    f2 = mass6[2] * jdq[2] - (m0 * w1 - m1 * w0 + p0 * v1 - p1 * v0)
-    f3 = mass6[3] * jdq[3] - (p1 * w2 - p2 * w1)
-    f4 = mass6[4] * jdq[4] - (p2 * w0 - p0 * w2)
-    f5 = mass6[5] * jdq[5] - (p0 * w1 - p1 * w0)
+    f0, f1, f2, f3, f4, f5 = K.body_bias_wrench(mass6, eta, jdq)
     for a in range(ncols):
         cqd_out[a] += weight * (
             jt[a, 0] * f0 + jt[a, 1] * f1 + jt[a, 2] * f2 + jt[a, 3] * f3 + jt[a, 4] * f4
@@ -261,17 +240,17 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
                 s2 += b1[rr, c] * qsd[c]
             xi1[rr], xi2[rr], v1[rr], v2[rr] = a1, a2, s1, s2
         c4 = _C4 * h * h
-        a12 = _ad(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
+        a12 = ad_scalars(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
                   xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5])  # fmt: skip
-        v12 = _ad(v1[0], v1[1], v1[2], v1[3], v1[4], v1[5],
+        v12 = ad_scalars(v1[0], v1[1], v1[2], v1[3], v1[4], v1[5],
                   v2[0], v2[1], v2[2], v2[3], v2[4], v2[5])  # fmt: skip
         for rr in range(6):
             omega[rr] = 0.5 * h * (xi1[rr] + xi2[rr]) + c4 * a12[rr]
             xc[ns + 1, rr] = 2.0 * c4 * v12[rr]
         for c in range(ns):
-            t1 = _ad(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
+            t1 = ad_scalars(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
                      b1[0, c], b1[1, c], b1[2, c], b1[3, c], b1[4, c], b1[5, c])  # fmt: skip
-            t2 = _ad(xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5],
+            t2 = ad_scalars(xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5],
                      b0[0, c], b0[1, c], b0[2, c], b0[3, c], b0[4, c], b0[5, c])  # fmt: skip
             for rr in range(6):
                 xc[1 + c, rr] = 0.5 * h * (b0[rr, c] + b1[rr, c]) + c4 * (t1[rr] - t2[rr])
@@ -304,24 +283,11 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
     _adinv_row(r, p, w)
     _adinv_row(r, p, v)
     _adinv_row(r, p, e)
-    t = _ad(w[0], w[1], w[2], w[3], w[4], w[5], e[0], e[1], e[2], e[3], e[4], e[5])
+    t = ad_scalars(w[0], w[1], w[2], w[3], w[4], w[5], e[0], e[1], e[2], e[3], e[4], e[5])
     for i in range(6):
         eta[i] = e[i]
         jdq[i] = v[i] - t[i]
-    # g <- g exp(Omega)
-    for i in range(3):
-        for k in range(3):
-            gr[i, k] = g[i, k]
-    for i in range(3):
-        acc = 0.0
-        for k in range(3):
-            acc += gr[i, k] * p[k]
-        g[i, 3] += acc
-        for c in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += gr[i, k] * r[k, c]
-            g[i, c] = acc
+    compose_rp_into(g, gr, r, p)  # g <- g exp(Omega)
 
 
 @njit(cache=True)
@@ -416,20 +382,8 @@ def _base_into(q, qd, floating, g_fixed, gb, jbt, jbdt, m33):
         for k in range(3):
             acc = 0.0
             for p in range(3):
-                acc -= _skew_entry(w, i, p) * r[k, p]
+                acc -= K.skew_entry(w, i, p) * r[k, p]
             jbdt[3 + k, 3 + i] = acc
-
-
-@njit(cache=True, inline="always")
-def _skew_entry(w, i, p):
-    """:func:`tdacm.system.kernels.skew_entry` on a tuple."""
-    if i == p:
-        return 0.0
-    if i == 0:
-        return -w[2] if p == 1 else w[1]
-    if i == 1:
-        return w[2] if p == 0 else -w[0]
-    return -w[1] if p == 0 else w[0]
 
 
 @njit(cache=True)
@@ -534,30 +488,12 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
             if w == 0.0:
                 continue
             mass6 = m.step_mass[k]
-            if mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0:
-                pass
-            else:
+            if K.has_inertia(mass6):
                 _add_body_t(mass6, jt, eta, jdq, w, nact, m_out, cqd, mj)
             lo = m.step_load[k]
-            if lo == K.LOAD_GRAVITY:
-                for i in range(6):
-                    f[i] = 0.0
-                for i in range(3):
-                    for kk in range(3):
-                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk])
-            else:
-                for i in range(6):
-                    f[i] = loads[lo + i]
-                for i in range(3):
-                    for kk in range(3):
-                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
-                if rod_air:
-                    a0, a1, a2 = K._air_on_body(
-                        g, eta, k, lo == K.LOAD_TIP, aero, nst, rot, ax, ay, az, wake
-                    )
-                    f[3] += a0
-                    f[4] += a1
-                    f[5] += a2
+            K.step_wrench(
+                f, g, eta, k, lo, mass6, grav, loads, rod_air, aero, nst, rot, ax, ay, az, wake
+            )
             _tmatvec_add_t(jt, f, w, nact, tau)
             if cont and lo != K.LOAD_GRAVITY:
                 hit_a, hit_b = K._node_contact(contact, k, g, eta, prev, fa, fb)

@@ -57,6 +57,7 @@ from ..contact.geometry import point_contact, sdf, segment_contact
 from ..lie.blocks import (
     ad_apply,
     adinv_apply,
+    compose_rp_into,
     expmap_rp,
     expmap_rp_into,
     skew_apply_sub,
@@ -197,6 +198,28 @@ def _tmatvec_add(a, x, weight, out):
         out[k] += weight * acc
 
 
+@njit(cache=True, inline="always")
+def has_inertia(mass6):
+    """Whether a step's body has mass or rotational inertia (massless joints add nothing)."""
+    return not (mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0)
+
+
+@njit(cache=True, inline="always")
+def body_bias_wrench(mass6, eta, jdq):
+    """``f = Mb J_dot qdot + coad(eta) Mb eta`` of a body with diagonal inertia ``mass6``
+    (paper eq. (11)), with ``coad(eta) mu = -S(mu) eta = [m x w + f x v; f x w]``."""
+    m0, m1, m2 = mass6[0] * eta[0], mass6[1] * eta[1], mass6[2] * eta[2]
+    p0, p1, p2 = mass6[3] * eta[3], mass6[4] * eta[4], mass6[5] * eta[5]
+    w0, w1, w2, v0, v1, v2 = eta[0], eta[1], eta[2], eta[3], eta[4], eta[5]
+    f0 = mass6[0] * jdq[0] - (m1 * w2 - m2 * w1 + p1 * v2 - p2 * v1)
+    f1 = mass6[1] * jdq[1] - (m2 * w0 - m0 * w2 + p2 * v0 - p0 * v2)
+    f2 = mass6[2] * jdq[2] - (m0 * w1 - m1 * w0 + p0 * v1 - p1 * v0)
+    f3 = mass6[3] * jdq[3] - (p1 * w2 - p2 * w1)
+    f4 = mass6[4] * jdq[4] - (p2 * w0 - p0 * w2)
+    f5 = mass6[5] * jdq[5] - (p0 * w1 - p1 * w0)
+    return f0, f1, f2, f3, f4, f5
+
+
 @njit(cache=True)
 def _add_body(mass6, j, jd, eta, jdq, weight, want_c, m_out, c_out, cqd_out):
     """Add a body (or a Gauss section with weight ``w``) with diagonal inertia ``mass6``.
@@ -213,16 +236,7 @@ def _add_body(mass6, j, jd, eta, jdq, weight, want_c, m_out, c_out, cqd_out):
             m_out[a, b] += weight * acc
             if b != a:
                 m_out[b, a] += weight * acc
-    # f = Mb J_dot qdot + coad(eta) Mb eta, with coad(eta) mu = -S(mu) eta = [m x w + f x v; f x w]
-    m0, m1, m2 = mass6[0] * eta[0], mass6[1] * eta[1], mass6[2] * eta[2]
-    p0, p1, p2 = mass6[3] * eta[3], mass6[4] * eta[4], mass6[5] * eta[5]
-    w0, w1, w2, v0, v1, v2 = eta[0], eta[1], eta[2], eta[3], eta[4], eta[5]
-    f0 = mass6[0] * jdq[0] - (m1 * w2 - m2 * w1 + p1 * v2 - p2 * v1)
-    f1 = mass6[1] * jdq[1] - (m2 * w0 - m0 * w2 + p2 * v0 - p0 * v2)
-    f2 = mass6[2] * jdq[2] - (m0 * w1 - m1 * w0 + p0 * v1 - p1 * v0)
-    f3 = mass6[3] * jdq[3] - (p1 * w2 - p2 * w1)
-    f4 = mass6[4] * jdq[4] - (p2 * w0 - p0 * w2)
-    f5 = mass6[5] * jdq[5] - (p0 * w1 - p1 * w0)
+    f0, f1, f2, f3, f4, f5 = body_bias_wrench(mass6, eta, jdq)
     for a in range(n):
         cqd_out[a] += weight * (
             j[0, a] * f0 + j[1, a] * f1 + j[2, a] * f2 + j[3, a] * f3 + j[4, a] * f4 + j[5, a] * f5
@@ -333,20 +347,32 @@ def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
         for i in range(6):
             for c in range(j.shape[1]):
                 jd[i, c] -= tmpj[i, c]
-    # g <- g exp(Omega)
-    for i in range(3):
-        for k in range(3):
-            gr[i, k] = g[i, k]
-    for i in range(3):
-        acc = 0.0
-        for k in range(3):
-            acc += gr[i, k] * p[k]
-        g[i, 3] += acc
-        for c in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += gr[i, k] * r[k, c]
-            g[i, c] = acc
+    compose_rp_into(g, gr, r, p)  # g <- g exp(Omega)
+
+
+@njit(cache=True, inline="always")
+def step_wrench(f, g, eta, k, lo, mass6, grav, loads, rod_air, aero, nst, rot, ax, ay, az, wake):
+    """The body wrench ``f`` (local frame) of step ``k``'s body with load slot ``lo``: its
+    weight, and unless it is a plain Gauss section (``LOAD_GRAVITY``) the external load of its
+    slot (a wrench, plus a force in the inertial frame) and, when ``rod_air``, the rotor wake
+    and drag on it (paper eq. (16))."""
+    if lo == LOAD_GRAVITY:
+        for i in range(6):
+            f[i] = 0.0
+        for i in range(3):
+            for kk in range(3):
+                f[3 + i] += g[kk, i] * (mass6[3] * grav[kk])
+    else:
+        for i in range(6):
+            f[i] = loads[lo + i]
+        for i in range(3):
+            for kk in range(3):
+                f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
+        if rod_air:
+            a0, a1, a2 = _air_on_body(g, eta, k, lo == LOAD_TIP, aero, nst, rot, ax, ay, az, wake)
+            f[3] += a0
+            f[4] += a1
+            f[5] += a2
 
 
 @njit(cache=True)
@@ -596,30 +622,12 @@ def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
             if w == 0.0:
                 continue
             mass6 = m.step_mass[k]
-            if mass6[3] == 0.0 and mass6[0] == 0.0 and mass6[1] == 0.0 and mass6[2] == 0.0:
-                pass
-            else:
+            if has_inertia(mass6):
                 _add_body(mass6, j, jd, eta, jdq, w, want_c, m_out, c_out, cqd)
             lo = m.step_load[k]
-            if lo == LOAD_GRAVITY:
-                for i in range(6):
-                    f[i] = 0.0
-                for i in range(3):
-                    for kk in range(3):
-                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk])
-            else:
-                for i in range(6):
-                    f[i] = loads[lo + i]
-                for i in range(3):
-                    for kk in range(3):
-                        f[3 + i] += g[kk, i] * (mass6[3] * grav[kk] + loads[lo + 6 + kk])
-                if rod_air:
-                    a0, a1, a2 = _air_on_body(
-                        g, eta, k, lo == LOAD_TIP, aero, nst, rot, ax, ay, az, wake
-                    )
-                    f[3] += a0
-                    f[4] += a1
-                    f[5] += a2
+            step_wrench(
+                f, g, eta, k, lo, mass6, grav, loads, rod_air, aero, nst, rot, ax, ay, az, wake
+            )
             _tmatvec_add(j, f, w, tau)
             if cont and lo != LOAD_GRAVITY:
                 hit_a, hit_b = _node_contact(contact, k, g, eta, prev, fa, fb)

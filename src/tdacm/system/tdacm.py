@@ -40,6 +40,20 @@ def default_attachment(offset: float = PV.ATTACHMENT_OFFSET) -> np.ndarray:
     return g
 
 
+def energy_record(kinetic: float, gravity: float, elastic: float, loads: float) -> dict:
+    """The energies of :meth:`TDACM.energy` (J) as its dict: the three potentials, their sum
+    ``potential`` and ``total = kinetic + potential``."""
+    pot = gravity + elastic + loads
+    return {
+        "kinetic": kinetic,
+        "gravity": gravity,
+        "elastic": elastic,
+        "loads": loads,
+        "potential": pot,
+        "total": kinetic + pot,
+    }
+
+
 class Loads:
     """External loads (constant during one integration call; change them between calls).
 
@@ -652,15 +666,7 @@ class TDACM:
         e_loads = -self.loads.rod_force @ rod_pos - self.loads.tip_force @ tip_pos
         e_el = 0.5 * q @ m.stiffness @ q
         kin = 0.5 * qd @ mm @ qd
-        pot = e_grav + e_el + e_loads
-        return {
-            "kinetic": kin,
-            "gravity": e_grav,
-            "elastic": e_el,
-            "loads": e_loads,
-            "potential": pot,
-            "total": kin + pot,
-        }
+        return energy_record(kin, e_grav, e_el, e_loads)
 
     def momentum(self, q, qd) -> np.ndarray:
         """Total linear momentum in the inertial frame (drone, rod sections, joint and tip bodies)."""

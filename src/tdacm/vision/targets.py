@@ -45,6 +45,21 @@ def _square_corners(center, size) -> np.ndarray:
     )
 
 
+def _check_ids(key: str, dictionary, ids) -> None:
+    """``dictionary`` is an OpenCV aruco dictionary id and every id in ``ids`` one of its
+    markers (``ValueError`` naming ``key`` otherwise)."""
+    try:
+        d = cv2.aruco.getPredefinedDictionary(int(dictionary))
+    except cv2.error:
+        raise ValueError(
+            f"dictionary must be an OpenCV aruco dictionary id, got {dictionary!r}"
+        ) from None
+    n = d.bytesList.shape[0]
+    for i in ids:
+        if not 0 <= int(i) < n:
+            raise ValueError(f"{key} must lie in [0, {n}) for this dictionary, got {i!r}")
+
+
 def _dictionary_cells(dictionary: int) -> int:
     d = cv2.aruco.getPredefinedDictionary(dictionary)
     return int(d.markerSize)
@@ -113,17 +128,7 @@ class ArucoMarker(FiducialTarget):
         C.positive("size", self.size)
         C.nonnegative("margin", self.margin)
         C.positive_int("pixels_per_cell", self.pixels_per_cell)
-        try:
-            d = cv2.aruco.getPredefinedDictionary(int(self.dictionary))
-        except cv2.error:
-            raise ValueError(
-                f"dictionary must be an OpenCV aruco dictionary id, got {self.dictionary!r}"
-            ) from None
-        n = d.bytesList.shape[0]
-        if not 0 <= int(self.marker_id) < n:
-            raise ValueError(
-                f"marker_id must lie in [0, {n}) for this dictionary, got {self.marker_id!r}"
-            )
+        _check_ids("marker_id", self.dictionary, (self.marker_id,))
 
     @property
     def ids(self) -> tuple:
@@ -190,6 +195,7 @@ class AprilTagPattern(FiducialTarget):
         ids = tuple(int(i) for i in self.ids)
         if len(ids) != 4 or len(set(ids)) != 4:
             raise ValueError(f"ids must be 4 distinct tag ids, got {self.ids!r}")
+        _check_ids("ids", self.dictionary, ids)
         object.__setattr__(self, "ids", ids)
         if self.width <= self.tag_size or self.height <= self.tag_size:
             raise ValueError("width and height must exceed tag_size (tags would overlap)")
