@@ -247,8 +247,10 @@ class RobotConfig(ConfigModel):
             raise ValueError(
                 "robot.arms: give two or more arms (one arm is the single-arm form of [robot])"
             )
-        single = [k for k in ("rod", "tendons", "attachment", "tip") if k in self.model_fields_set]
-        if "local" in self.cameras.model_fields_set:
+        # the single-arm records must keep their defaults (a written scenario holds them all)
+        single = [k for k in ("rod", "tendons", "attachment", "tip")
+                  if getattr(self, k) != type(getattr(self, k))()]  # fmt: skip
+        if self.cameras.local != LocalCameraConfig():
             single.append("cameras.local")
         if single:
             raise ValueError(
