@@ -24,7 +24,13 @@ cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
 * ``[robot.cameras.local]`` and ``[robot.cameras.global]``: the intrinsics of
   :class:`~tdacm.vision.PinholeCamera` (``width, height, fx, fy, cx, cy, near, far``) and the
   mounts: ``offset`` of C_L beyond the tip along the backbone; ``position`` and ``tilt_deg`` of
-  C_G in the drone's body frame (:func:`~tdacm.vision.drone_camera_mount`).
+  C_G in the drone's body frame (:func:`~tdacm.vision.drone_camera_mount`);
+* ``[[robot.arms]]`` (two or more): a robot with several arms under the drone, each with its
+  own ``rod``, ``tendons``, ``attachment`` (``position`` [x, y] in the body frame and
+  ``offset`` below it), tip ``camera`` (C_L's intrinsics and offset), ``tip`` (probe) and
+  ``marker`` (its target's box ``xy`` and ``yaw_deg``); ``[robot.rod]``, ``[robot.tendons]``,
+  ``[robot.attachment]``, ``[robot.tip]`` and ``[robot.cameras.local]`` then keep their
+  defaults (:class:`ArmConfig`).
 """
 
 from __future__ import annotations
