@@ -60,6 +60,7 @@ FIGURE_KINDS = (
     "lyapunov",
     "estimation",
     "contact",  # servoing into contact ([touch]): forces, image error, tensions, drone
+    "arms",  # several arms ([[robot.arms]]): each arm's image error, strains and tensions
 )
 
 
