@@ -127,3 +127,23 @@ def test_batched_engine_refuses_several_arms():
     a = build_loop(_mirrored({"ibvs": {"features": "measured"}}))
     with pytest.raises(Unsupported, match=r"one arm \(robot.arms\)"):
         check_loop(a.loop)
+
+
+def test_outputs_know_the_arms(tmp_path):
+    """A short run: the per-arm summary figures, CSV columns with units, the arms figure."""
+    from tdacm.sim.outputs import columns
+    from tdacm.sim.runner import arms_summary
+    from tdacm.viz import plot_run
+
+    a = build_loop(_mirrored())
+    res = a.loop.run(0.3)
+    s = arms_summary(res.arrays)
+    assert len(s["late_rmse_1s_arms"]) == 2 and len(s["final_rmse_true_arms"]) == 2
+    # the run's rmse is the larger of the arms'
+    assert np.allclose(res.arrays["rmse"], res.arrays["rmse_arms"].max(axis=1))
+    _, info = columns(res.arrays, True)
+    arm_cols = {c["name"]: c["unit"] for c in info if c["series"] == "rmse_arms"}
+    assert arm_cols == {"rmse_arm0": "-", "rmse_arm1": "-"}
+    paths = plot_run(tmp_path, res.arrays, {}, a.loop.servo.desired_points, a.world.robot.system,
+                     formats=("png",), kinds=("arms",))  # fmt: skip
+    assert [p.name for p in paths] == ["arms.png"] and paths[0].stat().st_size > 0
