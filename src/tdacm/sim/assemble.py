@@ -184,6 +184,8 @@ def reseed(assembly: Assembly, seed: int) -> Assembly:
     loop = assembly.loop
     assembly.model.reseed(seed)
     loop.sensors.local.rng = np.random.default_rng([seed, 1])
+    for k, sensor in enumerate(getattr(loop.sensors, "locals_", [])[1:], start=1):
+        sensor.rng = np.random.default_rng([seed, 1, k])  # arm k's C_L ([[robot.arms]])
     loop.plant.rng = np.random.default_rng(seed)
     if loop.plant.wind is not None:  # the turbulence of [seed, WIND_STREAM]
         sc = assembly.scenario
