@@ -175,6 +175,9 @@ def _cmd_info(args) -> int:
         "  tendons ending part-way: Tendons(offsets=..., ends=[s_i or None]) (arc length, m)\n"
         "  several rods on one drone: TDACM([rod_1, rod_2], [tendons_1, tendons_2], base,\n"
         "    [g_a1, g_a2]); q = [drone, rod 1, rod 2, ...]; dual_paper_system() = the dual TD-CR\n"
+        "  several arms in a scenario: [[robot.arms]] (attachment.position, rod, tendons, camera,\n"
+        "    tip, marker per arm); the closed loop servoes each arm's C_L to its own marker with\n"
+        "    one stacked joint-rate mapping (docs/control.md, 'Two arms'; scenario dual-in-fov)\n"
         "  integrators: simulate(method='auto'|'rk4'|'rosenbrock'|'radau'|'adaptive'); 'auto' = RK4\n"
         "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'radau'"
     )

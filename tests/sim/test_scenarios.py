@@ -20,6 +20,7 @@ from tdacm.viz import plot_run_dir
 
 NAMES = [
     "custom-robot-example",
+    "dual-in-fov",
     "flight-test-c",
     "ground-test-a",
     "ground-test-b",

@@ -37,6 +37,8 @@ def camera_row(cam) -> np.ndarray:
 
 def check_loop(loop) -> None:
     """Refuse (:class:`Unsupported`, naming the key) the blocks the engine does not run."""
+    if len(loop.plant.system.arms) > 1:
+        raise Unsupported("the engine runs one arm (robot.arms)")
     if not isinstance(loop.sensors.local.front_end, AnalyticFrontEnd):
         raise Unsupported(
             "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"

@@ -201,9 +201,13 @@ class TDACMController:
             thrusts = np.zeros(0)
             tau_s = out.tau
         b_s = sysm.tendon_matrix(q)
-        tal = allocate_tensions(b_s, tau_s, sysm.tendons.max_tension, self.pretension)
+        if len(sysm.arms) == 1:
+            tal = allocate_tensions(b_s, tau_s, sysm.tendons.max_tension, self.pretension)
+            tensions, tension_sat, residual = tal.tensions, tal.saturated, tal.residual
+        else:  # B_s is block-diagonal over the arms: one allocation per arm, its own T_max
+            tensions, tension_sat, residual = _allocate_arms(sysm, b_s, tau_s, self.pretension)
         self.law.adapt(out.s, dt)
-        u = np.concatenate((thrusts, tal.tensions))
+        u = np.concatenate((thrusts, tensions))
         return ControlStep(
             u,
             out.tau,
@@ -213,7 +217,25 @@ class TDACMController:
             out.V,
             thrust_total,
             thrust_sat,
-            tal.saturated,
-            tal.residual,
+            tension_sat,
+            residual,
             self.law.delta_hat.copy(),
         )
+
+
+def _allocate_arms(system, b_s, tau_s, pretension: float):
+    """``(tensions, saturated, residual)`` of a system with several arms: ``B_s`` (eq. (13))
+    is block-diagonal (arm k's tendons act on arm k's strains only), so the bounded least
+    squares splits into one :func:`allocate_tensions` per arm with that arm's ``T_max``;
+    the residual is the norm over the arms."""
+    q_off = system.n - system.n_s  # the drone's coordinates and thrusts come first
+    u_off = system.n_u - system.n_a
+    out, sat, res2 = [], False, 0.0
+    for arm in system.arms:
+        rows = slice(arm.strains.start - q_off, arm.strains.stop - q_off)
+        cols = slice(arm.tensions.start - u_off, arm.tensions.stop - u_off)
+        tal = allocate_tensions(b_s[rows, cols], tau_s[rows], arm.tendons.max_tension, pretension)
+        out.append(tal.tensions)
+        sat = sat or tal.saturated
+        res2 += tal.residual**2
+    return np.concatenate(out), sat, float(np.sqrt(res2))

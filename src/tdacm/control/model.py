@@ -91,11 +91,13 @@ class EstimatedModel:
                 raise ValueError("rotor_drag needs a floating base (a drone)")
             self.nominal_rotor_drag = k
         # private model with gravity only (no disturbances)
+        arms = system.arms
+        one = len(arms) == 1  # several arms: the lists of rods, tendons and attachments
         self.system = TDACM(
-            system.rod,
-            system.tendons,
+            arms[0].rod if one else [a.rod for a in arms],
+            arms[0].tendons if one else [a.tendons for a in arms],
             system.base,
-            system.attachment,
+            arms[0].attachment if one else [a.attachment for a in arms],
             Loads(gravity=system.loads.gravity.copy()),
         )
         self.n = system.n

@@ -80,7 +80,11 @@ SERIES_INFO = {
     "points_local": ("-", "detected points in C_L, normalized image coordinates (x, y) x 4"),
     "points_virtual": ("-", "points in the virtual camera C_V (floating) or C_L, normalized"),
     "twist": ("twist", "commanded local camera twist [w_x, w_y, w_z, v_x, v_y, v_z]"),
-    "rmse": ("-", "normalized RMSE of the points used by the servo to the desired points"),
+    "rmse": (
+        "-",
+        "normalized RMSE of the points used by the servo to the desired points (several arms: "
+        "the largest over the arms)",
+    ),
     "rmse_raw": ("-", "normalized RMSE of the raw C_L points to the desired points"),
     "mode": ("-", "0 = IBVS, 1 = recovery (trajectory planned from one C_G snapshot)"),
     "V": ("J", "Lyapunov function of the adaptive controller (known part)"),
@@ -101,6 +105,9 @@ SERIES_INFO = {
     "force_hat": ("N", "estimated normal force on the probe (tendons, thrusts, model)"),
     "force_sigma": ("N", "standard deviation of the estimated normal force"),
     "touch_phase": ("-", "0 = approach, 1 = contact, 2 = hold, 3 = release ([touch])"),
+    "rmse_arms": ("-", "several arms: each arm's normalized RMSE of the points its servo used"),
+    "rmse_true_arms": ("-", "several arms: each arm's RMSE of the true points in its C_V"),
+    "detected_arms": ("-", "several arms: 1 if the arm's target was detected in its C_L"),
 }
 
 _NAN4 = np.full((4, 2), np.nan)

@@ -132,8 +132,8 @@ class RenderedFrontEnd:
 
 
 class CameraSensor:
-    """One camera: carrier frame (``"tip"`` or ``"base"``), mount ``g_C^F``, front end and
-    imperfections (noise and dropouts drawn from ``rng``; latency as a FIFO of measurements).
+    """One camera: carrier frame (``"tip"`` of arm ``rod``, or ``"base"``), mount ``g_C^F``,
+    front end and imperfections (noise and dropouts drawn from ``rng``; latency as a FIFO of measurements).
 
     :meth:`measure` returns the :class:`~.data.CameraMeasurement` the controller receives now
     (captured ``latency_steps`` periods ago when the camera has latency)."""
@@ -147,6 +147,7 @@ class CameraSensor:
         imperfections: SensorModel | None = None,
         rng: np.random.Generator | None = None,
         keep_images: bool = False,
+        rod: int = 0,
     ):
         if carrier not in ("tip", "base"):
             raise ValueError(f"carrier must be 'tip' or 'base', got {carrier!r}")
@@ -157,6 +158,7 @@ class CameraSensor:
         self.model = imperfections or SensorModel()
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.keep_images = bool(keep_images)
+        self.rod = int(rod)  # the arm carrying a tip camera (robots with several arms)
         self._fifo = deque(maxlen=self.model.latency_steps + 1)
 
     @property
@@ -170,7 +172,7 @@ class CameraSensor:
     def pose(self, q) -> np.ndarray:
         """Inertial pose of the camera at configuration ``q``."""
         if self.carrier == "tip":
-            return tip_camera_pose(self.system, q, self.mount)
+            return tip_camera_pose(self.system, q, self.mount, self.rod)
         return self.system.base_pose(q) @ self.mount
 
     def ideal(self, q) -> tuple[Detection, np.ndarray | None]:

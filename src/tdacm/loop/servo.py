@@ -79,6 +79,8 @@ class VisualServo:
     recovery:
         The ``[recovery]`` record (:class:`~.config.RecoveryConfig`): the mode switch and the
         recovery planner.
+    rod:
+        The arm carrying C_L (a robot with several arms, :class:`~.arms.ArmsServo`).
     """
 
     def __init__(
@@ -93,8 +95,10 @@ class VisualServo:
         desired_depths,
         config: IbvsConfig | None = None,
         recovery: RecoveryConfig | None = None,
+        rod: int = 0,
     ):
         self.system = system
+        self.rod = int(rod)
         self.local_camera = local_camera
         self.global_camera = global_camera
         self.target = target
@@ -148,7 +152,7 @@ class VisualServo:
     def local_camera_pose(self, q) -> np.ndarray:
         """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`~tdacm.vision.tip_camera_pose`; the system keeps
         the tip pose of the last configurations, asked for several times a period)."""
-        return tip_camera_pose(self.system, q, self.tip_mount)
+        return tip_camera_pose(self.system, q, self.tip_mount, self.rod)
 
     def to_virtual(self, view: LocalView, q):
         """Points and depths of the view in C_V (eq. (18)); unchanged for a fixed base."""
@@ -170,11 +174,17 @@ class VisualServo:
         """``qdot_d = (J_L^L[:, cmd])^+ Ad(g_{C_L}^L) v`` over the commanded coordinates, with
         the Jacobian of the virtual-camera chain (roll and pitch set to zero) for a floating
         base (:func:`~tdacm.vision.camera_joint_rates` with ``jacobian_at="virtual"``)."""
+        return rates_from_jacobian(self.task_jacobian(q), self._ad_mount @ twist, self._cmd)
+
+    def task_jacobian(self, q) -> np.ndarray:
+        """``J_L^L`` (6 x n) of this servo's arm at ``q`` with roll and pitch set to zero for a
+        floating base (the virtual-camera chain's Jacobian)."""
         qv = q
         if self.system.floating:
             qv = q.copy()
             qv[:2] = 0.0
-        return rates_from_jacobian(self.system.tip_jacobian(qv), self._ad_mount @ twist, self._cmd)
+        s = self.system
+        return s.tip_jacobian(qv) if self.rod == 0 else s.tip_jacobian(qv, self.rod)
 
     def shape(self, rates: np.ndarray, t: float, dt: float) -> None:
         """Limit, ramp and filter the IBVS joint rates into ``qd_d``; integrate ``q_d``."""
@@ -308,7 +318,11 @@ class VisualServo:
     def follow_twist(self, q, twist, t: float, dt: float) -> np.ndarray:
         """IBVS mode: joint rates of ``twist``, shaped into ``qd_d`` and integrated into
         ``q_d``; returns ``qdd_d`` (zero: IBVS gives rates only, ``qdd_r = -beta edot``)."""
-        self.shape(self.joint_rates(q, twist), t, dt)
+        return self.follow_rates(q, self.joint_rates(q, twist), t, dt)
+
+    def follow_rates(self, q, rates, t: float, dt: float) -> np.ndarray:
+        """IBVS mode on joint rates already mapped (:meth:`follow_twist`'s second half)."""
+        self.shape(rates, t, dt)
         return np.zeros(self.n)
 
     def command(self, t, dt, q, gview, twist, mode, event, seen, ibvs_twist, points, features,
@@ -533,13 +547,13 @@ class RobustServo(VisualServo):
             mode, event, ps.valid, lambda: ps.twist, ps.points, ps.features, ps.error, rmse, extra,
         )  # fmt: skip
 
-    def follow_twist(self, q, twist, t: float, dt: float) -> np.ndarray:
-        """As :meth:`VisualServo.follow_twist`, plus the acceleration feed-forward of the
+    def follow_rates(self, q, rates, t: float, dt: float) -> np.ndarray:
+        """As :meth:`VisualServo.follow_rates`, plus the acceleration feed-forward of the
         filtered rate and the leak of ``q_d`` toward ``q_hat``."""
         r = self.config
         qdd_d = np.zeros(self.n)
         qd_prev = self.qd_d.copy()
-        self.shape(self.joint_rates(q, twist), t, dt)
+        self.shape(rates, t, dt)
         if r.accel_feedforward and self._flying:
             # the low-level loop follows the deceleration instead of lagging into an
             # overshoot (paper: qdd_d = 0)

@@ -27,6 +27,7 @@ from ..loop.safety import SafetyMonitor
 from ..vision import PAPER_MARKER, PAPER_PATTERN, SceneConfig
 from .blocks import (
     air_of,
+    arms_camera_sensors,
     camera_imperfections,
     camera_pose_error,
     camera_sensors,
@@ -95,7 +96,12 @@ def apply_profile(scenario: Scenario) -> Scenario:
 @dataclass(frozen=True)
 class World:
     """The static world and the robot of a scenario: the robot, the scene (box and target),
-    the target, the initial state ``(q0, qd0)`` and the desired configuration ``q_star``."""
+    the target, the initial state ``(q0, qd0)`` and the desired configuration ``q_star``;
+    with ``[[robot.arms]]``, one scene per arm (its marker on its own box, ``scenes``)."""
+
+    def arm(self, k: int) -> World:
+        """The world as arm ``k`` sees it: its scene (a robot with several arms)."""
+        return replace(self, scene=self.scenes[k]) if self.scenes else self
 
     robot: Robot
     scene: SceneConfig
@@ -103,6 +109,7 @@ class World:
     q0: np.ndarray
     qd0: np.ndarray
     q_star: np.ndarray
+    scenes: tuple = ()  # several arms: each arm's scene (its marker's box); scene = arm 0's
 
 
 def build_world(scenario: Scenario) -> World:
@@ -124,10 +131,16 @@ def build_world(scenario: Scenario) -> World:
         target_yaw_deg=sc.target_yaw_deg,
         target_tilt_deg=tuple(sc.target_tilt_deg),
     )
+    scenes = tuple(
+        replace(scene, box_xy=arm.marker_xy, target_yaw_deg=arm.marker_yaw_deg)
+        for arm in robot.arms
+    )
+    if scenes:
+        scene = scenes[0]
     n = robot.system.n
     q0 = np.asarray(cfg.initial.q, float)
     qd0 = np.zeros(n) if cfg.initial.qd is None else np.asarray(cfg.initial.qd, float)
-    world = World(robot, scene, target, q0, qd0, np.asarray(cfg.desired.q, float))
+    world = World(robot, scene, target, q0, qd0, np.asarray(cfg.desired.q, float), scenes)
     check_with_world(scenario, world)
     return world
 
@@ -171,6 +184,8 @@ def reseed(assembly: Assembly, seed: int) -> Assembly:
     loop = assembly.loop
     assembly.model.reseed(seed)
     loop.sensors.local.rng = np.random.default_rng([seed, 1])
+    for k, sensor in enumerate(getattr(loop.sensors, "locals_", [])[1:], start=1):
+        sensor.rng = np.random.default_rng([seed, 1, k])  # arm k's C_L ([[robot.arms]])
     loop.plant.rng = np.random.default_rng(seed)
     if loop.plant.wind is not None:  # the turbulence of [seed, WIND_STREAM]
         sc = assembly.scenario
@@ -196,6 +211,9 @@ def build_loop(
     paper = cfg.controller.profile == "paper"
     world = build_world(scenario)
     robot, s = world.robot, world.robot.system
+    if robot.arms:
+        return _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
+                                frame_composer)  # fmt: skip
     # the proprioceptive sensors of the EKF (estimation.source = "estimated"), read every period
     suite = None
     if estimator is None and cfg.estimation.source == "estimated":
@@ -241,5 +259,79 @@ def build_loop(
     )
     if plant.contact is not None:
         loop.log.contact = contact_logger(s, plant.contact)
+    warm_up(s, world.q0)
+    return Assembly(loop, world, seed, model, scenario)
+
+
+# ----------------------------------------------------------------------------- several arms
+def _refuse_for_arms(cfg, src: str) -> None:
+    """What the loop of several arms does not run yet: one line naming the key."""
+    checks = (
+        (cfg.estimation.source == "estimated", "estimation.source = 'estimated'"),
+        (cfg.touch.enabled, "touch.enabled"),
+        (bool(cfg.scene.obstacles), "[[scene.obstacles]]"),
+        (cfg.scene.contact.target_box, "scene.contact.target_box"),
+        (cfg.aerodynamics.enabled, "aerodynamics.enabled"),
+    )
+    for bad, key in checks:
+        if bad:
+            raise ScenarioError(f"{src}: {key} is for one arm (not with [[robot.arms]])")
+
+
+def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator, composer):
+    """:func:`build_loop` for ``[[robot.arms]]`` (:mod:`tdacm.loop.arms`): one C_L sensor,
+    perception, reference snapshot and single-arm servo per arm, joined by
+    :class:`~tdacm.loop.arms.ArmsServo`; the controller, plant and safety monitor as for one
+    arm, over all coordinates and inputs."""
+    from ..loop.arms import ArmsLog, ArmsPerception, ArmsServo
+
+    cfg, src = scenario.config, scenario.source
+    _refuse_for_arms(cfg, src)
+    robot, s = world.robot, world.robot.system
+    imperfections = camera_imperfections(cfg.sensors)
+    sensors, cams = arms_camera_sensors(cfg.cameras, imperfections, world, seed, video)
+    for k, sensor in enumerate(sensors.locals_):
+        det, _ = sensor.ideal(world.q0)
+        sensor.reset()
+        inside = det.found and bool(
+            np.all(sensor.camera.pixels_in_image(det.points, cfg.recovery.margin_px))
+        )
+        if not inside:
+            raise ScenarioError(
+                f"{src}: initial.q: arm {k}'s marker is not in its C_L view at the start (the "
+                "global-camera recovery runs for one arm only)"
+            )
+    perception = ArmsPerception([perception_block(c, world.arm(k)) for k, c in enumerate(cams)])
+    desired = [
+        reference_snapshot(sensors.locals_[k], robot, world.target, world.scenes[k],
+                           world.q_star, cams[k])
+        for k in range(len(robot.arms))
+    ]  # fmt: skip
+    paper = cfg.controller.profile == "paper"
+    if servo is None:
+        servo = ArmsServo([
+            servo_block(cfg.ibvs, cfg.recovery, cfg.touch, paper, world.arm(k), cams[k],
+                        desired[k], src, arm=arm)
+            for k, arm in enumerate(robot.arms)
+        ])  # fmt: skip
+    model = controller_model(cfg.model, cfg.aerodynamics, s, seed)
+    if controller is None:
+        folders = search_folders(scenario.folder)
+        controller = controller_block(cfg.controller, model, world, cfg.dt, src, folders)
+    plant = plant_block(cfg, world, seed, False, src)
+    controller = truth_ablation(controller, cfg.estimation.controller_truth, plant, src)
+    truths = [truth_of(world.arm(k), sensors.locals_[k]) for k in range(len(robot.arms))]
+    loop = ClosedLoop(
+        plant,
+        sensors,
+        perception,
+        servo,
+        controller,
+        cfg.dt,
+        estimator=estimator,
+        safety=SafetyMonitor.from_config(cfg.safety),
+        log=ArmsLog([p for p, _ in desired], composer, truths),
+        name=scenario.name,
+    )
     warm_up(s, world.q0)
     return Assembly(loop, world, seed, model, scenario)

@@ -134,6 +134,37 @@ def camera_sensors(
     return sensors, perturbed_camera(robot.local_camera, imperfections.intrinsics_error, rng)
 
 
+def arms_camera_sensors(cameras: CamerasConfig, imperfections: SensorModel, world, seed: int,
+                        video: bool):  # fmt: skip
+    """:func:`camera_sensors` for ``[[robot.arms]]``: ``(sensors, controller_cameras)`` with
+    one C_L per arm (:class:`~tdacm.loop.arms.ArmsSensors`), each seeing its own marker; arm
+    0's imperfections (and its controller camera's intrinsics error) from ``[seed, 1]`` as for
+    one arm, arm k's from ``[seed, 1, k]``."""
+    from ..loop.arms import ArmsSensors
+
+    one, cam0 = camera_sensors(cameras, imperfections, world, seed, video)
+    robot, s = world.robot, world.robot.system
+    kind = "planar-local" if cameras.local_renderer == "planar" else "analytic"
+    locals_, cams = [one.local], [cam0]
+    for k, arm in enumerate(robot.arms[1:], start=1):
+        rng = np.random.default_rng([seed, 1, k])
+        scene = world.scenes[k]
+        locals_.append(CameraSensor(
+            s, "tip", arm.tip_mount, front_end(kind, arm.local_camera, scene, world.target),
+            imperfections, rng, keep_images=video, rod=arm.rod,
+        ))  # fmt: skip
+        cams.append(perturbed_camera(arm.local_camera, imperfections.intrinsics_error, rng))
+    sensors = ArmsSensors(
+        locals_,
+        one.global_,
+        one.global_every,
+        always_global=one.always_global,
+        other=one.other,
+        global_output_every=one.global_output_every,
+    )
+    return sensors, cams
+
+
 def camera_imperfections(sensors) -> SensorModel:
     """C_L's imperfections: the camera keys of a ``[sensors]`` record."""
     return SensorModel(**{k: getattr(sensors, k) for k in SensorModel.model_fields})
@@ -180,11 +211,14 @@ def servo_block(
     camera,
     desired,
     source: str,
+    arm=None,
 ) -> VisualServo:
     """The servo of ``[ibvs]`` and ``[recovery]``: the touch servo with ``touch.enabled``, the
     robust servo on predicted features, or the servo on the measured points; the paper
     profile's (``paper``) without command shaping. ``camera``: the controller's model of C_L;
-    ``desired``: the reference snapshot ``(points, depths)``."""
+    ``desired``: the reference snapshot ``(points, depths)``; ``arm``: the
+    :class:`~tdacm.sim.robot.ArmRobot` whose C_L servoes (``[[robot.arms]]``; ``None``: the
+    single arm)."""
     robot = world.robot
     config = ibvs.model_copy(update=PLAIN_SHAPING) if paper else ibvs
     args = (
@@ -192,10 +226,11 @@ def servo_block(
         camera,
         robot.global_camera,
         world.target,
-        robot.tip_mount,
+        robot.tip_mount if arm is None else arm.tip_mount,
         robot.drone_mount,
         *desired,
     )
+    rod = {} if arm is None else {"rod": arm.rod}
     if touch.enabled:
         if ibvs.features != "predicted" or paper:
             raise ScenarioError(
@@ -204,8 +239,8 @@ def servo_block(
             )
         return TouchServo(*args, config=config, recovery=recovery, touch=touch)
     if ibvs.features == "predicted":
-        return RobustServo(*args, config=config, recovery=recovery)
-    return VisualServo(*args, config=config, recovery=recovery)
+        return RobustServo(*args, config=config, recovery=recovery, **rod)
+    return VisualServo(*args, config=config, recovery=recovery, **rod)
 
 
 def force_block(touch: TouchConfig, servo, model, robot) -> TipForceBlock | None:

@@ -364,7 +364,8 @@ def _md_table(prefix: str, model, lines: list, first: bool = True) -> None:
     for key, f in _by_key(model).items():
         sub = _model_of(f.annotation)
         if sub is not None:
-            name = f"{prefix}.{key}" if prefix else key
+            # a record inside an array of tables is a plain sub-table (``[robot.arms.rod]``)
+            name = f"{prefix.strip('[]')}.{key}" if prefix else key
             subs.append((f"[{name}]" if _is_table_array(f.annotation) else name, sub))
             continue
         path = (prefix.strip("[]") + "." + key) if prefix else key
@@ -378,6 +379,8 @@ def _md_table(prefix: str, model, lines: list, first: bool = True) -> None:
             lines += [doc, ""]
         lines += ["| key | type | default | range | meaning |", "|---|---|---|---|---|"]
         lines += rows + [""]
+    elif prefix.startswith("[") and model.__doc__:  # an array of tables of sub-tables only
+        lines += [f"## `[{prefix}]`", "", _md_text(" ".join(model.__doc__.split())), ""]
     for name, sub in subs:
         _md_table(name, sub, lines, False)
 

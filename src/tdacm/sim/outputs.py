@@ -60,6 +60,7 @@ FIGURE_KINDS = (
     "lyapunov",
     "estimation",
     "contact",  # servoing into contact ([touch]): forces, image error, tensions, drone
+    "arms",  # several arms ([[robot.arms]]): each arm's image error, strains and tensions
 )
 
 
@@ -154,6 +155,9 @@ def columns(a: dict, floating: bool, n_a: int | None = None):
             tag = "L" if key == "points_local" else "V"
             names = [f"{c}{k + 1}_{tag}" for k in range(width // 2) for c in ("x", "y")]
             add(key, v, names, ["-"] * width)
+        elif key in ("rmse_arms", "rmse_true_arms", "detected_arms"):  # several arms
+            add(key, v, [f"{key.removesuffix('_arms')}_arm{i}" for i in range(width)],
+                ["-"] * width)  # fmt: skip
         elif key in ("contact_tip", "contact_rod"):
             add(key, v, [f"{key}_{c}" for c in "xyz"], ["N"] * 3)
         elif width == 1:

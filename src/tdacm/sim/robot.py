@@ -24,7 +24,13 @@ cameras), so a scenario without ``[robot]`` simulates the paper's TD-ACM:
 * ``[robot.cameras.local]`` and ``[robot.cameras.global]``: the intrinsics of
   :class:`~tdacm.vision.PinholeCamera` (``width, height, fx, fy, cx, cy, near, far``) and the
   mounts: ``offset`` of C_L beyond the tip along the backbone; ``position`` and ``tilt_deg`` of
-  C_G in the drone's body frame (:func:`~tdacm.vision.drone_camera_mount`).
+  C_G in the drone's body frame (:func:`~tdacm.vision.drone_camera_mount`);
+* ``[[robot.arms]]`` (two or more): a robot with several arms under the drone, each with its
+  own ``rod``, ``tendons``, ``attachment`` (``position`` [x, y] in the body frame and
+  ``offset`` below it), tip ``camera`` (C_L's intrinsics and offset), ``tip`` (probe) and
+  ``marker`` (its target's box ``xy`` and ``yaw_deg``); ``[robot.rod]``, ``[robot.tendons]``,
+  ``[robot.attachment]``, ``[robot.tip]`` and ``[robot.cameras.local]`` then keep their
+  defaults (:class:`ArmConfig`).
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ from .. import paper_values as PV
 from .._config import ConfigModel, Field
 from ..aero.params import LAYOUTS, RotorWake
 from ..base import FixedBase, Quadrotor
-from ..loop.config import Vec3, Vec6
+from ..loop.config import Vec2, Vec3, Vec6
 from ..rod import Rod, StrainBasis, Tendons
 from ..system.tdacm import TDACM, default_attachment
 from ..vision import GLOBAL_CAMERA, LOCAL_CAMERA, drone_camera_mount, tip_camera_mount
@@ -188,9 +194,43 @@ class RobotCamerasConfig(ConfigModel):
     global_: GlobalCameraConfig = Field(GlobalCameraConfig(), alias="global")
 
 
+class ArmAttachmentConfig(AttachmentConfig):
+    """``[robot.arms.attachment]``: where the arm's rod hangs from the drone."""
+
+    position: Vec2 = Field(
+        ...,
+        description="m, [x, y] of the rod's base in the drone's body frame (the rod hangs "
+        "offset below it, along body -z)",
+    )
+
+
+class MarkerConfig(ConfigModel):
+    """``[robot.arms.marker]``: the arm's own target (a marker on its own box; the box size,
+    the marker type and tilt are those of ``[scene]``)."""
+
+    xy: Vec2 = Field(..., description="m, the centre of the box carrying this arm's marker")
+    yaw_deg: float = Field(0.0, description="deg, the marker's yaw about world z")
+
+
+class ArmConfig(ConfigModel):
+    """``[[robot.arms]]``: one arm of a robot with several rods under the drone (at least
+    two; one arm is the single-arm form of ``[robot]``): its rod, tendons, attachment, tip
+    camera C_L, probe and target marker. q = [drone (6), q_s of arm 0, q_s of arm 1, ...] and
+    u = [thrusts (4), tensions of arm 0, tensions of arm 1, ...]."""
+
+    attachment: ArmAttachmentConfig
+    marker: MarkerConfig
+    rod: RodConfig = RodConfig()
+    tendons: TendonsConfig = TendonsConfig()
+    camera: LocalCameraConfig = LocalCameraConfig()
+    tip: TipConfig = TipConfig()
+
+
 class RobotConfig(ConfigModel):
     """Section ``[robot]``: the robot; every key optional, an omitted key takes the paper's
-    value (Table I, Table II), so a scenario without ``[robot]`` simulates the paper's TD-ACM."""
+    value (Table I, Table II), so a scenario without ``[robot]`` simulates the paper's TD-ACM.
+    ``[[robot.arms]]`` (two or more) replaces ``rod``, ``tendons``, ``attachment``, ``tip`` and
+    ``cameras.local`` by one set per arm."""
 
     rod: RodConfig = RodConfig()
     tendons: TendonsConfig = TendonsConfig()
@@ -199,6 +239,31 @@ class RobotConfig(ConfigModel):
     attachment: AttachmentConfig = AttachmentConfig()
     cameras: RobotCamerasConfig = RobotCamerasConfig()
     tip: TipConfig = TipConfig()
+    arms: list[ArmConfig] = Field(
+        [],
+        description="[[robot.arms]]: two or more arms under the drone, each with its own rod, "
+        "tendons, attachment, tip camera, probe and marker (empty: the single arm of [robot])",
+    )
+
+    @model_validator(mode="after")
+    def _arms(self):
+        if not self.arms:
+            return self
+        if len(self.arms) < 2:
+            raise ValueError(
+                "robot.arms: give two or more arms (one arm is the single-arm form of [robot])"
+            )
+        # the single-arm records must keep their defaults (a written scenario holds them all)
+        single = [k for k in ("rod", "tendons", "attachment", "tip")
+                  if getattr(self, k) != type(getattr(self, k))()]  # fmt: skip
+        if self.cameras.local != LocalCameraConfig():
+            single.append("cameras.local")
+        if single:
+            raise ValueError(
+                f"robot.{single[0]}: with [[robot.arms]] each arm has its own "
+                f"(robot.arms[k].{single[0].removeprefix('cameras.').replace('local', 'camera')})"
+            )
+        return self
 
 
 _CAMERA_KEYS = tuple(CameraIntrinsics.model_fields)
@@ -217,8 +282,9 @@ class RobotError(ValueError):
     """Invalid ``[robot]`` data; the message names the key."""
 
 
-def parse_basis(text: str) -> StrainBasis:
-    """``"bending:P"``, ``"full:P"`` or ``"modes:name=P,name=P"`` -> :class:`StrainBasis`."""
+def parse_basis(text: str, where: str = "robot.rod") -> StrainBasis:
+    """``"bending:P"``, ``"full:P"`` or ``"modes:name=P,name=P"`` -> :class:`StrainBasis`
+    (``where``: the rod's key, for messages)."""
     kind, _, arg = text.partition(":")
     try:
         if kind == "bending":
@@ -232,15 +298,30 @@ def parse_basis(text: str) -> StrainBasis:
                 modes[name.strip()] = int(p)
             return StrainBasis.from_modes(modes)
     except ValueError as exc:
-        raise RobotError(f"robot.rod.basis = {text!r}: {exc}") from None
+        raise RobotError(f"{where}.basis = {text!r}: {exc}") from None
     raise RobotError(
-        f"robot.rod.basis = {text!r}: write 'bending:P', 'full:P' or 'modes:torsion=1,...'"
+        f"{where}.basis = {text!r}: write 'bending:P', 'full:P' or 'modes:torsion=1,...'"
     )
 
 
 @dataclass(frozen=True)
+class ArmRobot:
+    """One arm of a several-arm robot: its rod's index in the system (``rod`` of
+    :meth:`~tdacm.system.TDACM.tip_pose`), tip camera, mount, probe and target marker."""
+
+    rod: int
+    local_camera: PinholeCamera
+    tip_mount: np.ndarray  # g_{C_L}^L of this arm
+    probe_length: float
+    marker_xy: tuple
+    marker_yaw_deg: float
+
+
+@dataclass(frozen=True)
 class Robot:
-    """A scenario's robot: the coupled model, both cameras and their mounts."""
+    """A scenario's robot: the coupled model, both cameras and their mounts. With
+    ``[[robot.arms]]``, ``arms`` holds one :class:`ArmRobot` per arm and the single-arm fields
+    (``local_camera``, ``tip_mount``, ``probe_length``) are arm 0's."""
 
     system: TDACM
     local_camera: PinholeCamera
@@ -248,6 +329,7 @@ class Robot:
     tip_mount: np.ndarray  # g_{C_L}^L
     drone_mount: np.ndarray  # g_{C_G}^b
     probe_length: float = 0.0  # m, the contact sphere ahead of C_L ([robot.tip])
+    arms: tuple = ()  # ArmRobot per arm ([[robot.arms]]); empty: the single-arm form
 
 
 def _camera(base: PinholeCamera, record: CameraIntrinsics, where: str) -> PinholeCamera:
@@ -263,12 +345,9 @@ def _camera(base: PinholeCamera, record: CameraIntrinsics, where: str) -> Pinhol
     return cam
 
 
-def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
-    """The :class:`Robot` of a ``[robot]`` record.
-    ``held_base_q`` (``system.held_base_q``) clamps the rod at that drone pose when the scenario
-    says ``system.base = "fixed"``; ``robot.base.pose_q`` does the same."""
-    r = robot.rod
-    basis = parse_basis(r.basis)
+def _rod(r: RodConfig, where: str) -> Rod:
+    """The :class:`~tdacm.rod.Rod` of a rod record (``where``: its key, for messages)."""
+    basis = parse_basis(r.basis, where)
     paper_basis = basis == parse_basis(PV.ROD_BASIS)
     n_gauss = r.n_gauss if r.n_gauss is not None else (PV.ROD_N_GAUSS if paper_basis else None)
     magnus = r.magnus_order
@@ -276,12 +355,15 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
         magnus = PV.ROD_MAGNUS_ORDER if paper_basis else None
     try:
         material = {k: getattr(r, k) for k in _ROD_KEYS}
-        rod = Rod(**material, basis=basis, n_gauss=n_gauss, magnus_order=magnus)
+        return Rod(**material, basis=basis, n_gauss=n_gauss, magnus_order=magnus)
     except RobotError:
         raise
     except ValueError as exc:
-        raise RobotError(f"robot.rod: {exc}") from None
-    t = robot.tendons
+        raise RobotError(f"{where}: {exc}") from None
+
+
+def _tendons(t: TendonsConfig, where: str) -> Tendons:
+    """The :class:`~tdacm.rod.Tendons` of a tendons record (at least three)."""
     try:
         if t.offsets is not None:
             off = np.asarray(t.offsets, float)
@@ -293,12 +375,39 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
         else:
             tendons = Tendons.parallel(t.radius, t.count, t.max_tension)
     except ValueError as exc:
-        raise RobotError(f"robot.tendons: {exc}") from None
+        raise RobotError(f"{where}: {exc}") from None
     if tendons.n < 3:
         raise RobotError(
-            f"robot.tendons: {tendons.n} tendon(s) cannot bend the rod both ways (tendons only "
+            f"{where}: {tendons.n} tendon(s) cannot bend the rod both ways (tendons only "
             "pull); give at least 3"
         )
+    return tendons
+
+
+def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
+    """The :class:`Robot` of a ``[robot]`` record.
+    ``held_base_q`` (``system.held_base_q``) clamps the rod at that drone pose when the scenario
+    says ``system.base = "fixed"``; ``robot.base.pose_q`` does the same. With
+    ``[[robot.arms]]``: one rod, tendon set and attachment per arm (``default_attachment`` of
+    the arm's offset, moved to its ``position`` in the body frame)."""
+    arms = robot.arms
+    if arms:
+        rods = [_rod(a.rod, f"robot.arms[{k}].rod") for k, a in enumerate(arms)]
+        tendons = [_tendons(a.tendons, f"robot.arms[{k}].tendons") for k, a in enumerate(arms)]
+        attachment = []
+        for a in arms:
+            g = default_attachment(a.attachment.offset)
+            g[:2, 3] = a.attachment.position
+            attachment.append(g)
+        rod_record = arms[0].rod
+    else:
+        rods = _rod(robot.rod, "robot.rod")
+        tendons = _tendons(robot.tendons, "robot.tendons")
+        off = robot.attachment.offset
+        if not off >= 0:
+            raise RobotError(f"robot.attachment.offset must be >= 0, got {off!r}")
+        attachment = default_attachment(off)
+        rod_record = robot.rod
     pose_q = robot.base.pose_q
     if pose_q is None and held_base_q is not None:
         pose_q = held_base_q
@@ -316,27 +425,40 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
             base = None
     except ValueError as exc:
         raise RobotError(f"robot.drone: {exc}") from None
-    off = robot.attachment.offset
-    if not off >= 0:
-        raise RobotError(f"robot.attachment.offset must be >= 0, got {off!r}")
-    attachment = default_attachment(off)
     if base is None:
-        held = TDACM(rod, tendons, Quadrotor(), attachment)
+        held = TDACM(rods, tendons, Quadrotor(), attachment)
         q = np.zeros(held.n)
         q[:6] = pose_q
         base = FixedBase(pose=held.base_pose(q))
-    system = TDACM(rod, tendons, base, attachment)
+    system = TDACM(rods, tendons, base, attachment)
     if system.floating:
-        _check_thrust(system, robot.drone, robot.rod)
+        _check_thrust(system, robot.drone, rod_record)
     cams = robot.cameras
-    local = _camera(LOCAL_CAMERA, cams.local, "robot.cameras.local")
     glob = _camera(GLOBAL_CAMERA, cams.global_, "robot.cameras.global")
     try:
-        tip_mount = tip_camera_mount(attachment, cams.local.offset)
         drone_mount = drone_camera_mount(tuple(cams.global_.position), cams.global_.tilt_deg)
     except ValueError as exc:
         raise RobotError(f"robot.cameras: {exc}") from None
-    return Robot(system, local, glob, tip_mount, drone_mount, robot.tip.probe_length)
+    if not arms:
+        local = _camera(LOCAL_CAMERA, cams.local, "robot.cameras.local")
+        try:
+            tip_mount = tip_camera_mount(attachment, cams.local.offset)
+        except ValueError as exc:
+            raise RobotError(f"robot.cameras: {exc}") from None
+        return Robot(system, local, glob, tip_mount, drone_mount, robot.tip.probe_length)
+    built = []
+    for k, (a, att) in enumerate(zip(arms, attachment, strict=True)):
+        where = f"robot.arms[{k}].camera"
+        cam = _camera(LOCAL_CAMERA, a.camera, where)
+        try:
+            mount = tip_camera_mount(att, a.camera.offset)
+        except ValueError as exc:
+            raise RobotError(f"{where}: {exc}") from None
+        built.append(ArmRobot(k, cam, mount, a.tip.probe_length, tuple(a.marker.xy),
+                              a.marker.yaw_deg))  # fmt: skip
+    first = built[0]
+    return Robot(system, first.local_camera, glob, first.tip_mount, drone_mount,
+                 first.probe_length, tuple(built))  # fmt: skip
 
 
 def _check_thrust(system: TDACM, drone: DroneConfig, rod: RodConfig) -> None:
@@ -366,5 +488,10 @@ def _check_thrust(system: TDACM, drone: DroneConfig, rod: RodConfig) -> None:
 
 
 def strain_count(robot: RobotConfig) -> int:
-    """``n_s`` of a ``[robot]`` record (for the length checks of ``q``), without building."""
+    """``n_s`` of a ``[robot]`` record (for the length checks of ``q``), without building:
+    the sum over ``[[robot.arms]]`` when given."""
+    if robot.arms:
+        return sum(
+            parse_basis(a.rod.basis, f"robot.arms[{k}].rod").n for k, a in enumerate(robot.arms)
+        )
     return parse_basis(robot.rod.basis).n

@@ -173,6 +173,7 @@ class Simulation:
             "controller_failure": _failure(result.controller_failure),
             "final_rmse_true": _last_finite(a.get("rmse_true")),
             "final_rmse_measured": _last_finite(a.get("rmse_measured")),
+            **arms_summary(a),
             **touch_summary(a, cfg),
             **_target_merit(loop, assembly.world),
             **estimation_summary(a, s, cfg.estimation.source, loop),
@@ -261,6 +262,21 @@ def touch_summary(a: dict, cfg) -> dict:
         rel = phase == PHASES.index("release")
         out["released"] = bool(rel.any() and total[rel][-1] == 0.0)
     return out
+
+
+def arms_summary(a: dict) -> dict:
+    """Per-arm figures of a run with several arms (``[[robot.arms]]``; none for one arm): each
+    arm's ``late_rmse_1s``, final RMSE and final true RMSE (the run's ``rmse`` series is the
+    largest over the arms)."""
+    if "rmse_arms" not in a:
+        return {}
+    t, r, rt = a["t"], np.asarray(a["rmse_arms"]), np.asarray(a["rmse_true_arms"])
+    k = r.shape[1] if r.ndim == 2 else 0
+    return {
+        "late_rmse_1s_arms": [late_rmse(t, r[:, i], 1.0) for i in range(k)],
+        "final_rmse_arms": [_last_finite(r[:, i]) for i in range(k)],
+        "final_rmse_true_arms": [_last_finite(rt[:, i]) for i in range(k)],
+    }
 
 
 def _window(t, rmse, seconds):

@@ -104,11 +104,11 @@ DEFAULT_TIP_CAMERA_MOUNT = tip_camera_mount()
 DEFAULT_DRONE_CAMERA_MOUNT = drone_camera_mount()
 
 
-def tip_camera_pose(system, q, mount) -> np.ndarray:
+def tip_camera_pose(system, q, mount, rod: int = 0) -> np.ndarray:
     """World pose of the tip camera, ``g_{C_L} = g_L(q) g_{C_L}^L`` (eq. (10)'s chain), from
-    the system's tip pose at ``q`` and the mount. Unchecked (called several times a period):
-    the caller checks the mount once."""
-    return system.tip_pose(q) @ mount
+    the system's tip pose at ``q`` (of rod ``rod`` for a system with several) and the mount.
+    Unchecked (called several times a period): the caller checks the mount once."""
+    return (system.tip_pose(q) if rod == 0 else system.tip_pose(q, rod)) @ mount
 
 
 def camera_pose(frame_pose, mount) -> np.ndarray:

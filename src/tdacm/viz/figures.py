@@ -520,6 +520,44 @@ def fig_contact(rd: RunData, out, formats):
     return _finish(fig, rd, what, out, "contact", formats)
 
 
+def fig_arms(rd: RunData, out, formats):
+    """Several arms (``[[robot.arms]]``): each arm's normalized image error (the servo's and the
+    true one), its strains and its tendon tensions (``u`` after the thrusts, arm by arm)."""
+    if not rd.has("rmse_arms", "q", "u"):
+        return []
+    import matplotlib.pyplot as plt
+
+    t = rd.t
+    r = np.asarray(rd.arrays["rmse_arms"], float)
+    rt = np.asarray(rd.arrays.get("rmse_true_arms", np.full_like(r, np.nan)), float)
+    k = r.shape[1]
+    q, u = np.asarray(rd.arrays["q"], float), np.asarray(rd.arrays["u"], float)
+    ns = (q.shape[1] - rd.n_base) // k  # the shipped arms share one basis
+    na = (u.shape[1] - (4 if rd.floating else 0)) // k
+    fig, axes = plt.subplots(3, 1, figsize=(6.4, 7.0), sharex=True)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i in range(k):
+        c = colors[i % len(colors)]
+        axes[0].semilogy(t, np.maximum(r[:, i], 1e-6), color=c, label=f"arm {i} (servo)")
+        axes[0].semilogy(t, np.maximum(rt[:, i], 1e-6), color=c, ls="--", lw=0.9,
+                         label=f"arm {i} (true)")  # fmt: skip
+        qs = q[:, rd.n_base + i * ns : rd.n_base + (i + 1) * ns]
+        for j in range(ns):
+            axes[1].plot(t, qs[:, j], color=c, ls=("-", "--", ":", "-.")[j % 4],
+                         label=f"arm {i} $q_{{s{j + 1}}}$")  # fmt: skip
+        us = u[:, u.shape[1] - (k - i) * na : u.shape[1] - (k - i - 1) * na]
+        axes[2].plot(t, us, color=c, lw=0.9)
+        axes[2].plot([], [], color=c, label=f"arm {i}")
+    axes[0].axhline(0.01, color="k", lw=0.8, ls=":")
+    axes[0].set_ylabel("normalized RMSE")
+    axes[1].set_ylabel("strains (1/m)")
+    axes[2].set_ylabel("tensions (N)")
+    axes[2].set_xlabel("time (s)")
+    for ax in axes:
+        _mark(ax, rd, fontsize=7, ncol=2, loc="best")
+    return _finish(fig, rd, "arms", out, "arms", formats)
+
+
 _FUNCS = {
     "state_errors": fig_state_errors,
     "tracking_errors": fig_tracking_errors,
@@ -532,6 +570,7 @@ _FUNCS = {
     "lyapunov": fig_lyapunov,
     "estimation": fig_estimation,
     "contact": fig_contact,
+    "arms": fig_arms,
 }
 
 

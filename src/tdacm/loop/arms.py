@@ -1,0 +1,266 @@
+"""The closed loop's blocks for a robot with several arms under one drone (``[[robot.arms]]``).
+
+Each arm carries its own tip camera C_L^k looking at its own marker. The blocks wrap the
+single-arm ones, one per arm, and keep the single-arm interfaces of
+:class:`~.closed_loop.ClosedLoop` (arm 0's data sits in the single-arm fields, so the loop,
+the safety monitor and the outputs run unchanged):
+
+* :class:`ArmsSensors`: one C_L sensor per arm (arm k's noise from its own stream), C_G and
+  the other sensors as :class:`~.sensors.Sensors`; the reading's ``local`` is an
+  :class:`ArmsMeasurement`;
+* :class:`ArmsPerception`: one :class:`~.perception.Perception` per arm -> :class:`ArmsView`;
+* :class:`ArmsServo`: the paper's virtual-camera IBVS applied per arm (each arm's own C_V^k,
+  features, interaction matrix and twist ``v_k``), and **one** joint-rate mapping over all
+  commanded coordinates: the arms' task Jacobians stacked (docs/control.md, "Two arms")::
+
+      [J_1(q_v)[:, c]]            [Ad(g_{C_L1}^{L1}) v_1]
+      [J_2(q_v)[:, c]] qdot_c  =  [Ad(g_{C_L2}^{L2}) v_2]      (least squares, pseudo-inverse)
+
+  The drone's coordinates (yaw, position) are columns of both blocks: moving the drone for
+  one arm moves the other arm's view, and the least-squares solution trades the two. The
+  command shaping, feed-forward and leak are the single-arm servo's, on the stacked rates;
+* :class:`ArmsLog`: the run log with the per-arm series :data:`ARM_SERIES`; ``rmse`` and
+  ``rmse_true`` are the largest over the arms (the safety monitor watches the worst arm).
+
+The recovery with the global camera is per arm in the paper's construction but not
+implemented here: a run starts with every target in its arm's view (the assembly checks it)
+and ends, as a failed recovery, when an arm's target is lost.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control import Mode
+from ..vision.tip import rates_from_jacobian
+from .data import CameraMeasurement, LocalView, ServoCommand, ServoEvent
+from .logger import RunLog
+from .sensors import Sensors
+from .servo import normalized_rmse
+
+#: Per-arm series of :class:`ArmsLog` (one column per arm).
+ARM_SERIES = ("rmse_arms", "rmse_true_arms", "detected_arms")
+
+
+class ArmsMeasurement(tuple):
+    """One :class:`~.data.CameraMeasurement` per arm's C_L; reads as arm 0's (``detection``,
+    ``found``, ``image``, ``t_capture``) where a single C_L is expected."""
+
+    @property
+    def t_capture(self) -> float:
+        return self[0].t_capture
+
+    @property
+    def detection(self):
+        return self[0].detection
+
+    @property
+    def found(self) -> bool:
+        return self[0].found
+
+    @property
+    def image(self):
+        return self[0].image
+
+
+@dataclass(frozen=True)
+class ArmsView(LocalView):
+    """Arm 0's :class:`~.data.LocalView` (its fields) and every arm's view (``arms``)."""
+
+    arms: tuple = ()
+
+
+@dataclass(frozen=True)
+class ArmServoState:
+    """What the servo computed for one arm in a period (logged)."""
+
+    points: np.ndarray | None
+    rmse: float
+    rmse_measured: float
+    twist: np.ndarray
+    seen: bool
+
+
+class ArmsSensors(Sensors):
+    """:class:`~.sensors.Sensors` with one C_L per arm (``locals_``, arm 0 first; ``local``
+    is arm 0's). Arm 0's C_L is read first and C_G, the other sensors after it, as for one
+    arm; the other arms' C_L after them."""
+
+    def __init__(self, locals_, *args, **kwargs):
+        super().__init__(locals_[0], *args, **kwargs)
+        self.locals_ = list(locals_)
+
+    def reset(self) -> None:
+        super().reset()
+        for s in self.locals_[1:]:
+            s.reset()
+
+    def first_look(self, t: float, q) -> ArmsMeasurement:
+        out = []
+        for s in self.locals_:
+            det, _ = s.ideal(q)
+            s.reset()
+            out.append(CameraMeasurement(t, det))
+        return ArmsMeasurement(out)
+
+    def read(self, state, request_global: bool = False):
+        r = super().read(state, request_global)
+        local = ArmsMeasurement([r.local] + [s.measure(state) for s in self.locals_[1:]])
+        return type(r)(r.t, local, r.global_, r.other, r.global_output)
+
+    def close(self) -> None:
+        super().close()
+        for s in self.locals_[1:]:
+            s.close()
+
+
+class ArmsPerception:
+    """One :class:`~.perception.Perception` per arm (its controller camera and marker); the
+    global camera's perception is arm 0's (C_G is shared)."""
+
+    def __init__(self, perceptions):
+        self.arms = list(perceptions)
+        lead = self.arms[0]
+        self.local_camera = lead.local_camera
+        self.global_camera = lead.global_camera
+        self.target = lead.target
+
+    def reset(self) -> None:
+        for p in self.arms:
+            p.reset()
+
+    def local(self, m: ArmsMeasurement) -> ArmsView:
+        views = tuple(p.local(mk) for p, mk in zip(self.arms, m, strict=True))
+        v0 = views[0]
+        return ArmsView(v0.t_capture, v0.found, v0.pixels, v0.points, v0.depths, views)
+
+    def global_(self, m):
+        return self.arms[0].global_(m)
+
+
+class ArmsServo:
+    """The servo of a robot with several arms (module docstring): ``arms`` are single-arm
+    servos (:class:`~.servo.VisualServo` or :class:`~.servo.RobustServo`), one per arm, built
+    on the same system with their arm's ``rod``, camera, mount and reference snapshot. Arm
+    0's servo holds the joint reference (``q_d``, ``qd_d``) and its shaping; the others give
+    their twists and Jacobians. Implements the servo protocol of
+    :mod:`tdacm.loop.protocols`."""
+
+    def __init__(self, arms):
+        self.arms = list(arms)
+        if len(self.arms) < 2:
+            raise ValueError("ArmsServo needs two or more arm servos")
+        lead = self.arms[0]
+        self.system = lead.system
+        self.n = lead.n
+        self.config = lead.config
+        self.shaping = lead.shaping
+        self.recovery = lead.recovery
+        self.ibvs = lead.ibvs
+        self.local_camera = lead.local_camera
+        self.global_camera = lead.global_camera
+        self.target = lead.target
+        self.tip_mount = lead.tip_mount
+        self.desired_points = lead.desired_points
+        self.desired_depths = lead.desired_depths
+
+    @property
+    def mode(self) -> str:
+        return Mode.RECOVERY if any(a.mode == Mode.RECOVERY for a in self.arms) else Mode.IBVS
+
+    @property
+    def q_d(self) -> np.ndarray:
+        return self.arms[0].q_d
+
+    @property
+    def qd_d(self) -> np.ndarray:
+        return self.arms[0].qd_d
+
+    def reset(self, q0, first_view: ArmsView | None = None) -> None:
+        views = first_view.arms if isinstance(first_view, ArmsView) else [None] * len(self.arms)
+        for a, v in zip(self.arms, views, strict=True):
+            a.reset(q0, v)
+
+    def joint_rates(self, q, twists) -> np.ndarray:
+        """``qdot_d[c] = [J_k(q_v)[:, c]]_k^+ [Ad(g_{C_Lk}^{Lk}) v_k]_k`` over the commanded
+        coordinates ``c`` (docs/control.md, "Two arms")."""
+        jac = np.vstack([a.task_jacobian(q) for a in self.arms])
+        rhs = np.concatenate([a._ad_mount @ v for a, v in zip(self.arms, twists, strict=True)])
+        return rates_from_jacobian(jac, rhs, self.arms[0]._cmd)
+
+    def step(self, t: float, dt: float, view: ArmsView, gview, est, twist=None) -> ServoCommand:
+        """One period. ``twist`` (optional): the arms' twists stacked (``6 k`` values)
+        replacing the IBVS twists."""
+        q = est.q
+        lead, n = self.arms[0], self.n
+        per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
+        modes = [p[0] for p in per]
+        event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
+        if event is None:
+            event = per[0][1]
+        states, twists = [], []
+        external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
+        seen_all = all(p[2] for p in per)
+        for k, (mode, _, seen, ibvs_twist, points, _, _, rmse, extra) in enumerate(per):
+            v = np.zeros(6)
+            if mode == Mode.IBVS and seen_all:
+                v = np.asarray(ibvs_twist() if external is None else external[k], float)
+            twists.append(v)
+            states.append(ArmServoState(points, rmse, extra.get("rmse_measured", math.nan), v,
+                                        bool(seen)))  # fmt: skip
+        qdd_d = np.zeros(n)
+        failure = None
+        lost = [k for k, m in enumerate(modes) if m == Mode.RECOVERY]
+        if lost:
+            failure = (
+                f"arm {lost[0]}: target not in its C_L view (the recovery with the global "
+                "camera is for one arm only)"
+            )
+            lead.qd_d = np.zeros(n)
+        elif seen_all:
+            qdd_d = lead.follow_rates(q, self.joint_rates(q, twists), t, dt)
+        else:  # an arm's target not seen this period (nothing fused yet): hold
+            lead.qd_d = np.zeros(n)
+        rmses = [s.rmse for s in states]
+        rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
+        meas = [s.rmse_measured for s in states]
+        p0, e0 = per[0], per[0][8]
+        return ServoCommand(
+            self.mode, lead.q_d.copy(), lead.qd_d.copy(), qdd_d, twists[0], p0[5], p0[6], p0[4],
+            rmse, event=event, failure=failure,
+            rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
+            target_pose=e0.get("target_pose"), arms=tuple(states),
+        )  # fmt: skip
+
+
+class ArmsLog(RunLog):
+    """The run log of a robot with several arms: the single-arm series of arm 0, with
+    ``rmse_true`` the largest over the arms, and :data:`ARM_SERIES`. ``truths``: one
+    ``q -> (true points in arm k's servo camera, target pose)`` per arm; ``desired``: the arms'
+    reference points."""
+
+    def __init__(self, desired, frame_composer=None, truths=None):
+        super().__init__(desired[0], frame_composer, None)
+        self.desired = [np.asarray(d, float) for d in desired]
+        self.truths = list(truths or [])
+
+    def record(self, plant, readings, view, estimate, cmd, act, force=None) -> None:
+        super().record(plant, readings, view, estimate, cmd, act, force)
+        r = self.rows
+        k = len(self.desired)
+        rt = np.full(k, np.nan)
+        for i, (truth, d) in enumerate(zip(self.truths, self.desired, strict=False)):
+            rt[i] = normalized_rmse(truth(plant.q)[0], d)
+        r["rmse_true"][-1] = float(np.max(rt)) if self.truths else np.nan
+        arms = cmd.arms or ()
+        r.setdefault("rmse_arms", []).append(
+            np.array([a.rmse for a in arms]) if len(arms) == k else np.full(k, np.nan)
+        )
+        r.setdefault("rmse_true_arms", []).append(rt)
+        views = getattr(view, "arms", ())
+        r.setdefault("detected_arms", []).append(
+            np.array([bool(v.found) for v in views]) if len(views) == k else np.zeros(k, bool)
+        )
