@@ -37,7 +37,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimation.contact_force import TipForceEstimator
+from ..estimation.contact_force import MomentumObserver, TipForceEstimator
 from ..vision.ibvs import IBVSController
 from .config import TouchConfig
 from .data import PHASES, ForceReading, LocalView, StateEstimate
@@ -50,37 +50,69 @@ class TipForceBlock:
     """Estimated normal force on the probe along the tip camera's axis (module docstring).
 
     ``model``: the controller's :class:`~tdacm.control.EstimatedModel`; ``tip_mount``:
-    ``g_{C_L}^L``; ``offset``: the contact sphere's centre in the tip frame; accelerations
-    from the finite difference of ``qd_hat`` (the model's balance needs ``qdd``)."""
+    ``g_{C_L}^L``; ``offset``: the contact sphere's centre in the tip frame; ``kind``:
+    ``"momentum"`` (the generalized force from a
+    :class:`~tdacm.estimation.contact_force.MomentumObserver` of gain ``gain``, no
+    accelerations) or ``"differenced"`` (the model's balance with ``qdd`` the finite
+    difference of ``qd_hat``)."""
 
-    def __init__(self, model, tip_mount, offset, input_sigma: float):
+    def __init__(self, model, tip_mount, offset, input_sigma: float, kind: str, gain: float):
+        if kind not in ("momentum", "differenced"):
+            raise ValueError(f"kind must be 'momentum' or 'differenced', got {kind!r}")
+        self.kind = kind
         self.estimator = TipForceEstimator(model, "all", input_sigma=input_sigma, offset=offset)
+        self.observer = MomentumObserver(model, gain) if kind == "momentum" else None
         self.system = model.system
         self.tip_mount = np.asarray(tip_mount, float)
         self.reset()
 
     def reset(self) -> None:
         self.estimator.clear_tare()
+        if self.observer is not None:
+            self.observer.reset()
         self._qd_prev = None
         self._last = None
 
     def step(self, est: StateEstimate, u_applied, dt: float) -> ForceReading:
         q, qd = np.asarray(est.q, float), np.asarray(est.qd, float)
+        if self.observer is not None:
+            return self._step_momentum(est, q, qd, u_applied, dt)
         qdd = None if self._qd_prev is None else (qd - self._qd_prev) / dt
         self._qd_prev = qd.copy()
         if u_applied is None or qdd is None:
             self._last = None
             return ForceReading(est.t)
-        axis = (self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
-        normal = -axis
+        normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
         u = np.asarray(u_applied, float)
         self._last = (q, qd, u, qdd)
         f, sigma = self.estimator.normal_force(q, qd, u, normal, qdd, est.P)
         return ForceReading(est.t, f, sigma, normal, True)
 
+    def _step_momentum(self, est, q, qd, u_applied, dt) -> ForceReading:
+        if u_applied is None:
+            self.observer.reset()
+            self._last = None
+            return ForceReading(est.t)
+        started = self.observer.started
+        r = self.observer.step(q, qd, u_applied, dt)
+        self._last = r
+        if not started:
+            return ForceReading(est.t)
+        normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
+        # the inputs' white noise through the observer's first-order lag: the steady variance
+        # of x_k = (1 - k) x_{k-1} + k w_k is k / (2 - k) that of w (k = K_o dt)
+        k = self.observer.gain * dt
+        cov = self.estimator.input_cov(q) * (k / (2.0 - k))
+        f, sigma = self.estimator.normal_force_of(q, r, normal, cov)
+        return ForceReading(est.t, f, sigma, normal, True)
+
     def tare(self) -> None:
         """Take the last period's residual as the model's bias (contact-free: before touching)."""
-        if self._last is not None:
+        if self._last is None:
+            return
+        if self.observer is not None:
+            self.estimator.bias = self._last.copy()
+        else:
             self.estimator.tare(*self._last)
 
 
