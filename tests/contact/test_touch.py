@@ -176,3 +176,20 @@ def test_campaign_hold_rule():
     assert "success_hold_force_rms" not in parse_spec(text.replace("success_hold", "#")).as_dict()
     with pytest.raises(CampaignSpecError, match="success_hold_force_rms must be > 0"):
         parse_spec(text.replace("0.2", "0"))
+
+
+def test_touch_target_on_estimates_no_false_touch(tmp_path):
+    """On the EKF's state (estimation.source = "estimated", the default sensors) with the
+    momentum observer's force: the servo reaches the standoff, tares and moves in; until the
+    probe touches, the force estimate (true force 0) stays below the touch threshold
+    (``detect_force`` 0.1 N), its RMS within half of it."""
+    sc = _touch().with_overrides({"estimation": {"source": "estimated"}, "duration": 7.0})
+    assert sc.config.touch.force_estimator == "momentum"
+    arrays, s = Simulation(sc, seed=3).run(None)
+    assert not s["terminated"], s["termination_reason"]
+    free = (arrays["touch_phase"] == 1) & (np.cumsum(arrays["force_true"] > 0) == 0)
+    assert free.sum() > 50  # > 1 s of moving in without contact
+    f = arrays["force_hat"][free]
+    print(np.sqrt(np.mean(f**2)), np.abs(f).max())
+    assert np.abs(f).max() < sc.config.touch.detect_force
+    assert np.sqrt(np.mean(f**2)) < 0.5 * sc.config.touch.detect_force

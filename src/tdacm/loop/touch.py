@@ -7,6 +7,10 @@ Two blocks, used when ``[touch] enabled`` (:class:`~.config.TouchConfig`, docs/c
   applied inputs and the state estimate (:class:`~tdacm.estimation.contact_force.TipForceEstimator`
   on all rows, so the drone's balance sees a force along the rod's axis), tared when the servo
   asks for it (``ServoCommand.tare_force``, once hovering at the standoff, before touching);
+  the residual of the model's balance from a generalized-momentum observer
+  (:class:`~tdacm.estimation.contact_force.MomentumObserver`, ``force_estimator =
+  "momentum"``, no accelerations) or with accelerations from differenced velocities
+  (``"differenced"``);
 * :class:`TouchServo`, the robust servo (:class:`~.servo.RobustServo`) with four phases:
 
   1. ``approach``: IBVS (all six features) to the *standoff* view, the reference snapshot
@@ -164,7 +168,7 @@ class TouchServo(RobustServo):
         tare = False
         ps = self._ps
         valid = seen and ps is not None and ps.valid
-        # the force estimate, low-pass filtered (finite-difference accelerations are noisy)
+        # the force estimate, low-pass filtered (`force_filter`)
         f_hat = force.force if force is not None and force.valid else float("nan")
         if np.isfinite(f_hat):
             a = min(1.0, dt / tc.force_filter) if tc.force_filter > 0 else 1.0
