@@ -38,6 +38,7 @@ ROW_FIELDS = (
     # servoing into contact ([touch]; NaN for the other scenarios)
     "hold_duration",
     "hold_force_rms_rel",
+    "hold_force_estimate_error_rms",
     "hold_image_error_max",
     "max_contact_force",
 )

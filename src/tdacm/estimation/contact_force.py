@@ -102,8 +102,7 @@ class TipForceEstimator:
 
     def _r_cov(self, q, qd, u, qdd, state_cov) -> np.ndarray:
         """Covariance of ``r`` from the inputs and, if given, the state ``[q, qd]``."""
-        b = self.system.input_matrix(np.asarray(q, float))
-        cov = (b * self.input_sigma**2) @ b.T
+        cov = self.input_cov(q)
         if state_cov is not None:
             n = self.system.n
             x = np.r_[q, qd]
@@ -129,12 +128,87 @@ class TipForceEstimator:
     def normal_force(self, q, qd, u, normal, qdd=None, state_cov=None):
         """``(f, sigma)``: the force along the unit ``normal`` (inertial), the only unknown,
         and its standard deviation."""
+        r = self.residual(q, qd, u, qdd)
+        return self.normal_force_of(q, r, normal, self._r_cov(q, qd, u, qdd, state_cov))
+
+    def normal_force_of(self, q, residual, normal, residual_cov):
+        """``(f, sigma)`` along the unit ``normal`` from a given residual (n,) (the tare
+        subtracted here), e.g. a :class:`MomentumObserver`'s, and its covariance (n x n)."""
         n = np.asarray(normal, float)
         n = n / np.linalg.norm(n)
-        r = (self.residual(q, qd, u, qdd) - self.bias)[self.rows]
+        r = (np.asarray(residual, float) - self.bias)[self.rows]
         a = self._a(q)[self.rows] @ n
         aa = a @ a
         if aa == 0.0:
             raise ValueError("the chosen rows do not see a force along this normal")
-        cov = self._r_cov(q, qd, u, qdd, state_cov)[np.ix_(self.rows, self.rows)]
+        cov = np.asarray(residual_cov, float)[np.ix_(self.rows, self.rows)]
         return float(a @ r / aa), float(np.sqrt(a @ cov @ a) / aa)
+
+    def input_cov(self, q) -> np.ndarray:
+        """Covariance of ``B(q) u`` from the inputs' (n x n)."""
+        b = self.system.input_matrix(np.asarray(q, float))
+        return (b * self.input_sigma**2) @ b.T
+
+
+class MomentumObserver:
+    """Generalized-momentum disturbance observer (De Luca & Mattone 2005): the external
+    generalized force from the state and the inputs, no acceleration needed.
+
+    With ``p = M_hat(q) qd`` and the model's property ``Mdot_hat = C_hat + C_hat^T``
+    (:class:`~tdacm.control.model.EstimatedModel` keeps ``Mdot_hat - 2 C_hat`` skew), the
+    dynamics ``M qdd + (C + D) qd + K = B u + tau_e`` (paper eq. (9)) read
+    ``pdot = B u + C^T qd - D qd - K + tau_e``; the residual
+
+        r(t) = K_o (p(t) - p(0) - int_0^t (B u + C^T qd - D qd - K + r) ds)
+
+    obeys ``rdot = K_o (tau_e - r)``: a first-order lag of the unknown ``tau_e`` (the model's
+    errors and the contact) with time constant ``1 / K_o``. Discretely, over a period ``h``
+    with the input held, the integrand at the period's mid-point (mean of its two ends):
+    ``r_k = (1 - K_o h) r_{k-1} + K_o (p_k - p_{k-1} - h beta_k)``, stable for
+    ``0 < K_o h < 2`` (docs/contact.md, "Contact on estimates").
+
+    model : the controller's :class:`~tdacm.control.model.EstimatedModel`; ``gain``: ``K_o``
+    (1/s, scalar).
+    """
+
+    def __init__(self, model: EstimatedModel, gain: float):
+        if not isinstance(model, EstimatedModel):
+            raise ValueError(f"model must be an EstimatedModel, got {model!r}")
+        gain = float(gain)
+        if not (np.isfinite(gain) and gain > 0.0):
+            raise ValueError(f"gain must be positive (1/s), got {gain!r}")
+        self.model = model
+        self.system = model.system
+        self.gain = gain
+        self.reset()
+
+    def reset(self) -> None:
+        """Start over: the next :meth:`step` sets ``p(0)`` and returns ``r = 0``."""
+        self._prev = None
+        self.r = np.zeros(self.system.n)
+
+    @property
+    def started(self) -> bool:
+        """Whether ``p(0)`` is set (a first :meth:`step` was taken)."""
+        return self._prev is not None
+
+    def _beta(self, q, qd, u) -> np.ndarray:
+        t = self.model.terms(q, qd)
+        return self.system.input_matrix(q) @ u + t.C.T @ qd - t.D @ qd - t.K, t.M @ qd
+
+    def step(self, q, qd, u, dt: float) -> np.ndarray:
+        """Advance one period of ``dt`` s to the state ``(q, qd)``, ``u`` the input applied
+        over the period; returns ``r`` (n,), the estimate of ``tau_e``."""
+        q, qd, u = (np.asarray(x, float) for x in (q, qd, u))
+        beta, p = self._beta(q, qd, u)
+        if self._prev is not None:
+            beta_prev, p_prev = self._prev
+            # the previous end's beta with this period's input (the input held over it)
+            beta_prev = beta_prev + self.system.input_matrix(self._q_prev) @ (u - self._u_prev)
+            k = self.gain * dt
+            if not 0.0 < k < 2.0:
+                raise ValueError(f"observer gain x period must be in (0, 2), got {k!r}")
+            self.r = (1.0 - k) * self.r + self.gain * (p - p_prev - 0.5 * dt * (beta + beta_prev))
+        self._prev = (beta, p)
+        self._q_prev, self._u_prev = q, u
+        return self.r.copy()

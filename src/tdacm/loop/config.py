@@ -274,3 +274,15 @@ class TouchConfig(ConfigModel):
         description="N, assumed std of each applied thrust and tension (the "
         "estimated force's sigma)",
     )
+    force_estimator: Literal["momentum", "differenced"] = Field(
+        "momentum",
+        description="tip-force estimate: 'momentum' (the generalized-momentum observer, no "
+        "accelerations) or 'differenced' (the balance with accelerations from differenced "
+        "velocities)",
+    )
+    observer_gain: float = Field(
+        10.0,
+        gt=0,
+        description="1/s, the momentum observer's gain K_o (a first-order lag of 1/K_o s on "
+        "the force; K_o dt < 2)",
+    )

@@ -7,6 +7,10 @@ Two blocks, used when ``[touch] enabled`` (:class:`~.config.TouchConfig`, docs/c
   applied inputs and the state estimate (:class:`~tdacm.estimation.contact_force.TipForceEstimator`
   on all rows, so the drone's balance sees a force along the rod's axis), tared when the servo
   asks for it (``ServoCommand.tare_force``, once hovering at the standoff, before touching);
+  the residual of the model's balance from a generalized-momentum observer
+  (:class:`~tdacm.estimation.contact_force.MomentumObserver`, ``force_estimator =
+  "momentum"``, no accelerations) or with accelerations from differenced velocities
+  (``"differenced"``);
 * :class:`TouchServo`, the robust servo (:class:`~.servo.RobustServo`) with four phases:
 
   1. ``approach``: IBVS (all six features) to the *standoff* view, the reference snapshot
@@ -37,7 +41,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimation.contact_force import TipForceEstimator
+from ..estimation.contact_force import MomentumObserver, TipForceEstimator
 from ..vision.ibvs import IBVSController
 from .config import TouchConfig
 from .data import PHASES, ForceReading, LocalView, StateEstimate
@@ -50,37 +54,69 @@ class TipForceBlock:
     """Estimated normal force on the probe along the tip camera's axis (module docstring).
 
     ``model``: the controller's :class:`~tdacm.control.EstimatedModel`; ``tip_mount``:
-    ``g_{C_L}^L``; ``offset``: the contact sphere's centre in the tip frame; accelerations
-    from the finite difference of ``qd_hat`` (the model's balance needs ``qdd``)."""
+    ``g_{C_L}^L``; ``offset``: the contact sphere's centre in the tip frame; ``kind``:
+    ``"momentum"`` (the generalized force from a
+    :class:`~tdacm.estimation.contact_force.MomentumObserver` of gain ``gain``, no
+    accelerations) or ``"differenced"`` (the model's balance with ``qdd`` the finite
+    difference of ``qd_hat``)."""
 
-    def __init__(self, model, tip_mount, offset, input_sigma: float):
+    def __init__(self, model, tip_mount, offset, input_sigma: float, kind: str, gain: float):
+        if kind not in ("momentum", "differenced"):
+            raise ValueError(f"kind must be 'momentum' or 'differenced', got {kind!r}")
+        self.kind = kind
         self.estimator = TipForceEstimator(model, "all", input_sigma=input_sigma, offset=offset)
+        self.observer = MomentumObserver(model, gain) if kind == "momentum" else None
         self.system = model.system
         self.tip_mount = np.asarray(tip_mount, float)
         self.reset()
 
     def reset(self) -> None:
         self.estimator.clear_tare()
+        if self.observer is not None:
+            self.observer.reset()
         self._qd_prev = None
         self._last = None
 
     def step(self, est: StateEstimate, u_applied, dt: float) -> ForceReading:
         q, qd = np.asarray(est.q, float), np.asarray(est.qd, float)
+        if self.observer is not None:
+            return self._step_momentum(est, q, qd, u_applied, dt)
         qdd = None if self._qd_prev is None else (qd - self._qd_prev) / dt
         self._qd_prev = qd.copy()
         if u_applied is None or qdd is None:
             self._last = None
             return ForceReading(est.t)
-        axis = (self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
-        normal = -axis
+        normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
         u = np.asarray(u_applied, float)
         self._last = (q, qd, u, qdd)
         f, sigma = self.estimator.normal_force(q, qd, u, normal, qdd, est.P)
         return ForceReading(est.t, f, sigma, normal, True)
 
+    def _step_momentum(self, est, q, qd, u_applied, dt) -> ForceReading:
+        if u_applied is None:
+            self.observer.reset()
+            self._last = None
+            return ForceReading(est.t)
+        started = self.observer.started
+        r = self.observer.step(q, qd, u_applied, dt)
+        self._last = r
+        if not started:
+            return ForceReading(est.t)
+        normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
+        # the inputs' white noise through the observer's first-order lag: the steady variance
+        # of x_k = (1 - k) x_{k-1} + k w_k is k / (2 - k) that of w (k = K_o dt)
+        k = self.observer.gain * dt
+        cov = self.estimator.input_cov(q) * (k / (2.0 - k))
+        f, sigma = self.estimator.normal_force_of(q, r, normal, cov)
+        return ForceReading(est.t, f, sigma, normal, True)
+
     def tare(self) -> None:
         """Take the last period's residual as the model's bias (contact-free: before touching)."""
-        if self._last is not None:
+        if self._last is None:
+            return
+        if self.observer is not None:
+            self.estimator.bias = self._last.copy()
+        else:
             self.estimator.tare(*self._last)
 
 
@@ -132,7 +168,7 @@ class TouchServo(RobustServo):
         tare = False
         ps = self._ps
         valid = seen and ps is not None and ps.valid
-        # the force estimate, low-pass filtered (finite-difference accelerations are noisy)
+        # the force estimate, low-pass filtered (`force_filter`)
         f_hat = force.force if force is not None and force.valid else float("nan")
         if np.isfinite(f_hat):
             a = min(1.0, dt / tc.force_filter) if tc.force_filter > 0 else 1.0

@@ -248,7 +248,10 @@ def force_block(touch: TouchConfig, servo, model, robot) -> TipForceBlock | None
     if not (touch.enabled and isinstance(servo, TouchServo)):
         return None
     offset = probe_offset(robot.tip_mount, robot.probe_length)
-    return TipForceBlock(model, robot.tip_mount, offset, touch.input_sigma)
+    return TipForceBlock(
+        model, robot.tip_mount, offset, touch.input_sigma, touch.force_estimator,
+        touch.observer_gain,
+    )  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- controller

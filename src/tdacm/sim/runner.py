@@ -243,6 +243,7 @@ def touch_summary(a: dict, cfg) -> dict:
         "hold_force_mean": None,
         "hold_force_max": None,
         "hold_force_estimate_error_max": None,
+        "hold_force_estimate_error_rms": None,
         "hold_image_error_max": None,
         "hold_image_error_true_max": None,
     }
@@ -252,6 +253,9 @@ def touch_summary(a: dict, cfg) -> dict:
         out["hold_force_mean"] = float(np.mean(f))
         out["hold_force_max"] = float(np.max(f))
         out["hold_force_estimate_error_max"] = float(np.nanmax(np.abs(a["force_hat"][hold] - f)))
+        out["hold_force_estimate_error_rms"] = float(
+            np.sqrt(np.nanmean((a["force_hat"][hold] - f) ** 2))
+        )
         r = a["rmse"][hold]
         out["hold_image_error_max"] = float(np.max(np.where(np.isfinite(r), r, np.inf)))
         rt = a["rmse_true"][hold]
