@@ -84,7 +84,7 @@ def test_auto_falls_back_naming_the_key_and_true_refuses(caplog):
     # a constant draw (fixed, a choice of one value) is shared, not per world
     one = _spec(SPEC + '"sensors.latency_steps" = { kind = "choice", values = [1] }\n')
     assert refusal(one) is None
-    assert shared_overrides(one)["sensors"] == {"latency_steps": 1}
+    assert shared_overrides(one, load_scenario("paper-in-fov").data)["sensors"] == {"latency_steps": 1}
 
 
 def test_batched_campaign_through_dask_resumes_with_the_same_rows(tmp_path):
@@ -116,11 +116,15 @@ def _two_proportion_p(k1, n1, k2, n2) -> float:
 
 @pytest.mark.slow
 def test_noisy_success_rates_agree_between_the_engines(tmp_path):
-    """200 runs each with 1 px of corner noise and 5 % dropped frames (different random
-    streams on the two engines): the success rates pass a two-proportion test at 95 %."""
+    """200 runs each with 0.3 px of corner noise and 5 % dropped frames (different random
+    streams on the two engines), judged on the RMS of the last second at 0.2 (the measured-
+    feature servo is still converging at 3 s; the safety monitor stops about a third of the
+    runs on noise, so the rate lies away from 0 and 1): the success rates pass a
+    two-proportion test at 95 %."""
     text = SPEC.replace("runs = 8", "runs = 200").replace("duration = 1.5", "duration = 3.0")
-    text = text.replace("success_rmse = 0.05", "success_rmse = 0.02")
-    text += '"sensors.pixel_noise" = { kind = "fixed", value = 1.0 }\n'
+    text = text.replace("success_rmse = 0.05", "success_rmse = 0.2")
+    text = text.replace("success_window = 0.5", "success_window = 1.0")
+    text += '"sensors.pixel_noise" = { kind = "fixed", value = 0.3 }\n'
     text += '"sensors.dropout" = { kind = "fixed", value = 0.05 }\n'
     rates = {}
     for batched in (True, False):
@@ -129,4 +133,6 @@ def test_noisy_success_rates_agree_between_the_engines(tmp_path):
         df = read_results(out)
         assert len(df) == 200 and (df["status"] == "ok").all()
         rates[batched] = int(df["success"].sum())
+    assert 20 <= rates[False] <= 180, rates  # a rate away from 0 and 1: the test can fail
     assert _two_proportion_p(rates[True], 200, rates[False], 200) > 0.05, rates
+    print(f"success: batched {rates[True]}/200, block loop {rates[False]}/200")

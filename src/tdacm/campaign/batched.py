@@ -46,18 +46,20 @@ def _constant(d: dict) -> bool:
     return False
 
 
-def shared_overrides(spec: CampaignSpec) -> dict:
-    """The overrides every run of ``spec`` shares (its constant distributions), nested."""
+def shared_overrides(spec: CampaignSpec, scenario_data: dict) -> dict:
+    """The overrides every run of ``spec`` shares (its constant distributions), nested, as
+    :func:`~tdacm.campaign.spec.sample_overrides` gives them to each run (an integer key
+    rounded)."""
+    drawn = sample_overrides(spec, scenario_data, 0)
     out: dict = {}
     for key in sorted(spec.distributions):
-        d = spec.distributions[key]
-        if not _constant(d):
+        if not _constant(spec.distributions[key]):
             continue
         parts = key.split(".")
-        node = out
+        node, src = out, drawn
         for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = d["value"] if d["kind"] == "fixed" else d["values"][0]
+            node, src = node.setdefault(part, {}), src[part]
+        node[parts[-1]] = src[parts[-1]]
     return out
 
 
@@ -82,7 +84,8 @@ def refusal(spec: CampaignSpec) -> str | None:
                 f"(it varies {', '.join(PER_WORLD)} and the seed's draws)"
             )
     try:
-        sc = load_scenario(spec.scenario).with_overrides(shared_overrides(spec), spec.source)
+        base = load_scenario(spec.scenario)
+        sc = base.with_overrides(shared_overrides(spec, base.data), spec.source)
         build_batch(sc, spec.run_seeds()[:1], duration=spec.duration, threads=1)
     except ScenarioError as exc:
         return str(exc)
@@ -100,7 +103,7 @@ def execute_chunk(spec_dict: dict, indices, seeds, threads: int = 1) -> list[dic
         from ..sim.scenario import load_scenario
 
         base = load_scenario(spec.scenario)
-        shared = base.with_overrides(shared_overrides(spec), "campaign (batched)")
+        shared = base.with_overrides(shared_overrides(spec, base.data), "campaign (batched)")
     except Exception as exc:  # noqa: BLE001 - the chunk's runs become error rows
         return [_error_row(i, s, exc) for i, s in zip(indices, seeds, strict=True)]
     for i, s in zip(indices, seeds, strict=True):
