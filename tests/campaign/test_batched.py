@@ -11,7 +11,7 @@ import pytest
 from tdacm.campaign import CampaignSpecError, execute_run, parse_spec, read_results, run_campaign
 from tdacm.campaign.batched import execute_chunk, refusal, shared_overrides
 from tdacm.campaign.runner import use_batched
-from tdacm.campaign.store import ROW_FIELDS
+from tdacm.campaign.store import ROW_FIELDS, write_row
 from tdacm.sim.scenario import load_scenario
 
 ENGINE = """
@@ -36,8 +36,8 @@ success_window = 0.5
 )
 
 
-def _spec(text, **changes):
-    spec = parse_spec(text, "spec.toml", load_scenario("paper-in-fov").data)
+def _spec(text, scenario="paper-in-fov", **changes):
+    spec = parse_spec(text, "spec.toml", load_scenario(scenario).data)
     return dataclasses.replace(spec, **changes)
 
 
@@ -47,10 +47,33 @@ def _same(a, b):
     return a == b
 
 
-def test_noise_free_batched_rows_equal_the_block_loop_rows():
-    """8 runs with sampled initial states and seeded model errors: every stored field of each
-    batched row equals the block loop's row of the same run to 1e-9 (wall times aside)."""
-    spec = _spec(SPEC)
+OUT_OF_FOV = (
+    """
+scenario = "paper-out-of-fov"
+runs = 3
+seed = 5
+duration = 1.5
+[distributions]
+"initial.q" = { kind = "normal", std = [0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05] }
+"safety.growth_limit" = { kind = "fixed", value = 0.0001 }
+"safety.min_increase" = { kind = "fixed", value = 0.0 }
+"safety.grace" = { kind = "fixed", value = 0.0 }
+"""
+    + ENGINE
+)
+
+
+@pytest.mark.parametrize(
+    "text, scenario",
+    [(SPEC, "paper-in-fov"), (OUT_OF_FOV, "paper-out-of-fov")],
+    ids=["in-fov", "recovery-then-safety-stop"],
+)
+def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
+    """Runs with sampled initial states and seeded model errors (in-FoV: 8 runs to their
+    end; out of FoV: the recovery, the switch to IBVS, then a hair-trigger safety monitor
+    stopping each run): every stored field of each batched row, the termination's words
+    included, equals the block loop's row of the same run to 1e-9 (wall times aside)."""
+    spec = _spec(text, scenario=scenario)
     assert refusal(spec) is None
     seeds = [int(s) for s in spec.run_seeds()]
     d = dict(spec.__dict__)
@@ -64,6 +87,8 @@ def test_noise_free_batched_rows_equal_the_block_loop_rows():
                 assert _same(b.get(k), r.get(k)), (b["run"], k, b.get(k), r.get(k))
     finals = [r["final_rmse"] for r in rows]
     assert len(set(np.round(finals, 9))) == spec.runs  # the runs differ (q0, model error)
+    if scenario == "paper-out-of-fov":
+        assert all(r["termination"] == "safety" and r["mode_switch_time"] > 0 for r in rows)
 
 
 def test_auto_falls_back_naming_the_key_and_true_refuses(caplog):
@@ -84,24 +109,34 @@ def test_auto_falls_back_naming_the_key_and_true_refuses(caplog):
     # a constant draw (fixed, a choice of one value) is shared, not per world
     one = _spec(SPEC + '"sensors.latency_steps" = { kind = "choice", values = [1] }\n')
     assert refusal(one) is None
-    assert shared_overrides(one, load_scenario("paper-in-fov").data)["sensors"] == {"latency_steps": 1}
+    assert shared_overrides(one, load_scenario("paper-in-fov").data)["sensors"] == {
+        "latency_steps": 1
+    }
 
 
 def test_batched_campaign_through_dask_resumes_with_the_same_rows(tmp_path):
-    """Chunks on a local Dask worker, interrupted after 3 runs and resumed: 6 rows, each
-    equal to the same run in a chunk of its own (a row does not depend on its chunk)."""
+    """A store holding runs 0-2 (run as one chunk here) resumed on a local Dask worker: the
+    stored rows are kept, runs 3-5 run in chunks, and each row equals the same run in a
+    chunk of its own (a row does not depend on its chunk). One cluster start (~15 s)."""
     spec = _spec(SPEC, runs=6, duration=0.3, batched=True)
     out = tmp_path / "c"
-    run_campaign(spec, out, workers=1, progress=False, max_runs=3)
-    assert len(read_results(out)) == 3
+    (out / "results").mkdir(parents=True)
+    seeds = [int(s) for s in spec.run_seeds()]
+    d = dict(spec.__dict__)
+    first = execute_chunk(d, [0, 1, 2], seeds[:3])
+    for row in first:
+        row["error"] = "kept"  # marks the stored rows: a resume does not redo them
+        write_row(out / "results", row)
     report = run_campaign(spec, out, workers=1, progress=False)
     assert report["complete"]
     df = read_results(out)
     assert list(df["run"]) == list(range(6)) and (df["status"] == "ok").all()
-    seeds = [int(s) for s in spec.run_seeds()]
-    alone = execute_chunk(dict(spec.__dict__), [4], [seeds[4]])[0]
-    for k in ("final_rmse", "late_rmse_1s", "max_tension", "overrides"):
-        assert _same(df.loc[4, k], alone[k]), k
+    assert list(df["error"]) == ["kept"] * 3 + [""] * 3
+    for i in (1, 4):
+        alone = execute_chunk(d, [i], [seeds[i]])[0]
+        for k in ("final_rmse", "late_rmse_1s", "max_tension", "time_to_0.01", "overrides"):
+            want = float("nan") if alone[k] is None else alone[k]  # the store: None -> NaN
+            assert _same(df.loc[i, k], want), (i, k)
 
 
 def _two_proportion_p(k1, n1, k2, n2) -> float:
