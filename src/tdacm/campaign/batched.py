@@ -230,7 +230,11 @@ def _reason(code: int, a, t, rmse, d, w) -> str | None:
 
 def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall) -> dict:
     """World ``w``'s summary fields of :data:`~tdacm.campaign.store.ROW_FIELDS`, computed as
-    :meth:`tdacm.sim.runner.Simulation.summary` computes them from the run's arrays."""
+    :meth:`tdacm.sim.runner.Simulation.summary` computes them from the run's arrays
+    (``final_rmse_true`` at the last recorded state, where the block loop takes the last
+    finite sample of its series: the same unless the true points are out of view then). The
+    block loop's other fields (the estimator's, the target filter's, the hold's) are not
+    those of a scenario the engine runs: absent, stored as NaN in both."""
     from ..batch.engine import TERMINATIONS
     from ..loop.servo import normalized_rmse
     from ..sim.assemble import camera_pose_error
