@@ -223,8 +223,9 @@ def write_sensitivity(df, spec, out: Path, bins: int = 6) -> list[Path]:
                     hits = int(success[members].sum())
                     a, b = wilson_interval(hits, members.size)
                     rate.append(hits / members.size)
-                    lo.append(rate[-1] - a)
-                    hi.append(b - rate[-1])
+                    # at a rate of 0 or 1 the interval's end equals it up to rounding
+                    lo.append(max(0.0, rate[-1] - a))
+                    hi.append(max(0.0, b - rate[-1]))
                     at.append(centre)
             bottom.errorbar(at, rate, yerr=[lo, hi], fmt="o-", color="C0", capsize=3)
             bottom.set_ylim(-0.05, 1.05)

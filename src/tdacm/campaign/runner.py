@@ -12,11 +12,15 @@ its traceback; the campaign goes on.
 Runs execute on a Dask cluster: a ``LocalCluster`` of ``workers`` processes by default, or the
 scheduler at ``scheduler`` (``tcp://host:port``) with no code change.  Each run is a pure
 function of ``(spec, index, seed)``, so the same spec gives the same rows on any cluster.
+
+On the batched engine (the spec's ``batched``, :mod:`tdacm.campaign.batched`) a Dask task is a
+chunk of runs, one batch of worlds; its rows are stored as they come, like single runs.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import threading
@@ -27,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .._extras import require
+from .batched import CHUNK, execute_chunk, refusal
 from .report import write_report
 from .spec import CampaignSpec, CampaignSpecError, load_spec, sample_overrides, to_toml
 from .store import ROW_FIELDS, completed_runs, write_row
@@ -91,6 +96,30 @@ def held(spec: CampaignSpec, summary: dict) -> bool:
         and rms <= spec.success_hold_force_rms
         and img <= spec.success_rmse
     )
+
+
+def use_batched(spec: CampaignSpec) -> bool:
+    """Whether ``spec`` runs on the batched engine: ``batched = true`` where the engine runs
+    it (else a :class:`CampaignSpecError` naming the key and the refusal), ``"auto"`` where
+    it runs it (else the block loop, with a one-line notice saying why), ``false`` never."""
+    if spec.batched is False:
+        return False
+    why = refusal(spec)
+    if why is None:
+        return True
+    if spec.batched is True:
+        raise CampaignSpecError(f"{spec.source}: batched = true: {why}")
+    logging.getLogger("tdacm.campaign").info(f"campaign: on the block loop, not batched: {why}")
+    return False
+
+
+def _chunks(todo: list[int], workers: int) -> list[list[int]]:
+    """The runs ``todo`` in chunks of at most :data:`CHUNK`, at least two per worker while
+    there are runs enough (the workers stay busy to the end)."""
+    if not todo:
+        return []
+    k = max(1, min(CHUNK, -(-len(todo) // (2 * max(1, workers)))))
+    return [todo[i : i + k] for i in range(0, len(todo), k)]
 
 
 def _silence_distributed() -> None:
@@ -191,12 +220,14 @@ def run_campaign(
         cfg = sample_overrides(spec, base.data, int(seeds[i]))
         (out / "configs" / f"run-{i:06d}.toml").write_text(to_toml(cfg))
     done_before = spec.runs - len([i for i in range(spec.runs) if i not in completed_runs(store)])
+    batched = bool(todo) and use_batched(spec)
     if todo:
         cluster = None
+        n = workers or max(1, (os.cpu_count() or 1))
         if scheduler:
             client = _connect(Client, scheduler)
+            n = max(1, len(client.scheduler_info().get("workers", {})))
         else:
-            n = workers or max(1, (os.cpu_count() or 1))
             if int(n) < 1:
                 raise CampaignSpecError(f"--workers must be >= 1, got {n}")
             # the worker processes ignore SIGINT (inherited across exec): Ctrl-C reaches the
@@ -225,28 +256,43 @@ def run_campaign(
             )
         try:
             spec_dict = {k: v for k, v in spec.__dict__.items()}
-            futures = [
-                client.submit(
-                    execute_run, spec_dict, i, int(seeds[i]), pure=False, key=f"run-{i}-{seeds[i]}"
-                )
-                for i in todo
-            ]
+            if batched:
+                chunks = _chunks(todo, int(n))
+                futures = [
+                    client.submit(execute_chunk, spec_dict, c, [int(seeds[i]) for i in c],
+                                  pure=False, key=f"chunk-{c[0]}-{c[-1]}-{seeds[c[0]]}")
+                    for c in chunks
+                ]  # fmt: skip
+                runs_of = {f.key: c for f, c in zip(futures, chunks, strict=True)}
+            else:
+                futures = [
+                    client.submit(
+                        execute_run, spec_dict, i, int(seeds[i]), pure=False,
+                        key=f"run-{i}-{seeds[i]}",
+                    )
+                    for i in todo
+                ]  # fmt: skip
+                runs_of = {f.key: [i] for f, i in zip(futures, todo, strict=True)}
             for fut in as_completed(futures):
                 try:
-                    row = fut.result()
+                    rows = fut.result()
+                    rows = rows if batched else [rows]
                 except Exception as exc:  # the worker died: record it
-                    i = int(fut.key.split("-")[1])
-                    row = {
-                        "run": i,
-                        "seed": int(seeds[i]),
-                        "status": "error",
-                        "success": False,
-                        "error": f"worker failure: {type(exc).__name__}: {exc}",
-                        "overrides": "",
-                    }
-                write_row(store, row)
+                    rows = [
+                        {
+                            "run": i,
+                            "seed": int(seeds[i]),
+                            "status": "error",
+                            "success": False,
+                            "error": f"worker failure: {type(exc).__name__}: {exc}",
+                            "overrides": "",
+                        }
+                        for i in runs_of[fut.key]
+                    ]
+                for row in rows:
+                    write_row(store, row)
                 if bar is not None:
-                    bar.update(1)
+                    bar.update(len(rows))
         except KeyboardInterrupt:
             # shutting the cluster down mid-task makes distributed log warnings and heartbeat
             # tracebacks (driver and workers): not for users, whose rows are safe on disk

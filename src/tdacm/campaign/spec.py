@@ -12,6 +12,8 @@ A spec is a TOML file::
     success_hold_force_rms = 0.2  # optional, servoing into contact ([touch]): ... if it held
                                   # the force for touch.hold_time within 20 % RMS with the
                                   # normalized RMSE <= success_rmse throughout the hold
+    batched = "auto"              # optional: true | false | "auto" (default): the batched
+                                  # engine where it runs the scenario and the sampled keys
 
     [distributions]
     # keys are "section.key" paths into the scenario (docs/scenario-reference.md)
@@ -147,6 +149,12 @@ class CampaignSpecConfig(ConfigModel):
     distributions: dict[str, DistributionConfig] = Field(
         {}, description="dotted scenario key -> its distribution"
     )
+    batched: bool | Literal["auto"] = Field(
+        "auto",
+        description="run the campaign on the batched engine (chunks of runs as one batch of "
+        "worlds): true, false (the block loop, one run at a time) or 'auto' (batched where "
+        "the engine runs the scenario and every sampled key, else the block loop)",
+    )
 
     @model_validator(mode="after")
     def _rules(self):
@@ -182,6 +190,10 @@ class CampaignSpec:
     #: desired force and the normalized RMSE at most ``success_rmse`` throughout the hold
     #: (the summary's ``hold_force_rms_rel``, ``hold_image_error_max``); ``None``: the RMSE rule
     success_hold_force_rms: float | None = None
+    #: the engine: ``True`` the batched engine (:mod:`tdacm.campaign.batched`), ``False`` the
+    #: block loop, ``"auto"`` batched where supported; how the runs execute, not what they
+    #: are, so not in :meth:`fingerprint` (a stored campaign resumes on either)
+    batched: bool | str = "auto"
 
     def as_dict(self) -> dict:
         out = {
@@ -415,6 +427,7 @@ def parse_spec(
     return CampaignSpec(
         rec.scenario, rec.runs, rec.seed, clean, rec.duration, rec.success_rmse, source,
         success_window=rec.success_window, success_hold_force_rms=rec.success_hold_force_rms,
+        batched=rec.batched,
     )  # fmt: skip
 
 

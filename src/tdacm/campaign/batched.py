@@ -1,0 +1,287 @@
+"""Campaign runs on the batched engine (:mod:`tdacm.batch`): a chunk of K runs as one
+:func:`~tdacm.sim.batch.build_batch` of K worlds on a Dask worker, each world's row the same
+columns with the same meanings as the block loop's (:func:`tdacm.campaign.runner.execute_run`).
+
+What a run samples must be what the engine can give each world:
+
+* a distribution whose every draw is the same value (kind ``fixed``, a ``choice`` of one
+  value) is applied to the chunk's shared scenario;
+* ``initial.q`` and ``initial.qd`` vary per world (the batch's ``q0``, ``qd0`` rows);
+* the run's seed gives each world its controller's model error, its camera model with an
+  intrinsics error and its random streams (:func:`~tdacm.sim.batch.build_batch`).
+
+Anything else that varies between runs (a sampled noise level, latency, mass, target tilt,
+...) cannot be given per world: :func:`refusal` names it, and the campaign runs on the block
+loop (``batched = "auto"``) or stops (``batched = true``); a sampled parameter is never
+ignored. Without noise a batched row equals the block loop's to 1e-9; with noise the worlds
+draw from the engine's own streams (docs/batch.md, "Determinism"), so rows differ run by run
+and agree in distribution (``tests/campaign/test_batched.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import traceback
+
+import numpy as np
+
+from .spec import CampaignSpec, sample_overrides
+
+#: the sampled keys the engine varies per world (the batch's initial states)
+PER_WORLD = ("initial.q", "initial.qd")
+
+#: worlds per chunk (one ``build_batch`` on a worker): large enough that the batch set-up
+#: (one loop assembly, ~1 s) is small against the run, small enough to spread over workers
+CHUNK = 50
+
+
+def _constant(d: dict) -> bool:
+    """Whether every draw of distribution ``d`` is the same value."""
+    if d["kind"] == "fixed":
+        return True
+    if d["kind"] == "choice":
+        vals = [json.dumps(v, sort_keys=True) for v in d["values"]]
+        return len(set(vals)) == 1
+    return False
+
+
+def shared_overrides(spec: CampaignSpec, scenario_data: dict) -> dict:
+    """The overrides every run of ``spec`` shares (its constant distributions), nested, as
+    :func:`~tdacm.campaign.spec.sample_overrides` gives them to each run (an integer key
+    rounded)."""
+    drawn = sample_overrides(spec, scenario_data, 0)
+    out: dict = {}
+    for key in sorted(spec.distributions):
+        if not _constant(spec.distributions[key]):
+            continue
+        parts = key.split(".")
+        node, src = out, drawn
+        for part in parts[:-1]:
+            node, src = node.setdefault(part, {}), src[part]
+        node[parts[-1]] = src[parts[-1]]
+    return out
+
+
+def varying_keys(spec: CampaignSpec) -> list[str]:
+    """The keys whose draws differ between runs."""
+    return [k for k in sorted(spec.distributions) if not _constant(spec.distributions[k])]
+
+
+def refusal(spec: CampaignSpec) -> str | None:
+    """Why ``spec`` cannot run on the batched engine, in one line naming the key (``None``:
+    it can): a sampled key the engine does not vary per world, or a scenario it does not run
+    (:func:`~tdacm.sim.batch.build_batch`'s refusal)."""
+    from ..sim.batch import build_batch
+    from ..sim.scenario import ScenarioError, load_scenario
+
+    if spec.success_hold_force_rms is not None:
+        return "success_hold_force_rms: servoing into contact is not batched"
+    for key in varying_keys(spec):
+        if key not in PER_WORLD:
+            return (
+                f"distributions.{key!r}: the batched engine cannot vary {key} per world "
+                f"(it varies {', '.join(PER_WORLD)} and the seed's draws)"
+            )
+    try:
+        base = load_scenario(spec.scenario)
+        sc = base.with_overrides(shared_overrides(spec, base.data), spec.source)
+        build_batch(sc, spec.run_seeds()[:1], duration=spec.duration, threads=1)
+    except ScenarioError as exc:
+        return str(exc)
+    return None
+
+
+def execute_chunk(spec_dict: dict, indices, seeds, threads: int = 1) -> list[dict]:
+    """The rows of campaign runs ``indices`` (seeds ``seeds``) as one batch of worlds
+    (executed on a worker); never raises: a run that cannot start or a chunk that fails
+    becomes error rows."""
+    spec = CampaignSpec(**spec_dict)
+    t0 = time.perf_counter()
+    rows, worlds, q0s, qd0s = [], [], [], []
+    try:
+        from ..sim.scenario import load_scenario
+
+        base = load_scenario(spec.scenario)
+        shared = base.with_overrides(shared_overrides(spec, base.data), "campaign (batched)")
+    except Exception as exc:  # noqa: BLE001 - the chunk's runs become error rows
+        return [_error_row(i, s, exc) for i, s in zip(indices, seeds, strict=True)]
+    for i, s in zip(indices, seeds, strict=True):
+        row = {"run": int(i), "seed": int(s), "status": "ok", "error": "", "overrides": ""}
+        try:
+            ov = sample_overrides(spec, base.data, int(s))
+            row["overrides"] = json.dumps(ov, sort_keys=True)
+            cfg = base.with_overrides(ov, f"campaign run {i}").config  # the run's own checks
+            q0s.append(np.asarray(cfg.initial.q, float))
+            qd0s.append(None if cfg.initial.qd is None else np.asarray(cfg.initial.qd, float))
+            worlds.append(row)
+        except Exception as exc:  # noqa: BLE001 - a failing run is data
+            rows.append(_error_row(i, s, exc, row["overrides"]))
+    if worlds:
+        try:
+            rows += _run_worlds(spec, shared, worlds, q0s, qd0s, threads)
+        except Exception as exc:  # noqa: BLE001 - the chunk's runs become error rows
+            rows += [_error_row(r["run"], r["seed"], exc, r["overrides"]) for r in worlds]
+    wall = (time.perf_counter() - t0) / max(1, len(rows))
+    for r in rows:
+        r["run_wall_s"] = wall
+    return rows
+
+
+def _error_row(i, s, exc, overrides: str = "") -> dict:
+    return {
+        "run": int(i),
+        "seed": int(s),
+        "status": "error",
+        "success": False,
+        "error": f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}",
+        "overrides": overrides,
+    }
+
+
+def _run_worlds(spec, scenario, rows, q0s, qd0s, threads) -> list[dict]:
+    """Run the worlds of ``rows`` (their seeds, initial states) and fill their rows."""
+    from ..batch import engine as E
+    from ..batch import servo as S
+    from ..sim.assemble import build_loop
+    from ..sim.batch import build_batch
+
+    seeds = np.array([r["seed"] for r in rows], np.int64)
+    a = build_loop(scenario, int(seeds[0]))
+    t_build = time.perf_counter()
+    batch = build_batch(scenario, seeds, spec.duration, np.array(q0s), threads, assembly=a)
+    if any(qd is not None for qd in qd0s):
+        zero = np.zeros(batch.q0.shape[1])
+        batch.qd0 = np.array([zero if qd is None else qd for qd in qd0s])
+    batch.reset()
+    d, model = batch.data, batch.model
+    periods = model.steps + 1
+    nw, n = d.q.shape
+    rmse = np.full((periods, nw), np.nan)
+    mode = np.full((periods, nw), -1, np.int64)
+    found = np.zeros((periods, nw), np.bool_)
+    recorded = np.zeros((periods, nw), np.bool_)
+    u_max = np.full((nw, d.u.shape[1]), -np.inf)
+    q_last = batch.q0.copy()
+    # the block loop records no sample for a period that ends before the controller's output
+    # is checked (ClosedLoop.act): the servo's behind-camera and recovery failures, a
+    # non-finite command
+    unrecorded = np.array([E.BEHIND_CAMERA, E.RECOVERY_FAILED, E.NON_FINITE])
+    nan_twist = np.full((nw, 6), np.nan)
+    for p in range(periods):
+        active = d.active.copy()
+        if not active.any():
+            break
+        q_start = d.q.copy()
+        E.parallel(E.step_worlds, (model, d, nan_twist), nw, threads)
+        rec = active & ~(~d.active & np.isin(d.termination, unrecorded))
+        recorded[p] = rec
+        rmse[p, rec] = d.rmse[rec]
+        mode[p, rec] = d.sstate[rec, S.S_MODE].astype(np.int64)
+        found[p, rec] = d.found[rec]
+        u_max[rec] = np.maximum(u_max[rec], d.u[rec])
+        q_last[rec] = q_start[rec]
+    wall = (time.perf_counter() - t_build) / nw
+    t = np.arange(periods) * model.dt
+    for w, row in enumerate(rows):
+        sel = recorded[:, w]
+        summary = _summary(a, model.servo.desired_points[w], t[sel], rmse[sel, w], mode[sel, w], found[sel, w], u_max[w],
+                           q_last[w], d, w, wall)  # fmt: skip
+        _fill(spec, row, summary, t[sel], rmse[sel, w])
+    return rows
+
+
+def _fill(spec, row, summary, t, rmse) -> None:
+    from .runner import succeeded
+    from .store import ROW_FIELDS
+
+    for k in ROW_FIELDS:
+        row[k] = summary.get(k)
+    row["success"] = succeeded(spec, {"t": t, "rmse": rmse}, summary)
+
+
+def _reason(code: int, a, t, rmse, d, w) -> str | None:
+    """The termination in words, as the block loop says it (the safety monitor's numbers,
+    the drone's tilt)."""
+    from ..batch import engine as E
+
+    loop = a.loop
+    if code == E.SAFETY:
+        f = np.flatnonzero(np.isfinite(rmse))
+        prev, now, tt = rmse[f[-2]], rmse[f[-1]], t[f[-1]]
+        growth = loop.safety.growth_limit
+        return (
+            f"safety monitor: normalized RMSE grew from {prev:.5f} to {now:.5f} "
+            f"(+{100 * (now / prev - 1):.1f} % > {100 * growth:.0f} %) at t = {tt:.2f} s"
+        )
+    if code == E.TUMBLED:
+        q = d.q[w]
+        return (
+            f"drone tumbled: roll {np.degrees(q[0]):.0f} deg, pitch "
+            f"{np.degrees(q[1]):.0f} deg at t = {d.k[w] * loop.dt:.2f} s"
+        )
+    return {
+        E.PLANT_FAILED: "plant integration failed (singular mass matrix or non-finite state)",
+        E.BEHIND_CAMERA: "servo: a point lies behind the virtual camera",
+        E.RECOVERY_FAILED: "recovery failed: no global-camera view of the target or no plan",
+        E.NON_FINITE: "non-finite controller output u",
+    }.get(code)
+
+
+def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall) -> dict:
+    """World ``w``'s summary fields of :data:`~tdacm.campaign.store.ROW_FIELDS`, computed as
+    :meth:`tdacm.sim.runner.Simulation.summary` computes them from the run's arrays
+    (``final_rmse_true`` at the last recorded state, where the block loop takes the last
+    finite sample of its series: the same unless the true points are out of view then). The
+    block loop's other fields (the estimator's, the target filter's, the hold's) are not
+    those of a scenario the engine runs: absent, stored as NaN in both."""
+    from ..batch.engine import TERMINATIONS
+    from ..loop.servo import normalized_rmse
+    from ..sim.assemble import camera_pose_error
+    from ..sim.runner import _window, late_rmse
+
+    loop, world = a.loop, a.world
+    s = loop.plant.system
+    cfg = a.scenario.config
+    finite = np.isfinite(rmse)
+
+    def reach(level):
+        idx = np.flatnonzero(finite & (rmse <= level))
+        return float(t[idx[0]]) if idx.size else None
+
+    switch = np.flatnonzero((mode[1:] == 0) & (mode[:-1] == 1))
+    last2 = _window(t, rmse, 2.0)
+    code = int(d.termination[w])
+    cam_dp = cam_da = drone_dp = None
+    rmse_true = None
+    if t.size:
+        cam_dp, cam_da = camera_pose_error(loop, q_last, world.q_star)
+        if s.floating:
+            drone_dp = float(np.linalg.norm(q_last[3:6] - world.q_star[3:6]))
+        if loop.log.truth is not None:  # the world's own reference (its camera model)
+            pts, _ = loop.log.truth(q_last)
+            rmse_true = float(normalized_rmse(pts, desired))
+            rmse_true = rmse_true if np.isfinite(rmse_true) else None
+    na = s.n_a
+    return {
+        "initial_rmse": float(rmse[finite][0]) if finite.any() else None,
+        "final_rmse": float(rmse[finite][-1]) if finite.any() else None,
+        "min_rmse": float(np.nanmin(rmse)) if finite.any() else None,
+        "late_rmse_1s": late_rmse(t, rmse, 1.0),
+        "within_0.01_last_2s": float(np.mean(last2 <= 0.01)) if last2.size else None,
+        "time_to_0.01": reach(0.01),
+        "time_to_0.001": reach(0.001),
+        "mode_switch_time": float(t[switch[0] + 1]) if switch.size else None,
+        "terminated": code != 0,
+        "termination_reason": _reason(code, a, t, rmse, d, w) if code else None,
+        "termination": TERMINATIONS[code],
+        "wall_time_s": wall,
+        "max_tension": float(u_max[-na:].max()) if t.size else 0.0,
+        "max_thrust": float(u_max[:4].max()) if (t.size and s.floating) else None,
+        "local_detection_rate": float(np.mean(found)) if t.size else 0.0,
+        "estimation_source": cfg.estimation.source,
+        "final_rmse_true": rmse_true,
+        "final_camera_position_error_m": cam_dp,
+        "final_camera_rotation_error_deg": cam_da,
+        "final_drone_position_error_m": drone_dp,
+    }
