@@ -85,7 +85,10 @@ class EnvOptions:
     monitor off), the action (``action_type``, scaled by ``max_angular`` rad/s and
     ``max_linear`` m/s), the episode (``max_steps`` control periods; ``init_noise``, the
     initial offset's standard deviation on q, a number or one per coordinate), the reward
-    and endings (``success_rmse``, ``success_bonus``, ``lost_penalty``, ``max_lost``) and the
+    and endings (``success_rmse``, ``success_bonus``, ``lost_penalty``, ``max_lost``;
+    ``hold_success``: success is judged at the episode's last step, the normalized RMSE at or
+    below ``success_rmse`` there and at every step since it first got there, instead of
+    ending the episode when it first gets there) and the
     domain randomization ``randomize`` (a :class:`Randomization` or a dict of its fields)."""
 
     scenario: str = "paper-in-fov"
@@ -100,6 +103,7 @@ class EnvOptions:
     max_linear: float = 0.5
     overrides: dict | None = None
     safety: bool = False
+    hold_success: bool = False
     randomize: Randomization = field(default_factory=Randomization)
 
     def __post_init__(self):

@@ -117,6 +117,7 @@ class TipServoEnv(gym.Env):
         self.success_bonus = float(o.success_bonus)
         self.lost_penalty = float(o.lost_penalty)
         self.max_lost = int(o.max_lost)
+        self.hold = bool(o.hold_success)
         self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3)
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
@@ -212,6 +213,7 @@ class TipServoEnv(gym.Env):
         loop.reset(q, w.qd0)
         self.steps = 0
         self.lost = 0
+        self._reached = self._left = False
         obs, view, _, rmse, _ = self._observe()
         return obs, {"rmse": rmse, "detected": bool(view.found), "loop_seed": self._seed}
 
@@ -253,7 +255,12 @@ class TipServoEnv(gym.Env):
         self.lost = 0 if seen else self.lost + 1
         if termination is None and self.lost >= self.max_lost:
             termination = Termination.TARGET_LOST
-        success = termination is None and seen and rmse <= self.success_rmse
+        inside = seen and rmse <= self.success_rmse
+        if self.hold:  # inside at the last step and not left since first inside
+            self._left = self._left or (self._reached and not inside)
+            self._reached = self._reached or inside
+            inside = inside and not self._left and self.steps >= self.max_steps
+        success = termination is None and inside
         if success:
             termination = Termination.SUCCESS
         reward = -rmse if seen else -self.lost_penalty

@@ -179,6 +179,10 @@ class TipServoVectorEnv(VectorEnv):
         self._rngs = [None] * N
         self.steps = np.zeros(N, np.int64)
         self.lost = np.zeros(N, np.int64)
+        self.hold = bool(o.hold_success)
+        # per world: reached success_rmse in this episode; left it after reaching it
+        self._reached = np.zeros(N, np.bool_)
+        self._left = np.zeros(N, np.bool_)
         self._autoreset = np.zeros(N, np.bool_)
         self._obs = np.zeros((N, 15 + 2 * n), np.float32)
         self._rmse = np.full(N, np.nan)
@@ -213,6 +217,8 @@ class TipServoVectorEnv(VectorEnv):
         self.batch.reset(which, q0, self.qd0)
         self.steps[which] = 0
         self.lost[which] = 0
+        self._reached[which] = False
+        self._left[which] = False
         self._autoreset[which] = False
 
     def _sense_observe(self, which: np.ndarray) -> None:
@@ -324,7 +330,13 @@ class TipServoVectorEnv(VectorEnv):
         lost = free & (self.lost >= self.max_lost)
         free &= ~lost
         with np.errstate(invalid="ignore"):
-            success = free & seen & (rmse <= self.success_rmse)
+            inside = seen & (rmse <= self.success_rmse)
+        if self.hold:  # success: inside at the last step and not left since first inside
+            self._left |= stepping & self._reached & ~inside
+            self._reached |= stepping & inside
+            success = free & inside & ~self._left & (self.steps >= self.horizon)
+        else:
+            success = free & inside
         terminated = engine_end | envelope | behind | lost | success
         failed = terminated & ~success
 
