@@ -292,6 +292,46 @@ def evaluate(policy, episodes: int, seed0: int = EVAL_SEED0) -> dict:
     }
 
 
+def evaluate_ibvs(episodes: int, seed0: int = EVAL_SEED0) -> dict:
+    """The servo's own IBVS law on the held-out seeds of :func:`evaluate` (each world the
+    same loop seed and initial pose as the env draws from seed ``seed0 + i``), on the batched
+    engine, judged by the same criterion: RMSE at or below ``success_rmse`` at the last of the
+    ``max_steps`` periods and at every period since it first got there."""
+    from gymnasium.utils import seeding
+
+    from tdacm.sim.batch import build_batch
+
+    env = make_env(1)
+    u = env.unwrapped
+    seeds, q0 = [], []
+    for i in range(episodes):
+        rng, _ = seeding.np_random(seed0 + i)
+        seeds.append(int(rng.integers(2**31)))
+        q = u.q0 + rng.normal(0.0, u.init_noise, size=u.n)
+        q[:2] = u.q0[:2]
+        q0.append(q)
+    steps = u.max_steps
+    batch = build_batch(u.scenario, seeds, steps * float(u.scenario.data["dt"]), np.array(q0))
+    env.close()
+    res = batch.run()
+    rmse = res.rmse[1 : steps + 1]  # the RMSE after each of the periods, as the env's steps
+    thr = TASK["success_rmse"]
+    success = np.zeros(episodes, bool)
+    for w in range(episodes):
+        r = rmse[:, w]
+        inside = np.isfinite(r) & (r <= thr)
+        if inside[-1] and res.termination[w] is None:
+            success[w] = inside[np.argmax(inside) :].all()
+    final = res.final_rmse
+    return {
+        "episodes": episodes,
+        "seeds": [seed0, seed0 + episodes - 1],
+        "success_rate": float(success.mean()),
+        "final_rmse_median": float(np.nanmedian(final)),
+        "terminated": int(sum(t is not None for t in res.termination)),
+    }
+
+
 def plot_curve(rows, path: Path) -> None:
     """Success rate and final RMSE of the training episodes against the env steps and the
     wall time (a moving window of 1/20 of the episodes)."""
@@ -339,14 +379,17 @@ def main(
         "train_wall_s": train_s,
         "training_episodes": len(rows),
         "ppo": evaluate(policy_of(agent), eval_episodes),
+        "ibvs": evaluate_ibvs(eval_episodes),
     }
     plot_curve(rows, out / "learning_curve.png")
     (out / "results.json").write_text(json.dumps(results, indent=2))
-    r = results["ppo"]
-    print(
-        f"ppo: success {r['success_rate']:.2f} on seeds {r['seeds']}, final rmse (median) "
-        f"{r['final_rmse_median']}, {r['endings']}; trained {train_s:.0f} s"
-    )
+    for name in ("ppo", "ibvs"):
+        r = results[name]
+        print(
+            f"{name}: success {r['success_rate']:.2f} on seeds {r['seeds']}, final rmse "
+            f"(median) {r['final_rmse_median']}"
+        )
+    print(f"trained {train_s:.0f} s")
     return results
 
 

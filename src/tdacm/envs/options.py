@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 RANDOMIZATION_LIMITS = {
     "stiffness": 0.1,
     "damping": 0.1,
-    "mass": 0.1,
+    "masses": 0.1,
     "moment_arm": 0.1,
     "pixel_noise": 2.0,
     "dropout": 0.1,
@@ -38,14 +38,14 @@ RANDOMIZATION_LIMITS = {
 @dataclass(frozen=True)
 class Randomization:
     """Ranges drawn per world at each reset (module docstring): ``stiffness``, ``damping``
-    (the rod's K and D), ``mass`` (the drone's and the rod's masses), ``moment_arm`` (the
+    (the rod's K and D), ``masses`` (the drone's and the rod's), ``moment_arm`` (the
     tendons' moment arms): relative half-widths in ``[0, 0.1]`` (a value ``x`` scales by a
     factor uniform in ``[1 - x, 1 + x]``); ``pixel_noise`` (px, ``[0, 2]``), ``dropout``
     (``[0, 0.1]``), ``latency`` (frames, ``0..2``): upper ends of ranges starting at 0."""
 
     stiffness: float = 0.0
     damping: float = 0.0
-    mass: float = 0.0
+    masses: float = 0.0
     moment_arm: float = 0.0
     pixel_noise: float = 0.0
     dropout: float = 0.0
