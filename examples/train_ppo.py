@@ -89,6 +89,13 @@ class Recorder:
                 wall = time.perf_counter() - rec.t0
                 for w in np.flatnonzero(term | trunc):
                     rec.rows.append((rec.steps, wall, bool(info["success"][w]), info["rmse"][w]))
+                if rec.steps // 50_000 != (rec.steps - len(r)) // 50_000 and rec.rows:
+                    last = np.array([row[2] for row in rec.rows[-100:]], float)
+                    print(
+                        f"{rec.steps} steps, {wall:.0f} s: success {last.mean():.2f} "
+                        f"(last {last.size} episodes)",
+                        flush=True,
+                    )
                 return obs, r, term, trunc, info
 
         return Record(self.env)
@@ -342,7 +349,10 @@ def plot_curve(rows, path: Path) -> None:
 
     steps, wall, ok, rmse = np.asarray(rows, float).reshape(-1, 4).T  # no rows: empty axes
     w = max(1, len(steps) // 20)
-    smooth = lambda x: np.convolve(x, np.ones(w) / w, mode="valid")  # noqa: E731
+
+    def smooth(x):
+        return np.convolve(x, np.ones(w) / w, mode="valid") if x.size >= w else x[:0]
+
     fig, ax = plt.subplots(2, 2, figsize=(9, 6))
     for j, (x, label) in enumerate(((steps, "environment steps"), (wall, "wall time (s)"))):
         ax[0, j].plot(x[w - 1 :], smooth(ok))
