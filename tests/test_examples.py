@@ -4,6 +4,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,27 +34,35 @@ def test_target_information_bounds(capsys):
     assert "Cramer-Rao" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # JAX's compilation and skrl's set-up: 1-2 min on the shared 2-core machine
 def test_train_ppo_smoke(tmp_path):
-    """examples/train_ppo.py end to end on a tiny budget (256 steps: two small updates, one
-    held-out episode per policy): the figure, the results and the policy are written, the
-    saved policy (with its observation scaling) loads and acts, and the IBVS expert
-    succeeds."""
-    import pytest
-
+    """examples/train_ppo.py end to end on a tiny budget (8 worlds, 256 steps: two small
+    updates; 4 held-out episodes): the figure, the results and the policy are written, and the
+    numpy-only policy of ``policy.npz`` acts as the agent's deterministic policy."""
     pytest.importorskip("skrl")
     pytest.importorskip("jax")
     ex = _load("train_ppo")
-    small = {"rollouts": 64, "learning_epochs": 2, "mini_batches": 2}
-    res = ex.main(timesteps=256, eval_episodes=1, out=tmp_path, ppo=small)
+    small = {"rollouts": 16, "learning_epochs": 2, "mini_batches": 2}
+    res = ex.main(timesteps=256, eval_episodes=4, out=tmp_path, ppo=small, num_envs=8)
     assert (tmp_path / "learning_curve.png").is_file()
     assert (tmp_path / "results.json").is_file()
-    assert res["ibvs"]["success_rate"] == 1.0 and res["zero_twist"]["success_rate"] == 0.0
-    assert set(res) >= {"ppo", "zero_twist", "ibvs"}
-    assert res["training_episodes"] >= 1
-    env = ex.make_env()
-    obs, _ = env.reset(seed=ex.EVAL_SEED0)
-    a = ex.load_policy(tmp_path / "policy.pickle")(env, obs)
-    assert a.shape == (6,) and np.all(np.abs(a) <= 1.0)
-    again = ex.load_policy(tmp_path / "policy.pickle")(env, obs)
-    np.testing.assert_array_equal(a, again)  # deterministic, from the file
-    env.close()
+    r = res["ppo"]
+    assert r["episodes"] == 4 and r["seeds"] == [ex.EVAL_SEED0, ex.EVAL_SEED0 + 3]
+    assert sum(r["endings"].values()) == 4
+    act, meta = ex.load_npz(tmp_path / "policy.npz")
+    assert meta["options"]["hold_success"] is True and meta["observation_size"] == 31
+    obs = np.random.default_rng(0).normal(size=(5, 31)).astype(np.float32)
+    # the same MLP in float64 (numpy) and float32 (JAX): equal to float32 rounding
+    np.testing.assert_allclose(act(obs), ex.policy_of(_agent_of(ex, tmp_path))(obs), atol=1e-5)
+
+
+def _agent_of(ex, path):
+    from skrl.envs.wrappers.jax import wrap_env
+
+    ex._cpu()
+    venv = ex.make_env(2)
+    agent = ex.make_agent(wrap_env(venv, wrapper="gymnasium", verbose=False), path)
+    agent.init()
+    agent.load(str(path / "policy.pickle"))
+    venv.close()
+    return agent

@@ -233,3 +233,29 @@ def test_refusals_name_the_option():
             env.step(np.full((2, 6), np.nan))
     finally:
         env.close()
+
+
+def test_hold_success_is_judged_at_the_last_step_and_agrees_with_the_single_env(single):
+    """``hold_success``: reaching the threshold does not end the episode; the last step
+    succeeds when the RMSE stayed at or below it (threshold every pose meets: success at step
+    3 of 3, with the bonus); a threshold between the start and a later RMSE, left after it
+    was reached, fails. World 0 against the single env of the same seed."""
+    kw = dict(success_rmse=10.0, success_bonus=5.0, hold_success=True, max_steps=3)
+    env = _vec(2, **kw)
+    one = TipServoEnv(**kw)
+    try:
+        env.reset(seed=4)
+        one.reset(seed=4)
+        zero = np.zeros((2, 6), np.float32)
+        for k in range(3):
+            _, r, te, tr, info = env.step(zero)
+            _, r1, te1, tr1, info1 = one.step(zero[0])
+            assert te[0] == te1 and info["success"][0] == info1["success"]
+            np.testing.assert_allclose(r[0], r1)
+            if k < 2:
+                assert not (te | tr).any() and not info["success"].any()
+        assert te.all() and info["success"].all()
+        np.testing.assert_allclose(r, 5.0 - info["rmse"])
+    finally:
+        env.close()
+        one.close()

@@ -60,6 +60,7 @@ from gymnasium import spaces
 
 from ..loop.data import Termination
 from ..vision.virtual import BehindVirtualCamera
+from .options import EnvOptions
 
 #: Observation scaling (module docstring).
 FEATURE_SCALE = 0.5
@@ -93,45 +94,31 @@ def _merge(a: dict, b: dict) -> dict:
 class TipServoEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(
-        self,
-        scenario: str = "paper-in-fov",
-        action_type: str = "twist",
-        max_steps: int = 250,
-        init_noise: float = 0.02,
-        success_rmse: float = 0.01,
-        success_bonus: float = 10.0,
-        lost_penalty: float = 1.0,
-        max_lost: int = 10,
-        max_angular: float = 0.5,
-        max_linear: float = 0.5,
-        overrides: dict | None = None,
-        safety: bool = False,
-        render_mode: str | None = None,
-    ):
+    def __init__(self, options: EnvOptions | None = None, render_mode: str | None = None, **kwargs):
+        """The task of ``options`` (an :class:`~tdacm.envs.options.EnvOptions`) with the
+        keywords ``kwargs`` replacing some of its fields (its defaults otherwise)."""
         from ..sim.assemble import build_loop
         from ..sim.scenario import load_scenario
 
-        if action_type not in ("twist", "actuators"):
-            raise ValueError(f"action_type must be 'twist' or 'actuators', got {action_type!r}")
+        o = self.options = EnvOptions.of(options, kwargs)
+        o.randomize.refuse("the env")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps!r}")
-        sc = load_scenario(scenario)
-        ov = _merge(ENV_DEFAULTS, overrides or {})
-        if not safety:
+        action_type = o.action_type
+        sc = load_scenario(o.scenario)
+        ov = _merge(ENV_DEFAULTS, o.overrides or {})
+        if not o.safety:
             ov = _merge(ov, {"safety": {"enabled": False}})
         sc = sc.with_overrides(ov, "env overrides")
         self.scenario = sc
         self.action_type = action_type
-        self.max_steps = int(max_steps)
-        self.init_noise = float(init_noise)
-        self.success_rmse = float(success_rmse)
-        self.success_bonus = float(success_bonus)
-        self.lost_penalty = float(lost_penalty)
-        self.max_lost = int(max_lost)
-        self.scale = np.array([max_angular] * 3 + [max_linear] * 3)
+        self.max_steps = int(o.max_steps)
+        self.success_rmse = float(o.success_rmse)
+        self.success_bonus = float(o.success_bonus)
+        self.lost_penalty = float(o.lost_penalty)
+        self.max_lost = int(o.max_lost)
+        self.hold = bool(o.hold_success)
+        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3)
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
         self._renderer = None
@@ -140,6 +127,7 @@ class TipServoEnv(gym.Env):
         self._quiet_log()
         s = self.loop.plant.system
         self.n = n = s.n
+        self.init_noise = o.initial_std(n)
         if action_type == "twist":
             self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
         else:
@@ -225,6 +213,7 @@ class TipServoEnv(gym.Env):
         loop.reset(q, w.qd0)
         self.steps = 0
         self.lost = 0
+        self._reached = self._left = False
         obs, view, _, rmse, _ = self._observe()
         return obs, {"rmse": rmse, "detected": bool(view.found), "loop_seed": self._seed}
 
@@ -266,7 +255,12 @@ class TipServoEnv(gym.Env):
         self.lost = 0 if seen else self.lost + 1
         if termination is None and self.lost >= self.max_lost:
             termination = Termination.TARGET_LOST
-        success = termination is None and seen and rmse <= self.success_rmse
+        inside = seen and rmse <= self.success_rmse
+        if self.hold:  # inside at the last step and not left since first inside
+            self._left = self._left or (self._reached and not inside)
+            self._reached = self._reached or inside
+            inside = inside and not self._left and self.steps >= self.max_steps
+        success = termination is None and inside
         if success:
             termination = Termination.SUCCESS
         reward = -rmse if seen else -self.lost_penalty

@@ -46,6 +46,7 @@ from gymnasium.vector.utils import batch_space
 from ..batch import engine as E
 from ..batch import servo as BS
 from ..loop.data import Termination
+from .options import EnvOptions
 from .servo import (
     ANGLE_SCALE,
     ENV_DEFAULTS,
@@ -81,9 +82,9 @@ _REASONS = {
 class TipServoVectorEnv(VectorEnv):
     """``num_envs`` worlds of the servoing task on the batched engine (module docstring).
 
-    Options as :class:`~tdacm.envs.servo.TipServoEnv` (``scenario``, ``max_steps``,
-    ``init_noise``, ``success_rmse``, ``success_bonus``, ``lost_penalty``, ``max_lost``,
-    ``max_angular``, ``max_linear``, ``overrides``, ``safety``), plus ``threads``: threads
+    Options as :class:`~tdacm.envs.servo.TipServoEnv`: an
+    :class:`~tdacm.envs.options.EnvOptions` ``options`` and/or its fields as keywords (the
+    twist action only), plus ``threads``: threads
     stepping disjoint ranges of worlds (default: the machine's cores; the results do not
     depend on it). ``max_episode_steps`` (what ``make_vec`` passes from the registration)
     truncates as ``gym.make``'s time limit does the single env.
@@ -94,58 +95,45 @@ class TipServoVectorEnv(VectorEnv):
     def __init__(
         self,
         num_envs: int = 1,
-        scenario: str = "paper-in-fov",
-        action_type: str = "twist",
-        max_steps: int = 250,
-        init_noise: float = 0.02,
-        success_rmse: float = 0.01,
-        success_bonus: float = 10.0,
-        lost_penalty: float = 1.0,
-        max_lost: int = 10,
-        max_angular: float = 0.5,
-        max_linear: float = 0.5,
-        overrides: dict | None = None,
-        safety: bool = False,
+        options: EnvOptions | None = None,
         render_mode: str | None = None,
         max_episode_steps: int | None = None,
         threads: int | None = None,
+        **kwargs,
     ):
         from ..sim.assemble import build_loop
         from ..sim.batch import build_batch
         from ..sim.scenario import ScenarioError, load_scenario
 
-        if action_type != "twist":
+        o = self.options = EnvOptions.of(options, kwargs)
+        o.randomize.refuse("the batched engine")
+        if o.action_type != "twist":
             raise ValueError(
                 f"action_type: the vector env takes 'twist' only (the engine's act path), "
-                f"got {action_type!r}; use gym.make for 'actuators'"
+                f"got {o.action_type!r}; use gym.make for 'actuators'"
             )
         if render_mode is not None:
             raise ValueError(f"render_mode: the vector env does not render, got {render_mode!r}")
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps!r}")
         if max_episode_steps is not None and max_episode_steps < 1:
             raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps!r}")
         if threads is not None and int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
-        if not np.isfinite(init_noise) or init_noise < 0:
-            raise ValueError(f"init_noise must be finite and >= 0, got {init_noise!r}")
-        sc = load_scenario(scenario)
-        ov = _merge(ENV_DEFAULTS, overrides or {})
-        if not safety:
+        sc = load_scenario(o.scenario)
+        ov = _merge(ENV_DEFAULTS, o.overrides or {})
+        if not o.safety:
             ov = _merge(ov, {"safety": {"enabled": False}})
         sc = sc.with_overrides(ov, "env overrides")
         self.scenario = sc
         self.num_envs = N = int(num_envs)
-        self.max_steps = int(max_steps)
+        self.max_steps = int(o.max_steps)
         self.horizon = min(self.max_steps, int(max_episode_steps or self.max_steps))
-        self.init_noise = float(init_noise)
-        self.success_rmse = float(success_rmse)
-        self.success_bonus = float(success_bonus)
-        self.lost_penalty = float(lost_penalty)
-        self.max_lost = int(max_lost)
-        self.scale = np.array([max_angular] * 3 + [max_linear] * 3, float)
+        self.success_rmse = float(o.success_rmse)
+        self.success_bonus = float(o.success_bonus)
+        self.lost_penalty = float(o.lost_penalty)
+        self.max_lost = int(o.max_lost)
+        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3, float)
         self.render_mode = None
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.data["dt"])))
 
@@ -162,6 +150,11 @@ class TipServoVectorEnv(VectorEnv):
         self.threads = threads
         s = loop.plant.system
         self.n = n = s.n
+        try:
+            self.init_noise = o.initial_std(n)
+        except ValueError:
+            loop.close()
+            raise
         self.floating = bool(s.floating)
         self.q0 = np.asarray(a.world.q0, float)
         self.qd0 = np.asarray(a.world.qd0, float)
@@ -186,6 +179,10 @@ class TipServoVectorEnv(VectorEnv):
         self._rngs = [None] * N
         self.steps = np.zeros(N, np.int64)
         self.lost = np.zeros(N, np.int64)
+        self.hold = bool(o.hold_success)
+        # per world: reached success_rmse in this episode; left it after reaching it
+        self._reached = np.zeros(N, np.bool_)
+        self._left = np.zeros(N, np.bool_)
         self._autoreset = np.zeros(N, np.bool_)
         self._obs = np.zeros((N, 15 + 2 * n), np.float32)
         self._rmse = np.full(N, np.nan)
@@ -220,6 +217,8 @@ class TipServoVectorEnv(VectorEnv):
         self.batch.reset(which, q0, self.qd0)
         self.steps[which] = 0
         self.lost[which] = 0
+        self._reached[which] = False
+        self._left[which] = False
         self._autoreset[which] = False
 
     def _sense_observe(self, which: np.ndarray) -> None:
@@ -331,7 +330,13 @@ class TipServoVectorEnv(VectorEnv):
         lost = free & (self.lost >= self.max_lost)
         free &= ~lost
         with np.errstate(invalid="ignore"):
-            success = free & seen & (rmse <= self.success_rmse)
+            inside = seen & (rmse <= self.success_rmse)
+        if self.hold:  # success: inside at the last step and not left since first inside
+            self._left |= stepping & self._reached & ~inside
+            self._reached |= stepping & inside
+            success = free & inside & ~self._left & (self.steps >= self.horizon)
+        else:
+            success = free & inside
         terminated = engine_end | envelope | behind | lost | success
         failed = terminated & ~success
 
