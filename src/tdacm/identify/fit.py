@@ -27,9 +27,16 @@ same component of every segment's state at once (segments are independent), so a
 costs ``1 + p + 2 n`` simulations per recording. Solver: ``scipy.optimize.least_squares``
 (trust region reflective).
 
-**Uncertainty.** ``cov = s^2 (J^T J)^-1`` at the optimum with ``s^2 = |r|^2 / (m - n_z)``, the
-residual variance (1 when the noise levels are right); the parameter block of it accounts for
-the unknown segment states. A log-parameter's standard deviation is relative.
+**Uncertainty.** The least-squares covariance ``s^2 (J^T J)^-1`` (``s^2 = |r|^2 / (m - n_z)``,
+the residual variance, 1 when the noise levels are right) assumes white residuals. They are
+not: the tension noise drives the lightly damped rod (a slow, correlated response the fit
+treats as residual) and any model error is smooth in time. The reported covariance is the
+sandwich ``A S A`` (:func:`sandwich_covariance`), ``A = (J^T J)^-1`` and ``S`` the
+heteroskedasticity- and autocorrelation-consistent (Newey-West, Bartlett weights) long-run
+covariance of the per-sample scores ``J_t^T r_t`` of each recording, so correlated residuals
+widen the intervals by what they cost; the white-noise covariance is kept as ``std_iid``.
+The parameter block accounts for the unknown segment states (``A``'s rows eliminate them).
+A log-parameter's standard deviation is relative.
 """
 
 from __future__ import annotations
@@ -242,6 +249,52 @@ class Problem:
         return a - b @ np.linalg.solve(c + 1e-12 * np.eye(len(c)) * np.trace(c) / len(c), b.T)
 
 
+def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int,
+                        lags: int | None = None) -> tuple[np.ndarray, int]:  # fmt: skip
+    """The parameters' (scaled) covariance ``A S A`` robust to correlated residuals, and the
+    lag window used.
+
+    ``A = (J^T J)^+``; the parameter rows of ``A J^T`` map the residuals to the estimate, so
+    the estimate's error is ``sum_t h_t`` with ``h_t = (A J^T)_{p, rows t} r_t`` the score of
+    sample ``t``. ``S = sum_l w_l sum_t h_t h_{t-l}^T`` (both signs of ``l``) with Bartlett
+    weights ``w_l = 1 - |l| / (L + 1)`` within each recording (recordings independent); the
+    lag window ``L`` is Andrews' AR(1) plug-in rule on the scores (Andrews 1991, eq. 6.4),
+    at least 1 and at most one shooting window. ``m / (m - n_z)`` corrects for the fitted
+    variables' share of the residuals."""
+    m, nz = jac.shape
+    a = np.linalg.pinv(jac.T @ jac)
+    h = a[:npar] @ jac.T
+    cov = np.zeros((npar, npar))
+    row = 0
+    used = 0
+    for s in prob.setups:
+        nt, k = len(s.rec.t), s.kdim
+        g = np.einsum("ptk,tk->tp", h[:, row : row + nt * k].reshape(npar, nt, k),
+                      r[row : row + nt * k].reshape(nt, k))  # fmt: skip
+        row += nt * k
+        cap = int(max(np.max(s.ends - s.starts), 2))
+        if lags is None:
+            num = den = 0.0
+            for j in range(npar):
+                x = g[:, j]
+                rho = float(np.clip(x[1:] @ x[:-1] / max(x[:-1] @ x[:-1], 1e-300), -0.99, 0.99))
+                var = float(np.mean(x**2)) * (1 - rho**2)
+                w = (x @ x) ** 2
+                num += w * 4 * rho**2 * var**2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+                den += w * var**2 / (1 - rho) ** 4
+            alpha = num / max(den, 1e-300)
+            lag = int(np.clip(np.ceil(1.1447 * (alpha * nt) ** (1 / 3)), 1, cap))
+        else:
+            lag = int(lags)
+        used = max(used, lag)
+        c = g.T @ g
+        for lag_i in range(1, min(lag, nt - 1) + 1):
+            x = g[lag_i:].T @ g[:-lag_i]
+            c += (1 - lag_i / (lag + 1)) * (x + x.T)
+        cov += c
+    return cov * m / max(m - nz, 1), used
+
+
 def _ik(rec: Recording, k: int, values: dict, q_guess, problem: Problem):
     """The state at sample ``k`` that best explains its measurements (nominal model)."""
     model = rec.model
@@ -321,6 +374,12 @@ class Identification:
     problem: Problem | None = None
     z: np.ndarray | None = None
     stages: list = field(default_factory=list)
+    std_iid: dict = field(default_factory=dict)  # white-residual std (s^2 (J^T J)^-1)
+    n_free: int = 0  # fitted variables: parameters and segment states
+    lags: int = 0  # the sandwich's lag window (samples)
+    basis: str = ""  # the rod's strain basis fitted
+    misfit: dict = field(default_factory=dict)  # see tdacm.identify.misfit
+    selection: list = field(default_factory=list)  # the bases compared (select_basis)
 
     def table(self) -> str:
         lines = [f"{'parameter':<14}{'estimate':>14}{'std':>12}{'rel std':>10}{'start':>14}"]
@@ -338,6 +397,7 @@ class Identification:
                     "estimate": self.values[n],
                     "std": self.std[n],
                     "relative_std": self.rel_std[n],
+                    "std_white_residuals": self.std_iid.get(n),
                     "start": self.start[n],
                     "unit": PARAMETERS[n].unit,
                 }
@@ -352,6 +412,11 @@ class Identification:
             "success": self.success,
             "message": self.message,
             "rms": self.rms,
+            "basis": self.basis,
+            "n_free": self.n_free,
+            "sandwich_lags": self.lags,
+            "misfit": self.misfit,
+            "basis_selection": self.selection,
         }
 
     def predictions(self):
@@ -440,9 +505,9 @@ def identify(
     cost = float(2 * sol.cost)
     s2 = cost / max(m - nz, 1)
     jtj = jac.T @ jac
-    cov = s2 * np.linalg.pinv(jtj)
     npar = len(names)
-    cp = cov[:npar, :npar]
+    cov_iid = s2 * np.linalg.pinv(jtj)[:npar, :npar]
+    cp, lags = sandwich_covariance(prob, jac, sol.fun, npar)
     at_bound = [n for i, n in enumerate(names) if min(sol.x[i] - lb[i], ub[i] - sol.x[i]) < 1e-6]
     if at_bound:
         log.warning("estimates at the search bound (factor %g from the start): %s",
@@ -450,14 +515,17 @@ def identify(
     sd = np.sqrt(np.clip(np.diag(cp), 0, None))
     corr = cp / np.outer(sd, sd) if np.all(sd > 0) else np.full_like(cp, np.nan)
     values = {n: v for n, v in prob.from_z(sol.x[:npar]).items() if n in names}
-    std, rel = {}, {}
+    sd_iid = np.sqrt(np.clip(np.diag(cov_iid), 0, None))
+    std, rel, std_iid = {}, {}, {}
     for i, n in enumerate(names):
         p = PARAMETERS[n]
         std[n] = float(values[n] * sd[i]) if p.log else float(p.scale * sd[i])
         rel[n] = float(sd[i]) if p.log else float(std[n] / max(abs(values[n]), 1e-300))
+        std_iid[n] = float(values[n] * sd_iid[i]) if p.log else float(p.scale * sd_iid[i])
     res = Identification(
         names, values, std, rel, corr, start, nominal, cost, s2, m, int(sol.nfev),
         time.perf_counter() - t0, bool(sol.success), str(sol.message), {}, prob, sol.x,
+        std_iid=std_iid, n_free=nz, lags=lags, basis=recs[0].model.basis,
     )  # fmt: skip
     for rec, pred in res.predictions():
         key = rec.name
@@ -499,5 +567,6 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
         max(a.residual_variance, b.residual_variance), a.n_residuals + b.n_residuals,
         a.nfev + b.nfev, a.seconds + b.seconds, a.success and b.success,
         f"rod: {a.message}; drone: {b.message}", {**a.rms, **b.rms}, None, None,
-        stages=[a, b],
+        stages=[a, b], std_iid={**a.std_iid, **b.std_iid}, n_free=a.n_free + b.n_free,
+        lags=max(a.lags, b.lags), basis=a.basis,
     )  # fmt: skip

@@ -30,6 +30,16 @@ class Prediction:
     ok: bool
 
 
+def _basis_text(basis) -> str:
+    """``"bending:P"`` when ``basis`` is one, else its description."""
+    from ..sim.robot import parse_basis
+
+    for p in range(8):
+        if basis == parse_basis(f"bending:{p}"):
+            return f"bending:{p}"
+    return basis.describe()
+
+
 class IdentModel:
     """A single-rod TD-ACM whose physical parameters can be replaced.
 
@@ -67,6 +77,26 @@ class IdentModel:
             )
         self._cache_key = None
         self._cache = None
+        self._basis_text = _basis_text(system.rod.basis)
+
+    @property
+    def basis(self) -> str:
+        """The rod's strain basis as a scenario writes it (``robot.rod.basis``)."""
+        return self._basis_text
+
+    def with_basis(self, text: str) -> IdentModel:
+        """The same robot with the rod's strain basis ``text`` (``"bending:P"``, ``"full:P"``,
+        ``"modes:..."``; the quadrature of :func:`tdacm.sim.robot.rod_quadrature`)."""
+        from ..sim.robot import parse_basis, rod_quadrature
+
+        basis = parse_basis(text)
+        n_gauss, magnus = rod_quadrature(basis)
+        s = self.system
+        rod = replace(s.rod, basis=basis, n_gauss=n_gauss, magnus_order=magnus)
+        sysnew = TDACM(rod, s.tendons, s.base, s.attachment, Loads(gravity=s.loads.gravity.copy()))
+        out = IdentModel(sysnew, self.tip_mount, self.nominal["camera_offset"])
+        out._basis_text = text
+        return out
 
     def check(self, names) -> None:
         for n in names:
