@@ -567,6 +567,18 @@ def _cmd_identify(args) -> int:
     for k in start:
         if k not in names:
             return _err(f"--start: {k!r} is not among --params ({', '.join(names)})")
+    bases = None
+    if args.bases is not None:
+        from .sim.robot import parse_basis
+
+        bases = [b.strip() for b in args.bases.split(",") if b.strip()]
+        if not bases:
+            return _err("--bases: give at least one basis, e.g. bending:0,bending:1,bending:2")
+        for b in bases:
+            try:
+                parse_basis(b)
+            except ValueError as exc:
+                return _err(f"--bases: {exc}")
     out = Path(args.out)
     if (problem := _opening(out)[1]) is not None:
         return _err(problem)
@@ -602,18 +614,6 @@ def _cmd_identify(args) -> int:
         if h.model.floating:
             return _err(f"--held-out {path}: a held-out recording must be of the clamped rod")
         held.append(h)
-    bases = None
-    if args.bases is not None:
-        from .sim.robot import parse_basis
-
-        bases = [b.strip() for b in args.bases.split(",") if b.strip()]
-        if not bases:
-            return _err("--bases: give at least one basis, e.g. bending:0,bending:1,bending:2")
-        for b in bases:
-            try:
-                parse_basis(b)
-            except ValueError as exc:
-                return _err(f"--bases: {exc}")
     kw = {"segment": args.segment, "use": args.use}
     try:
         if bases is not None:
