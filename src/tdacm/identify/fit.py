@@ -56,6 +56,9 @@ from .params import PARAMETERS, parse_params
 log = logging.getLogger(__name__)
 
 FD_STEP = 1e-6
+#: The trust-region subproblem solver of ``least_squares`` ("exact": an SVD of the m x n_z
+#: Jacobian every iteration; "lsmr": iterative).
+TR_SOLVER = "exact"
 #: How far the fit may move a parameter from its start: a factor (log-parameters) or as many
 #: scales (linear ones).
 SEARCH_FACTOR = 3.0
@@ -295,6 +298,48 @@ def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int
     return cov * m / max(m - nz, 1), used
 
 
+def basis_map(old_model, new_model) -> np.ndarray:
+    """(n_new, n_old) matrix taking a state of ``old_model`` to the nearest of ``new_model``
+    (the strain field projected on the new basis in L2 over the rod; the drone's coordinates
+    unchanged): exact when the new basis contains the old one (``bending:0`` in ``bending:2``)."""
+    x = np.linspace(0.0, 1.0, 64)
+    bo = old_model.system.rod.basis(x).reshape(-1, old_model.system.rod.basis.n)
+    bn = new_model.system.rod.basis(x).reshape(-1, new_model.system.rod.basis.n)
+    ts = np.linalg.lstsq(bn, bo, rcond=None)[0]
+    off = 6 if new_model.floating else 0
+    out = np.zeros((new_model.system.n, old_model.system.n))
+    out[:off, :off] = np.eye(off)
+    out[off:, off:] = ts
+    return out
+
+
+def _warm_states(prob: Problem, z0: np.ndarray, warm) -> np.ndarray:
+    """``z0`` with every recording's window states replaced by ``warm``'s (an earlier fit of
+    the same recordings and windows on another basis, mapped by :func:`basis_map`) where that
+    explains its measurements better than the inverse kinematics does (the tip pose alone
+    leaves a richer basis's higher coefficients to the noise)."""
+    wp = warm.problem
+    npar = len(prob.names)
+    for s in prob.setups:
+        sw = next((w for w in wp.setups if w.rec.name == s.rec.name), None)
+        if sw is None or len(sw.starts) != len(s.starts) or np.any(sw.starts != s.starts):
+            continue
+        no, nn = sw.rec.model.system.n, s.rec.model.system.n
+        tm = basis_map(sw.rec.model, s.rec.model)
+        xo = warm.z[sw.offset : sw.offset + len(sw.starts) * 2 * no].reshape(-1, 2 * no)
+        xn = np.hstack([xo[:, :no] @ tm.T, xo[:, no:] @ tm.T])
+        z1 = z0.copy()
+        z1[s.offset : s.offset + xn.size] = xn.ravel()
+        values = prob.from_z(z0[:npar])
+        costs = [
+            float(np.sum(prob.measurement_residual(prob.predict(z, s, values), s, values) ** 2))
+            for z in (z0, z1)
+        ]
+        if costs[1] < costs[0]:
+            z0 = z1
+    return z0
+
+
 def _ik(rec: Recording, k: int, values: dict, q_guess, problem: Problem):
     """The state at sample ``k`` that best explains its measurements (nominal model)."""
     model = rec.model
@@ -439,6 +484,7 @@ def identify(
     fixed: dict | None = None,
     decimate: int = 1,
     stage: str | None = None,
+    warm: Identification | None = None,
 ) -> Identification:
     """Estimate ``params`` (names of :data:`~tdacm.identify.params.PARAMETERS`) from
     ``recordings`` (one :class:`~tdacm.identify.data.Recording` or several of the same robot).
@@ -453,7 +499,9 @@ def identify(
     100 Hz: 20 ms steps keep the paper robot's RK4 error near 2e-5 m, far below the motion
     capture's noise; the inputs are averaged over each step). Progress (the parameters, then
     each iteration's cost) is logged at INFO (stderr with ``tdacm identify``, hidden by
-    ``-q``), each line starting with ``stage`` when given."""
+    ``-q``), each line starting with ``stage`` when given. ``warm``: an earlier fit of the
+    same recordings (e.g. on a simpler strain basis) whose window states start this one's
+    where they explain the data better than the inverse kinematics."""
     t0 = time.perf_counter()
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
     if not recs:
@@ -472,6 +520,8 @@ def identify(
     start = {n: merged[n] for n in names}
     prob = Problem(recs, names, sigma, segment, substeps, use, fixed)
     z0 = prob.initial(start)
+    if warm is not None and warm.problem is not None:
+        z0 = _warm_states(prob, z0, warm)
     lb, ub = np.full(z0.size, -np.inf), np.full(z0.size, np.inf)
     npar = len(names)
     # a log-parameter stays within a factor SEARCH_FACTOR of its start, a linear one within
@@ -498,6 +548,7 @@ def identify(
 
     sol = least_squares(
         prob.residual, z0, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
+        tr_solver=TR_SOLVER,
         ftol=1e-7, xtol=1e-7, gtol=1e-8, max_nfev=max_nfev,
     )  # fmt: skip
     jac = sol.jac
@@ -552,11 +603,16 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
     params = parse_params(params)
     drone = [n for n in params if PARAMETERS[n].floating_only]
     rod = [n for n in params if n not in drone]
+    warm = kw.pop("warm", None)
     if not (clamped and flying and rod and drone):
-        return identify(recs, params, start, **kw)
-    a = identify(clamped, rod, start, stage="stage 1/2, the rod, clamped recordings", **kw)
+        if warm is not None and warm.stages:
+            warm = warm.stages[0]
+        return identify(recs, params, start, warm=warm, **kw)
+    wa, wb = (warm.stages if warm is not None and warm.stages else (warm, None))
+    a = identify(clamped, rod, start, stage="stage 1/2, the rod, clamped recordings", warm=wa,
+                 **kw)  # fmt: skip
     b = identify(flying, drone, start, fixed=a.values,
-                 stage="stage 2/2, the drone, flying recordings", **kw)  # fmt: skip
+                 stage="stage 2/2, the drone, flying recordings", warm=wb, **kw)  # fmt: skip
     names = rod + drone
     corr = np.zeros((len(names), len(names)))
     corr[: len(rod), : len(rod)] = a.corr

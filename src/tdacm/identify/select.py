@@ -37,7 +37,7 @@ def select_basis(recordings, params, bases, held_out=(), start=None, decimate=1,
     :class:`~tdacm.identify.fit.Identification` whose ``selection`` lists every candidate:
     basis, strain coordinates, chi^2, k, m, BIC, AIC, held-out ratio, misfit, estimates,
     seconds; and whose ``misfit`` is the chosen one's). A richer basis starts from the
-    previous candidate's estimates."""
+    previous candidate's estimates and window states (mapped onto it)."""
     recs = list(recordings)
     held = list(held_out)
     bases = list(dict.fromkeys(bases))
@@ -52,7 +52,7 @@ def select_basis(recordings, params, bases, held_out=(), start=None, decimate=1,
             st.update(prev.values)
         log.info("basis %s: %d strain coordinates", b, rb[0].model.system.n - (
             6 if rb[0].model.floating else 0))  # fmt: skip
-        res = identify_staged(rb, params, st, decimate=decimate, **kw)
+        res = identify_staged(rb, params, st, decimate=decimate, warm=prev, **kw)
         ho = {}
         for h in held:
             hb = h.with_basis(b).decimated(decimate)
