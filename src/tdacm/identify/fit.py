@@ -324,7 +324,7 @@ def _warm_states(prob: Problem, z0: np.ndarray, warm) -> np.ndarray:
         sw = next((w for w in wp.setups if w.rec.name == s.rec.name), None)
         if sw is None or len(sw.starts) != len(s.starts) or np.any(sw.starts != s.starts):
             continue
-        no, nn = sw.rec.model.system.n, s.rec.model.system.n
+        no = sw.rec.model.system.n
         tm = basis_map(sw.rec.model, s.rec.model)
         xo = warm.z[sw.offset : sw.offset + len(sw.starts) * 2 * no].reshape(-1, 2 * no)
         xn = np.hstack([xo[:, :no] @ tm.T, xo[:, no:] @ tm.T])
@@ -608,7 +608,7 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
         if warm is not None and warm.stages:
             warm = warm.stages[0]
         return identify(recs, params, start, warm=warm, **kw)
-    wa, wb = (warm.stages if warm is not None and warm.stages else (warm, None))
+    wa, wb = warm.stages if warm is not None and warm.stages else (warm, None)
     a = identify(clamped, rod, start, stage="stage 1/2, the rod, clamped recordings", warm=wa,
                  **kw)  # fmt: skip
     b = identify(flying, drone, start, fixed=a.values,
