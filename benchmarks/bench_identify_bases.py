@@ -34,7 +34,7 @@ def one(truth_basis: str, seed: int, bases, scale: float = 1.3) -> dict:
     return {
         "truth_basis": truth_basis,
         "seed": seed,
-        "chosen": res.basis,
+        "chosen": res.rod_basis,
         "errors": err,
         "relative_std": res.rel_std,
         "within_limits": {k: abs(err[k]) < LIMITS[k] for k in ROD},

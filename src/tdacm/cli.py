@@ -641,7 +641,7 @@ def _cmd_identify(args) -> int:
     inadequate = [r["basis"] for r in res.selection if r["misfit"]]
     if inadequate:
         print(f"warning: inadequate bases (misfit beyond the noise): {', '.join(inadequate)}; "
-              f"chosen: {res.basis}", file=sys.stderr)  # fmt: skip
+              f"chosen: {res.rod_basis}", file=sys.stderr)  # fmt: skip
     if res.misfit.get("detected"):
         print(misfit_summary(res.misfit), file=sys.stderr)
         if args.strict:

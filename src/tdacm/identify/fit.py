@@ -422,7 +422,7 @@ class Identification:
     std_iid: dict = field(default_factory=dict)  # white-residual std (s^2 (J^T J)^-1)
     n_free: int = 0  # fitted variables: parameters and segment states
     lags: int = 0  # the sandwich's lag window (samples)
-    basis: str = ""  # the rod's strain basis fitted
+    rod_basis: str = ""  # the rod's strain basis fitted
     misfit: dict = field(default_factory=dict)  # see tdacm.identify.misfit
     selection: list = field(default_factory=list)  # the bases compared (select_basis)
 
@@ -457,7 +457,7 @@ class Identification:
             "success": self.success,
             "message": self.message,
             "rms": self.rms,
-            "basis": self.basis,
+            "basis": self.rod_basis,
             "n_free": self.n_free,
             "sandwich_lags": self.lags,
             "misfit": self.misfit,
@@ -576,7 +576,7 @@ def identify(
     res = Identification(
         names, values, std, rel, corr, start, nominal, cost, s2, m, int(sol.nfev),
         time.perf_counter() - t0, bool(sol.success), str(sol.message), {}, prob, sol.x,
-        std_iid=std_iid, n_free=nz, lags=lags, basis=recs[0].model.basis,
+        std_iid=std_iid, n_free=nz, lags=lags, rod_basis=recs[0].model.basis,
     )  # fmt: skip
     for rec, pred in res.predictions():
         key = rec.name
@@ -624,5 +624,5 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
         a.nfev + b.nfev, a.seconds + b.seconds, a.success and b.success,
         f"rod: {a.message}; drone: {b.message}", {**a.rms, **b.rms}, None, None,
         stages=[a, b], std_iid={**a.std_iid, **b.std_iid}, n_free=a.n_free + b.n_free,
-        lags=max(a.lags, b.lags), basis=a.basis,
+        lags=max(a.lags, b.lags), rod_basis=a.rod_basis,
     )  # fmt: skip

@@ -139,7 +139,7 @@ def diagnose(res, held_out: dict | None = None, fitted=()) -> dict:
     causes = []
     if detected and (flags["whiteness"] or flags["held_out"]):
         causes.append({
-            "cause": f"the model's structure: the strain basis {res.basis or 'of the scenario'} "
+            "cause": f"the model's structure: the strain basis {res.rod_basis or 'of the scenario'} "
                      "cannot take the backbone's shape (its sag under gravity and the tip load, "
                      "uneven bending near the clamp)",
             "evidence": f"residual variance {ratio:.3g} x the noise, lag-1 autocorrelation "

@@ -45,8 +45,8 @@ def robot_toml(result: Identification) -> str:
         base = [result.nominal.get(f"inertia_{a}") for a in "xyz"]
         vals = [float(f"{inertia.get(i, base[i]):.6g}") for i in range(3)]
         data.setdefault("drone", {})["inertia"] = vals
-    if result.basis and _parses(result.basis):
-        data.setdefault("rod", {})["basis"] = result.basis
+    if result.rod_basis and _parses(result.rod_basis):
+        data.setdefault("rod", {})["basis"] = result.rod_basis
     body = tomli_w.dumps({"robot": data}) if data else ""
     head = "# identified by tdacm identify (estimate +- 1 sigma in the report)\n"
     if result.misfit.get("detected"):
