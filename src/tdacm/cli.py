@@ -554,7 +554,10 @@ def _parse_start(text: str) -> dict:
 def _cmd_identify(args) -> int:
     from .identify import PARAMETERS, RecordingInputError, load_recording, parse_params
     from .identify.fit import identify_staged
+    from .identify.misfit import EXIT_MISFIT, diagnose, held_out_ratio
+    from .identify.misfit import summary as misfit_summary
     from .identify.report import correlation_text, robot_toml, write_outputs
+    from .identify.select import select_basis, selection_table
 
     try:
         names = parse_params(args.params)
@@ -567,6 +570,18 @@ def _cmd_identify(args) -> int:
     for k in start:
         if k not in names:
             return _err(f"--start: {k!r} is not among --params ({', '.join(names)})")
+    bases = None
+    if args.bases is not None:
+        from .sim.robot import parse_basis
+
+        bases = [b.strip() for b in args.bases.split(",") if b.strip()]
+        if not bases:
+            return _err("--bases: give at least one basis, e.g. bending:0,bending:1,bending:2")
+        for b in bases:
+            try:
+                parse_basis(b)
+            except ValueError as exc:
+                return _err(f"--bases: {exc}")
     out = Path(args.out)
     if (problem := _opening(out)[1]) is not None:
         return _err(problem)
@@ -591,12 +606,33 @@ def _cmd_identify(args) -> int:
             return _err(f"--params: {n} is seen by the tip camera only (add --use camera)")
     if args.use == "camera" and any(r.pixels is None for r in recs):
         return _err("--use camera: a recording has no camera pixels")
+    held = []
+    for path in args.held_out or []:
+        try:
+            h = load_recording(path, args.scenario, tmap)
+        except RecordingInputError as exc:
+            return _err(f"--held-out: {exc}")
+        except ValueError as exc:
+            return _err(f"--held-out {path}: {exc}")
+        if h.model.floating:
+            return _err(f"--held-out {path}: a held-out recording must be of the clamped rod")
+        held.append(h)
+    kw = {"segment": args.segment, "use": args.use}
     try:
-        res = identify_staged(
-            recs, names, start, segment=args.segment, use=args.use, decimate=args.decimate
-        )
+        if bases is not None:
+            res = select_basis(recs, names, bases, held, start, decimate=args.decimate, **kw)
+        else:
+            res = identify_staged(recs, names, start, decimate=args.decimate, **kw)
+            ho = {
+                h.name: held_out_ratio(res.values, h.decimated(args.decimate), args.segment)
+                for h in held
+            }
+            res.misfit = diagnose(res, ho, fitted=res.names)
     except ValueError as exc:
         return _err(str(exc))
+    if res.selection:
+        print(selection_table(res.selection))
+        print()
     print(res.table())
     print()
     print(correlation_text(res))
@@ -605,6 +641,14 @@ def _cmd_identify(args) -> int:
     paths = write_outputs(res, out)
     _note(f"identification ({res.seconds:.1f} s, residual variance {res.residual_variance:.2f}) "
           f"written to {out.resolve()}/ ({', '.join(p.name for p in paths)})")  # fmt: skip
+    inadequate = [r["basis"] for r in res.selection if r["misfit"]]
+    if inadequate:
+        print(f"warning: inadequate bases (misfit beyond the noise): {', '.join(inadequate)}; "
+              f"chosen: {res.rod_basis}", file=sys.stderr)  # fmt: skip
+    if res.misfit.get("detected"):
+        print(misfit_summary(res.misfit), file=sys.stderr)
+        if args.strict:
+            return EXIT_MISFIT
     return 0
 
 
@@ -822,6 +866,26 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         metavar="K",
         help="fit every K-th sample with RK4 steps of K sample periods (default 1)",
+    )
+    s.add_argument(
+        "--bases",
+        metavar="B,B,...",
+        help="strain bases to compare (e.g. bending:0,bending:1,bending:2): each is fitted, "
+        "compared by BIC and on --held-out recordings; the chosen one is reported and "
+        "written to robot.toml (default: the scenario's basis only)",
+    )
+    s.add_argument(
+        "--held-out",
+        action="append",
+        metavar="RECORDING",
+        help="a clamped-rod recording not fitted, predicted to validate the model and choose "
+        "the basis (repeatable; e.g. the held-out experiment)",
+    )
+    s.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit with code 3 when the fit's residuals are far from the measurement noise "
+        "(misfit; see docs/identify.md)",
     )
     s.set_defaults(func=_cmd_identify)
     return p

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import tomllib
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +110,12 @@ class Recording:
             self.added,
         )  # fmt: skip
 
+    def with_basis(self, basis: str) -> Recording:
+        """The same measurements on the robot with the rod's strain basis ``basis``."""
+        model = self.model.with_basis(basis)
+        q = self.q if self.q is not None and self.q.shape[1] == model.system.n else None
+        return replace(self, model=model, q=q)
+
     def values(self, values: dict) -> dict:
         """The model's values during this experiment: ``values`` plus the known additions."""
         v = self.model.values(values)
@@ -179,7 +185,8 @@ def _load_folder(path: Path, scenario) -> Recording:
             raise RecordingInputError(f"RECORDING {path}: timeseries.npz has no {key!r}")
     t, q, u = arrays["t"], arrays["q"], arrays["u"]
     sysm = model.system
-    if q.shape[1] != sysm.n:
+    meas = path / "measurements.npz"
+    if q.shape[1] != sysm.n and not meas.is_file():
         raise RecordingInputError(
             f"RECORDING {path}: q has {q.shape[1]} columns, the scenario's robot {sysm.n}"
         )
@@ -188,7 +195,6 @@ def _load_folder(path: Path, scenario) -> Recording:
     tf = path / "truth.toml"
     if tf.is_file():
         truth = tomllib.loads(tf.read_text()).get("parameters", {})
-    meas = path / "measurements.npz"
     pixels = None
     if meas.is_file():
         m = _read_npz(meas, path)
@@ -197,7 +203,9 @@ def _load_folder(path: Path, scenario) -> Recording:
         tip = pose7_to_matrix(m["tip_pose"]) if "tip_pose" in m else None
         drone = pose7_to_matrix(m["drone_pose"]) if "drone_pose" in m else None
         pixels = m.get("pixels")
-        q = q[: len(t)]
+        # the true states, when in the scenario's coordinates (a synthetic recording of a
+        # hidden robot with a richer strain basis has its own); never used by the fit
+        q = q[: len(t)] if q.shape[1] == sysm.n else None
     else:
         if u.shape[0] == len(t) - 1:  # a run folder's u may miss the last sample
             u = np.vstack([u, u[-1:]])

@@ -179,17 +179,34 @@ EXPERIMENTS = {
 }
 
 
-def scenario_text(exp: Experiment) -> str:
+def scenario_text(exp: Experiment, basis: str | None = None) -> str:
     """The scenario of a synthetic recording: the experiment's shipped scenario with the
-    lab's prior rod damping (:data:`PRIOR_DAMPING`)."""
+    lab's prior rod damping (:data:`PRIOR_DAMPING`); ``basis`` replaces the scenario's strain
+    basis (the hidden robot of :func:`synthesize`)."""
     from .. import __file__ as pkg
 
     text = (Path(pkg).parent / "scenarios" / f"{exp.scenario}.toml").read_text()
-    return (
+    text = (
         text.rstrip()
         + "\n\n# the lab's prior guess of the backbone's damping (identification start)\n"
         + f"[robot.rod]\ndamping = {PRIOR_DAMPING:g}\n"
     )
+    if basis is None:
+        return text
+    import tomllib
+
+    import tomli_w
+
+    from ..sim.robot import parse_basis
+
+    data = tomllib.loads(text)
+    data["robot"]["rod"]["basis"] = basis
+    ns = parse_basis(basis).n
+    for key in ("initial", "desired"):  # strains of the scenario's basis: straight instead
+        if "q" in data.get(key, {}):
+            data[key]["q"] = [0.0] * ns
+    data.pop("expect", None)
+    return tomli_w.dumps(data)
 
 
 def experiment(name: str) -> Experiment:
@@ -251,17 +268,26 @@ def synthesize(
     noise: dict | None = None,
     pixels: bool = False,
     duration: float | None = None,
+    basis: str | None = None,
 ) -> Recording:
     """Run experiment ``name`` on the robot with the hidden ``truth`` parameters and return the
     noisy :class:`~tdacm.identify.data.Recording` (written to folder ``out`` if given:
     ``scenario.toml``, ``timeseries.npz`` with the true ``t, q, qd, u``, ``measurements.npz``
     with what the fit reads, ``truth.toml``). ``seed`` draws the step levels and the noise.
     ``pixels``: also record the tip camera's four target points (1 px noise); ``duration``
-    shortens the experiment (s; its profile is the same up to there)."""
+    shortens the experiment (s; its profile is the same up to there). ``basis``: the hidden
+    robot's strain basis (e.g. ``"bending:2"``: a backbone richer than the scenario's
+    constant curvature, as a real one is); the recording's model, the one the lab states
+    and the fit starts from, keeps the scenario's basis, and ``Recording.q`` is then
+    ``None`` (the true states are the hidden robot's, in its own coordinates; they are
+    written to ``timeseries.npz`` and the basis to ``truth.toml``)."""
     exp = experiment(name)
     truth = dict(DEFAULT_TRUTH if truth is None else truth)
     noise = {**NOISE, **(noise or {})}
     model, world = model_of_scenario(parse_scenario(scenario_text(exp)))
+    lab = model
+    if basis is not None:
+        model, world = model_of_scenario(parse_scenario(scenario_text(exp, basis)))
     sysm = model.system
     valid = {k: v for k, v in truth.items() if k in model.nominal}
     added = dict(exp.added)
@@ -316,11 +342,11 @@ def synthesize(
         seen &= px[..., 1] < cam.height
         px[~seen] = np.nan  # a point outside the image is not detected
     rec = Recording(
-        name, t, rec_u, model, tip_m, drone_m, px, world.scene.target_points_world(),
-        world.robot.local_camera, valid, q, added,
+        name, t, rec_u, lab, tip_m, drone_m, px, world.scene.target_points_world(),
+        world.robot.local_camera, valid, q if basis is None else None, added,
     )  # fmt: skip
     if out is not None:
-        write_recording(rec, out, exp, qd, u, seed, noise)
+        write_recording(rec, out, exp, qd, u, seed, noise, q, basis)
     return rec
 
 
@@ -349,14 +375,17 @@ def project_points(tip, mount, camera, points) -> np.ndarray:
     return uv
 
 
-def write_recording(rec: Recording, out, exp: Experiment, qd, u_true, seed, noise) -> Path:
-    """The synthetic run folder (see :func:`synthesize`)."""
+def write_recording(
+    rec: Recording, out, exp: Experiment, qd, u_true, seed, noise, q=None, basis=None
+) -> Path:
+    """The synthetic run folder (see :func:`synthesize`); ``q`` the true states (default
+    ``rec.q``), ``basis`` the hidden robot's strain basis when not the scenario's."""
     import tomli_w
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scenario.toml").write_text(scenario_text(exp))
-    np.savez(out / "timeseries.npz", t=rec.t, q=rec.q, qd=qd, u=u_true)
+    np.savez(out / "timeseries.npz", t=rec.t, q=rec.q if q is None else q, qd=qd, u=u_true)
     meas = {"t": rec.t, "u": rec.u, "tip_pose": matrix_to_pose7(rec.tip)}
     if rec.added:
         (out / "experiment.toml").write_text(
@@ -374,6 +403,8 @@ def write_recording(rec: Recording, out, exp: Experiment, qd, u_true, seed, nois
         "parameters": {k: float(v) for k, v in rec.truth.items()},
         "noise": {k: float(v) for k, v in noise.items()},
     }
+    if basis is not None:
+        info["basis"] = basis
     (out / "truth.toml").write_text(
         "# The hidden parameters of this synthetic recording (the fit never reads this file).\n"
         + tomli_w.dumps(info)

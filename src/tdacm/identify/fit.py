@@ -27,9 +27,16 @@ same component of every segment's state at once (segments are independent), so a
 costs ``1 + p + 2 n`` simulations per recording. Solver: ``scipy.optimize.least_squares``
 (trust region reflective).
 
-**Uncertainty.** ``cov = s^2 (J^T J)^-1`` at the optimum with ``s^2 = |r|^2 / (m - n_z)``, the
-residual variance (1 when the noise levels are right); the parameter block of it accounts for
-the unknown segment states. A log-parameter's standard deviation is relative.
+**Uncertainty.** The least-squares covariance ``s^2 (J^T J)^-1`` (``s^2 = |r|^2 / (m - n_z)``,
+the residual variance, 1 when the noise levels are right) assumes white residuals. They are
+not: the tension noise drives the lightly damped rod (a slow, correlated response the fit
+treats as residual) and any model error is smooth in time. The reported covariance is the
+sandwich ``A S A`` (:func:`sandwich_covariance`), ``A = (J^T J)^-1`` and ``S`` the
+heteroskedasticity- and autocorrelation-consistent (Newey-West, Bartlett weights) long-run
+covariance of the per-sample scores ``J_t^T r_t`` of each recording, so correlated residuals
+widen the intervals by what they cost; the white-noise covariance is kept as ``std_iid``.
+The parameter block accounts for the unknown segment states (``A``'s rows eliminate them).
+A log-parameter's standard deviation is relative.
 """
 
 from __future__ import annotations
@@ -49,6 +56,9 @@ from .params import PARAMETERS, parse_params
 log = logging.getLogger(__name__)
 
 FD_STEP = 1e-6
+#: The trust-region subproblem solver of ``least_squares`` ("exact": an SVD of the m x n_z
+#: Jacobian every iteration; "lsmr": iterative).
+TR_SOLVER = "exact"
 #: How far the fit may move a parameter from its start: a factor (log-parameters) or as many
 #: scales (linear ones).
 SEARCH_FACTOR = 3.0
@@ -242,6 +252,94 @@ class Problem:
         return a - b @ np.linalg.solve(c + 1e-12 * np.eye(len(c)) * np.trace(c) / len(c), b.T)
 
 
+def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int,
+                        lags: int | None = None) -> tuple[np.ndarray, int]:  # fmt: skip
+    """The parameters' (scaled) covariance ``A S A`` robust to correlated residuals, and the
+    lag window used.
+
+    ``A = (J^T J)^+``; the parameter rows of ``A J^T`` map the residuals to the estimate, so
+    the estimate's error is ``sum_t h_t`` with ``h_t = (A J^T)_{p, rows t} r_t`` the score of
+    sample ``t``. ``S = sum_l w_l sum_t h_t h_{t-l}^T`` (both signs of ``l``) with Bartlett
+    weights ``w_l = 1 - |l| / (L + 1)`` within each recording (recordings independent); the
+    lag window ``L`` is Andrews' AR(1) plug-in rule on the scores (Andrews 1991, eq. 6.4),
+    at least 1 and at most one shooting window. ``m / (m - n_z)`` corrects for the fitted
+    variables' share of the residuals."""
+    m, nz = jac.shape
+    a = np.linalg.pinv(jac.T @ jac)
+    h = a[:npar] @ jac.T
+    cov = np.zeros((npar, npar))
+    row = 0
+    used = 0
+    for s in prob.setups:
+        nt, k = len(s.rec.t), s.kdim
+        g = np.einsum("ptk,tk->tp", h[:, row : row + nt * k].reshape(npar, nt, k),
+                      r[row : row + nt * k].reshape(nt, k))  # fmt: skip
+        row += nt * k
+        cap = int(max(np.max(s.ends - s.starts), 2))
+        if lags is None:
+            num = den = 0.0
+            for j in range(npar):
+                x = g[:, j]
+                rho = float(np.clip(x[1:] @ x[:-1] / max(x[:-1] @ x[:-1], 1e-300), -0.99, 0.99))
+                var = float(np.mean(x**2)) * (1 - rho**2)
+                w = (x @ x) ** 2
+                num += w * 4 * rho**2 * var**2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+                den += w * var**2 / (1 - rho) ** 4
+            alpha = num / max(den, 1e-300)
+            lag = int(np.clip(np.ceil(1.1447 * (alpha * nt) ** (1 / 3)), 1, cap))
+        else:
+            lag = int(lags)
+        used = max(used, lag)
+        c = g.T @ g
+        for lag_i in range(1, min(lag, nt - 1) + 1):
+            x = g[lag_i:].T @ g[:-lag_i]
+            c += (1 - lag_i / (lag + 1)) * (x + x.T)
+        cov += c
+    return cov * m / max(m - nz, 1), used
+
+
+def basis_map(old_model, new_model) -> np.ndarray:
+    """(n_new, n_old) matrix taking a state of ``old_model`` to the nearest of ``new_model``
+    (the strain field projected on the new basis in L2 over the rod; the drone's coordinates
+    unchanged): exact when the new basis contains the old one (``bending:0`` in ``bending:2``)."""
+    x = np.linspace(0.0, 1.0, 64)
+    bo = old_model.system.rod.basis(x).reshape(-1, old_model.system.rod.basis.n)
+    bn = new_model.system.rod.basis(x).reshape(-1, new_model.system.rod.basis.n)
+    ts = np.linalg.lstsq(bn, bo, rcond=None)[0]
+    off = 6 if new_model.floating else 0
+    out = np.zeros((new_model.system.n, old_model.system.n))
+    out[:off, :off] = np.eye(off)
+    out[off:, off:] = ts
+    return out
+
+
+def _warm_states(prob: Problem, z0: np.ndarray, warm) -> np.ndarray:
+    """``z0`` with every recording's window states replaced by ``warm``'s (an earlier fit of
+    the same recordings and windows on another basis, mapped by :func:`basis_map`) where that
+    explains its measurements better than the inverse kinematics does (the tip pose alone
+    leaves a richer basis's higher coefficients to the noise)."""
+    wp = warm.problem
+    npar = len(prob.names)
+    for s in prob.setups:
+        sw = next((w for w in wp.setups if w.rec.name == s.rec.name), None)
+        if sw is None or len(sw.starts) != len(s.starts) or np.any(sw.starts != s.starts):
+            continue
+        no = sw.rec.model.system.n
+        tm = basis_map(sw.rec.model, s.rec.model)
+        xo = warm.z[sw.offset : sw.offset + len(sw.starts) * 2 * no].reshape(-1, 2 * no)
+        xn = np.hstack([xo[:, :no] @ tm.T, xo[:, no:] @ tm.T])
+        z1 = z0.copy()
+        z1[s.offset : s.offset + xn.size] = xn.ravel()
+        values = prob.from_z(z0[:npar])
+        costs = [
+            float(np.sum(prob.measurement_residual(prob.predict(z, s, values), s, values) ** 2))
+            for z in (z0, z1)
+        ]
+        if costs[1] < costs[0]:
+            z0 = z1
+    return z0
+
+
 def _ik(rec: Recording, k: int, values: dict, q_guess, problem: Problem):
     """The state at sample ``k`` that best explains its measurements (nominal model)."""
     model = rec.model
@@ -321,6 +419,12 @@ class Identification:
     problem: Problem | None = None
     z: np.ndarray | None = None
     stages: list = field(default_factory=list)
+    std_iid: dict = field(default_factory=dict)  # white-residual std (s^2 (J^T J)^-1)
+    n_free: int = 0  # fitted variables: parameters and segment states
+    lags: int = 0  # the sandwich's lag window (samples)
+    rod_basis: str = ""  # the rod's strain basis fitted
+    misfit: dict = field(default_factory=dict)  # see tdacm.identify.misfit
+    selection: list = field(default_factory=list)  # the bases compared (select_basis)
 
     def table(self) -> str:
         lines = [f"{'parameter':<14}{'estimate':>14}{'std':>12}{'rel std':>10}{'start':>14}"]
@@ -338,6 +442,7 @@ class Identification:
                     "estimate": self.values[n],
                     "std": self.std[n],
                     "relative_std": self.rel_std[n],
+                    "std_white_residuals": self.std_iid.get(n),
                     "start": self.start[n],
                     "unit": PARAMETERS[n].unit,
                 }
@@ -352,6 +457,11 @@ class Identification:
             "success": self.success,
             "message": self.message,
             "rms": self.rms,
+            "basis": self.rod_basis,
+            "n_free": self.n_free,
+            "sandwich_lags": self.lags,
+            "misfit": self.misfit,
+            "basis_selection": self.selection,
         }
 
     def predictions(self):
@@ -374,6 +484,7 @@ def identify(
     fixed: dict | None = None,
     decimate: int = 1,
     stage: str | None = None,
+    warm: Identification | None = None,
 ) -> Identification:
     """Estimate ``params`` (names of :data:`~tdacm.identify.params.PARAMETERS`) from
     ``recordings`` (one :class:`~tdacm.identify.data.Recording` or several of the same robot).
@@ -388,7 +499,9 @@ def identify(
     100 Hz: 20 ms steps keep the paper robot's RK4 error near 2e-5 m, far below the motion
     capture's noise; the inputs are averaged over each step). Progress (the parameters, then
     each iteration's cost) is logged at INFO (stderr with ``tdacm identify``, hidden by
-    ``-q``), each line starting with ``stage`` when given."""
+    ``-q``), each line starting with ``stage`` when given. ``warm``: an earlier fit of the
+    same recordings (e.g. on a simpler strain basis) whose window states start this one's
+    where they explain the data better than the inverse kinematics."""
     t0 = time.perf_counter()
     recs = [recordings] if isinstance(recordings, Recording) else list(recordings)
     if not recs:
@@ -407,6 +520,8 @@ def identify(
     start = {n: merged[n] for n in names}
     prob = Problem(recs, names, sigma, segment, substeps, use, fixed)
     z0 = prob.initial(start)
+    if warm is not None and warm.problem is not None:
+        z0 = _warm_states(prob, z0, warm)
     lb, ub = np.full(z0.size, -np.inf), np.full(z0.size, np.inf)
     npar = len(names)
     # a log-parameter stays within a factor SEARCH_FACTOR of its start, a linear one within
@@ -433,6 +548,7 @@ def identify(
 
     sol = least_squares(
         prob.residual, z0, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
+        tr_solver=TR_SOLVER,
         ftol=1e-7, xtol=1e-7, gtol=1e-8, max_nfev=max_nfev,
     )  # fmt: skip
     jac = sol.jac
@@ -440,9 +556,9 @@ def identify(
     cost = float(2 * sol.cost)
     s2 = cost / max(m - nz, 1)
     jtj = jac.T @ jac
-    cov = s2 * np.linalg.pinv(jtj)
     npar = len(names)
-    cp = cov[:npar, :npar]
+    cov_iid = s2 * np.linalg.pinv(jtj)[:npar, :npar]
+    cp, lags = sandwich_covariance(prob, jac, sol.fun, npar)
     at_bound = [n for i, n in enumerate(names) if min(sol.x[i] - lb[i], ub[i] - sol.x[i]) < 1e-6]
     if at_bound:
         log.warning("estimates at the search bound (factor %g from the start): %s",
@@ -450,14 +566,17 @@ def identify(
     sd = np.sqrt(np.clip(np.diag(cp), 0, None))
     corr = cp / np.outer(sd, sd) if np.all(sd > 0) else np.full_like(cp, np.nan)
     values = {n: v for n, v in prob.from_z(sol.x[:npar]).items() if n in names}
-    std, rel = {}, {}
+    sd_iid = np.sqrt(np.clip(np.diag(cov_iid), 0, None))
+    std, rel, std_iid = {}, {}, {}
     for i, n in enumerate(names):
         p = PARAMETERS[n]
         std[n] = float(values[n] * sd[i]) if p.log else float(p.scale * sd[i])
         rel[n] = float(sd[i]) if p.log else float(std[n] / max(abs(values[n]), 1e-300))
+        std_iid[n] = float(values[n] * sd_iid[i]) if p.log else float(p.scale * sd_iid[i])
     res = Identification(
         names, values, std, rel, corr, start, nominal, cost, s2, m, int(sol.nfev),
         time.perf_counter() - t0, bool(sol.success), str(sol.message), {}, prob, sol.x,
+        std_iid=std_iid, n_free=nz, lags=lags, rod_basis=recs[0].model.basis,
     )  # fmt: skip
     for rec, pred in res.predictions():
         key = rec.name
@@ -484,11 +603,16 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
     params = parse_params(params)
     drone = [n for n in params if PARAMETERS[n].floating_only]
     rod = [n for n in params if n not in drone]
+    warm = kw.pop("warm", None)
     if not (clamped and flying and rod and drone):
-        return identify(recs, params, start, **kw)
-    a = identify(clamped, rod, start, stage="stage 1/2, the rod, clamped recordings", **kw)
+        if warm is not None and warm.stages:
+            warm = warm.stages[0]
+        return identify(recs, params, start, warm=warm, **kw)
+    wa, wb = warm.stages if warm is not None and warm.stages else (warm, None)
+    a = identify(clamped, rod, start, stage="stage 1/2, the rod, clamped recordings", warm=wa,
+                 **kw)  # fmt: skip
     b = identify(flying, drone, start, fixed=a.values,
-                 stage="stage 2/2, the drone, flying recordings", **kw)  # fmt: skip
+                 stage="stage 2/2, the drone, flying recordings", warm=wb, **kw)  # fmt: skip
     names = rod + drone
     corr = np.zeros((len(names), len(names)))
     corr[: len(rod), : len(rod)] = a.corr
@@ -499,5 +623,6 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
         max(a.residual_variance, b.residual_variance), a.n_residuals + b.n_residuals,
         a.nfev + b.nfev, a.seconds + b.seconds, a.success and b.success,
         f"rod: {a.message}; drone: {b.message}", {**a.rms, **b.rms}, None, None,
-        stages=[a, b],
+        stages=[a, b], std_iid={**a.std_iid, **b.std_iid}, n_free=a.n_free + b.n_free,
+        lags=max(a.lags, b.lags), rod_basis=a.rod_basis,
     )  # fmt: skip

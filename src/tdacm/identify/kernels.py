@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from ..system import kernels as K
+from ..system import stiff as ST
 
 #: A state beyond this magnitude ends its segment (the fit's trial models may be unstable).
 BLOWUP = 1e4
@@ -52,14 +53,17 @@ def _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0):
 
 
 @njit(cache=True)
-def shoot(q0s, qd0s, starts, ends, us, substeps, dt, m, loads, thrust_k, mu, cv, v0):
+def shoot(q0s, qd0s, starts, ends, us, substeps, dt, m, loads, thrust_k, mu, cv, v0, stiff=False):
     """States at every sample of every segment.
 
     Segment ``i`` holds samples ``starts[i] <= k < ends[i]``; it starts at ``(q0s[i], qd0s[i])``
     on sample ``starts[i]`` and reaches sample ``k + 1`` from ``k`` with ``us[k]`` held, in
-    ``substeps`` RK4 steps of ``dt``. Returns ``(q, qd, ok)`` of shape (T, n); a segment whose
-    mass matrix turns singular (or whose state leaves ``|x| < BLOWUP``) keeps its last state and
-    ``ok`` becomes False.
+    ``substeps`` RK4 steps of ``dt`` (``stiff``: ROS34PW2 steps of
+    :func:`tdacm.system.stiff.rosw_step`, L-stable, for a basis whose damped higher modes
+    make RK4 unstable at ``dt``; the friction-corrected input is then evaluated at each step's
+    start). Returns ``(q, qd, ok)`` of shape (T, n); a segment whose mass matrix turns
+    singular (or whose state leaves ``|x| < BLOWUP``) keeps its last state and ``ok`` becomes
+    False.
     """
     n = q0s.shape[1]
     total = ends[-1]
@@ -77,6 +81,17 @@ def shoot(q0s, qd0s, starts, ends, us, substeps, dt, m, loads, thrust_k, mu, cv,
                 continue
             u = us[k]
             for _ in range(substeps):
+                if stiff:
+                    ue = effective_input(q, qd, u, m, thrust_k, mu, cv, v0)
+                    q1, qd1, _, _, oks = ST.rosw_step(
+                        q, qd, ue, dt, m, loads, ST.A_T, ST.C_T, ST.M_T, ST.E_T, ST.GAMMA
+                    )
+                    if not (oks and np.all(np.abs(q1) < BLOWUP) and np.all(np.abs(qd1) < BLOWUP)):
+                        alive = False
+                        break
+                    q = q1
+                    qd = qd1
+                    continue
                 a1, ok1 = _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0)
                 a2, ok2 = _acc(
                     q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, thrust_k, mu, cv, v0

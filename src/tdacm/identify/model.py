@@ -14,8 +14,13 @@ import numpy as np
 
 from ..rod import Rod, Tendons
 from ..system import TDACM, Loads
+from ..system import kernels as K
 from . import kernels as IK
 from .params import FRICTION_V0, PARAMETERS
+
+#: ``|lambda|_max dt`` above which the shooting steps are ROS34PW2 instead of RK4 (RK4 is
+#: stable to 2.79 on the negative real axis; 1.5 keeps a margin for the trial models).
+RK4_LIMIT = 1.5
 
 
 @dataclass
@@ -28,6 +33,16 @@ class Prediction:
     base: np.ndarray  # (T, 4, 4)
     tip: np.ndarray  # (T, 4, 4)
     ok: bool
+
+
+def _basis_text(basis) -> str:
+    """``"bending:P"`` when ``basis`` is one, else its description."""
+    from ..sim.robot import parse_basis
+
+    for p in range(8):
+        if basis == parse_basis(f"bending:{p}"):
+            return f"bending:{p}"
+    return basis.describe()
 
 
 class IdentModel:
@@ -67,6 +82,27 @@ class IdentModel:
             )
         self._cache_key = None
         self._cache = None
+        self._basis_text = _basis_text(system.rod.basis)
+        self._rate = None
+
+    @property
+    def basis(self) -> str:
+        """The rod's strain basis as a scenario writes it (``robot.rod.basis``)."""
+        return self._basis_text
+
+    def with_basis(self, text: str) -> IdentModel:
+        """The same robot with the rod's strain basis ``text`` (``"bending:P"``, ``"full:P"``,
+        ``"modes:..."``; the quadrature of :func:`tdacm.sim.robot.rod_quadrature`)."""
+        from ..sim.robot import parse_basis, rod_quadrature
+
+        basis = parse_basis(text)
+        n_gauss, magnus = rod_quadrature(basis)
+        s = self.system
+        rod = replace(s.rod, basis=basis, n_gauss=n_gauss, magnus_order=magnus)
+        sysnew = TDACM(rod, s.tendons, s.base, s.attachment, Loads(gravity=s.loads.gravity.copy()))
+        out = IdentModel(sysnew, self.tip_mount, self.nominal["camera_offset"])
+        out._basis_text = text
+        return out
 
     def check(self, names) -> None:
         for n in names:
@@ -101,9 +137,38 @@ class IdentModel:
         self._cache_key, self._cache = key, sysnew
         return sysnew
 
+    def fastest_rate(self, values: dict | None = None) -> float:
+        """The largest ``|lambda|`` (1/s) of the dynamics linearized about the straight rod at
+        rest (finite differences of the forward dynamics, eq. (17)) with ``values`` (default
+        nominal, cached): the damped higher modes of a richer basis set it (4.7 1/s for the
+        paper robot's bending:0, 160 for bending:2, 1200 for bending:3 at the synthetic
+        truth's damping)."""
+        if values is None and getattr(self, "_rate", None) is not None:
+            return self._rate
+        sysm = self.build(self.values(values))
+        m, loads = sysm.model_arrays, sysm.loads.packed()
+        n = sysm.n
+        q, qd, u = np.zeros(n), np.zeros(n), np.zeros(sysm.n_u)
+        a0, _ = K.forward_dynamics(q, qd, u, m, loads)
+        jac = np.zeros((2 * n, 2 * n))
+        jac[:n, n:] = np.eye(n)
+        for j in range(2 * n):
+            x = np.zeros(2 * n)
+            x[j] = 1e-6
+            aj, _ = K.forward_dynamics(q + x[:n], qd + x[n:], u, m, loads)
+            jac[n:, j] = (aj - a0) / 1e-6
+        rate = float(np.max(np.abs(np.linalg.eigvals(jac))))
+        if values is None:
+            self._rate = rate
+        return rate
+
     def simulate(self, values: dict, q0s, qd0s, starts, ends, u, dt_sample, substeps=1):
         """Run the segments (see :func:`tdacm.identify.kernels.shoot`) with parameters
-        ``values`` and return their :class:`Prediction`."""
+        ``values`` and return their :class:`Prediction`. The step ``dt_sample / substeps`` is
+        taken by RK4, or by the L-stable ROS34PW2 when ``|lambda|_max dt`` at the nominal
+        values exceeds :data:`RK4_LIMIT` (:meth:`fastest_rate`; a property of the structure and
+        the step, so every trial model of a fit uses the same integrator)."""
+        stiff = self.fastest_rate() * dt_sample / substeps > RK4_LIMIT
         v = self.values(values)
         sysm = self.build(v)
         m = sysm.model_arrays
@@ -122,6 +187,7 @@ class IdentModel:
             float(v["friction"]),
             float(v["viscous"]),
             FRICTION_V0,
+            stiff,
         )
         base, tip = self.poses(sysm, q)
         return Prediction(q, qd, base, tip, bool(ok))

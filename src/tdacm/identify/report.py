@@ -45,9 +45,27 @@ def robot_toml(result: Identification) -> str:
         base = [result.nominal.get(f"inertia_{a}") for a in "xyz"]
         vals = [float(f"{inertia.get(i, base[i]):.6g}") for i in range(3)]
         data.setdefault("drone", {})["inertia"] = vals
+    if result.rod_basis and _parses(result.rod_basis):
+        data.setdefault("rod", {})["basis"] = result.rod_basis
     body = tomli_w.dumps({"robot": data}) if data else ""
     head = "# identified by tdacm identify (estimate +- 1 sigma in the report)\n"
+    if result.misfit.get("detected"):
+        head += (
+            f"# WARNING: misfit: the residuals are {result.misfit['variance_ratio']:.3g} x the "
+            "measurement noise; these values absorb a model error (identification.json, "
+            "misfit)\n"
+        )
     return head + body + ("\n".join(comments) + "\n" if comments else "")
+
+
+def _parses(basis: str) -> bool:
+    from ..sim.robot import parse_basis
+
+    try:
+        parse_basis(basis)
+    except ValueError:
+        return False
+    return True
 
 
 def correlation_text(result: Identification) -> str:

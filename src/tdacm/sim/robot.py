@@ -304,6 +304,17 @@ def parse_basis(text: str, where: str = "robot.rod") -> StrainBasis:
     )
 
 
+def rod_quadrature(basis: StrainBasis, n_gauss=None, magnus_order=None) -> tuple:
+    """``(n_gauss, magnus_order)`` of a rod with ``basis``: the given values, else the paper's
+    5 and 2 for its basis and ``None`` (what :class:`~tdacm.rod.Rod` picks) for any other."""
+    paper_basis = basis == parse_basis(PV.ROD_BASIS)
+    if n_gauss is None:
+        n_gauss = PV.ROD_N_GAUSS if paper_basis else None
+    if magnus_order is None:
+        magnus_order = PV.ROD_MAGNUS_ORDER if paper_basis else None
+    return n_gauss, magnus_order
+
+
 @dataclass(frozen=True)
 class ArmRobot:
     """One arm of a several-arm robot: its rod's index in the system (``rod`` of
@@ -348,11 +359,7 @@ def _camera(base: PinholeCamera, record: CameraIntrinsics, where: str) -> Pinhol
 def _rod(r: RodConfig, where: str) -> Rod:
     """The :class:`~tdacm.rod.Rod` of a rod record (``where``: its key, for messages)."""
     basis = parse_basis(r.basis, where)
-    paper_basis = basis == parse_basis(PV.ROD_BASIS)
-    n_gauss = r.n_gauss if r.n_gauss is not None else (PV.ROD_N_GAUSS if paper_basis else None)
-    magnus = r.magnus_order
-    if magnus is None:
-        magnus = PV.ROD_MAGNUS_ORDER if paper_basis else None
+    n_gauss, magnus = rod_quadrature(basis, r.n_gauss, r.magnus_order)
     try:
         material = {k: getattr(r, k) for k in _ROD_KEYS}
         return Rod(**material, basis=basis, n_gauss=n_gauss, magnus_order=magnus)
