@@ -10,7 +10,9 @@ period. One period of one world, in the block loop's order:
     servo       perception (normalized points, IPPE depths), the mode switch, the view in
                 the virtual camera C_V (eq. (18)), the paper's IBVS on the advanced features
                 (eqs. (19)-(21), (39)) or an external twist, the joint-rate mapping and its
-                command shaping
+                command shaping; or the robust servo (``ibvs.features = "predicted"``):
+                the frame fused into the target filter, the IBVS on the points predicted
+                from its estimate (:func:`~tdacm.batch.servo.robust_step`)
     controller  the adaptive sliding-mode law with its model error, the hierarchical drone
                 loop and the allocation (eqs. S2-S10; :mod:`tdacm.batch.control`)
     safety      the error-growth monitor
