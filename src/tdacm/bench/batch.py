@@ -29,19 +29,20 @@ ENGINE = {
 }
 
 
-def _batch(n_worlds: int, threads: int, duration: float, features: str = "measured"):
+def _batch(n_worlds: int, threads: int, duration: float, features: str | None = None):
     from ..sim.batch import build_batch
     from ..sim.scenario import load_scenario
 
-    ov = {**ENGINE, "ibvs": {"features": features}}
+    ov = ENGINE if features is None else {**ENGINE, "ibvs": {"features": features}}
     sc = load_scenario("paper-in-fov").with_overrides(ov, "batch benchmark")
     return build_batch(sc, np.arange(n_worlds), duration=duration, threads=threads)
 
 
 def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repeats: int = 3,
-                       features: str = "measured"):  # fmt: skip
+                       features: str | None = None):  # fmt: skip
     """Median world-periods per second of whole runs of ``n_worlds`` worlds (the runs that
-    end early count the periods they ran); ``features``: the servo's (``ibvs.features``)."""
+    end early count the periods they ran); ``features``: the servo's (``ibvs.features``;
+    default :data:`ENGINE`'s)."""
     b = _batch(n_worlds, threads, duration, features)
     b.run()  # warm-up (compiles on a cold cache)
     rates = []
