@@ -2,15 +2,18 @@
 real-time factor, the first call cold and warm.
 
     python benchmarks/bench_batch.py [--sizes 1 4 16 64 256 1024] [--repeats 3] [--out out/bench]
+    python benchmarks/bench_batch.py --filter-only     # the target filter's cost, N = 256
 
-Writes the ``batch`` section of ``OUT/bench.json`` (see :mod:`tdacm.bench.batch`).
+Writes the ``batch`` section of ``OUT/bench.json`` (see :mod:`tdacm.bench.batch`; with
+``--filter-only`` its ``filter`` entry only: env-steps/s with and without the robust servo's
+target filter in the period).
 """
 
 import argparse
 import json
 from pathlib import Path
 
-from tdacm.bench.batch import batch_bench
+from tdacm.bench.batch import batch_bench, filter_cost
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser()
@@ -18,11 +21,16 @@ if __name__ == "__main__":
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--out", default="out/bench")
+    p.add_argument("--filter-only", action="store_true")
     a = p.parse_args()
-    res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats)
     path = Path(a.out) / "bench.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     data = json.loads(path.read_text()) if path.is_file() else {}
-    data["batch"] = res
+    if a.filter_only:
+        res = filter_cost(threads=max(a.threads), repeats=a.repeats)
+        data.setdefault("batch", {})["filter"] = res
+    else:
+        res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats)
+        data["batch"] = res
     path.write_text(json.dumps(data, indent=2))
     print(json.dumps(res, indent=2))

@@ -13,11 +13,14 @@ from tdacm.sim.assemble import build_loop
 from tdacm.sim.batch import build_batch
 from tdacm.sim.scenario import ScenarioError, load_scenario
 
-#: the engine's configuration: analytic cameras, the servo on the measured points
+#: the engine's configuration: analytic cameras, the servo on the measured points (the
+#: cases below with PREDICTED: on the features predicted from the target filter)
 ENGINE = {
     "cameras": {"local_renderer": "analytic", "global_renderer": "planar"},
     "ibvs": {"features": "measured"},
 }
+#: the robust servo: features predicted from the target filter (the shipped default)
+PREDICTED = {"ibvs": {"features": "predicted"}}
 #: flight test C's air without its random part (the turbulence), with a steady wind and a gust
 STEADY_AIR = {
     "wind": {
@@ -40,6 +43,7 @@ def _scenario(name, extra=None, duration=None):
     "name, extra, duration",
     [
         ("paper-in-fov", None, 2.0),
+        ("paper-in-fov", PREDICTED, 2.0),  # as shipped: the robust servo's target filter
         ("ground-test-a", None, 1.5),
         ("custom-robot-example", None, 1.5),
         ("flight-test-c", STEADY_AIR, 1.5),
@@ -64,12 +68,17 @@ def test_each_world_equals_the_block_loop(name, extra, duration):
     assert not np.allclose(res.q[-1, 0], res.q[-1, 1])  # the seeds' model errors differ
 
 
-def test_a_world_does_not_depend_on_the_batch_size_its_index_or_threads():
+@pytest.mark.parametrize("features", ["measured", "predicted"])
+def test_a_world_does_not_depend_on_the_batch_size_its_index_or_threads(features):
     """With pixel noise, dropped frames and latency, world of seed 11 gives bit-identical
-    arrays alone, in a batch of 7 at another index, and with 1 or 2 threads."""
+    arrays alone, in a batch of 7 at another index, and with 1 or 2 threads (the servo on
+    the measured points, or on the points predicted by the target filter)."""
     sc = _scenario(
         "paper-in-fov",
-        {"sensors": {"pixel_noise": 1.0, "dropout": 0.05, "latency_steps": 1}},
+        {
+            "sensors": {"pixel_noise": 1.0, "dropout": 0.05, "latency_steps": 1},
+            "ibvs": {"features": features},
+        },
         duration=1.0,
     )
     alone = build_batch(sc, [11], threads=1).run(log_states=True)

@@ -10,7 +10,9 @@ period. One period of one world, in the block loop's order:
     servo       perception (normalized points, IPPE depths), the mode switch, the view in
                 the virtual camera C_V (eq. (18)), the paper's IBVS on the advanced features
                 (eqs. (19)-(21), (39)) or an external twist, the joint-rate mapping and its
-                command shaping
+                command shaping; or the robust servo (``ibvs.features = "predicted"``):
+                the frame fused into the target filter, the IBVS on the points predicted
+                from its estimate (:func:`~tdacm.batch.servo.robust_step`)
     controller  the adaptive sliding-mode law with its model error, the hierarchical drone
                 loop and the allocation (eqs. S2-S10; :mod:`tdacm.batch.control`)
     safety      the error-growth monitor
@@ -36,6 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..vision.target_filter import FP_WINDOW, N_FSTATE
 from . import control as CT
 from . import plant as PL
 from . import servo as S
@@ -88,7 +91,10 @@ class BatchData(NamedTuple):
     ``att``, ``att_rate``, ``att_set``; the wind's state and each world's aerodynamics copy;
     the random streams of the sensors and of the plant; the last period's outputs (``u``,
     ``rmse``, ``found``, ``twist``, ``features``); the frame the tip camera delivered at the
-    start of the current period (``meas_found``, ``meas_uv``: :func:`sense_worlds`)."""
+    start of the current period (``meas_found``, ``meas_uv``: :func:`sense_worlds`); the
+    robust servo's target filter, smoothed target pose and C_L pose history (``f_*``,
+    ``t_pose``, ``cam_hist``: the fields of :class:`~tdacm.batch.servo.FilterData`; a window of
+    zero frames when the servo works on the measured points)."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -117,6 +123,15 @@ class BatchData(NamedTuple):
     features: np.ndarray
     meas_found: np.ndarray
     meas_uv: np.ndarray
+    f_state: np.ndarray
+    f_pose: np.ndarray
+    f_cov: np.ndarray
+    f_hyp: np.ndarray
+    f_rc: np.ndarray
+    f_pc: np.ndarray
+    f_z: np.ndarray
+    t_pose: np.ndarray
+    cam_hist: np.ndarray
 
 
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
@@ -125,6 +140,9 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
     n_strains = n - (6 if model.plant_model.floating else 0)
     cap = int(model.servo.params[S.P_LATENCY]) + 1
     na = model.plant.aero.shape[0]
+    robust = model.servo.params[S.P_ROBUST] != 0.0
+    win = int(model.servo.filter_params[FP_WINDOW]) if robust else 0
+    hist = cap if robust else 0
     return BatchData(
         q=np.zeros((n_worlds, n)),
         qd=np.zeros((n_worlds, n)),
@@ -153,6 +171,15 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         features=np.zeros((n_worlds, 6)),
         meas_found=np.zeros(n_worlds, np.bool_),
         meas_uv=np.zeros((n_worlds, 4, 2)),
+        f_state=np.zeros((n_worlds, N_FSTATE)),
+        f_pose=np.zeros((n_worlds, 4, 4)),
+        f_cov=np.zeros((n_worlds, 6, 6)),
+        f_hyp=np.zeros((n_worlds, 2, 4, 4)),
+        f_rc=np.zeros((n_worlds, win, 3, 3)),
+        f_pc=np.zeros((n_worlds, win, 3)),
+        f_z=np.zeros((n_worlds, win, 4, 2)),
+        t_pose=np.zeros((n_worlds, 4, 4)),
+        cam_hist=np.zeros((n_worlds, hist, 4, 4)),
     )
 
 
@@ -186,6 +213,11 @@ def reset_worlds(model, data, which, q0, qd0):
         data.sstate[w, S.S_MODE] = S.first_mode(q0[w], m, sm, w)
         # a start in recovery asks C_G for its first period (ClosedLoop.reset)
         data.sstate[w, S.S_REQUEST] = 1.0 if data.sstate[w, S.S_MODE] == S.RECOVERY else 0.0
+        data.sstate[w, S.S_LAST_FUSED] = -1.0
+        data.sstate[w, S.S_LAST_SEEN] = np.nan
+        data.sstate[w, S.S_CG_MISSED] = np.nan
+        for i in range(data.f_state.shape[1]):
+            data.f_state[w, i] = 0.0
         data.rstate[w, S.R_ON] = 0.0
         data.safety[w, 0] = 0.0
         data.safety[w, 1] = np.nan
@@ -244,9 +276,17 @@ def _act(model, data, w, twist_in):
     found = data.meas_found[w]
     out = np.empty(15)
     qdd_d = np.empty(n)
-    mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
-                        data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
-                        out)  # fmt: skip
+    if sm.params[S.P_ROBUST] != 0.0:
+        fd = S.FilterData(data.f_state[w], data.f_pose[w], data.f_cov[w], data.f_hyp[w],
+                          data.f_rc[w], data.f_pc[w], data.f_z[w], data.t_pose[w],
+                          data.cam_hist[w])  # fmt: skip
+        mode = S.robust_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
+                             data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in, out,
+                             fd)  # fmt: skip
+    else:
+        mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
+                            data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
+                            out)  # fmt: skip
     data.found[w] = found
     data.rmse[w] = out[0]
     for i in range(6):

@@ -17,6 +17,7 @@ from ..loop.sensors import AnalyticFrontEnd
 from ..loop.servo import RobustServo, VisualServo
 from ..vision.ibvs import MODES
 from ..vision.ippe import canonical_frame
+from ..vision.target_filter import N_FPARAMS, filter_params
 from ..vision.targets import ArucoMarker
 from ..vision.virtual import METHODS
 from . import servo as S
@@ -43,12 +44,7 @@ def check_loop(loop) -> None:
         raise Unsupported(
             "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"
         )
-    if isinstance(loop.servo, RobustServo):
-        raise Unsupported(
-            "the robust servo's target filter (ibvs.features = 'predicted') is not batched: "
-            "set ibvs.features = 'measured'"
-        )
-    if type(loop.servo) is not VisualServo:
+    if type(loop.servo) not in (VisualServo, RobustServo):
         raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched (touch.enabled)")
     if not isinstance(loop.estimator, TrueState):
         raise Unsupported(
@@ -94,7 +90,7 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
     dz = np.array([np.broadcast_to(np.asarray(z, float), (4,)) for _, z in refs])
     dfeat = np.array([advanced_features(p) for p in dpts])
     dint = np.array([feature_interaction_matrix(p, z) for p, z in zip(dpts, dz, strict=True)])
-    obj2d, _ = canonical_frame(loop.perception.target.feature_points)
+    obj2d, canon = canonical_frame(loop.perception.target.feature_points)
     sm = servo.shaping
     rc = servo.recovery
     sf = loop.safety
@@ -124,6 +120,22 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
     target = loop.perception.target
     ids = tuple(getattr(target, "ids", ())) if not isinstance(target, ArucoMarker) else ()
     prm[S.P_LARGEST_TAG] = 1.0 if ids else 0.0
+    robust = isinstance(servo, RobustServo)
+    prm[S.P_ROBUST] = 1.0 if robust else 0.0
+    if robust:
+        if loop.sensors.local.model.latency_steps > 63:
+            raise Unsupported("the robust servo keeps 64 camera poses: sensors.latency_steps <= 63")
+        tf = servo.target_filter
+        if not np.array_equal(tf.object_points, loop.perception.target.feature_points):
+            raise ValueError("the target filter and the perception see different targets")
+        cfg = servo.config
+        prm[S.P_SMOOTHING] = servo.smoothing
+        prm[S.P_LOST_TIMEOUT] = rc.lost_timeout
+        prm[S.P_ACCEL_FF] = 1.0 if cfg.accel_feedforward else 0.0
+        prm[S.P_LEAK] = cfg.reference_leak
+        fprm, obj, normal = filter_params(tf), tf.object_points, tf.level_normal
+    else:  # unused
+        fprm, obj, normal = np.zeros(N_FPARAMS), np.zeros((4, 3)), np.zeros(3)
     marker_ids = ids or (target.marker_id,)
     corners_t = [target.corner_points(i) for i in marker_ids]
     side = float(np.linalg.norm(corners_t[0][1] - corners_t[0][0]))
@@ -149,4 +161,8 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
         mount_inv=np.ascontiguousarray(np.linalg.inv(sensor.mount)),
         square=_square(side),
         marker_centres=np.ascontiguousarray([c.mean(axis=0) for c in corners_t]),
+        filter_params=fprm,
+        object_points=np.ascontiguousarray(obj, float),
+        canon_inv=np.ascontiguousarray(np.linalg.inv(canon)),
+        level_normal=np.ascontiguousarray(normal, float),
     )

@@ -17,9 +17,11 @@ from numba import njit
 from .._linalg import SVD_DAMPED, SVD_FLOOR, SVD_PINV, svd_solve
 from ..control.planner import _IPPE_ORDER, plan_kernel, square_pose
 from ..lie.euler import rot_zyx
+from ..lie.se3 import expmap, so3_log
 from ..system.kernels import chain_jacobian
 from ..vision.features import _features_kernel, _interaction_kernel, _wrap
 from ..vision.ippe import DEPTHS_OK, point_depths
+from ..vision.target_filter import filter_update, points_in_kernel
 from . import random as R
 
 #: the servo's mode codes (:class:`tdacm.control.Mode`)
@@ -56,8 +58,13 @@ FX, FY, CX, CY, WIDTH, HEIGHT, NEAR, FAR = range(8)
     P_Z_MIN,
     P_BOUND,
     P_LARGEST_TAG,
+    P_ROBUST,
+    P_SMOOTHING,
+    P_LOST_TIMEOUT,
+    P_ACCEL_FF,
+    P_LEAK,
     N_PARAMS,
-) = range(23)
+) = range(28)
 
 
 class ServoModel(NamedTuple):
@@ -76,7 +83,11 @@ class ServoModel(NamedTuple):
     (``P_*`` indices). The recovery: ``global_camera`` (8,) C_G, ``drone_mount`` (4, 4)
     ``g_{C_G}^b``, ``mount_inv`` (4, 4) ``(g_{C_L}^L)^-1``, ``square`` (4, 2) a marker's
     corners in its plane (:func:`tdacm.control.planner.square_pose`), ``marker_centres``
-    (M, 3) each marker's centre in the target frame."""
+    (M, 3) each marker's centre in the target frame. The robust servo (``P_ROBUST``, the
+    features predicted from the target filter): ``filter_params`` the filter's constants
+    (:func:`~tdacm.vision.target_filter.filter_params`), ``object_points`` (4, 3) the feature
+    points in the target frame, ``canon_inv`` (4, 4) the target-to-canonical transform of
+    ``object_2d``, ``level_normal`` (3,) the level prior's normal."""
 
     camera: np.ndarray
     ctl_camera: np.ndarray
@@ -98,6 +109,10 @@ class ServoModel(NamedTuple):
     mount_inv: np.ndarray
     square: np.ndarray
     marker_centres: np.ndarray
+    filter_params: np.ndarray
+    object_points: np.ndarray
+    canon_inv: np.ndarray
+    level_normal: np.ndarray
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -448,7 +463,11 @@ NO_EVENT, IBVS_ENGAGED, TARGET_LOST = 0, 1, 2
 
 # rows of a world's servo state ``sstate`` (float array): the mode, the switch's two
 # counters, the time IBVS engaged, the latency ring buffer's head and count
-S_MODE, S_GOOD, S_BAD, S_IBVS_START, S_HEAD, S_COUNT, S_REQUEST, S_PERIOD, N_SSTATE = range(9)
+S_MODE, S_GOOD, S_BAD, S_IBVS_START, S_HEAD, S_COUNT, S_REQUEST, S_PERIOD = range(8)
+# the robust servo's rows: the capture period of the last fused frame (-1: none), the capture
+# time of the last frame the filter accepted and the time C_G first missed the target in a
+# recovery (NaN: none), whether the smoothed target pose is set
+S_LAST_FUSED, S_LAST_SEEN, S_CG_MISSED, S_TP_SET, N_SSTATE = range(8, 13)
 # the recovery's cubic trajectory, from ``R_Q0`` (n_s) toward ``R_Q0 + R_D`` (n_s): rows of
 # a world's ``rstate`` (float array of ``3 + 2 n_s``)
 R_ON, R_T0, R_TF, R_Q0 = 0, 1, 2, 3
@@ -721,6 +740,210 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, 
                     qd_d[i] = 0.0
                 out[2] = 2
                 return mode
+            if not plan_recovery(t, q, m, sm, corners_uv, rstate):
+                out[2] = 2
+                return mode
+            for i in range(n):
+                q_d[i] = q[i]
+            if m.floating:
+                q_d[0] = 0.0
+                q_d[1] = 0.0
+        follow_recovery(t, rstate, q_d, qd_d, qdd_d)
+    else:
+        for i in range(n):
+            qd_d[i] = 0.0
+    return mode
+
+
+# ----------------------------------------------------------------------------- robust servo
+class FilterData(NamedTuple):
+    """One world's robust-servo state (rows of :class:`~tdacm.batch.engine.BatchData`): the
+    target filter's scalars ``st``, estimate ``pose``, covariance ``cov``, PnP hypotheses
+    ``hyp`` and window ``rc``, ``pc``, ``z`` (:func:`~tdacm.vision.target_filter.filter_update`),
+    the smoothed target pose ``t_pose`` and the C_L poses of the last periods ``cam_hist``
+    (latency + 1, 4, 4; a frame is fused with the pose of its capture period)."""
+
+    st: np.ndarray
+    pose: np.ndarray
+    cov: np.ndarray
+    hyp: np.ndarray
+    rc: np.ndarray
+    pc: np.ndarray
+    z: np.ndarray
+    t_pose: np.ndarray
+    cam_hist: np.ndarray
+
+
+@njit(cache=True)
+def _smooth_target(fd, sstate, a):
+    """:meth:`RobustServo.predict_target`: the smoothed pose toward the filter's estimate by
+    the fraction ``a`` of one period (a first-order filter on SE(3))."""
+    if fd.st[0] == 0.0:  # F_INIT: nothing fused yet, or the filter restarted
+        return
+    if sstate[S_TP_SET] == 0.0 or a >= 1.0:
+        fd.t_pose[:, :] = fd.pose
+        sstate[S_TP_SET] = 1.0
+        return
+    d = np.empty((4, 4))
+    _inv4(fd.t_pose, d)
+    d2 = np.empty((4, 4))
+    _mul4(d, fd.pose, d2)
+    w = a * so3_log(np.ascontiguousarray(d2[:3, :3]))
+    step = expmap(np.array([w[0], w[1], w[2], 0.0, 0.0, 0.0]))
+    for i in range(3):
+        step[i, 3] = a * d2[i, 3]
+    out = np.empty((4, 4))
+    _mul4(fd.t_pose, step, out)
+    fd.t_pose[:, :] = out
+
+
+@njit(cache=True)
+def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, twist_in, out,
+                fd):  # fmt: skip
+    """One period of :class:`tdacm.loop.servo.RobustServo` (``ibvs.features = "predicted"``):
+    the delivered frame fused into the target filter with the C_L pose of its capture period
+    (:func:`~tdacm.vision.target_filter.filter_update`), the smoothed target estimate, the
+    feature points predicted in the servo camera (C_V, eq. (18); C_L for a held base) and in
+    C_L (the mode switch's field-of-view test while servoing), the IBVS twist on the
+    predicted points (eqs. (19)-(21), (39)), the joint rates shaped as :func:`servo_step`
+    with the acceleration feed-forward and the leak of ``q_d`` toward ``q``, or the recovery
+    (which holds and retries for ``lost_timeout`` s while C_G misses the target). ``fd``: the
+    world's :class:`FilterData`; ``out`` as :func:`servo_step` (no behind-camera failure: a
+    prediction behind the camera counts as not seen)."""
+    prm = sm.params
+    n = q.shape[0]
+    ctl = sm.ctl_camera[w]
+    k = int(sstate[S_PERIOD])
+    every = int(prm[P_GLOBAL_EVERY])
+    offered = sstate[S_REQUEST] > 0.0 or (every > 0 and k % every == 0)
+    sstate[S_PERIOD] = k + 1
+    sstate[S_REQUEST] = 0.0
+    # fuse the delivered frame with the C_L pose of its capture period (latency compensation)
+    g_c = np.empty((4, 4))
+    tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
+    hist = fd.cam_hist.shape[0]
+    fd.cam_hist[k % hist] = g_c
+    xy = np.empty((4, 2))
+    zz = np.empty(4)
+    view = found and perceive(ctl, sm.object_2d, uv, xy, zz)
+    cap = max(0, k - int(prm[P_LATENCY]))
+    if view and cap > sstate[S_LAST_FUSED]:
+        sstate[S_LAST_FUSED] = cap
+        if filter_update(sm.filter_params, ctl[:4], fd.st, fd.pose, fd.cov, fd.hyp, fd.rc,
+                         fd.pc, fd.z, sm.object_points, sm.object_2d, sm.canon_inv,
+                         sm.level_normal, uv, fd.cam_hist[cap % hist]):  # fmt: skip
+            sstate[S_LAST_SEEN] = cap * dt
+    smoothing = prm[P_SMOOTHING]
+    _smooth_target(fd, sstate, min(1.0, dt / smoothing) if smoothing > 0.0 else 1.0)
+    # the prediction in the servo camera and in C_L
+    valid = False
+    pix_ok = False
+    pv = np.empty((4, 2))
+    zv = np.empty(4)
+    pix = np.empty((4, 2))
+    if sstate[S_TP_SET] != 0.0:
+        g_s = g_c
+        if m.floating:
+            g_b = np.empty((4, 4))
+            base_pose(q, m, g_b)
+            gv = np.empty((4, 4))
+            virtual_transform(g_b, g_c, gv)  # g_{C_L}^{C_V}; C_V = C_L (g_{C_L}^{C_V})^-1
+            iv = np.empty((4, 4))
+            _inv4(gv, iv)
+            g_s = np.empty((4, 4))
+            _mul4(g_c, iv, g_s)
+        points_in_kernel(sm.object_points, g_s, fd.t_pose, pv, zv)
+        valid = min_edge2(pv) >= 1e-24
+        for i in range(4):
+            if not zv[i] > 0.0:
+                valid = False
+        if valid:
+            xl = np.empty((4, 2))
+            zl = np.empty(4)
+            points_in_kernel(sm.object_points, g_c, fd.t_pose, xl, zl)
+            pix_ok = True
+            for i in range(4):
+                if not zl[i] > 0.0:
+                    pix_ok = False
+                pix[i, 0] = ctl[FX] * xl[i, 0] / 1.0 + ctl[CX]
+                pix[i, 1] = ctl[FY] * xl[i, 1] / 1.0 + ctl[CY]
+    f = np.zeros(6)
+    e = np.zeros(6)
+    v = np.zeros(6)
+    if valid:
+        ibvs_twist(pv, zv, sm, w, f, e, v)
+    # the mode switch: on the predicted C_L pixels while servoing, on the view otherwise
+    prev = int(sstate[S_MODE])
+    counters = np.array([int(sstate[S_GOOD]), int(sstate[S_BAD])])
+    if prev == IBVS:
+        seen = (
+            valid
+            and pix_ok
+            and np.isfinite(sstate[S_LAST_SEEN])
+            and t - sstate[S_LAST_SEEN] <= prm[P_LOST_TIMEOUT]
+            and inside(ctl, pix, 0.0)
+        )
+        ins = seen and inside(ctl, pix, prm[P_MARGIN])
+    else:
+        seen = view
+        ins = seen and inside(ctl, uv, prm[P_MARGIN])
+    mode = switch_update(prev, counters, ins, seen, int(prm[P_CONFIRM]), int(prm[P_LOSE]))
+    sstate[S_MODE], sstate[S_GOOD], sstate[S_BAD] = mode, counters[0], counters[1]
+    event = NO_EVENT
+    if prev == RECOVERY and mode == IBVS:
+        sstate[S_IBVS_START] = t
+        rstate[R_ON] = 0.0
+        event = IBVS_ENGAGED
+    elif prev == IBVS and mode == RECOVERY:
+        event = TARGET_LOST
+    out[:] = 0.0
+    out[0] = rmse_to(pv, sm.desired_points[w]) if valid else np.nan
+    out[1] = event
+    for i in range(n):
+        qdd_d[i] = 0.0
+    if valid:
+        for i in range(6):
+            out[9 + i] = f[i]
+    external = np.isfinite(twist_in[0])
+    if mode == IBVS and (valid or external):
+        if external:
+            for i in range(6):
+                v[i] = twist_in[i]
+        for i in range(6):
+            out[3 + i] = v[i]
+        qd_prev = qd_d.copy()
+        rates = joint_rates(q, v, m, sm, m.floating)
+        shape(rates, t, dt, sstate[S_IBVS_START], sm, q_d, qd_d)
+        if m.floating:  # the feed-forward and the leak are the flying base's
+            if prm[P_ACCEL_FF] != 0.0:
+                for i in range(n):
+                    qdd_d[i] = (qd_d[i] - qd_prev[i]) / dt
+            leak = prm[P_LEAK]
+            if leak > 0.0:
+                cmd = sm.commanded
+                for c in range(cmd.shape[0]):
+                    j = cmd[c]
+                    q_d[j] += leak * dt * (q[j] - q_d[j])
+    elif mode == RECOVERY:
+        if rstate[R_ON] == 0.0:
+            if not offered:  # hold and ask C_G for the next period
+                for i in range(n):
+                    qd_d[i] = 0.0
+                sstate[S_REQUEST] = 1.0
+                return mode
+            corners_uv = np.empty((sm.corners.shape[0], 4, 2))
+            if not detect_global(q, m, sm, corners_uv):
+                # C_G missed the target: hold and retry for lost_timeout s
+                for i in range(n):
+                    qd_d[i] = 0.0
+                if not np.isfinite(sstate[S_CG_MISSED]):
+                    sstate[S_CG_MISSED] = t
+                if t - sstate[S_CG_MISSED] >= prm[P_LOST_TIMEOUT]:
+                    out[2] = 2
+                else:
+                    sstate[S_REQUEST] = 1.0
+                return mode
+            sstate[S_CG_MISSED] = np.nan
             if not plan_recovery(t, q, m, sm, corners_uv, rstate):
                 out[2] = 2
                 return mode

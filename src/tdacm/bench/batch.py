@@ -4,7 +4,10 @@ The engine's configuration of ``paper-in-fov`` (analytic cameras, the servo on t
 points, 1 px of pixel noise, the scenario's 10 % model error): world-periods per second
 (an env step is one period; 50 periods are one simulated second) for a table of batch
 sizes and thread counts, one world's real-time factor, and the batch's first call on a cold
-and on a warm cache (in fresh processes). Medians of ``repeats`` runs after a warm-up.
+and on a warm cache (in fresh processes). Medians of ``repeats`` runs after a warm-up. The
+robust servo's target filter apart (:func:`filter_cost`): the same batch with the servo on
+the features predicted from the filter (the scenario as shipped) against the measured ones,
+measured in one run.
 """
 
 from __future__ import annotations
@@ -26,18 +29,21 @@ ENGINE = {
 }
 
 
-def _batch(n_worlds: int, threads: int, duration: float):
+def _batch(n_worlds: int, threads: int, duration: float, features: str | None = None):
     from ..sim.batch import build_batch
     from ..sim.scenario import load_scenario
 
-    sc = load_scenario("paper-in-fov").with_overrides(ENGINE, "batch benchmark")
+    ov = ENGINE if features is None else {**ENGINE, "ibvs": {"features": features}}
+    sc = load_scenario("paper-in-fov").with_overrides(ov, "batch benchmark")
     return build_batch(sc, np.arange(n_worlds), duration=duration, threads=threads)
 
 
-def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repeats: int = 3):
+def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repeats: int = 3,
+                       features: str | None = None):  # fmt: skip
     """Median world-periods per second of whole runs of ``n_worlds`` worlds (the runs that
-    end early count the periods they ran)."""
-    b = _batch(n_worlds, threads, duration)
+    end early count the periods they ran); ``features``: the servo's (``ibvs.features``;
+    default :data:`ENGINE`'s)."""
+    b = _batch(n_worlds, threads, duration, features)
     b.run()  # warm-up (compiles on a cold cache)
     rates = []
     for _ in range(repeats):
@@ -46,6 +52,24 @@ def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repea
         wall = time.perf_counter() - t0
         rates.append(float(res.samples.sum()) / wall)
     return statistics.median(rates)
+
+
+def filter_cost(n_worlds: int = 256, threads: int = 2, duration: float = 1.0, repeats: int = 3,
+                progress=print) -> dict:  # fmt: skip
+    """World-periods (env steps) per second of ``n_worlds`` worlds with the servo on the
+    measured points and on the points predicted from the target filter (the robust servo),
+    medians of ``repeats`` runs of ``duration`` s, one after the other, the machine's load
+    before and after."""
+    out = {"n_worlds": n_worlds, "threads": threads, "load": os.getloadavg()}
+    for features in ("measured", "predicted"):
+        out[features] = periods_per_second(n_worlds, threads, duration, repeats, features)
+        progress(f"batch N={n_worlds} threads={threads} {features:9s}: {out[features]:9.0f} "
+                 "world-periods/s")  # fmt: skip
+    out["ratio"] = out["predicted"] / out["measured"]
+    # the filter's share of a period: 1/rate_pred - 1/rate_meas per world-period (s)
+    out["filter_us_per_period"] = 1e6 * threads * (1 / out["predicted"] - 1 / out["measured"])
+    out["load_after"] = os.getloadavg()
+    return out
 
 
 def step_rate(n_worlds: int, threads: int, steps: int = 100, repeats: int = 3):
@@ -102,6 +126,7 @@ def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 
         out["one_world_real_time"] = one / 50.0  # 50 periods of 20 ms per simulated second
     out["first_call_warm_s"] = first_call(False)
     out["first_call_cold_s"] = first_call(True)
+    out["filter"] = filter_cost(progress=progress)
     out["load_after"] = os.getloadavg()
     progress(
         f"first call: cold {out['first_call_cold_s']:.1f} s, warm {out['first_call_warm_s']:.1f} s"

@@ -140,6 +140,14 @@ class TipServoVectorEnv(VectorEnv):
         seed0 = int(sc["seed"])
         self.assembly = a = build_loop(sc, seed0)
         loop = a.loop
+        from ..loop.servo import RobustServo
+
+        if isinstance(loop.servo, RobustServo):  # the env observes and acts on measured points
+            loop.close()
+            raise ValueError(
+                "scenario: the vector env's servo works on the measured points: set "
+                "ibvs.features = 'measured'"
+            )
         # the engine never ends a world by its duration: the env truncates
         duration = (self.horizon + 2) * loop.dt
         try:

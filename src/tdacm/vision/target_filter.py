@@ -76,6 +76,7 @@ from .._linalg import solve_small
 from ..lie.se3 import expmap, skew
 from . import _checks as C
 from .camera import PinholeCamera
+from .ippe import ippe_poses
 
 #: chi-square quantile, 8 degrees of freedom (4 points x 2), p = 0.9999
 GATE_CHI2_8 = 31.83
@@ -202,7 +203,7 @@ def _normal_equations(rt, pt, rc, pc, z, obj, w, diagonal):
     gradient ``sum h_j^T W_j e_j`` and cost ``sum e_j^T W_j e_j`` over the frames ``j``, with
     ``W_j = w[j]`` (8 x 8: the inverse of the frame's measurement covariance, diagonal for an
     exact camera pose; ``diagonal[j]`` tells, :func:`_diagonal_flags`, computed once per
-    frame). Allocation-free per frame (measured: 5.7x faster than the
+    frame; ``w`` and ``diagonal`` of one entry when every frame has that weight). Allocation-free per frame (measured: 5.7x faster than the
     matrix-product form, same sums to 1e-16); ``ok`` is False if a point is behind a
     camera."""
     info = np.zeros((6, 6))
@@ -214,11 +215,13 @@ def _normal_equations(rt, pt, rc, pc, z, obj, w, diagonal):
     e = np.empty(8)
     wh = np.empty((8, 6))
     we = np.empty(8)
+    shared = w.shape[0] != rc.shape[0]  # one weight for every frame (w: 1 x 8 x 8)
     for f in range(rc.shape[0]):
         if not _frame_residuals(rc[f], pc[f], rt, xw, obj, z[f], a, h, e):
             return info, grad, cost, False
-        wf = w[f]
-        if diagonal[f]:  # the weight of a frame with an exact camera pose
+        fw = 0 if shared else f
+        wf = w[fw]
+        if diagonal[fw]:  # the weight of a frame with an exact camera pose
             # the same sums without the exact zeros of the full products (8x fewer flops)
             for i in range(8):
                 acc = wf[i, i] * e[i]
@@ -305,6 +308,277 @@ def _gauss_newton_kernel(pose, rc, pc, z, obj, w, diagonal, iterations, normal, 
         pose = np.dot(pose, expmap(dx))
     # not reached (every pass returns at it == iterations); numba types the function's end
     return pose, prior_info, 0.0, prior_info, prior_grad, 0.0, False
+
+
+# ----------------------------------------------------------------------------- compiled
+# The filter's update as compiled code over one filter's plain arrays (the batched engine,
+# :mod:`tdacm.batch.servo`): the same steps as :meth:`TargetFilter.update_checked` for frames
+# with an exact camera pose (the engine runs on the true state), the same Gauss-Newton kernels,
+# planar PnP by the compiled IPPE (:mod:`tdacm.vision.ippe`, the pose of
+# ``cv2.solvePnPGeneric``). Rows of its scalar state ``st``:
+F_INIT, F_UPDATES, F_REJECTED, F_SWITCHES, F_SIGMA_HAT, F_BAD, F_NHYP, F_COUNT, F_NEXT, N_FSTATE = (
+    range(10)
+)
+#: rows of its constants ``prm`` (:func:`filter_params`)
+(
+    FP_PIXEL_SIGMA, FP_ITERATIONS, FP_GATE, FP_YOUNG, FP_DECISIVE, FP_RESET_AFTER, FP_RECHECK,
+    FP_PRIOR_WEIGHT, FP_WINDOW, N_FPARAMS,
+) = range(10)  # fmt: skip
+
+
+def filter_params(f: TargetFilter) -> np.ndarray:
+    """The constants of a :class:`TargetFilter` as the compiled update's ``prm`` row."""
+    prm = np.zeros(N_FPARAMS)
+    prm[FP_PIXEL_SIGMA] = f.pixel_sigma
+    prm[FP_ITERATIONS] = f.iterations
+    prm[FP_GATE] = f.gate
+    prm[FP_YOUNG] = f.young
+    prm[FP_DECISIVE] = f.decisive
+    prm[FP_RESET_AFTER] = f.reset_after
+    prm[FP_RECHECK] = f.recheck
+    prm[FP_PRIOR_WEIGHT] = 1.0 / f.level_prior**2 if f.level_prior > 0.0 else 0.0
+    prm[FP_WINDOW] = f.window  # the length of the window's arrays
+    return prm
+
+
+@njit(cache=True)
+def _rigid_between(a, b, out):
+    """``out = a^-1 b`` for rigid 4x4 ``a``."""
+    for i in range(3):
+        for j in range(4):
+            acc = a[0, i] * b[0, j] + a[1, i] * b[1, j] + a[2, i] * b[2, j]
+            if j == 3:
+                acc -= a[0, i] * a[0, 3] + a[1, i] * a[1, 3] + a[2, i] * a[2, 3]
+            out[i, j] = acc
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True)
+def points_in_kernel(obj, camera_pose, target_pose, xy, z):
+    """:meth:`TargetFilter.points_in`: normalized points ``xy`` (4, 2) and depths ``z`` (4,)
+    of the target's points ``obj`` (4, 3) at ``target_pose`` seen from ``camera_pose``."""
+    g = np.empty((4, 4))
+    _rigid_between(camera_pose, target_pose, g)
+    for k in range(obj.shape[0]):
+        r0 = g[0, 0] * obj[k, 0] + g[0, 1] * obj[k, 1] + g[0, 2] * obj[k, 2] + g[0, 3]
+        r1 = g[1, 0] * obj[k, 0] + g[1, 1] * obj[k, 1] + g[1, 2] * obj[k, 2] + g[1, 3]
+        r2 = g[2, 0] * obj[k, 0] + g[2, 1] * obj[k, 1] + g[2, 2] * obj[k, 2] + g[2, 3]
+        xy[k, 0] = r0 / r2
+        xy[k, 1] = r1 / r2
+        z[k] = r2
+
+
+@njit(cache=True)
+def pnp_kernel(obj, obj2d, canon_inv, xy, g_c, out):
+    """:func:`planar_pnp_poses` compiled: both IPPE poses (:func:`~.ippe.ippe_poses` on the
+    canonical points ``obj2d``; ``canon_inv`` the target-to-canonical transform) that put
+    every point ``obj`` (4, 3) in front, composed with ``g_c``, into ``out`` (2, 4, 4), the
+    better first. Returns how many."""
+    rots = np.empty((2, 3, 3))
+    trans = np.empty((2, 3))
+    errors = np.empty(2)
+    if not ippe_poses(obj2d, xy, rots, trans, errors):
+        return 0
+    g = np.eye(4)
+    gt = np.empty((4, 4))
+    cnt = 0
+    for s in range(2):
+        for i in range(3):
+            for j in range(3):
+                g[i, j] = rots[s, i, j]
+            g[i, 3] = trans[s, i]
+        gt[:, :] = np.dot(g, canon_inv)
+        front = True
+        for k in range(obj.shape[0]):
+            zk = gt[2, 0] * obj[k, 0] + gt[2, 1] * obj[k, 1] + gt[2, 2] * obj[k, 2] + gt[2, 3]
+            if not zk > 0.0:
+                front = False
+        if front:
+            out[cnt] = np.dot(g_c, gt)
+            cnt += 1
+    return cnt
+
+
+@njit(cache=True)
+def _filter_reset(st):
+    """:meth:`TargetFilter.reset`, the rejected frames kept."""
+    rejected = st[F_REJECTED]
+    st[:] = 0.0
+    st[F_REJECTED] = rejected
+
+
+@njit(cache=True)
+def _filter_covariance(prm, st, info, p_info, out):
+    """:meth:`TargetFilter._covariance` into ``out``."""
+    ps = prm[FP_PIXEL_SIGMA]
+    sigma = max(ps, st[F_SIGMA_HAT])
+    if prm[FP_PRIOR_WEIGHT] <= 0.0:
+        p = np.linalg.inv(info)
+        p = 0.5 * (p + p.T)
+        out[:, :] = p * (sigma / ps) ** 2
+        return
+    k = (ps / sigma) ** 2
+    p = np.linalg.inv((info - p_info) * k + p_info)
+    out[:, :] = 0.5 * (p + p.T)
+
+
+@njit(cache=True)
+def _filter_append(st, rc, pc, z, g_c, xy):
+    """:meth:`TargetFilter._append` into the window's ring buffers."""
+    k = int(st[F_NEXT])
+    for i in range(3):
+        for j in range(3):
+            rc[k, i, j] = g_c[j, i]
+        pc[k, i] = g_c[i, 3]
+    for i in range(4):
+        z[k, i, 0] = xy[i, 0]
+        z[k, i, 1] = xy[i, 1]
+    st[F_NEXT] = (k + 1) % rc.shape[0]
+    st[F_COUNT] = min(st[F_COUNT] + 1, rc.shape[0])
+
+
+@njit(cache=True)
+def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
+    """:meth:`TargetFilter._refine`."""
+    n = int(st[F_COUNT])
+    nh = int(st[F_NHYP])
+    iters = int(prm[FP_ITERATIONS])
+    n_it = max(iters, 3) if st[F_UPDATES] < 3 else iters
+    pw = prm[FP_PRIOR_WEIGHT]
+    r_pose = np.empty((2, 4, 4))
+    r_info = np.empty((2, 6, 6))
+    r_pinfo = np.empty((2, 6, 6))
+    r_cost = np.empty(2)
+    r_pcost = np.empty(2)
+    cnt = 0
+    for c in range(max(nh, 1)):
+        start = np.ascontiguousarray(hyp[c]) if nh > 0 else pose.copy()
+        p, info, cost, p_info, _, p_cost, ok = _gauss_newton_kernel(
+            start, rc[:n], pc[:n], z[:n], obj, w, diag, n_it, normal, pw
+        )
+        if ok:
+            r_pose[cnt] = p
+            r_info[cnt] = info
+            r_pinfo[cnt] = p_info
+            r_cost[cnt] = cost
+            r_pcost[cnt] = p_cost
+            cnt += 1
+    if cnt == 0:
+        _filter_reset(st)
+        return False
+    b, o = 0, 1
+    if cnt == 2 and r_cost[1] < r_cost[0]:  # the stable sort by cost
+        b, o = 1, 0
+    if nh > 1:  # young: keep the other branch until the data decide
+        merged, done = True, True
+        if cnt == 2:
+            d = np.empty((4, 4))
+            _rigid_between(r_pose[b], r_pose[o], d)
+            acc = 0.0
+            for i in range(4):
+                for j in range(4):
+                    e = d[i, j] - (1.0 if i == j else 0.0)
+                    acc += e * e
+            merged = np.sqrt(acc) < 1e-4
+            done = r_cost[o] - r_cost[b] > prm[FP_DECISIVE]
+        if merged or done or st[F_UPDATES] + 1 >= prm[FP_YOUNG]:
+            st[F_NHYP] = 0
+        else:
+            hyp[0] = r_pose[b]
+            hyp[1] = r_pose[o]
+            st[F_NHYP] = 2
+    pose[:, :] = r_pose[b]
+    st[F_INIT] = 1.0
+    st[F_UPDATES] += 1
+    if n >= 10:  # cost / dof = (sigma_true / pixel_sigma)^2, the frames' cost only
+        cost = r_cost[b] - (r_pcost[b] if pw > 0.0 else 0.0)
+        st[F_SIGMA_HAT] = prm[FP_PIXEL_SIGMA] * np.sqrt(max(cost, 0.0) / (8 * n - 6))
+    _filter_covariance(prm, st, r_info[b], r_pinfo[b], cov)
+    return True
+
+
+@njit(cache=True)
+def _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, normal, w, diag,
+                  xy, g_c):  # fmt: skip
+    """The first frame (or the first after a restart): both PnP hypotheses, refined."""
+    cnt = pnp_kernel(obj, obj2d, canon_inv, xy, g_c, hyp)
+    if cnt == 0:
+        return False
+    _filter_append(st, rc, pc, z, g_c, xy)
+    st[F_NHYP] = cnt
+    return _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
+
+
+@njit(cache=True)
+def filter_update(prm, cam, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, normal,
+                  pixels, g_c):  # fmt: skip
+    """:meth:`TargetFilter.update_checked` of a frame with an exact camera pose, compiled:
+    the filter's state ``st`` (:data:`F_INIT` ...), estimate ``pose`` (4, 4), covariance
+    ``cov`` (6, 6), PnP hypotheses ``hyp`` (2, 4, 4) and window ``rc`` (W, 3, 3), ``pc`` (W,
+    3), ``z`` (W, 4, 2) updated in place; ``prm`` its constants (:func:`filter_params`),
+    ``cam`` the camera ``[fx, fy, cx, cy]``, ``obj`` (4, 3) the target's points, ``obj2d``
+    and ``canon_inv`` their canonical frame (:func:`~.ippe.canonical_frame`), ``normal`` the
+    level prior's normal. Returns whether the frame was fused."""
+    xy = np.empty((4, 2))
+    for k in range(4):
+        xy[k, 0] = (pixels[k, 0] - cam[2]) / cam[0]
+        xy[k, 1] = (pixels[k, 1] - cam[3]) / cam[1]
+    ps = prm[FP_PIXEL_SIGMA]
+    fx, fy = cam[0] / ps, cam[1] / ps
+    rinv_x, rinv_y = fx * fx, fy * fy
+    w = np.zeros((1, 8, 8))  # the weight of a frame with an exact pose
+    for k in range(4):
+        w[0, 2 * k, 2 * k] = rinv_x
+        w[0, 2 * k + 1, 2 * k + 1] = rinv_y
+    diag = np.ones(1, np.bool_)
+    if st[F_INIT] == 0.0:
+        return _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, normal,
+                             w, diag, xy, g_c)  # fmt: skip
+    rt = np.ascontiguousarray(pose[:3, :3])
+    xw = _target_points(rt, pose[:3, 3].copy(), obj)
+    h8 = np.empty((8, 6))
+    nu = np.empty(8)
+    rcf = np.ascontiguousarray(g_c[:3, :3].T)
+    gated = not _frame_residuals(rcf, g_c[:3, 3].copy(), rt, xw, obj, xy, np.empty((3, 3)), h8,
+                                 nu)  # fmt: skip
+    if not gated:
+        scale = (max(ps, st[F_SIGMA_HAT]) / ps) ** 2
+        s = np.dot(np.dot(h8, cov), h8.T)
+        for k in range(4):
+            s[2 * k, 2 * k] += scale * (1.0 / rinv_x)
+            s[2 * k + 1, 2 * k + 1] += scale * (1.0 / rinv_y)
+        gated = np.dot(nu, np.linalg.solve(s, nu)) > prm[FP_GATE]
+    if gated:  # :meth:`TargetFilter._reject`
+        st[F_REJECTED] += 1
+        st[F_BAD] += 1
+        if st[F_BAD] >= prm[FP_RESET_AFTER]:
+            _filter_reset(st)
+            return _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv,
+                                 normal, w, diag, xy, g_c)  # fmt: skip
+        return False
+    st[F_BAD] = 0.0
+    _filter_append(st, rc, pc, z, g_c, xy)
+    ok = _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
+    recheck = int(prm[FP_RECHECK])
+    if ok and recheck > 0 and int(st[F_UPDATES]) % recheck == 0:  # :meth:`TargetFilter._rescue`
+        n = int(st[F_COUNT])
+        pw = prm[FP_PRIOR_WEIGHT]
+        _, _, cur, _, _, _, ok0 = _gauss_newton_kernel(
+            pose.copy(), rc[:n], pc[:n], z[:n], obj, w, diag, 0, normal, pw
+        )
+        if ok0:
+            cand = np.empty((2, 4, 4))
+            for c in range(pnp_kernel(obj, obj2d, canon_inv, xy, g_c, cand)):
+                p, info, cost, p_info, _, _, okc = _gauss_newton_kernel(
+                    np.ascontiguousarray(cand[c]), rc[:n], pc[:n], z[:n], obj, w, diag, 4,
+                    normal, pw,
+                )  # fmt: skip
+                if okc and cost < cur - 1.0:
+                    cur = cost
+                    pose[:, :] = p
+                    _filter_covariance(prm, st, info, p_info, cov)
+                    st[F_SWITCHES] += 1
+    return ok
 
 
 class TargetFilter:
