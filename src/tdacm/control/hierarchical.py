@@ -201,7 +201,9 @@ class TDACMController:
             thrusts = np.zeros(0)
             tau_s = out.tau
         b_s = sysm.tendon_matrix(q)
-        if len(sysm.arms) == 1:
+        if (
+            len(getattr(sysm, "arms", ())) <= 1
+        ):  # one arm (or a model without arms, the CC baseline)
             tal = allocate_tensions(b_s, tau_s, sysm.tendons.max_tension, self.pretension)
             tensions, tension_sat, residual = tal.tensions, tal.saturated, tal.residual
         else:  # B_s is block-diagonal over the arms: one allocation per arm, its own T_max
