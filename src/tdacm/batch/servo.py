@@ -664,6 +664,23 @@ def follow_recovery(t, rstate, q_d, qd_d, qdd_d):
 
 
 @njit(cache=True)
+def switch_mode(t, prev, counters, ins, seen, prm, sstate, rstate):
+    """The mode switch of one period (:func:`switch_update` on the target seen, and inside
+    the margin), kept in ``sstate``: ``(mode, event)``; engaging IBVS starts its soft start
+    and drops the recovery trajectory."""
+    mode = switch_update(prev, counters, ins, seen, int(prm[P_CONFIRM]), int(prm[P_LOSE]))
+    sstate[S_MODE], sstate[S_GOOD], sstate[S_BAD] = mode, counters[0], counters[1]
+    event = NO_EVENT
+    if prev == RECOVERY and mode == IBVS:
+        sstate[S_IBVS_START] = t
+        rstate[R_ON] = 0.0
+        event = IBVS_ENGAGED
+    elif prev == IBVS and mode == RECOVERY:
+        event = TARGET_LOST
+    return mode, event
+
+
+@njit(cache=True)
 def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, twist_in, out):
     """One period of :class:`tdacm.loop.servo.VisualServo` on the measured points (the
     perception block first): the mode switch, the view in C_V, the IBVS twist (or
@@ -689,15 +706,7 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, 
     prev = int(sstate[S_MODE])
     counters = np.array([int(sstate[S_GOOD]), int(sstate[S_BAD])])
     ins = seen and inside(ctl, uv, prm[P_MARGIN])
-    mode = switch_update(prev, counters, ins, seen, int(prm[P_CONFIRM]), int(prm[P_LOSE]))
-    sstate[S_MODE], sstate[S_GOOD], sstate[S_BAD] = mode, counters[0], counters[1]
-    event = NO_EVENT
-    if prev == RECOVERY and mode == IBVS:
-        sstate[S_IBVS_START] = t
-        rstate[R_ON] = 0.0
-        event = IBVS_ENGAGED
-    elif prev == IBVS and mode == RECOVERY:
-        event = TARGET_LOST
+    mode, event = switch_mode(t, prev, counters, ins, seen, prm, sstate, rstate)
     out[:] = 0.0
     out[0] = np.nan
     out[1] = event
@@ -728,31 +737,53 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, 
         rates = joint_rates(q, v, m, sm, m.floating)
         shape(rates, t, dt, sstate[S_IBVS_START], sm, q_d, qd_d)
     elif mode == RECOVERY:
-        if rstate[R_ON] == 0.0:
-            if not offered:  # hold and ask C_G for the next period
-                for i in range(n):
-                    qd_d[i] = 0.0
-                sstate[S_REQUEST] = 1.0
-                return mode
-            corners_uv = np.empty((sm.corners.shape[0], 4, 2))
-            if not detect_global(q, m, sm, corners_uv):
-                for i in range(n):
-                    qd_d[i] = 0.0
-                out[2] = 2
-                return mode
-            if not plan_recovery(t, q, m, sm, corners_uv, rstate):
-                out[2] = 2
-                return mode
-            for i in range(n):
-                q_d[i] = q[i]
-            if m.floating:
-                q_d[0] = 0.0
-                q_d[1] = 0.0
-        follow_recovery(t, rstate, q_d, qd_d, qdd_d)
+        recovery_period(t, q, m, sm, offered, -1.0, sstate, rstate, q_d, qd_d, qdd_d, out)
     else:
         for i in range(n):
             qd_d[i] = 0.0
     return mode
+
+
+@njit(cache=True)
+def recovery_period(t, q, m, sm, offered, retry_for, sstate, rstate, q_d, qd_d, qdd_d, out):
+    """The servo's recovery mode for one period: before a trajectory exists, hold and ask C_G
+    for a snapshot (``offered`` false), detect the target in it, plan (the target's pose from
+    the snapshot, the cubic trajectory) and start from the current pose with a level drone;
+    then follow the trajectory. When C_G misses the target, ``retry_for`` > 0 s (the robust
+    servo's ``lost_timeout``) holds and asks again until that long has passed since the first
+    miss; otherwise (and when no plan exists) the run ends as a failed recovery
+    (``out[2] = 2``)."""
+    n = q.shape[0]
+    if rstate[R_ON] == 0.0:
+        if not offered:  # hold and ask C_G for the next period
+            for i in range(n):
+                qd_d[i] = 0.0
+            sstate[S_REQUEST] = 1.0
+            return
+        corners_uv = np.empty((sm.corners.shape[0], 4, 2))
+        if not detect_global(q, m, sm, corners_uv):
+            for i in range(n):
+                qd_d[i] = 0.0
+            if retry_for <= 0.0:
+                out[2] = 2
+                return
+            if not np.isfinite(sstate[S_CG_MISSED]):
+                sstate[S_CG_MISSED] = t
+            if t - sstate[S_CG_MISSED] >= retry_for:
+                out[2] = 2
+            else:
+                sstate[S_REQUEST] = 1.0
+            return
+        sstate[S_CG_MISSED] = np.nan
+        if not plan_recovery(t, q, m, sm, corners_uv, rstate):
+            out[2] = 2
+            return
+        for i in range(n):
+            q_d[i] = q[i]
+        if m.floating:
+            q_d[0] = 0.0
+            q_d[1] = 0.0
+    follow_recovery(t, rstate, q_d, qd_d, qdd_d)
 
 
 # ----------------------------------------------------------------------------- robust servo
@@ -887,15 +918,7 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
     else:
         seen = view
         ins = seen and inside(ctl, uv, prm[P_MARGIN])
-    mode = switch_update(prev, counters, ins, seen, int(prm[P_CONFIRM]), int(prm[P_LOSE]))
-    sstate[S_MODE], sstate[S_GOOD], sstate[S_BAD] = mode, counters[0], counters[1]
-    event = NO_EVENT
-    if prev == RECOVERY and mode == IBVS:
-        sstate[S_IBVS_START] = t
-        rstate[R_ON] = 0.0
-        event = IBVS_ENGAGED
-    elif prev == IBVS and mode == RECOVERY:
-        event = TARGET_LOST
+    mode, event = switch_mode(t, prev, counters, ins, seen, prm, sstate, rstate)
     out[:] = 0.0
     out[0] = rmse_to(pv, sm.desired_points[w]) if valid else np.nan
     out[1] = event
@@ -925,34 +948,9 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
                     j = cmd[c]
                     q_d[j] += leak * dt * (q[j] - q_d[j])
     elif mode == RECOVERY:
-        if rstate[R_ON] == 0.0:
-            if not offered:  # hold and ask C_G for the next period
-                for i in range(n):
-                    qd_d[i] = 0.0
-                sstate[S_REQUEST] = 1.0
-                return mode
-            corners_uv = np.empty((sm.corners.shape[0], 4, 2))
-            if not detect_global(q, m, sm, corners_uv):
-                # C_G missed the target: hold and retry for lost_timeout s
-                for i in range(n):
-                    qd_d[i] = 0.0
-                if not np.isfinite(sstate[S_CG_MISSED]):
-                    sstate[S_CG_MISSED] = t
-                if t - sstate[S_CG_MISSED] >= prm[P_LOST_TIMEOUT]:
-                    out[2] = 2
-                else:
-                    sstate[S_REQUEST] = 1.0
-                return mode
-            sstate[S_CG_MISSED] = np.nan
-            if not plan_recovery(t, q, m, sm, corners_uv, rstate):
-                out[2] = 2
-                return mode
-            for i in range(n):
-                q_d[i] = q[i]
-            if m.floating:
-                q_d[0] = 0.0
-                q_d[1] = 0.0
-        follow_recovery(t, rstate, q_d, qd_d, qdd_d)
+        recovery_period(
+            t, q, m, sm, offered, prm[P_LOST_TIMEOUT], sstate, rstate, q_d, qd_d, qdd_d, out
+        )
     else:
         for i in range(n):
             qd_d[i] = 0.0
