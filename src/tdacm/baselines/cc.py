@@ -282,6 +282,11 @@ class CCLagrangian:
         return g
 
     @property
+    def n_rods(self) -> int:
+        """One rod (the constant-curvature model of the paper's single TD-CR)."""
+        return 1
+
+    @property
     def total_mass(self) -> float:
         return self.drone_mass + self.rod_mass + self.tip_mass
 

@@ -201,9 +201,7 @@ class TDACMController:
             thrusts = np.zeros(0)
             tau_s = out.tau
         b_s = sysm.tendon_matrix(q)
-        if (
-            len(getattr(sysm, "arms", ())) <= 1
-        ):  # one arm (or a model without arms, the CC baseline)
+        if sysm.n_rods == 1:
             tal = allocate_tensions(b_s, tau_s, sysm.tendons.max_tension, self.pretension)
             tensions, tension_sat, residual = tal.tensions, tal.saturated, tal.residual
         else:  # B_s is block-diagonal over the arms: one allocation per arm, its own T_max
