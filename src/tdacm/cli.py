@@ -19,6 +19,7 @@ warnings only with ``-q`` (which also hides the progress bars and notices).
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import logging
 import math
@@ -156,6 +157,7 @@ def _opening(
 
 
 def _cmd_info(args) -> int:
+    """print the paper system's model summary and the model options"""
     from . import paper_system
     from .estimation import SensorSuiteConfig, hover_estimate_limits
     from .system.paper import PAPER_DEFAULTS_NOT_IN_PAPER
@@ -198,6 +200,7 @@ def _cmd_info(args) -> int:
 
 
 def _cmd_demo(args) -> int:
+    """simulate the paper TD-ACM hovering with a tendon step"""
     from .demo import run_demo
 
     # one process for the compilation: the demo's kernels would not split evenly (measured)
@@ -211,6 +214,7 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_bench(args) -> int:
+    """time the model (terms, forward dynamics, passive simulation, stiff integrators)"""
     from .bench import run_full_bench, run_model_bench
 
     if (problem := _opening(args.out, compile_notice=True)[1]) is not None:
@@ -223,6 +227,12 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_run(args) -> int:
+    """run a closed-loop scenario (see `tdacm scenarios`)
+
+    Run a scenario; prints the summary JSON on stdout and writes the run folder (summary.json,
+    scenario.toml, timeseries.npz/.csv/.json, figures as PNG and PDF, scene.png, video.mp4 with
+    --video). Rerunning into a folder first removes the previous run's files.
+    """
     from .sim import ScenarioError
     from .sim.scenario import check_run, load_scenario
 
@@ -324,6 +334,7 @@ def _write_pictures(out: Path, sim, plot_run_dir, write_video) -> None:
 
 
 def _cmd_plot(args) -> int:
+    """regenerate the figures of a `tdacm run` folder"""
     from .sim.outputs import RunDirError
     from .viz.figures import KINDS, plot_run_dir
 
@@ -346,6 +357,7 @@ def _cmd_plot(args) -> int:
 
 
 def _cmd_scenarios(args) -> int:
+    """list the shipped scenarios"""
     from .sim import list_scenarios, load_scenario
 
     for name in list_scenarios():
@@ -355,8 +367,12 @@ def _cmd_scenarios(args) -> int:
 
 
 def _cmd_schema(args) -> int:
-    """The JSON Schema of a scenario file (of a campaign spec with ``--campaign``), or
-    (``--markdown``) the scenario reference."""
+    """print the JSON Schema of a scenario file (for editor completion)
+
+    Print the JSON Schema of a scenario file (of a campaign spec with --campaign); with
+    --markdown, write the scenario reference (docs/scenario-reference.md) generated from the
+    same records.
+    """
     import json
 
     from .sim.config import json_schema, reference_markdown
@@ -379,6 +395,7 @@ def _cmd_schema(args) -> int:
 
 
 def _cmd_campaign(args) -> int:
+    """run a robustness campaign on Dask (resumable)"""
     from .campaign import CampaignSpecError, run_campaign
 
     out = Path(args.out)
@@ -405,6 +422,11 @@ def _cmd_campaign(args) -> int:
 
 
 def _cmd_replay(args) -> int:
+    """3-D animation (GIF or MP4) or Rerun recording of a `tdacm run` folder
+
+    Animate a run folder in 3-D (real time by default), or with --rerun convert it to a Rerun
+    recording (.rrd).
+    """
     from .sim.outputs import RunDirError
 
     run_dir = Path(args.run_dir)
@@ -443,6 +465,12 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_export(args) -> int:
+    """export a `tdacm run` folder as MCAP with ROS 2 message types
+
+    Write a run folder as an MCAP recording (tf, joint states, poses, camera info, servo
+    features; see docs/recordings.md), readable by Foxglove and `ros2 bag play` without a ROS
+    installation.
+    """
     from .recording import ExportError, export_run
 
     if (problem := _opening(args.mcap, "--mcap", False, (".mcap",))[1]) is not None:
@@ -484,6 +512,11 @@ def _read_topic_map(path):
 
 
 def _cmd_import(args) -> int:
+    """import an MCAP recording into time-stamped signals (.npz)
+
+    Read an MCAP recording (ROS 2 messages) through a topic map (TOML [topics]: a lab's topic ->
+    tdacm signal) and write one NAME.npz per signal.
+    """
     from .recording import RecordingError, read_mcap, save_signals
 
     out = Path(args.out)
@@ -502,6 +535,13 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_replay_recording(args) -> int:
+    """re-run an MCAP recording through perception, the estimator and the servo features
+
+    Replay a recording (through a topic map) period by period through the scenario's perception
+    block, its EKF (when the recording has pose, IMU or encoder signals) and the servo's feature
+    computation; writes DIR/replay.npz (t, q_hat, qd_hat, features, feature_error, points, rmse,
+    detected). See docs/recordings.md.
+    """
     import numpy as np
 
     from .recording import RecordingError, read_mcap, replay
@@ -552,6 +592,12 @@ def _parse_start(text: str) -> dict:
 
 
 def _cmd_identify(args) -> int:
+    """estimate physical parameters from recordings (motion capture, tensions)
+
+    Fit the model's simulated motion to recorded trajectories (multiple shooting, least squares;
+    see docs/identify.md) and write identification.json, robot.toml (a [robot] block for a
+    scenario) and identification.png.
+    """
     from .identify import PARAMETERS, RecordingInputError, load_recording, parse_params
     from .identify.fit import identify_staged
     from .identify.misfit import EXIT_MISFIT, diagnose, held_out_ratio
@@ -652,6 +698,18 @@ def _cmd_identify(args) -> int:
     return 0
 
 
+def _command(sub, name: str, func):
+    """The parser of command ``name``, run by ``func``: its help (in ``tdacm --help``) is the
+    first paragraph of ``func``'s docstring, its description (``tdacm NAME --help``) the
+    rest, if any."""
+    first, _, rest = inspect.cleandoc(func.__doc__ or "").partition("\n\n")
+    s = sub.add_parser(
+        name, help=" ".join(first.split()), description=" ".join(rest.split()) or None
+    )
+    s.set_defaults(func=func)
+    return s
+
+
 def _add_topic_map(s) -> None:
     """``--topic-map`` of the commands that read an MCAP recording."""
     s.add_argument(
@@ -684,16 +742,11 @@ def build_parser() -> argparse.ArgumentParser:
         "-q", "--quiet", action="store_true", help="log warnings and errors only; no progress bars"
     )
     sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("info", help="print the paper system's model summary and the model options")
-    s.set_defaults(func=_cmd_info)
-    s = sub.add_parser("demo", help="simulate the paper TD-ACM hovering with a tendon step")
+    _command(sub, "info", _cmd_info)
+    s = _command(sub, "demo", _cmd_demo)
     s.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     s.add_argument("--duration", type=_positive_float, default=4.0, help="simulated seconds")
-    s.set_defaults(func=_cmd_demo)
-    s = sub.add_parser(
-        "bench",
-        help="time the model (terms, forward dynamics, passive simulation, stiff integrators)",
-    )
+    s = _command(sub, "bench", _cmd_bench)
     s.add_argument("--out", default="out/bench", help="output folder for bench.json")
     s.add_argument("--repeats", type=_positive_int, default=7, help="timing repeats (median)")
     s.add_argument(
@@ -701,15 +754,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="add the CC Lagrangian baseline comparison, DoF scaling and accuracy study (minutes)",
     )
-    s.set_defaults(func=_cmd_bench)
-    s = sub.add_parser(
-        "run",
-        help="run a closed-loop scenario (see `tdacm scenarios`)",
-        description="Run a scenario; prints the summary JSON on stdout and writes the run "
-        "folder (summary.json, scenario.toml, timeseries.npz/.csv/.json, figures as PNG and "
-        "PDF, scene.png, video.mp4 with --video). Rerunning into a folder first removes the "
-        "previous run's files.",
-    )
+    s = _command(sub, "run", _cmd_run)
     s.add_argument("scenario", help="scenario name or path to a scenario TOML file")
     s.add_argument("--config", help="TOML file overriding scenario values (same layout)")
     s.add_argument("--out", help="output folder (default: out/SCENARIO)")
@@ -719,22 +764,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=_nonneg_int, help="seed of the model perturbation and noise")
     s.add_argument("--video", action="store_true", help="write video.mp4 (C_L | C_G, captioned)")
     s.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording at the end")
-    s.set_defaults(func=_cmd_run)
-    s = sub.add_parser("plot", help="regenerate the figures of a `tdacm run` folder")
+    s = _command(sub, "plot", _cmd_plot)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--out", help="folder for the figures (default: RUN_DIR)")
     s.add_argument("--formats", default="png,pdf", help="comma-separated (default png,pdf)")
     s.add_argument("--kinds", help="comma-separated figure kinds (default: all)")
-    s.set_defaults(func=_cmd_plot)
-    s = sub.add_parser("scenarios", help="list the shipped scenarios")
-    s.set_defaults(func=_cmd_scenarios)
-    s = sub.add_parser(
-        "schema",
-        help="print the JSON Schema of a scenario file (for editor completion)",
-        description="Print the JSON Schema of a scenario file (of a campaign spec with "
-        "--campaign); with --markdown, write the scenario reference "
-        "(docs/scenario-reference.md) generated from the same records.",
-    )
+    _command(sub, "scenarios", _cmd_scenarios)
+    s = _command(sub, "schema", _cmd_schema)
     s.add_argument(
         "--markdown",
         nargs="?",
@@ -745,21 +781,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--campaign", action="store_true", help="the JSON Schema of a campaign spec instead"
     )
-    s.set_defaults(func=_cmd_schema)
-    s = sub.add_parser("campaign", help="run a robustness campaign on Dask (resumable)")
+    s = _command(sub, "campaign", _cmd_campaign)
     s.add_argument("spec", help="campaign spec TOML (see docs/campaigns.md)")
     s.add_argument(
         "--workers", type=_positive_int, help="local Dask worker processes (default: CPU count)"
     )
     s.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:port)")
     s.add_argument("--out", default="out/campaign", help="output folder; rerun to resume")
-    s.set_defaults(func=_cmd_campaign)
-    s = sub.add_parser(
-        "replay",
-        help="3-D animation (GIF or MP4) or Rerun recording of a `tdacm run` folder",
-        description="Animate a run folder in 3-D (real time by default), or with --rerun "
-        "convert it to a Rerun recording (.rrd).",
-    )
+    s = _command(sub, "replay", _cmd_replay)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--out", help="output .gif or .mp4 (default: RUN_DIR/replay.gif)")
     s.add_argument("--fps", type=_positive_int, help="frame rate (default: chosen for --speed)")
@@ -775,14 +804,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.rrd",
         help="write a Rerun recording instead (default RUN_DIR/run.rrd)",
     )
-    s.set_defaults(func=_cmd_replay)
-    s = sub.add_parser(
-        "export",
-        help="export a `tdacm run` folder as MCAP with ROS 2 message types",
-        description="Write a run folder as an MCAP recording (tf, joint states, poses, camera "
-        "info, servo features; see docs/recordings.md), readable by Foxglove and "
-        "`ros2 bag play` without a ROS installation.",
-    )
+    s = _command(sub, "export", _cmd_export)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--mcap", required=True, metavar="FILE", help="output .mcap file")
     s.add_argument(
@@ -798,26 +820,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="re-render C_L and C_G every N steps as sensor_msgs/Image (default 0: none)",
     )
-    s.set_defaults(func=_cmd_export)
-    s = sub.add_parser(
-        "import",
-        help="import an MCAP recording into time-stamped signals (.npz)",
-        description="Read an MCAP recording (ROS 2 messages) through a topic map (TOML "
-        "[topics]: a lab's topic -> tdacm signal) and write one NAME.npz per signal.",
-    )
+    s = _command(sub, "import", _cmd_import)
     s.add_argument("file", help="an .mcap recording")
     _add_topic_map(s)
     s.add_argument("--out", required=True, metavar="DIR", help="folder for the signals")
     _add_relative(s)
-    s.set_defaults(func=_cmd_import)
-    s = sub.add_parser(
-        "replay-recording",
-        help="re-run an MCAP recording through perception, the estimator and the servo features",
-        description="Replay a recording (through a topic map) period by period through the "
-        "scenario's perception block, its EKF (when the recording has pose, IMU or encoder "
-        "signals) and the servo's feature computation; writes DIR/replay.npz (t, q_hat, qd_hat, "
-        "features, feature_error, points, rmse, detected). See docs/recordings.md.",
-    )
+    s = _command(sub, "replay-recording", _cmd_replay_recording)
     s.add_argument("file", help="an .mcap recording")
     _add_topic_map(s)
     s.add_argument("--scenario", required=True, help="the robot's scenario (name or TOML file)")
@@ -830,14 +838,7 @@ def build_parser() -> argparse.ArgumentParser:
         "EKF when the recording has proprioception)",
     )
     _add_relative(s)
-    s.set_defaults(func=_cmd_replay_recording)
-    s = sub.add_parser(
-        "identify",
-        help="estimate physical parameters from recordings (motion capture, tensions)",
-        description="Fit the model's simulated motion to recorded trajectories (multiple "
-        "shooting, least squares; see docs/identify.md) and write identification.json, "
-        "robot.toml (a [robot] block for a scenario) and identification.png.",
-    )
+    s = _command(sub, "identify", _cmd_identify)
     s.add_argument("recording", nargs="+", help="run folders (timeseries.npz) or .mcap recordings")
     s.add_argument(
         "--params",
@@ -887,7 +888,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="exit with code 3 when the fit's residuals are far from the measurement noise "
         "(misfit; see docs/identify.md)",
     )
-    s.set_defaults(func=_cmd_identify)
     return p
 
 

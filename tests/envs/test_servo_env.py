@@ -156,8 +156,8 @@ def test_vector_env_steps(mode):
 @pytest.mark.parametrize("renderer", ["default", "pybullet"])
 def test_async_vector_after_the_parent_used_an_env(renderer):
     """make, reset, close an env; then AsyncVectorEnv([make] * 2).reset(seed=0) and steps. With
-    PyBullet's EGL renderer started in the parent before the fork, the forked workers used to
-    hang in Mesa; they now render with TinyRenderer. A subprocess with a timeout: a hang
+    PyBullet's EGL renderer started in the parent before the fork, a forked worker that used
+    EGL would hang in Mesa; the workers render with TinyRenderer. A subprocess with a timeout: a hang
     fails the test."""
     script = Path(__file__).with_name("_async_after_parent.py")
     args = [sys.executable, str(script)] + (["pybullet"] if renderer == "pybullet" else [])

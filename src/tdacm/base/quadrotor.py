@@ -54,17 +54,20 @@ class Quadrotor:
     @property
     def gamma(self) -> np.ndarray:
         """``Gamma`` (6x4): motor thrusts -> body wrench (paper eq. (15))."""
-        r, k = self.arm_length, self.drag_factor
-        return np.array(
-            [
-                [0.0, r, 0.0, -r],
-                [-r, 0.0, r, 0.0],
-                [k, -k, k, -k],
-                [0.0, 0.0, 0.0, 0.0],
-                [0.0, 0.0, 0.0, 0.0],
-                [1.0, 1.0, 1.0, 1.0],
-            ]
-        )
+        return np.array(gamma_rows(self.arm_length, self.drag_factor), dtype=float)
+
+
+def gamma_rows(r, k) -> list:
+    """The rows of ``Gamma`` (paper eq. (15), module docstring) for the arm length ``r`` and
+    the drag factor ``k``: numbers, or symbols (the other entries are the integers 0, 1)."""
+    return [
+        [0, r, 0, -r],
+        [-r, 0, r, 0],
+        [k, -k, k, -k],
+        [0, 0, 0, 0],
+        [0, 0, 0, 0],
+        [1, 1, 1, 1],
+    ]
 
 
 @dataclass

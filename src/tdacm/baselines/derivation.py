@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
+from ..base.quadrotor import gamma_rows
 from .stumpff import STUMPFF
 
 #: bump when the derivation changes (part of the cache key)
@@ -262,16 +263,7 @@ def derive(spec: DerivationSpec) -> Derived:
     Bs = sp.Matrix([[-sp.diff(li, qk) for li in lengths] for qk in q])
     if spec.floating:
         rm, kd = par["r_m"], par["k_d"]
-        gamma = sp.Matrix(
-            [
-                [0, rm, 0, -rm],
-                [-rm, 0, rm, 0],
-                [kd, -kd, kd, -kd],
-                [0, 0, 0, 0],
-                [0, 0, 0, 0],
-                [1, 1, 1, 1],
-            ]
-        )
+        gamma = sp.Matrix(gamma_rows(rm, kd))
         # virtual work of the body wrench: J_b^b^T Gamma u, J_b^b = blkdiag(T, R_b^T) on (Euler, r)
         jb = sp.zeros(6, n)
         jb[:3, :3] = Tm

@@ -135,9 +135,9 @@ class TipServoVectorEnv(VectorEnv):
         self.max_lost = int(o.max_lost)
         self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3, float)
         self.render_mode = None
-        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.data["dt"])))
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
 
-        seed0 = int(sc["seed"])
+        seed0 = int(sc.config.seed)
         self.assembly = a = build_loop(sc, seed0)
         loop = a.loop
         from ..loop.servo import RobustServo

@@ -74,34 +74,23 @@ class EncoderConfig(ConfigModel):
         return self.noise**2 + self.resolution**2 / 12.0
 
 
+_SUB = {"pose": PoseSensorConfig, "imu": ImuConfig, "encoders": EncoderConfig}
+
+
+def _flat_key(sub: str, name: str) -> str:
+    """A sub-record's field under its ``[sensors]`` name: ``<sensor>_<field>`` with ``rate``
+    for ``rate_hz`` (``pose_rate``, ``encoder_noise``), the IMU's ``gyro_*`` and ``accel_*``
+    as they are."""
+    if name.startswith(("gyro_", "accel_")):
+        return name
+    prefix = {"pose": "pose", "imu": "imu", "encoders": "encoder"}[sub]
+    return f"{prefix}_{'rate' if name == 'rate_hz' else name}"
+
+
 #: flat scenario key (section ``[sensors]``) -> (sub-record, field)
 SENSOR_KEYS = {
-    "pose_enabled": ("pose", "enabled"),
-    "pose_rate": ("pose", "rate_hz"),
-    "pose_latency": ("pose", "latency"),
-    "pose_position_noise": ("pose", "position_noise"),
-    "pose_attitude_noise": ("pose", "attitude_noise"),
-    "pose_dropout": ("pose", "dropout"),
-    "imu_enabled": ("imu", "enabled"),
-    "imu_rate": ("imu", "rate_hz"),
-    "imu_latency": ("imu", "latency"),
-    "gyro_noise": ("imu", "gyro_noise"),
-    "gyro_bias": ("imu", "gyro_bias"),
-    "gyro_bias_walk": ("imu", "gyro_bias_walk"),
-    "accel_noise": ("imu", "accel_noise"),
-    "accel_bias": ("imu", "accel_bias"),
-    "accel_bias_walk": ("imu", "accel_bias_walk"),
-    "imu_dropout": ("imu", "dropout"),
-    "encoder_enabled": ("encoders", "enabled"),
-    "encoder_rate": ("encoders", "rate_hz"),
-    "encoder_latency": ("encoders", "latency"),
-    "encoder_resolution": ("encoders", "resolution"),
-    "encoder_noise": ("encoders", "noise"),
-    "encoder_bias": ("encoders", "bias"),
-    "encoder_dropout": ("encoders", "dropout"),
+    _flat_key(sub, name): (sub, name) for sub, rec in _SUB.items() for name in rec.model_fields
 }
-
-_SUB = {"pose": PoseSensorConfig, "imu": ImuConfig, "encoders": EncoderConfig}
 
 #: The proprioceptive keys of ``[sensors]`` as one flat record: each field is the sub-record's
 #: field (same default, range and description) under its scenario name.

@@ -40,6 +40,7 @@ Missing measurements (dropouts, slower sensors) simply mean predict-only ticks.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,20 +78,26 @@ def _kalman_update(x, p, r, h, rr):
         ) from exc
 
 
+@dataclass(slots=True, eq=False)
 class _Tick:
-    __slots__ = ("t", "u", "x_prior", "p_prior", "phi", "qn", "jac", "meas", "x_post", "p_post")
+    """One filter period in the history: its input, prior, transition ``phi``, process noise
+    ``qn`` and Jacobian, the measurements fused at it and its posterior (the prior until
+    one is)."""
 
-    def __init__(self, t, u, x_prior, p_prior, phi, qn, jac):
-        self.t = t
-        self.u = u
-        self.x_prior = x_prior
-        self.p_prior = p_prior
-        self.phi = phi
-        self.qn = qn
-        self.jac = jac
-        self.meas = []
-        self.x_post = x_prior
-        self.p_post = p_prior
+    t: float
+    u: object
+    x_prior: np.ndarray
+    p_prior: np.ndarray
+    phi: object
+    qn: object
+    jac: object
+    meas: list = field(default_factory=list)
+    x_post: np.ndarray = None
+    p_post: np.ndarray = None
+
+    def __post_init__(self):
+        self.x_post = self.x_prior
+        self.p_post = self.p_prior
 
 
 class ExtendedKalmanFilter:

@@ -232,34 +232,46 @@ def build_loop(
         )
     if servo is None:
         servo = servo_block(cfg.ibvs, cfg.recovery, touch, paper, world, ctl_camera, desired, src)
-    model = controller_model(cfg.model, cfg.aerodynamics, s, seed)
-    if controller is None:
-        folders = search_folders(scenario.folder)
-        controller = controller_block(cfg.controller, model, world, cfg.dt, src, folders)
-    plant = plant_block(cfg, world, seed, suite is not None, src)
+    model, controller, plant = _controller_and_plant(scenario, world, seed, controller, suite)
     force = force_block(touch, servo, model, robot)
-    controller = truth_ablation(controller, cfg.estimation.controller_truth, plant, src)
     if suite is not None:
         estimator = estimation_block(
             cfg.estimation, cfg.ibvs.target_level_normal, s, seed, plant, suite, world.q0,
             model, robot.tip_mount, world.target, ctl_camera,
         )  # fmt: skip
+    log = RunLog(servo.desired_points, frame_composer, truth_of(world, sensors.local))
+    blocks = (plant, sensors, perception, servo, controller)
+    return _assembly(scenario, world, seed, model, blocks, estimator, log, force)
+
+
+def _controller_and_plant(scenario, world, seed, controller, suite):
+    """The controller's model (``[model]``), the low-level controller (``controller`` if given,
+    else ``[controller]``'s, with ``estimation.controller_truth``) and the plant; ``suite``:
+    the proprioceptive sensors of the estimator (the plant then keeps ``qdd``), or ``None``."""
+    cfg, src = scenario.config, scenario.source
+    model = controller_model(cfg.model, cfg.aerodynamics, world.robot.system, seed)
+    if controller is None:
+        folders = search_folders(scenario.folder)
+        controller = controller_block(cfg.controller, model, world, cfg.dt, src, folders)
+    plant = plant_block(cfg, world, seed, suite is not None, src)
+    controller = truth_ablation(controller, cfg.estimation.controller_truth, plant, src)
+    return model, controller, plant
+
+
+def _assembly(scenario, world, seed, model, blocks, estimator, log, force=None) -> Assembly:
+    """The :class:`~tdacm.loop.ClosedLoop` of ``blocks`` (plant, sensors, perception, servo,
+    controller) with the safety monitor of ``[safety]`` and the obstacles' forces logged, its
+    kernels warmed up, as an :class:`Assembly`."""
+    cfg = scenario.config
+    plant = blocks[0]
+    safety = SafetyMonitor.from_config(cfg.safety)
     loop = ClosedLoop(
-        plant,
-        sensors,
-        perception,
-        servo,
-        controller,
-        cfg.dt,
-        estimator=estimator,
-        safety=SafetyMonitor.from_config(cfg.safety),
-        log=RunLog(servo.desired_points, frame_composer, truth_of(world, sensors.local)),
-        name=scenario.name,
+        *blocks, cfg.dt, estimator=estimator, safety=safety, log=log, name=scenario.name,
         force=force,
-    )
+    )  # fmt: skip
     if plant.contact is not None:
-        loop.log.contact = contact_logger(s, plant.contact)
-    warm_up(s, world.q0)
+        loop.log.contact = contact_logger(plant.system, plant.contact)
+    warm_up(plant.system, world.q0)
     return Assembly(loop, world, seed, model, scenario)
 
 
@@ -287,7 +299,7 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
 
     cfg, src = scenario.config, scenario.source
     _refuse_for_arms(cfg, src)
-    robot, s = world.robot, world.robot.system
+    robot = world.robot
     imperfections = camera_imperfections(cfg.sensors)
     sensors, cams = arms_camera_sensors(cfg.cameras, imperfections, world, seed, video)
     for k, sensor in enumerate(sensors.locals_):
@@ -314,24 +326,8 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
                         desired[k], src, arm=arm)
             for k, arm in enumerate(robot.arms)
         ])  # fmt: skip
-    model = controller_model(cfg.model, cfg.aerodynamics, s, seed)
-    if controller is None:
-        folders = search_folders(scenario.folder)
-        controller = controller_block(cfg.controller, model, world, cfg.dt, src, folders)
-    plant = plant_block(cfg, world, seed, False, src)
-    controller = truth_ablation(controller, cfg.estimation.controller_truth, plant, src)
+    model, controller, plant = _controller_and_plant(scenario, world, seed, controller, None)
     truths = [truth_of(world.arm(k), sensors.locals_[k]) for k in range(len(robot.arms))]
-    loop = ClosedLoop(
-        plant,
-        sensors,
-        perception,
-        servo,
-        controller,
-        cfg.dt,
-        estimator=estimator,
-        safety=SafetyMonitor.from_config(cfg.safety),
-        log=ArmsLog([p for p, _ in desired], composer, truths),
-        name=scenario.name,
-    )
-    warm_up(s, world.q0)
-    return Assembly(loop, world, seed, model, scenario)
+    log = ArmsLog([p for p, _ in desired], composer, truths)
+    blocks = (plant, sensors, perception, servo, controller)
+    return _assembly(scenario, world, seed, model, blocks, estimator, log)

@@ -148,46 +148,32 @@ def _wrap(a):
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
 
 
+#: The six arctangent terms of the angular features, each a (numerator, denominator) pair of
+#: differences ``p[i, a] - p[j, b]`` written ``(i, a, j, b)`` (points in the paper order TL, BL,
+#: BR, TR; axis 0 = x, 1 = y). The features and their Jacobian both read this table.
+_TERMS = np.array(
+    [
+        [[0, 0, 1, 0], [1, 1, 0, 1]],
+        [[3, 0, 2, 0], [2, 1, 3, 1]],
+        [[2, 1, 1, 1], [2, 0, 1, 0]],
+        [[3, 1, 0, 1], [3, 0, 0, 0]],
+        [[0, 1, 3, 1], [3, 0, 0, 0]],
+        [[1, 1, 2, 1], [2, 0, 1, 0]],
+    ]
+)
+
+
 @njit(cache=True)
 def _terms(p):
-    """(numerator, denominator) of the six arctangents (see :func:`_angle_terms`)."""
+    """(numerator, denominator) of the six arctangents (:data:`_TERMS`)."""
     t = np.empty((6, 2))
-    t[0, 0] = p[0, 0] - p[1, 0]
-    t[0, 1] = p[1, 1] - p[0, 1]
-    t[1, 0] = p[3, 0] - p[2, 0]
-    t[1, 1] = p[2, 1] - p[3, 1]
-    t[2, 0] = p[2, 1] - p[1, 1]
-    t[2, 1] = p[2, 0] - p[1, 0]
-    t[3, 0] = p[3, 1] - p[0, 1]
-    t[3, 1] = p[3, 0] - p[0, 0]
-    t[4, 0] = p[0, 1] - p[3, 1]
-    t[4, 1] = p[3, 0] - p[0, 0]
-    t[5, 0] = p[1, 1] - p[2, 1]
-    t[5, 1] = p[2, 0] - p[1, 0]
+    for k in range(6):
+        for m in range(2):
+            d = _TERMS[k, m]
+            t[k, m] = p[d[0], d[1]] - p[d[2], d[3]]
     return t
 
 
-# (point, axis, sign) of the numerator and denominator of each arctangent term
-_NUM = np.array(
-    [
-        [[0, 0, 1], [1, 0, -1]],
-        [[3, 0, 1], [2, 0, -1]],
-        [[2, 1, 1], [1, 1, -1]],
-        [[3, 1, 1], [0, 1, -1]],
-        [[0, 1, 1], [3, 1, -1]],
-        [[1, 1, 1], [2, 1, -1]],
-    ]
-)
-_DEN = np.array(
-    [
-        [[1, 1, 1], [0, 1, -1]],
-        [[2, 1, 1], [3, 1, -1]],
-        [[2, 0, 1], [1, 0, -1]],
-        [[3, 0, 1], [0, 0, -1]],
-        [[3, 0, 1], [0, 0, -1]],
-        [[2, 0, 1], [1, 0, -1]],
-    ]
-)
 _EDGES = np.array([[0, 1], [1, 2], [2, 3], [0, 3]])
 
 
@@ -218,9 +204,11 @@ def _jacobian_kernel(p):
     for k in range(6):
         n, d = t[k, 0], t[k, 1]
         r2 = n * n + d * d
-        for m in range(2):
-            g[k, 2 * _NUM[k, m, 0] + _NUM[k, m, 1]] += _NUM[k, m, 2] * d / r2
-            g[k, 2 * _DEN[k, m, 0] + _DEN[k, m, 1]] -= _DEN[k, m, 2] * n / r2
+        num, den = _TERMS[k, 0], _TERMS[k, 1]
+        for m in range(2):  # the first point of each difference (sign +1), then the second
+            sign = 1.0 - 2.0 * m
+            g[k, 2 * num[2 * m] + num[2 * m + 1]] += sign * d / r2
+            g[k, 2 * den[2 * m] + den[2 * m + 1]] -= sign * n / r2
     jac = np.zeros((6, 8))
     for c in range(8):
         jac[0, c] = 0.5 * (g[0, c] - g[1, c])

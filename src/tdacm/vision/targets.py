@@ -87,6 +87,33 @@ class FiducialTarget:
         """Grayscale ``uint8`` texture of the whole board (row 0 = top edge, ``y = -h/2``)."""
         raise NotImplementedError
 
+    #: white border of the board beyond the pattern (m) and texture pixels per marker cell
+    margin: float
+    pixels_per_cell: int
+
+    def _check(self, **sizes) -> None:
+        """``sizes`` (name -> metres) positive, ``margin`` non-negative, ``pixels_per_cell`` a
+        positive integer (``ValueError`` naming the first that is not)."""
+        for key, value in sizes.items():
+            C.positive(key, value)
+        C.nonnegative("margin", self.margin)
+        C.positive_int("pixels_per_cell", self.pixels_per_cell)
+
+    @property
+    def _marker_side(self) -> float:  # pragma: no cover - abstract
+        """Side of one marker's black square (m)."""
+        raise NotImplementedError
+
+    @property
+    def _cells(self) -> int:
+        """Cells along a marker's side: its data bits and one black border cell each side."""
+        return _dictionary_cells(self.dictionary) + 2
+
+    @property
+    def _px_per_m(self) -> float:
+        """Texture pixels per metre (a marker's cells lie on the pixel grid)."""
+        return self._cells * self.pixels_per_cell / self._marker_side
+
     @property
     def aruco_dictionary(self):
         return cv2.aruco.getPredefinedDictionary(self.dictionary)
@@ -125,9 +152,7 @@ class ArucoMarker(FiducialTarget):
     pixels_per_cell: int = 40
 
     def __post_init__(self):
-        C.positive("size", self.size)
-        C.nonnegative("margin", self.margin)
-        C.positive_int("pixels_per_cell", self.pixels_per_cell)
+        self._check(size=self.size)
         _check_ids("marker_id", self.dictionary, (self.marker_id,))
 
     @property
@@ -135,12 +160,8 @@ class ArucoMarker(FiducialTarget):
         return (int(self.marker_id),)
 
     @property
-    def _cells(self) -> int:
-        return _dictionary_cells(self.dictionary) + 2  # data bits + one black border cell
-
-    @property
-    def _px_per_m(self) -> float:
-        return self._cells * self.pixels_per_cell / self.size
+    def _marker_side(self) -> float:
+        return self.size
 
     @property
     def _margin_px(self) -> int:
@@ -187,11 +208,7 @@ class AprilTagPattern(FiducialTarget):
     pixels_per_cell: int = 12
 
     def __post_init__(self):
-        C.positive("tag_size", self.tag_size)
-        C.positive("width", self.width)
-        C.positive("height", self.height)
-        C.nonnegative("margin", self.margin)
-        C.positive_int("pixels_per_cell", self.pixels_per_cell)
+        self._check(tag_size=self.tag_size, width=self.width, height=self.height)
         ids = tuple(int(i) for i in self.ids)
         if len(ids) != 4 or len(set(ids)) != 4:
             raise ValueError(f"ids must be 4 distinct tag ids, got {self.ids!r}")
@@ -201,12 +218,8 @@ class AprilTagPattern(FiducialTarget):
             raise ValueError("width and height must exceed tag_size (tags would overlap)")
 
     @property
-    def _cells(self) -> int:
-        return _dictionary_cells(self.dictionary) + 2
-
-    @property
-    def _px_per_m(self) -> float:
-        return self._cells * self.pixels_per_cell / self.tag_size
+    def _marker_side(self) -> float:
+        return self.tag_size
 
     def _centers(self) -> np.ndarray:
         """Tag centres (x, y) in the target frame, paper order TL, BL, BR, TR."""
