@@ -181,3 +181,5 @@ def test_recovery_of_one_arm_from_its_global_snapshot():
     held = q_d[rec]
     assert np.ptp(held[:, 2:8], axis=0).max() == 0.0  # drone (yaw, x, y, z), arm 0: held
     assert np.ptp(held[:, 8:10], axis=0).max() > 0.05  # arm 1's rod follows its plan
+    # IBVS engaged (the safety monitor re-armed) when arm 1 saw its marker again
+    assert res.switch_time == pytest.approx(r["t"][rec[-1] + 1])

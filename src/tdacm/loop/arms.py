@@ -216,6 +216,7 @@ class ArmsServo:
         views = first_view.arms if isinstance(first_view, ArmsView) else [None] * len(self.arms)
         for a, v in zip(self.arms, views, strict=True):
             a.reset(q0, v)
+        self._lost = self.mode == Mode.RECOVERY
 
     def joint_rates(self, q, twists) -> np.ndarray:
         """``qdot_d[c] = [J_k(q_v)[:, c]]_k^+ [Ad(g_{C_Lk}^{Lk}) v_k]_k`` over the commanded
@@ -231,8 +232,14 @@ class ArmsServo:
         lead, n = self.arms[0], self.n
         per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
         modes = [p[0] for p in per]
+        # the robot's events: an arm losing its target; IBVS engaged when the last lost arm
+        # sees its target again (the loop arms the safety monitor then, as for one arm)
+        was_lost = self._lost
+        self._lost = any(m == Mode.RECOVERY for m in modes)
         event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
-        if event is None:
+        if event is None and was_lost and not self._lost:
+            event = ServoEvent.IBVS_ENGAGED
+        if event is None and per[0][1] != ServoEvent.IBVS_ENGAGED:
             event = per[0][1]
         states, twists = [], []
         external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
