@@ -112,3 +112,32 @@ def test_plan_jacobian_matches_finite_differences():
         _point_and_jacobian(qs + e, *args, pp, jj)
         _point_and_jacobian(qs - e, *args, pm, jj)
         np.testing.assert_allclose(jac[:, c], (pp - pm) / (2 * h), atol=1e-7)
+
+
+@pytest.mark.parametrize("rod", [0, 1])
+def test_plan_for_either_arm_of_two(rod):
+    """The recovery plan of one arm of two (its strains only): the planned strains put the
+    target on that arm's C_L optical axis through the full two-arm chain, the other arm's
+    strains do not change the plan, and a single-arm robot's plan is unchanged by the rod
+    argument's default."""
+    from tdacm import dual_paper_system
+    from tdacm.control.planner import rod_columns
+
+    s = dual_paper_system()
+    tip_mount = tip_camera_mount()
+    cols = rod_columns(s, rod)
+    assert cols.stop - cols.start == s.n_s // 2
+    sign = 1.0 if rod == 0 else -1.0
+    p_body = np.array([sign * 0.5, 0.25, -2.0])  # beside the arm, out of its straight view
+    plan = plan_rod_configuration(s, p_body, tip_mount, np.zeros(2), z_min=LOCAL_CAMERA.near,
+                                  rod=rod)  # fmt: skip
+    assert plan.success and np.hypot(*plan.point_local[:2]) < 1e-4
+    for other in (0.0, 0.4):  # the other arm bent or not: same point in this arm's camera
+        q = np.zeros(s.n)
+        q[6:] = other
+        q[6 + cols.start : 6 + cols.stop] = plan.q_s
+        g_cl = s.base_pose(q) @ np.linalg.solve(s.base_pose(q), s.tip_pose(q, rod)) @ tip_mount
+        r = np.linalg.solve(g_cl, s.base_pose(q) @ np.append(p_body, 1.0))[:3]
+        assert np.allclose(r, plan.point_local, atol=1e-9)
+        assert np.allclose(target_in_local_camera(s, plan.q_s, p_body, tip_mount, rod), r,
+                           atol=1e-9)  # fmt: skip

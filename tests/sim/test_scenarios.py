@@ -21,6 +21,7 @@ from tdacm.viz import plot_run_dir
 NAMES = [
     "custom-robot-example",
     "dual-in-fov",
+    "dual-out-of-fov",
     "flight-test-c",
     "ground-test-a",
     "ground-test-b",

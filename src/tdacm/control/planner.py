@@ -93,9 +93,14 @@ def square_pose(square, xy, centre, out):
     return True
 
 
-def _rod_tip_in_body(system, q_s, base_q=None) -> np.ndarray:
-    """``g_a^b g_L^a(q_s)``: the tip pose in the body (or clamp) frame."""
+def _rod_tip_in_body(system, q_s, base_q=None, rod: int = 0) -> np.ndarray:
+    """``g_a^b g_L^a(q_s)``: the tip pose of rod ``rod`` (strains ``q_s``, those of that rod
+    when the robot has several) in the body (or clamp) frame."""
     q_s = np.asarray(q_s, float)
+    if system.n_rods > 1:
+        full = np.zeros(system.n_s)
+        full[rod_columns(system, rod)] = q_s
+        q_s = full
     if system.floating:
         q = np.zeros(system.n)
         if base_q is not None:
@@ -103,12 +108,13 @@ def _rod_tip_in_body(system, q_s, base_q=None) -> np.ndarray:
         q[6:] = q_s
     else:
         q = q_s
-    return np.linalg.solve(system.base_pose(q), system.tip_pose(q))
+    return np.linalg.solve(system.base_pose(q), system.tip_pose(q, rod))
 
 
-def target_in_local_camera(system, q_s, point_body, tip_mount) -> np.ndarray:
-    """Target point (given in the body frame) expressed in C_L for rod strains ``q_s``."""
-    g_cl_b = _rod_tip_in_body(system, q_s) @ tip_mount
+def target_in_local_camera(system, q_s, point_body, tip_mount, rod: int = 0) -> np.ndarray:
+    """Target point (given in the body frame) expressed in C_L for rod strains ``q_s`` (of
+    rod ``rod``)."""
+    g_cl_b = _rod_tip_in_body(system, q_s, rod=rod) @ tip_mount
     p = np.append(np.asarray(point_body, float), 1.0)
     return np.linalg.solve(g_cl_b, p)[:3]
 
@@ -135,12 +141,22 @@ def _point_and_jacobian(qs, m, lo, hi, mount_inv, p_body, p, jac):
     derivative ``d p / d q_s`` (into ``jac`` (3, n_s)): ``[p^] J_w - J_v``."""
     ns = qs.shape[0]
     off = 6 if m.floating else 0
-    q = np.zeros(off + ns)
+    # the rod whose steps are lo:hi, its first strain column and the strains of all rods (the
+    # other rods' strains stay zero: they do not move this rod's chain)
+    rod = 0
+    for r in range(m.rod_steps.shape[0] - 1):
+        if m.rod_steps[r] == lo:
+            rod = r
+    col0 = m.step_col[lo]
+    nst = 0
+    for k in range(m.step_col.shape[0]):
+        nst = max(nst, m.step_col[k] + m.step_nc[k])
+    q = np.zeros(off + nst)
     for i in range(ns):
-        q[off + i] = qs[i]
+        q[off + col0 + i] = qs[i]
     g, j, _ = chain_jacobian(
-        q, np.zeros(q.shape[0]), m.floating, m.g_fixed, m.g_att[0], m.h[lo:hi], m.xi0s[lo:hi],
-        m.bs[lo:hi], m.step_col[lo:hi], m.step_nc[lo:hi],
+        q, np.zeros(q.shape[0]), m.floating, m.g_fixed, m.g_att[rod], m.h[lo:hi],
+        m.xi0s[lo:hi], m.bs[lo:hi], m.step_col[lo:hi], m.step_nc[lo:hi],
     )  # fmt: skip
     if not m.floating:  # relative to the clamp
         gi = np.linalg.inv(m.g_fixed)
@@ -157,8 +173,9 @@ def _point_and_jacobian(qs, m, lo, hi, mount_inv, p_body, p, jac):
     for c in range(ns):
         jw = np.empty(3)
         jv = np.empty(3)
-        w0, w1, w2 = j[0, off + c], j[1, off + c], j[2, off + c]
-        v0, v1, v2 = j[3, off + c], j[4, off + c], j[5, off + c]
+        jc = off + col0 + c
+        w0, w1, w2 = j[0, jc], j[1, jc], j[2, jc]
+        v0, v1, v2 = j[3, jc], j[4, jc], j[5, jc]
         for i in range(3):
             jw[i] = r[i, 0] * w0 + r[i, 1] * w1 + r[i, 2] * w2
         # v_c = R v + t x (R w)
@@ -257,19 +274,37 @@ def plan_kernel(qs_now, m, lo, hi, mount_inv, p_body, z_min, bound, has_start):
     return best_x, best_p, best_key[1], not best_key[0]
 
 
-def plan_rod_configuration(
-    system, point_body, tip_mount, q_s0=None, z_min: float = 0.5, bound: float = PLAN_BOUND
-) -> PlanResult:
-    """``q_s^d`` of the paper's constrained minimization (see module docstring)."""
+def rod_columns(system, rod: int = 0) -> slice:
+    """The strain coordinates of rod ``rod`` among the strains ``q_s`` (a slice; the rods'
+    strains are consecutive, rod 0 first)."""
     m = system.model_arrays
-    if len(m.rod_steps) > 2:
-        raise ValueError("the recovery plans the strains of one arm")
-    ns = system.n_s
+    if not 0 <= rod < len(m.rod_steps) - 1:
+        raise ValueError(f"rod {rod} out of range (the robot has {len(m.rod_steps) - 1})")
+    lo, hi = int(m.rod_steps[rod]), int(m.rod_steps[rod + 1])
+    cols = m.step_col[lo:hi]
+    return slice(int(cols.min()), int((cols + m.step_nc[lo:hi]).max()))
+
+
+def plan_rod_configuration(
+    system,
+    point_body,
+    tip_mount,
+    q_s0=None,
+    z_min: float = 0.5,
+    bound: float = PLAN_BOUND,
+    rod: int = 0,
+) -> PlanResult:
+    """``q_s^d`` of the paper's constrained minimization (see module docstring) for the
+    strains of rod ``rod`` (its columns :func:`rod_columns`; ``q_s0`` and the result are that
+    rod's strains, the other rods' do not enter its chain)."""
+    m = system.model_arrays
+    cols = rod_columns(system, rod)
+    ns = cols.stop - cols.start
     has = q_s0 is not None
     start = np.asarray(q_s0, float) if has else np.zeros(ns)
     mount_inv = np.linalg.inv(np.asarray(tip_mount, float))
     x, p, c, feasible = plan_kernel(
-        np.ascontiguousarray(start), m, int(m.rod_steps[0]), int(m.rod_steps[1]),
+        np.ascontiguousarray(start), m, int(m.rod_steps[rod]), int(m.rod_steps[rod + 1]),
         np.ascontiguousarray(mount_inv), np.ascontiguousarray(point_body, dtype=float),
         float(z_min), float(bound), has,
     )  # fmt: skip

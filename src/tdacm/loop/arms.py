@@ -22,21 +22,24 @@ the safety monitor and the outputs run unchanged):
 * :class:`ArmsLog`: the run log with the per-arm series :data:`ARM_SERIES`; ``rmse`` and
   ``rmse_true`` are the largest over the arms (the safety monitor watches the worst arm).
 
-The recovery with the global camera is per arm in the paper's construction but not
-implemented here: a run starts with every target in its arm's view (the assembly checks it)
-and ends, as a failed recovery, when an arm's target is lost.
+The recovery with the global camera runs per arm (:meth:`ArmsServo.recover`): while an
+arm's target is out of its C_L view, the drone holds its reference and that arm's rod follows
+the paper's plan from one C_G snapshot of its own marker (C_G detects each arm's marker,
+:class:`ArmsGlobal`); the other rods hold. Once every arm sees its target again the stacked
+IBVS resumes from that reference.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from ..control import Mode
 from ..vision.tip import rates_from_jacobian
-from .data import CameraMeasurement, LocalView, ServoCommand, ServoEvent
+from .data import CameraMeasurement, DeferredMeasurement, LocalView, ServoCommand, ServoEvent
 from .logger import RunLog
 from .sensors import Sensors
 from .servo import normalized_rmse
@@ -66,6 +69,25 @@ class ArmsMeasurement(tuple):
         return self[0].image
 
 
+class ArmsGlobal(DeferredMeasurement):
+    """One C_G measurement per arm (``arms``, each detecting its arm's marker and taken only
+    when read, :class:`~.data.DeferredMeasurement`); reads as arm 0's where one C_G frame is
+    expected (the log, the outputs)."""
+
+    __slots__ = ("arms",)
+
+    def __init__(self, arms):
+        self.arms = tuple(arms)
+        super().__init__(self.arms[0].t_capture, None)
+
+    @property
+    def taken(self) -> bool:
+        return self.arms[0].taken
+
+    def value(self):
+        return self.arms[0].value()
+
+
 @dataclass(frozen=True)
 class ArmsView(LocalView):
     """Arm 0's :class:`~.data.LocalView` (its fields) and every arm's view (``arms``)."""
@@ -89,13 +111,14 @@ class ArmsSensors(Sensors):
     is arm 0's). Arm 0's C_L is read first and C_G, the other sensors after it, as for one
     arm; the other arms' C_L after them."""
 
-    def __init__(self, locals_, *args, **kwargs):
+    def __init__(self, locals_, *args, globals_=(), **kwargs):
         super().__init__(locals_[0], *args, **kwargs)
         self.locals_ = list(locals_)
+        self.globals_ = list(globals_)  # C_G detecting arm k's marker, k >= 1
 
     def reset(self) -> None:
         super().reset()
-        for s in self.locals_[1:]:
+        for s in self.locals_[1:] + self.globals_:
             s.reset()
 
     def first_look(self, t: float, q) -> ArmsMeasurement:
@@ -109,11 +132,17 @@ class ArmsSensors(Sensors):
     def read(self, state, request_global: bool = False):
         r = super().read(state, request_global)
         local = ArmsMeasurement([r.local] + [s.measure(state) for s in self.locals_[1:]])
-        return type(r)(r.t, local, r.global_, r.other, r.global_output)
+        glob = r.global_
+        if glob is not None and self.globals_:
+            glob = ArmsGlobal(
+                [glob] + [DeferredMeasurement(state.t, partial(g.measure, state))
+                          for g in self.globals_]
+            )  # fmt: skip
+        return type(r)(r.t, local, glob, r.other, r.global_output)
 
     def close(self) -> None:
         super().close()
-        for s in self.locals_[1:]:
+        for s in self.locals_[1:] + self.globals_:
             s.close()
 
 
@@ -138,6 +167,10 @@ class ArmsPerception:
         return ArmsView(v0.t_capture, v0.found, v0.pixels, v0.points, v0.depths, views)
 
     def global_(self, m):
+        """Arm 0's :class:`~.data.GlobalView`, or with one C_G measurement per arm
+        (:class:`ArmsGlobal`) a tuple of every arm's."""
+        if isinstance(m, ArmsGlobal):
+            return tuple(p.global_(mk) for p, mk in zip(self.arms, m.arms, strict=True))
         return self.arms[0].global_(m)
 
 
@@ -183,6 +216,7 @@ class ArmsServo:
         views = first_view.arms if isinstance(first_view, ArmsView) else [None] * len(self.arms)
         for a, v in zip(self.arms, views, strict=True):
             a.reset(q0, v)
+        self._lost = self.mode == Mode.RECOVERY
 
     def joint_rates(self, q, twists) -> np.ndarray:
         """``qdot_d[c] = [J_k(q_v)[:, c]]_k^+ [Ad(g_{C_Lk}^{Lk}) v_k]_k`` over the commanded
@@ -198,8 +232,14 @@ class ArmsServo:
         lead, n = self.arms[0], self.n
         per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
         modes = [p[0] for p in per]
+        # the robot's events: an arm losing its target; IBVS engaged when the last lost arm
+        # sees its target again (the loop arms the safety monitor then, as for one arm)
+        was_lost = self._lost
+        self._lost = any(m == Mode.RECOVERY for m in modes)
         event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
-        if event is None:
+        if event is None and was_lost and not self._lost:
+            event = ServoEvent.IBVS_ENGAGED
+        if event is None and per[0][1] != ServoEvent.IBVS_ENGAGED:
             event = per[0][1]
         states, twists = [], []
         external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
@@ -212,14 +252,13 @@ class ArmsServo:
             states.append(ArmServoState(points, rmse, extra.get("rmse_measured", math.nan), v,
                                         bool(seen)))  # fmt: skip
         qdd_d = np.zeros(n)
-        failure = None
+        failure = plan = None
+        request = False
         lost = [k for k, m in enumerate(modes) if m == Mode.RECOVERY]
         if lost:
-            failure = (
-                f"arm {lost[0]}: target not in its C_L view (the recovery with the global "
-                "camera is for one arm only)"
-            )
-            lead.qd_d = np.zeros(n)
+            qdd_d, request, failure, plan = self.recover(t, q, gview, lost)
+            if plan is not None and event is None:
+                event = "recovery planned"
         elif seen_all:
             qdd_d = lead.follow_rates(q, self.joint_rates(q, twists), t, dt)
         else:  # an arm's target not seen this period (nothing fused yet): hold
@@ -232,8 +271,37 @@ class ArmsServo:
             self.mode, lead.q_d.copy(), lead.qd_d.copy(), qdd_d, twists[0], p0[5], p0[6], p0[4],
             rmse, event=event, failure=failure,
             rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
-            target_pose=e0.get("target_pose"), arms=tuple(states),
+            target_pose=e0.get("target_pose"), arms=tuple(states), request_global=request,
+            plan=plan,
         )  # fmt: skip
+
+    def recover(self, t: float, q, gview, lost: list[int]):
+        """The recovery of the arms ``lost`` (module docstring): the drone holds its
+        reference, each lost arm's rod follows the cubic trajectory of its own plan (one C_G
+        snapshot of its marker, :meth:`~.servo.VisualServo.recover` on its strains), the other
+        rods hold theirs. Returns ``(qdd_d, request_global, failure, plan_info)`` and sets the
+        lead servo's ``q_d``, ``qd_d``."""
+        lead, n = self.arms[0], self.n
+        q_d, qd_d, qdd_d = lead.q_d.copy(), np.zeros(n), np.zeros(n)
+        views = gview if isinstance(gview, tuple) else (gview,) * len(self.arms)
+        request, failure, plan = False, None, None
+        for k in lost:
+            arm, acc = self.arms[k], np.zeros(n)
+            status, info = arm.recover(t, q, views[k], acc)
+            if status == "hold":
+                request = True
+                if info is not None and failure is None:
+                    failure = f"arm {k}: {info}"
+                continue
+            if status == "failed":
+                failure = failure or f"arm {k}: {info}"
+                continue
+            if info is not None and plan is None:
+                plan = dict(info, arm=k)
+            c = arm._strains
+            q_d[c], qd_d[c], qdd_d[c] = arm.q_d[c], arm.qd_d[c], acc[c]
+        lead.q_d, lead.qd_d = q_d, qd_d
+        return qdd_d, request, failure, plan
 
 
 class ArmsLog(RunLog):

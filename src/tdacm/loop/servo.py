@@ -34,6 +34,7 @@ from ..control import (
     estimate_target_pose,
     plan_rod_configuration,
 )
+from ..control.planner import rod_columns
 from ..lie.se3 import adjoint_pair, expmap, so3_log
 from ..vision.features import _min_edge2, advanced_features
 from ..vision.ibvs import IBVSController
@@ -124,6 +125,10 @@ class VisualServo:
             lim[5] = self.shaping.max_vertical_speed
         self._lim = lim
         self._ad_mount, self._ad_mount_inv = adjoint_pair(self.tip_mount)
+        # the coordinates of this servo's rod's strains in q (all strains for one arm)
+        cols = rod_columns(s, self.rod)
+        base = n - s.n_s
+        self._strains = np.arange(base + cols.start, base + cols.stop)
         self.switch = ModeSwitch(
             local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
         )
@@ -206,9 +211,9 @@ class VisualServo:
         s = self.system
         g_t_cg = estimate_target_pose(gview.detection, self.global_camera, self.target)
         p_body = self.drone_mount @ g_t_cg[:, 3]
-        q_s_now = q[s.n - s.n_s :]
+        q_s_now = q[self._strains]
         plan = plan_rod_configuration(
-            s, p_body[:3], self.tip_mount, q_s_now, z_min=self.local_camera.near
+            s, p_body[:3], self.tip_mount, q_s_now, z_min=self.local_camera.near, rod=self.rod
         )
         traj = CubicTrajectory.with_speed(q_s_now, plan.q_s, t, self.recovery.max_speed)
         return plan, traj
@@ -257,11 +262,11 @@ class VisualServo:
             if s.floating:
                 self.q_d[:2] = 0.0
         qs_d, qsd_d, qsdd_d = self.traj(t)
-        ns = s.n_s
-        self.q_d[n - ns :] = qs_d
+        cols = self._strains
+        self.q_d[cols] = qs_d
         self.qd_d = np.zeros(n)
-        self.qd_d[n - ns :] = qsd_d
-        qdd_d[n - ns :] = qsdd_d
+        self.qd_d[cols] = qsd_d
+        qdd_d[cols] = qsdd_d
         return "ok", plan_info
 
     def recovery_branch(self, t, q, gview, mode, qdd_d, twist, features, error, points, rmse,

@@ -302,17 +302,6 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
     robot = world.robot
     imperfections = camera_imperfections(cfg.sensors)
     sensors, cams = arms_camera_sensors(cfg.cameras, imperfections, world, seed, video)
-    for k, sensor in enumerate(sensors.locals_):
-        det, _ = sensor.ideal(world.q0)
-        sensor.reset()
-        inside = det.found and bool(
-            np.all(sensor.camera.pixels_in_image(det.points, cfg.recovery.margin_px))
-        )
-        if not inside:
-            raise ScenarioError(
-                f"{src}: initial.q: arm {k}'s marker is not in its C_L view at the start (the "
-                "global-camera recovery runs for one arm only)"
-            )
     perception = ArmsPerception([perception_block(c, world.arm(k)) for k, c in enumerate(cams)])
     desired = [
         reference_snapshot(sensors.locals_[k], robot, world.target, world.scenes[k],

@@ -137,7 +137,8 @@ def camera_sensors(
 def arms_camera_sensors(cameras: CamerasConfig, imperfections: SensorModel, world, seed: int,
                         video: bool):  # fmt: skip
     """:func:`camera_sensors` for ``[[robot.arms]]``: ``(sensors, controller_cameras)`` with
-    one C_L per arm (:class:`~tdacm.loop.arms.ArmsSensors`), each seeing its own marker; arm
+    one C_L per arm (:class:`~tdacm.loop.arms.ArmsSensors`), each seeing its own marker, and
+    C_G detecting each arm's marker (the recovery per arm); arm
     0's imperfections (and its controller camera's intrinsics error) from ``[seed, 1]`` as for
     one arm, arm k's from ``[seed, 1, k]``."""
     from ..loop.arms import ArmsSensors
@@ -145,8 +146,17 @@ def arms_camera_sensors(cameras: CamerasConfig, imperfections: SensorModel, worl
     one, cam0 = camera_sensors(cameras, imperfections, world, seed, video)
     robot, s = world.robot, world.robot.system
     kind = "planar-local" if cameras.local_renderer == "planar" else "analytic"
-    locals_, cams = [one.local], [cam0]
+    locals_, cams, globals_ = [one.local], [cam0], []
+    g_kind = cameras.global_renderer
+    if g_kind == "planar" and cameras.local_renderer == "analytic":
+        g_kind = "analytic"
     for k, arm in enumerate(robot.arms[1:], start=1):
+        globals_.append(CameraSensor(
+            s, "base", robot.drone_mount,
+            front_end(g_kind, robot.global_camera, world.scenes[k], world.target,
+                      cameras.global_backend),
+            keep_images=video,
+        ))  # fmt: skip
         rng = np.random.default_rng([seed, 1, k])
         scene = world.scenes[k]
         locals_.append(CameraSensor(
@@ -161,6 +171,7 @@ def arms_camera_sensors(cameras: CamerasConfig, imperfections: SensorModel, worl
         always_global=one.always_global,
         other=one.other,
         global_output_every=one.global_output_every,
+        globals_=globals_,
     )
     return sensors, cams
 
