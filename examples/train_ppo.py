@@ -224,39 +224,36 @@ def train(
     return agent, rec.rows
 
 
-def export_npz(agent, path: Path, options: dict) -> None:
-    """The deterministic policy as arrays: the MLP's layers ``W0, b0, W1, b1, W2, b2`` (tanh
-    between, tanh on the output), the observation scaling ``obs_mean``, ``obs_var``
-    (``(obs - mean) / (sqrt(var) + 1e-8)`` clipped to +-5) and ``meta`` (JSON: the env options
-    it was trained on and the observation size)."""
+def export_policy(agent, path: Path, env_unwrapped, options: dict) -> Path:
+    """The deterministic policy as a policy file (:func:`tdacm.loop.policy.save_policy`: the
+    MLP's layers, tanh between and on the output, the observation scaling, the robot it was
+    trained for, the action scale and the env options), loaded with numpy alone by
+    :func:`tdacm.loop.policy.load_policy` or by a scenario's ``[servo] policy``."""
+    from tdacm.loop.policy import save_policy
+    from tdacm.sim.blocks import robot_signature
+
     params = agent.models["policy"].state_dict.params["params"]
-    arrays = {}
-    for i in range(3):
-        arrays[f"W{i}"] = np.asarray(params[f"Dense_{i}"]["kernel"], np.float32)
-        arrays[f"b{i}"] = np.asarray(params[f"Dense_{i}"]["bias"], np.float32)
+    k = sum(1 for name in params if name.startswith("Dense_"))
+    W = [np.asarray(params[f"Dense_{i}"]["kernel"]) for i in range(k)]
+    b = [np.asarray(params[f"Dense_{i}"]["bias"]) for i in range(k)]
     sc = agent._observation_preprocessor
-    arrays["obs_mean"] = np.asarray(sc.running_mean, np.float32)
-    arrays["obs_var"] = np.asarray(sc.running_variance, np.float32)
-    meta = {"options": options, "observation_size": int(arrays["W0"].shape[0])}
-    np.savez(path, meta=json.dumps(meta), **arrays)
+    u = env_unwrapped
+    meta = {
+        "robot": robot_signature(u.scenario.config, u.n, u.scenario.name),
+        "action_scale": {"max_angular": float(u.scale[0]), "max_linear": float(u.scale[3])},
+        "features": u.scenario.config.ibvs.features,
+        "env_options": options,
+    }
+    return save_policy(path, W, b, sc.running_mean, sc.running_variance, meta)
 
 
 def load_npz(path):
-    """The deterministic policy ``obs (.., m) -> action (.., 6)`` of :func:`export_npz`'s file,
-    numpy only; and its metadata."""
-    z = np.load(path)
-    meta = json.loads(str(z["meta"]))
-    W = [z[f"W{i}"].astype(float) for i in range(3)]
-    b = [z[f"b{i}"].astype(float) for i in range(3)]
-    mean, std = z["obs_mean"].astype(float), np.sqrt(z["obs_var"].astype(float)) + 1e-8
+    """The deterministic policy ``obs (.., m) -> action (.., 6)`` of :func:`export_policy`'s
+    file, numpy only (:func:`tdacm.loop.policy.load_policy`); and its metadata."""
+    from tdacm.loop.policy import load_policy
 
-    def act(obs):
-        x = np.clip((np.asarray(obs, float) - mean) / std, -5.0, 5.0)
-        x = np.tanh(x @ W[0] + b[0])
-        x = np.tanh(x @ W[1] + b[1])
-        return np.tanh(x @ W[2] + b[2])
-
-    return act, meta
+    p = load_policy(path)
+    return p, p.meta
 
 
 def policy_of(agent):
@@ -381,7 +378,9 @@ def main(
     agent, rows = train(timesteps, seed, directory=out, ppo=ppo, num_envs=num_envs)
     train_s = time.perf_counter() - t0
     agent.save(str(out / "policy.pickle"))
-    export_npz(agent, out / "policy.npz", {"scenario": "paper-in-fov", **TASK})
+    env = make_env(1)
+    export_policy(agent, out / "policy.npz", env.unwrapped, {"scenario": "paper-in-fov", **TASK})
+    env.close()
     results = {
         "task": TASK,
         "timesteps": timesteps,

@@ -23,18 +23,11 @@ Actions (``action_type``):
 * ``"actuators"``: raw inputs in ``[0, 1]`` scaled to ``[0, max_thrust]`` per motor and
   ``[0, max_tension]`` per tendon (fixed base: tensions only); no controller.
 
-Observation (float32, size ``15 + 2 n`` for a robot of ``n`` coordinates, each entry clipped to
-``[-OBS_CLIP, OBS_CLIP]``; :data:`OBSERVATION_SCALES`):
-
-* ``[0:6]`` the advanced-feature error ``p* - p*_d`` divided by ``FEATURE_SCALE``;
-* ``[6:14]`` the four normalized image points in C_V (C_L for a fixed base), divided by C_L's
-  half-extent in normalized coordinates (``cx / fx``, ``cy / fy``): +-1 is the image border
-  (zeros when the target is not detected);
-* ``[14]`` the detection flag (0 or 1);
-* ``[15:15+n]`` the state estimate's offset from the desired configuration,
-  ``(q_hat - q*) / q_scale`` (q_scale: ``ANGLE_SCALE`` rad for the drone's angles,
-  ``POSITION_SCALE`` m for its position, ``STRAIN_SCALE`` 1/m for the strain coefficients);
-* ``[15+n:]`` the velocity estimate ``qdot_hat / q_scale`` (per second).
+Observation (float32, size ``15 + 2 n`` for a robot of ``n`` coordinates): the one of the
+policy block, :func:`tdacm.loop.policy.observation` (its layout and scaling,
+:data:`OBSERVATION_SCALES`): the feature error, the four points in C_V, the detection flag,
+the state estimate's offset from ``q*`` and its velocity, scaled and clipped to
+``[-OBS_CLIP, OBS_CLIP]``.
 
 Reward per step: ``-rmse``, minus the normalized RMSE of the four points to the reference
 snapshot (C_V); ``-lost_penalty`` when the target is not detected. Success (``rmse <=
@@ -59,22 +52,27 @@ import numpy as np
 from gymnasium import spaces
 
 from ..loop.data import Termination
+from ..loop.policy import (
+    ANGLE_SCALE,
+    FEATURE_SCALE,
+    OBS_CLIP,
+    OBSERVATION_SCALES,
+    POSITION_SCALE,
+    STRAIN_SCALE,
+    observation,
+    observation_size,
+    state_scales,
+)
 from ..vision.virtual import BehindVirtualCamera
 from .options import EnvOptions
 
-#: Observation scaling (module docstring).
-FEATURE_SCALE = 0.5
-ANGLE_SCALE = 0.5  # rad
-POSITION_SCALE = 1.0  # m
-STRAIN_SCALE = 1.0  # 1/m
-OBS_CLIP = 5.0
-OBSERVATION_SCALES = {
-    "feature_error": FEATURE_SCALE,
-    "angle": ANGLE_SCALE,
-    "position": POSITION_SCALE,
-    "strain": STRAIN_SCALE,
-    "clip": OBS_CLIP,
-}
+#: Observation scaling (module docstring), one definition with the policy block's
+#: (:mod:`tdacm.loop.policy`).
+__all__ = [
+    "ANGLE_SCALE", "FEATURE_SCALE", "OBSERVATION_SCALES", "OBS_CLIP", "POSITION_SCALE",
+    "STRAIN_SCALE", "TipServoEnv",
+]  # fmt: skip
+
 #: Roll/pitch (rad) beyond which the episode ends (Termination.OUT_OF_ENVELOPE).
 MAX_TILT = 1.2
 #: The env's scenario defaults (module docstring), under the user's overrides.
@@ -138,12 +136,8 @@ class TipServoEnv(gym.Env):
             ]
         cam = self.loop.perception.local_camera
         self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
-        q_scale = np.full(n, STRAIN_SCALE)
-        if s.floating:
-            q_scale[:3] = ANGLE_SCALE
-            q_scale[3:6] = POSITION_SCALE
-        self.q_scale = q_scale
-        high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
+        self.q_scale = state_scales(n, s.floating)
+        high = np.full(observation_size(n), OBS_CLIP, np.float32)
         low = -high
         high[14], low[14] = 1.0, 0.0
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
@@ -181,25 +175,21 @@ class TipServoEnv(gym.Env):
         """``(observation, view, points, rmse, behind)`` at the loop's current state."""
         sensed = self._sensed = self.loop.sense()
         view, est = sensed.view, sensed.estimate
-        n = self.n
-        obs = np.zeros(15 + 2 * n)
         rmse = math.nan
-        points = None
+        points = error = None
         behind = False
         if view.found:
             try:
                 points, _, _, error, rmse = self.loop.servo.observe(view, est.q)
             except BehindVirtualCamera:
                 behind = True
-            else:
-                obs[:6] = error / FEATURE_SCALE
-                obs[6:14] = (np.asarray(points) / self.point_scale).ravel()
-                obs[14] = 1.0
-        obs[15 : 15 + n] = (est.q - self.world.q_star) / self.q_scale
-        obs[15 + n :] = est.qd / self.q_scale
-        if not np.isfinite(obs).all():
-            np.nan_to_num(obs, copy=False, nan=0.0)
-        np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
+        seen = view.found and not behind
+        obs = observation(
+            np.zeros((1, 6)) if error is None else np.asarray(error)[None],
+            np.zeros((1, 4, 2)) if points is None else np.asarray(points)[None],
+            [seen], est.q[None], est.qd[None], self.world.q_star, self.q_scale,
+            self.point_scale,
+        )[0]  # fmt: skip
         return obs.astype(np.float32), view, points, rmse, behind
 
     def reset(self, *, seed=None, options=None):

@@ -46,17 +46,9 @@ from gymnasium.vector.utils import batch_space
 from ..batch import engine as E
 from ..batch import servo as BS
 from ..loop.data import Termination
+from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
 from .options import EnvOptions
-from .servo import (
-    ANGLE_SCALE,
-    ENV_DEFAULTS,
-    FEATURE_SCALE,
-    MAX_TILT,
-    OBS_CLIP,
-    POSITION_SCALE,
-    STRAIN_SCALE,
-    _merge,
-)
+from .servo import ENV_DEFAULTS, MAX_TILT, _merge
 
 
 def _ending(name):
@@ -169,14 +161,10 @@ class TipServoVectorEnv(VectorEnv):
         self.q_star = np.asarray(a.world.q_star, float)
         cam = loop.perception.local_camera
         self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
-        q_scale = np.full(n, STRAIN_SCALE)
-        if s.floating:
-            q_scale[:3] = ANGLE_SCALE
-            q_scale[3:6] = POSITION_SCALE
-        self.q_scale = q_scale
+        self.q_scale = state_scales(n, s.floating)
 
         self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
-        high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
+        high = np.full(observation_size(n), OBS_CLIP, np.float32)
         low = -high
         high[14], low[14] = 1.0, 0.0
         self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
@@ -192,7 +180,7 @@ class TipServoVectorEnv(VectorEnv):
         self._reached = np.zeros(N, np.bool_)
         self._left = np.zeros(N, np.bool_)
         self._autoreset = np.zeros(N, np.bool_)
-        self._obs = np.zeros((N, 15 + 2 * n), np.float32)
+        self._obs = np.zeros((N, observation_size(n)), np.float32)
         self._rmse = np.full(N, np.nan)
         self._status = np.zeros(N, np.int64)
         self._points = np.zeros((N, 4, 2))
@@ -242,17 +230,11 @@ class TipServoVectorEnv(VectorEnv):
         self._parallel(
             E.observe_worlds, (self.batch.model, d, self._points, self._error, self._status)
         )
-        n = self.n
         seen = self._status == BS.SEEN
-        obs = np.zeros((self.num_envs, 15 + 2 * n))
-        obs[:, :6] = np.where(seen[:, None], self._error / FEATURE_SCALE, 0.0)
-        pts = self._points / self.point_scale
-        obs[:, 6:14] = np.where(seen[:, None], pts.reshape(-1, 8), 0.0)
-        obs[:, 14] = seen
-        obs[:, 15 : 15 + n] = (d.q - self.q_star) / self.q_scale
-        obs[:, 15 + n :] = d.qd / self.q_scale
-        np.nan_to_num(obs, copy=False, nan=0.0)
-        np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
+        obs = observation(
+            self._error, self._points, seen, d.q, d.qd, self.q_star, self.q_scale,
+            self.point_scale,
+        )  # fmt: skip
         dp = self.batch.model.servo.desired_points
         with np.errstate(invalid="ignore"):
             rmse = np.sqrt(np.mean(np.sum((self._points - dp) ** 2, axis=2), axis=1))
