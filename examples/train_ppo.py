@@ -36,21 +36,61 @@ SPREAD = (0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05)
 TASK = {"max_steps": 250, "success_rmse": 0.01, "hold_success": True, "init_noise": SPREAD}
 EVAL_SEED0 = 10_000
 #: worlds of the vector env stepped together
-N_ENVS = 64
-#: PPO's settings (skrl's PPO_CFG names): 32 steps per world per update (2048 transitions)
+N_ENVS = 128
+#: PPO's settings (skrl's PPO_CFG names): 32 steps per world per update (4,096 transitions),
+#: the learning rate adapted to a KL divergence of 0.01 per update
 PPO = {
     "rollouts": 32,
     "learning_epochs": 5,
     "mini_batches": 4,
-    "discount_factor": 0.98,
+    "discount_factor": 0.99,
     "gae_lambda": 0.95,
-    "learning_rate": 3e-4,
-    "grad_norm_clip": 0.5,
+    "learning_rate": 1e-3,
+    "kl_threshold": 0.0,
+    "grad_norm_clip": 1.0,
     "ratio_clip": 0.2,
     "value_clip": 0.2,
     "entropy_loss_scale": 0.0,
-    "value_loss_scale": 0.5,
+    "value_loss_scale": 1.0,
+    "time_limit_bootstrap": True,
 }
+#: the training's wall-time budget (minutes): the set-up, JAX's compilation and the training
+#: within 15 minutes on two cores
+MINUTES = 13.0
+#: the learning rate's KL target (skrl's KLAdaptiveLR)
+KL_TARGET = 0.01
+#: the initial log standard deviation of the Gaussian policy's actions (in [-1, 1] units)
+INIT_LOG_STD = -1.0
+#: The training reward (docs/env.md, "Learning"), computed from each step's ``info`` by
+#: :class:`Recorder`'s wrapper in place of the env's reward: per step ``-rmse / rmse_scale``
+#: while the target is seen, plus ``near_bonus`` at or below ``near`` and ``inside_bonus`` at
+#: or below the success threshold; ``-lost`` per step without the target; a failure ending
+#: pays ``-lost`` for each step left; a successful end adds ``success_bonus``.
+SHAPING = {
+    "rmse_scale": 0.05,
+    "near": 0.02,
+    "near_bonus": 0.5,
+    "inside_bonus": 1.0,
+    "lost": 4.0,
+    "success_bonus": 20.0,
+}
+
+
+def shaped_reward(info, steps, max_steps: int) -> np.ndarray:
+    """:data:`SHAPING`'s reward of one vector step from its ``info`` (the worlds being reset
+    this step get 0, as the env's own reward) and the worlds' step counts."""
+    sh = SHAPING
+    rmse = np.asarray(info["rmse"], float)
+    seen = np.asarray(info["detected"], bool) & np.isfinite(rmse)
+    r_ok = np.nan_to_num(rmse, nan=1.0)
+    r = np.where(seen, -np.minimum(r_ok, 1.0) / sh["rmse_scale"], -sh["lost"])
+    r += np.where(seen & (r_ok <= sh["near"]), sh["near_bonus"], 0.0)
+    r += np.where(seen & (r_ok <= TASK["success_rmse"]), sh["inside_bonus"], 0.0)
+    success = np.asarray(info["success"], bool)
+    failed = np.array([t is not None for t in info["termination"]]) & ~success
+    r += np.where(success, sh["success_bonus"], 0.0)
+    r -= np.where(failed, sh["lost"] * (max_steps - np.asarray(steps)), 0.0)
+    return np.where(np.asarray(info["_success"], bool), r, 0.0)
 
 
 def make_env(num_envs: int = N_ENVS, **task):
@@ -67,14 +107,20 @@ def make_env(num_envs: int = N_ENVS, **task):
     )
 
 
+class OutOfTime(Exception):
+    """The training's wall-time budget is spent (raised by :class:`Recorder`'s wrapper)."""
+
+
 class Recorder:
     """The training episodes as the vector env ends them: ``(env steps, wall s, success,
-    final rmse)``, read from the ``info`` of each step (a gymnasium wrapper)."""
+    final rmse)``, read from the ``info`` of each step (a gymnasium wrapper that also gives
+    :func:`shaped_reward` and stops the training after ``budget_s`` seconds)."""
 
-    def __init__(self, env):
+    def __init__(self, env, budget_s: float = float("inf")):
         self.env = env
         self.rows = []
         self.steps = 0
+        self.budget_s = budget_s
         self.t0 = time.perf_counter()
 
     def wrap(self):
@@ -84,7 +130,9 @@ class Recorder:
 
         class Record(gym.vector.VectorWrapper):
             def step(self, actions):
-                obs, r, term, trunc, info = self.env.step(actions)
+                obs, _, term, trunc, info = self.env.step(actions)
+                u = self.env.unwrapped
+                r = shaped_reward(info, u.steps, u.max_steps)
                 rec.steps += len(r)
                 wall = time.perf_counter() - rec.t0
                 for w in np.flatnonzero(term | trunc):
@@ -96,6 +144,8 @@ class Recorder:
                         f"(last {last.size} episodes)",
                         flush=True,
                     )
+                if wall > rec.budget_s:
+                    raise OutOfTime
                 return obs, r, term, trunc, info
 
         return Record(self.env)
@@ -125,7 +175,7 @@ def _models(env):
             x = nn.tanh(nn.Dense(64)(x))
             mean = nn.tanh(nn.Dense(self.num_actions)(x))
             log_std = self.param(
-                "log_std", lambda _: jnp.full(self.num_actions, -0.5, dtype=jnp.float32)
+                "log_std", lambda _: jnp.full(self.num_actions, INIT_LOG_STD, dtype=jnp.float32)
             )
             return mean, {"log_std": log_std}
 
@@ -154,9 +204,12 @@ def make_agent(env, directory: Path | None = None, ppo: dict | None = None):
     from skrl.agents.jax.ppo import PPO_CFG
     from skrl.memories.jax import RandomMemory
     from skrl.resources.preprocessors.jax import RunningStandardScaler
+    from skrl.resources.schedulers.jax import KLAdaptiveLR
 
     settings = {**PPO, **(ppo or {})}
     cfg = PPO_CFG(**settings)
+    cfg.learning_rate_scheduler = KLAdaptiveLR
+    cfg.learning_rate_scheduler_kwargs = {"kl_threshold": KL_TARGET}
     cfg.observation_preprocessor = RunningStandardScaler
     cfg.observation_preprocessor_kwargs = {"size": env.observation_space, "device": env.device}
     cfg.value_preprocessor = RunningStandardScaler
@@ -191,10 +244,12 @@ def train(
     directory: Path | None = None,
     ppo=None,
     num_envs: int = N_ENVS,
+    minutes: float = float("inf"),
 ):
     """PPO on the twist action of :data:`TASK` on ``num_envs`` worlds (``ppo`` replaces some
-    of :data:`PPO`); returns the agent and the training episodes ``(env steps, wall s,
-    success, final rmse)``."""
+    of :data:`PPO`) for ``timesteps`` environment steps or ``minutes`` of wall time, whichever
+    ends first; returns the agent and the training episodes ``(env steps, wall s, success,
+    final rmse)``."""
     from skrl.envs.wrappers.jax import wrap_env
     from skrl.trainers.jax import SequentialTrainer
     from skrl.utils import set_seed
@@ -202,7 +257,7 @@ def train(
     _cpu()
     set_seed(seed)
     venv = make_env(num_envs)
-    rec = Recorder(venv)
+    rec = Recorder(venv, 60.0 * minutes)
     wrapped = rec.wrap()
     wrapped.reset(seed=seed)
     env = wrap_env(wrapped, wrapper="gymnasium", verbose=False)
@@ -218,7 +273,10 @@ def train(
         agents=agent,
     )
     rec.t0 = time.perf_counter()
-    trainer.train()
+    try:
+        trainer.train()
+    except OutOfTime:
+        log(f"wall-time budget of {minutes:g} min spent")
     log(f"trained {rec.steps} steps in {time.perf_counter() - rec.t0:.0f} s")
     venv.close()
     return agent, rec.rows
@@ -371,11 +429,13 @@ def main(
     seed: int = 0,
     ppo=None,
     num_envs: int = N_ENVS,
+    minutes: float = float("inf"),
 ):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    agent, rows = train(timesteps, seed, directory=out, ppo=ppo, num_envs=num_envs)
+    agent, rows = train(timesteps, seed, directory=out, ppo=ppo, num_envs=num_envs,
+                        minutes=minutes)  # fmt: skip
     train_s = time.perf_counter() - t0
     agent.save(str(out / "policy.pickle"))
     env = make_env(1)
@@ -385,6 +445,7 @@ def main(
         "task": TASK,
         "timesteps": timesteps,
         "num_envs": num_envs,
+        "steps_trained": int(rows[-1][0]) if rows else 0,
         "train_wall_s": train_s,
         "training_episodes": len(rows),
         "ppo": evaluate(policy_of(agent), eval_episodes),
@@ -409,9 +470,12 @@ if __name__ == "__main__":
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     ap.add_argument("--timesteps", type=int, default=2_000_000, help="environment steps")
+    ap.add_argument(
+        "--minutes", type=float, default=MINUTES, help="wall-time budget of the training"
+    )
     ap.add_argument("--num-envs", type=int, default=N_ENVS, help="worlds stepped together")
     ap.add_argument("--eval-episodes", type=int, default=100, help="held-out episodes")
     ap.add_argument("--out", default="out/ppo", help="output folder")
     ap.add_argument("--seed", type=int, default=0, help="seed of training")
     a = ap.parse_args()
-    main(a.timesteps, a.eval_episodes, a.out, a.seed, num_envs=a.num_envs)
+    main(a.timesteps, a.eval_episodes, a.out, a.seed, num_envs=a.num_envs, minutes=a.minutes)

@@ -92,9 +92,8 @@ def test_env_and_block_loop_see_the_same_observation(saved):
     loop.reset(q0, env.world.qd0)
     for k in range(25):
         loop.step()
-        # the env's float32 observation against the block's float64 one
-        np.testing.assert_allclose(loop.servo.last_observation, env_obs[k], atol=1e-5)
-        np.testing.assert_allclose(loop.plant.state.q, env_q[k], atol=1e-6)
+        np.testing.assert_array_equal(loop.servo.last_observation, env_obs[k])
+        np.testing.assert_allclose(loop.plant.state.q, env_q[k], rtol=0, atol=1e-12)
     loop.close()
 
 

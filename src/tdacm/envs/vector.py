@@ -30,8 +30,10 @@ number of worlds or the threads (tested). Unlike the single env, every reset (th
 too) draws a new loop seed: each episode has another model error and noise.
 
 What differs from the single env: the twist action only; the engine's scenario support (the
-robust servo's target filter, the EKF, contact and the multi-arm robots are refused naming the
-key). The recovery with the global camera runs batched as in the single env's loop (its
+EKF, contact and the multi-arm robots are refused naming the key). The observation holds the
+features the servo works on, as the single env's: with the robust servo (the shipped
+``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame
+(:func:`~tdacm.batch.engine.observe_worlds`), else the detected points. The recovery with the global camera runs batched as in the single env's loop (its
 failure ends a world as ``recovery failed``). No ``render``.
 """
 
@@ -132,14 +134,6 @@ class TipServoVectorEnv(VectorEnv):
         seed0 = int(sc["seed"])
         self.assembly = a = build_loop(sc, seed0)
         loop = a.loop
-        from ..loop.servo import RobustServo
-
-        if isinstance(loop.servo, RobustServo):  # the env observes and acts on measured points
-            loop.close()
-            raise ValueError(
-                "scenario: the vector env's servo works on the measured points: set "
-                "ibvs.features = 'measured'"
-            )
         # the engine never ends a world by its duration: the env truncates
         duration = (self.horizon + 2) * loop.dt
         try:

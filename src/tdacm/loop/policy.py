@@ -2,7 +2,7 @@
 policy file and the servo that runs it in place of the IBVS twist.
 
 **Observation** (:func:`observation`, the one definition the Gymnasium envs and
-:class:`PolicyServo` share; float, size :func:`observation_size` ``= 15 + 2 n`` for a robot of
+:class:`PolicyServo` share; float32, size :func:`observation_size` ``= 15 + 2 n`` for a robot of
 ``n`` coordinates, each entry clipped to ``[-OBS_CLIP, OBS_CLIP]``, NaN set to 0):
 
 * ``[0:6]`` the advanced-feature error ``p* - p*_d`` (eqs. (19)-(20)) divided by
@@ -78,7 +78,7 @@ def observation(error, points, seen, q, qd, q_star, q_scale, point_scale) -> np.
     """The observation (module docstring) of ``N`` worlds: ``error`` (N, 6), ``points``
     (N, 4, 2) (either may hold NaN or anything where ``seen`` (N,) is false), the estimate
     ``q``, ``qd`` (N, n); ``q_star``, ``q_scale`` (n,); ``point_scale`` (2,). Returns
-    (N, 15 + 2 n) float64, non-finite entries set to 0, clipped to ``+-OBS_CLIP``."""
+    (N, 15 + 2 n) float32, NaN entries set to 0, clipped to ``+-OBS_CLIP``."""
     seen = np.asarray(seen, bool)
     N, n = seen.shape[0], np.shape(q)[1]
     obs = np.zeros((N, observation_size(n)))
@@ -91,7 +91,7 @@ def observation(error, points, seen, q, qd, q_star, q_scale, point_scale) -> np.
     obs[:, 15 + n :] = np.asarray(qd, float) / q_scale
     np.nan_to_num(obs, copy=False, nan=0.0)
     np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
-    return obs
+    return obs.astype(np.float32)
 
 
 # ----------------------------------------------------------------------------- the file
