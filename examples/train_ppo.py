@@ -5,17 +5,20 @@ seeds.
 Needs the ``rl`` extra (``pip install 'tdacm[rl]'``: skrl, JAX and Flax, CPU wheels from PyPI,
 no torch). Run::
 
-    python examples/train_ppo.py --timesteps 2000000 --out out/ppo
+    python examples/train_ppo.py --out out/ppo      # 13 minutes of training (--minutes)
 
 The task (:data:`TASK`, the paper's): ``paper-in-fov`` from random initial poses (the
 robustness campaigns' spread), success when the normalized RMSE is at or below 0.01 at the end
 of the 5 s episode and has stayed there since it first got there (``hold_success``). The policy
-maps the observation to the twist by itself (no IBVS twist in its input or output).
+maps the observation to the twist by itself (no IBVS twist in its input or output). The
+servo is the shipped one (the robust servo's predicted features in the observation); the
+training reward is :data:`SHAPING`'s (docs/env.md, "Learning").
 
 It writes into ``--out``: ``learning_curve.png`` (the training episodes' success rate and final
 RMSE against the environment steps and the wall time), ``results.json`` (the held-out success
 rate and final RMSE), ``policy.pickle`` (the skrl agent) and ``policy.npz`` (the deterministic
-policy's weights and observation scaling, loaded with numpy alone: :func:`load_npz`). Training
+policy as a policy file, run with numpy alone and by a scenario's ``[servo] policy``:
+:func:`load_npz`). Training
 seeds are ``--seed`` + world index; evaluation uses seeds ``EVAL_SEED0`` and up, never seen in
 training.
 """
