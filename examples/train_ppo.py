@@ -60,6 +60,10 @@ PPO = {
 #: the training's wall-time budget (minutes): the set-up, JAX's compilation and the training
 #: within 15 minutes on two cores
 MINUTES = 13.0
+#: imitation before PPO: environment steps of the servo's own IBVS law (the teacher; the
+#: policy then maps the observation to the twist by itself), the fit's Adam steps
+IMITATION_STEPS = 32_000
+IMITATION_ITERATIONS = 3_000
 #: the learning rate's KL target (skrl's KLAdaptiveLR)
 KL_TARGET = 0.01
 #: the initial log standard deviation of the Gaussian policy's actions (in [-1, 1] units)
@@ -248,23 +252,31 @@ def train(
     ppo=None,
     num_envs: int = N_ENVS,
     minutes: float = float("inf"),
+    imitation_steps: int = 0,
 ):
     """PPO on the twist action of :data:`TASK` on ``num_envs`` worlds (``ppo`` replaces some
     of :data:`PPO`) for ``timesteps`` environment steps or ``minutes`` of wall time, whichever
     ends first; returns the agent and the training episodes ``(env steps, wall s, success,
-    final rmse)``."""
+    final rmse)``. ``imitation_steps`` > 0: :func:`imitate` first (a warm start)."""
     from skrl.envs.wrappers.jax import wrap_env
     from skrl.trainers.jax import SequentialTrainer
     from skrl.utils import set_seed
 
     _cpu()
     set_seed(seed)
+    t0 = time.perf_counter()
     venv = make_env(num_envs)
     rec = Recorder(venv, 60.0 * minutes)
     wrapped = rec.wrap()
-    wrapped.reset(seed=seed)
     env = wrap_env(wrapped, wrapper="gymnasium", verbose=False)
     agent = make_agent(env, directory, ppo)
+    if imitation_steps > 0:
+        imitate(agent, venv, imitation_steps, IMITATION_ITERATIONS, seed, log)
+        if directory is not None:
+            probe = make_env(1)
+            export_policy(agent, Path(directory) / "imitation.npz", probe.unwrapped, {})
+            probe.close()
+    wrapped.reset(seed=seed)
     trainer = SequentialTrainer(
         cfg={
             "timesteps": max(1, timesteps // num_envs),
@@ -275,7 +287,7 @@ def train(
         env=env,
         agents=agent,
     )
-    rec.t0 = time.perf_counter()
+    rec.t0 = t0  # the budget counts the imitation too
     try:
         trainer.train()
     except OutOfTime:
@@ -283,6 +295,59 @@ def train(
     log(f"trained {rec.steps} steps in {time.perf_counter() - rec.t0:.0f} s")
     venv.close()
     return agent, rec.rows
+
+
+def imitate(agent, venv, steps: int, iterations: int, seed: int, log=print) -> float:
+    """Fit the policy's mean to the servo's IBVS twist (behaviour cloning, a warm start for
+    PPO): ``steps`` environment steps of ``venv`` with the servo's own twist (NaN actions),
+    the observation scaler updated with their observations, then ``iterations`` Adam steps
+    (mini-batches of 1,024) on the squared error of the action in ``[-1, 1]`` units (the
+    teacher's twist over the action scale, clipped to +-0.97). Returns the final loss."""
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    u = venv.unwrapped
+    N = u.num_envs
+    obs, _ = venv.reset(seed=seed)
+    nan = np.full((N, 6), np.nan)
+    X, Y = [], []
+    for _ in range(max(1, steps // N)):
+        stepping = ~u._autoreset
+        o = obs.copy()
+        obs, *_ = venv.step(nan)
+        X.append(o[stepping])
+        Y.append(u.batch.data.twist[stepping] / u.scale)
+    X = jnp.asarray(np.concatenate(X), jnp.float32)
+    Y = jnp.asarray(np.clip(np.concatenate(Y), -0.97, 0.97), jnp.float32)
+    sc = agent._observation_preprocessor
+    sc(X, train=True)
+    Xs = sc(X)
+    model = agent.models["policy"]
+    opt = optax.adam(1e-3)
+    params = model.state_dict.params
+    state = opt.init(params)
+
+    def loss(p, x, y):
+        mean, _ = model.apply(p, {"observations": x}, "policy")
+        return jnp.mean((mean - y) ** 2)
+
+    @jax.jit
+    def update(p, s, x, y):
+        val, g = jax.value_and_grad(loss)(p, x, y)
+        upd, s = opt.update(g, s, p)
+        return optax.apply_updates(p, upd), s, val
+
+    rng = np.random.default_rng(seed)
+    val = float("nan")
+    for i in range(iterations):
+        idx = rng.integers(0, X.shape[0], 1024)
+        params, state, val = update(params, state, Xs[idx], Y[idx])
+        if i % 1000 == 0:
+            log(f"imitation: {X.shape[0]} samples, iteration {i}, loss {float(val):.4g}")
+    model.state_dict = model.state_dict.replace(params=params)
+    log(f"imitation: final loss {float(val):.4g}")
+    return float(val)
 
 
 def export_policy(agent, path: Path, env_unwrapped, options: dict) -> Path:
@@ -433,12 +498,13 @@ def main(
     ppo=None,
     num_envs: int = N_ENVS,
     minutes: float = float("inf"),
+    imitation_steps: int = 0,
 ):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     agent, rows = train(timesteps, seed, directory=out, ppo=ppo, num_envs=num_envs,
-                        minutes=minutes)  # fmt: skip
+                        minutes=minutes, imitation_steps=imitation_steps)  # fmt: skip
     train_s = time.perf_counter() - t0
     agent.save(str(out / "policy.pickle"))
     env = make_env(1)
@@ -452,12 +518,17 @@ def main(
         "train_wall_s": train_s,
         "training_episodes": len(rows),
         "ppo": evaluate(policy_of(agent), eval_episodes),
+        "imitation": evaluate(load_npz(out / "imitation.npz")[0], eval_episodes)
+        if imitation_steps > 0
+        else None,
         "ibvs": evaluate_ibvs(eval_episodes),
     }
     plot_curve(rows, out / "learning_curve.png")
     (out / "results.json").write_text(json.dumps(results, indent=2))
-    for name in ("ppo", "ibvs"):
+    for name in ("ppo", "imitation", "ibvs"):
         r = results[name]
+        if r is None:
+            continue
         print(
             f"{name}: success {r['success_rate']:.2f} on seeds {r['seeds']}, final rmse "
             f"(median) {r['final_rmse_median']}"
@@ -480,5 +551,17 @@ if __name__ == "__main__":
     ap.add_argument("--eval-episodes", type=int, default=100, help="held-out episodes")
     ap.add_argument("--out", default="out/ppo", help="output folder")
     ap.add_argument("--seed", type=int, default=0, help="seed of training")
+    ap.add_argument(
+        "--imitation-steps", type=int, default=IMITATION_STEPS,
+        help="steps of the servo's IBVS twist imitated before PPO (0: none)",
+    )  # fmt: skip
     a = ap.parse_args()
-    main(a.timesteps, a.eval_episodes, a.out, a.seed, num_envs=a.num_envs, minutes=a.minutes)
+    main(
+        a.timesteps,
+        a.eval_episodes,
+        a.out,
+        a.seed,
+        num_envs=a.num_envs,
+        minutes=a.minutes,
+        imitation_steps=a.imitation_steps,
+    )

@@ -235,7 +235,7 @@ def test_refusals_name_the_option():
         with pytest.raises(ValueError, match="actions"):
             env.step(np.zeros((3, 6)))
         with pytest.raises(ValueError, match="actions"):
-            env.step(np.full((2, 6), np.nan))
+            env.step(np.array([[np.nan, 0, 0, 0, 0, 0], [0] * 6]))
     finally:
         env.close()
 

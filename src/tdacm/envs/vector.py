@@ -8,7 +8,9 @@ observation (layout, scaling, float32, clipped), reward, success and failure end
 ``info`` keys (Gymnasium's vector form: one array per key and a ``_key`` mask of the worlds that
 returned it, as :class:`gymnasium.vector.SyncVectorEnv` over single envs gives).
 
-A step: the scaled twists replace the IBVS twists of the running worlds
+A step: the scaled twists replace the IBVS twists of the running worlds (a row of NaN keeps
+the servo's own IBVS twist, a teacher for imitation; ``batch.data.twist`` holds the twist
+each world applied)
 (:func:`~tdacm.batch.engine.act_worlds`: the servo's mapping and shaping, the low-level
 controller, the plant), then each world's tip camera delivers its next frame
 (:func:`~tdacm.batch.engine.sense_worlds`) and the env reads it
@@ -282,9 +284,11 @@ class TipServoVectorEnv(VectorEnv):
             raise RuntimeError("call reset before step")
         N = self.num_envs
         a = np.asarray(actions, dtype=float)
-        if a.shape != (N, 6) or not np.all(np.isfinite(a)):
+        finite = np.isfinite(a).all(axis=1) if a.shape == (N, 6) else None
+        if finite is None or not np.all(finite | np.isnan(a).all(axis=1)):
             raise ValueError(
-                f"actions must be a finite array of shape ({N}, 6), got shape {a.shape}"
+                f"actions must be an array of shape ({N}, 6), each row finite or all NaN (the "
+                f"servo's own twist), got shape {a.shape}"
             )
         twist = np.clip(a, -1.0, 1.0) * self.scale
         d = self.batch.data
