@@ -5,17 +5,20 @@ seeds.
 Needs the ``rl`` extra (``pip install 'tdacm[rl]'``: skrl, JAX and Flax, CPU wheels from PyPI,
 no torch). Run::
 
-    python examples/train_ppo.py --timesteps 2000000 --out out/ppo
+    python examples/train_ppo.py --out out/ppo      # 13 minutes of training (--minutes)
 
 The task (:data:`TASK`, the paper's): ``paper-in-fov`` from random initial poses (the
 robustness campaigns' spread), success when the normalized RMSE is at or below 0.01 at the end
 of the 5 s episode and has stayed there since it first got there (``hold_success``). The policy
-maps the observation to the twist by itself (no IBVS twist in its input or output).
+maps the observation to the twist by itself (no IBVS twist in its input or output). The
+servo is the shipped one (the robust servo's predicted features in the observation); the
+training reward is :data:`SHAPING`'s (docs/env.md, "Learning").
 
 It writes into ``--out``: ``learning_curve.png`` (the training episodes' success rate and final
 RMSE against the environment steps and the wall time), ``results.json`` (the held-out success
 rate and final RMSE), ``policy.pickle`` (the skrl agent) and ``policy.npz`` (the deterministic
-policy's weights and observation scaling, loaded with numpy alone: :func:`load_npz`). Training
+policy as a policy file, run with numpy alone and by a scenario's ``[servo] policy``:
+:func:`load_npz`). Training
 seeds are ``--seed`` + world index; evaluation uses seeds ``EVAL_SEED0`` and up, never seen in
 training.
 """
@@ -36,21 +39,65 @@ SPREAD = (0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05)
 TASK = {"max_steps": 250, "success_rmse": 0.01, "hold_success": True, "init_noise": SPREAD}
 EVAL_SEED0 = 10_000
 #: worlds of the vector env stepped together
-N_ENVS = 64
-#: PPO's settings (skrl's PPO_CFG names): 32 steps per world per update (2048 transitions)
+N_ENVS = 128
+#: PPO's settings (skrl's PPO_CFG names): 32 steps per world per update (4,096 transitions),
+#: the learning rate adapted to a KL divergence of 0.01 per update
 PPO = {
     "rollouts": 32,
     "learning_epochs": 5,
     "mini_batches": 4,
-    "discount_factor": 0.98,
+    "discount_factor": 0.99,
     "gae_lambda": 0.95,
-    "learning_rate": 3e-4,
-    "grad_norm_clip": 0.5,
+    "learning_rate": 1e-3,
+    "kl_threshold": 0.0,
+    "grad_norm_clip": 1.0,
     "ratio_clip": 0.2,
     "value_clip": 0.2,
     "entropy_loss_scale": 0.0,
-    "value_loss_scale": 0.5,
+    "value_loss_scale": 1.0,
+    "time_limit_bootstrap": True,
 }
+#: the training's wall-time budget (minutes): the set-up, JAX's compilation and the training
+#: within 15 minutes on two cores
+MINUTES = 13.0
+#: imitation before PPO: environment steps of the servo's own IBVS law (the teacher; the
+#: policy then maps the observation to the twist by itself), the fit's Adam steps
+IMITATION_STEPS = 32_000
+IMITATION_ITERATIONS = 3_000
+#: the learning rate's KL target (skrl's KLAdaptiveLR)
+KL_TARGET = 0.01
+#: the initial log standard deviation of the Gaussian policy's actions (in [-1, 1] units)
+INIT_LOG_STD = -1.0
+#: The training reward (docs/env.md, "Learning"), computed from each step's ``info`` by
+#: :class:`Recorder`'s wrapper in place of the env's reward: per step ``-rmse / rmse_scale``
+#: while the target is seen, plus ``near_bonus`` at or below ``near`` and ``inside_bonus`` at
+#: or below the success threshold; ``-lost`` per step without the target; a failure ending
+#: pays ``-lost`` for each step left; a successful end adds ``success_bonus``.
+SHAPING = {
+    "rmse_scale": 0.05,
+    "near": 0.02,
+    "near_bonus": 0.5,
+    "inside_bonus": 1.0,
+    "lost": 4.0,
+    "success_bonus": 20.0,
+}
+
+
+def shaped_reward(info, steps, max_steps: int) -> np.ndarray:
+    """:data:`SHAPING`'s reward of one vector step from its ``info`` (the worlds being reset
+    this step get 0, as the env's own reward) and the worlds' step counts."""
+    sh = SHAPING
+    rmse = np.asarray(info["rmse"], float)
+    seen = np.asarray(info["detected"], bool) & np.isfinite(rmse)
+    r_ok = np.nan_to_num(rmse, nan=1.0)
+    r = np.where(seen, -np.minimum(r_ok, 1.0) / sh["rmse_scale"], -sh["lost"])
+    r += np.where(seen & (r_ok <= sh["near"]), sh["near_bonus"], 0.0)
+    r += np.where(seen & (r_ok <= TASK["success_rmse"]), sh["inside_bonus"], 0.0)
+    success = np.asarray(info["success"], bool)
+    failed = np.array([t is not None for t in info["termination"]]) & ~success
+    r += np.where(success, sh["success_bonus"], 0.0)
+    r -= np.where(failed, sh["lost"] * (max_steps - np.asarray(steps)), 0.0)
+    return np.where(np.asarray(info["_success"], bool), r, 0.0)
 
 
 def make_env(num_envs: int = N_ENVS, **task):
@@ -67,14 +114,20 @@ def make_env(num_envs: int = N_ENVS, **task):
     )
 
 
+class OutOfTime(Exception):
+    """The training's wall-time budget is spent (raised by :class:`Recorder`'s wrapper)."""
+
+
 class Recorder:
     """The training episodes as the vector env ends them: ``(env steps, wall s, success,
-    final rmse)``, read from the ``info`` of each step (a gymnasium wrapper)."""
+    final rmse)``, read from the ``info`` of each step (a gymnasium wrapper that also gives
+    :func:`shaped_reward` and stops the training after ``budget_s`` seconds)."""
 
-    def __init__(self, env):
+    def __init__(self, env, budget_s: float = float("inf")):
         self.env = env
         self.rows = []
         self.steps = 0
+        self.budget_s = budget_s
         self.t0 = time.perf_counter()
 
     def wrap(self):
@@ -84,7 +137,9 @@ class Recorder:
 
         class Record(gym.vector.VectorWrapper):
             def step(self, actions):
-                obs, r, term, trunc, info = self.env.step(actions)
+                obs, _, term, trunc, info = self.env.step(actions)
+                u = self.env.unwrapped
+                r = shaped_reward(info, u.steps, u.max_steps)
                 rec.steps += len(r)
                 wall = time.perf_counter() - rec.t0
                 for w in np.flatnonzero(term | trunc):
@@ -96,6 +151,8 @@ class Recorder:
                         f"(last {last.size} episodes)",
                         flush=True,
                     )
+                if wall > rec.budget_s:
+                    raise OutOfTime
                 return obs, r, term, trunc, info
 
         return Record(self.env)
@@ -125,7 +182,7 @@ def _models(env):
             x = nn.tanh(nn.Dense(64)(x))
             mean = nn.tanh(nn.Dense(self.num_actions)(x))
             log_std = self.param(
-                "log_std", lambda _: jnp.full(self.num_actions, -0.5, dtype=jnp.float32)
+                "log_std", lambda _: jnp.full(self.num_actions, INIT_LOG_STD, dtype=jnp.float32)
             )
             return mean, {"log_std": log_std}
 
@@ -154,9 +211,12 @@ def make_agent(env, directory: Path | None = None, ppo: dict | None = None):
     from skrl.agents.jax.ppo import PPO_CFG
     from skrl.memories.jax import RandomMemory
     from skrl.resources.preprocessors.jax import RunningStandardScaler
+    from skrl.resources.schedulers.jax import KLAdaptiveLR
 
     settings = {**PPO, **(ppo or {})}
     cfg = PPO_CFG(**settings)
+    cfg.learning_rate_scheduler = KLAdaptiveLR
+    cfg.learning_rate_scheduler_kwargs = {"kl_threshold": KL_TARGET}
     cfg.observation_preprocessor = RunningStandardScaler
     cfg.observation_preprocessor_kwargs = {"size": env.observation_space, "device": env.device}
     cfg.value_preprocessor = RunningStandardScaler
@@ -191,22 +251,32 @@ def train(
     directory: Path | None = None,
     ppo=None,
     num_envs: int = N_ENVS,
+    minutes: float = float("inf"),
+    imitation_steps: int = 0,
 ):
     """PPO on the twist action of :data:`TASK` on ``num_envs`` worlds (``ppo`` replaces some
-    of :data:`PPO`); returns the agent and the training episodes ``(env steps, wall s,
-    success, final rmse)``."""
+    of :data:`PPO`) for ``timesteps`` environment steps or ``minutes`` of wall time, whichever
+    ends first; returns the agent and the training episodes ``(env steps, wall s, success,
+    final rmse)``. ``imitation_steps`` > 0: :func:`imitate` first (a warm start)."""
     from skrl.envs.wrappers.jax import wrap_env
     from skrl.trainers.jax import SequentialTrainer
     from skrl.utils import set_seed
 
     _cpu()
     set_seed(seed)
+    t0 = time.perf_counter()
     venv = make_env(num_envs)
-    rec = Recorder(venv)
+    rec = Recorder(venv, 60.0 * minutes)
     wrapped = rec.wrap()
-    wrapped.reset(seed=seed)
     env = wrap_env(wrapped, wrapper="gymnasium", verbose=False)
     agent = make_agent(env, directory, ppo)
+    if imitation_steps > 0:
+        imitate(agent, venv, imitation_steps, IMITATION_ITERATIONS, seed, log)
+        if directory is not None:
+            probe = make_env(1)
+            export_policy(agent, Path(directory) / "imitation.npz", probe.unwrapped, {})
+            probe.close()
+    wrapped.reset(seed=seed)
     trainer = SequentialTrainer(
         cfg={
             "timesteps": max(1, timesteps // num_envs),
@@ -217,46 +287,99 @@ def train(
         env=env,
         agents=agent,
     )
-    rec.t0 = time.perf_counter()
-    trainer.train()
+    rec.t0 = t0  # the budget counts the imitation too
+    try:
+        trainer.train()
+    except OutOfTime:
+        log(f"wall-time budget of {minutes:g} min spent")
     log(f"trained {rec.steps} steps in {time.perf_counter() - rec.t0:.0f} s")
     venv.close()
     return agent, rec.rows
 
 
-def export_npz(agent, path: Path, options: dict) -> None:
-    """The deterministic policy as arrays: the MLP's layers ``W0, b0, W1, b1, W2, b2`` (tanh
-    between, tanh on the output), the observation scaling ``obs_mean``, ``obs_var``
-    (``(obs - mean) / (sqrt(var) + 1e-8)`` clipped to +-5) and ``meta`` (JSON: the env options
-    it was trained on and the observation size)."""
-    params = agent.models["policy"].state_dict.params["params"]
-    arrays = {}
-    for i in range(3):
-        arrays[f"W{i}"] = np.asarray(params[f"Dense_{i}"]["kernel"], np.float32)
-        arrays[f"b{i}"] = np.asarray(params[f"Dense_{i}"]["bias"], np.float32)
+def imitate(agent, venv, steps: int, iterations: int, seed: int, log=print) -> float:
+    """Fit the policy's mean to the servo's IBVS twist (behaviour cloning, a warm start for
+    PPO): ``steps`` environment steps of ``venv`` with the servo's own twist (NaN actions),
+    the observation scaler updated with their observations, then ``iterations`` Adam steps
+    (mini-batches of 1,024) on the squared error of the action in ``[-1, 1]`` units (the
+    teacher's twist over the action scale, clipped to +-0.97). Returns the final loss."""
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    u = venv.unwrapped
+    N = u.num_envs
+    obs, _ = venv.reset(seed=seed)
+    nan = np.full((N, 6), np.nan)
+    X, Y = [], []
+    for _ in range(max(1, steps // N)):
+        stepping = ~u._autoreset
+        o = obs.copy()
+        obs, *_ = venv.step(nan)
+        X.append(o[stepping])
+        Y.append(u.batch.data.twist[stepping] / u.scale)
+    X = jnp.asarray(np.concatenate(X), jnp.float32)
+    Y = jnp.asarray(np.clip(np.concatenate(Y), -0.97, 0.97), jnp.float32)
     sc = agent._observation_preprocessor
-    arrays["obs_mean"] = np.asarray(sc.running_mean, np.float32)
-    arrays["obs_var"] = np.asarray(sc.running_variance, np.float32)
-    meta = {"options": options, "observation_size": int(arrays["W0"].shape[0])}
-    np.savez(path, meta=json.dumps(meta), **arrays)
+    sc(X, train=True)
+    Xs = sc(X)
+    model = agent.models["policy"]
+    opt = optax.adam(1e-3)
+    params = model.state_dict.params
+    state = opt.init(params)
+
+    def loss(p, x, y):
+        mean, _ = model.apply(p, {"observations": x}, "policy")
+        return jnp.mean((mean - y) ** 2)
+
+    @jax.jit
+    def update(p, s, x, y):
+        val, g = jax.value_and_grad(loss)(p, x, y)
+        upd, s = opt.update(g, s, p)
+        return optax.apply_updates(p, upd), s, val
+
+    rng = np.random.default_rng(seed)
+    val = float("nan")
+    for i in range(iterations):
+        idx = rng.integers(0, X.shape[0], 1024)
+        params, state, val = update(params, state, Xs[idx], Y[idx])
+        if i % 1000 == 0:
+            log(f"imitation: {X.shape[0]} samples, iteration {i}, loss {float(val):.4g}")
+    model.state_dict = model.state_dict.replace(params=params)
+    log(f"imitation: final loss {float(val):.4g}")
+    return float(val)
+
+
+def export_policy(agent, path: Path, env_unwrapped, options: dict) -> Path:
+    """The deterministic policy as a policy file (:func:`tdacm.loop.policy.save_policy`: the
+    MLP's layers, tanh between and on the output, the observation scaling, the robot it was
+    trained for, the action scale and the env options), loaded with numpy alone by
+    :func:`tdacm.loop.policy.load_policy` or by a scenario's ``[servo] policy``."""
+    from tdacm.loop.policy import save_policy
+    from tdacm.sim.blocks import robot_signature
+
+    params = agent.models["policy"].state_dict.params["params"]
+    k = sum(1 for name in params if name.startswith("Dense_"))
+    W = [np.asarray(params[f"Dense_{i}"]["kernel"]) for i in range(k)]
+    b = [np.asarray(params[f"Dense_{i}"]["bias"]) for i in range(k)]
+    sc = agent._observation_preprocessor
+    u = env_unwrapped
+    meta = {
+        "robot": robot_signature(u.scenario.config, u.n, u.scenario.name),
+        "action_scale": {"max_angular": float(u.scale[0]), "max_linear": float(u.scale[3])},
+        "features": u.scenario.config.ibvs.features,
+        "env_options": options,
+    }
+    return save_policy(path, W, b, sc.running_mean, sc.running_variance, meta)
 
 
 def load_npz(path):
-    """The deterministic policy ``obs (.., m) -> action (.., 6)`` of :func:`export_npz`'s file,
-    numpy only; and its metadata."""
-    z = np.load(path)
-    meta = json.loads(str(z["meta"]))
-    W = [z[f"W{i}"].astype(float) for i in range(3)]
-    b = [z[f"b{i}"].astype(float) for i in range(3)]
-    mean, std = z["obs_mean"].astype(float), np.sqrt(z["obs_var"].astype(float)) + 1e-8
+    """The deterministic policy ``obs (.., m) -> action (.., 6)`` of :func:`export_policy`'s
+    file, numpy only (:func:`tdacm.loop.policy.load_policy`); and its metadata."""
+    from tdacm.loop.policy import load_policy
 
-    def act(obs):
-        x = np.clip((np.asarray(obs, float) - mean) / std, -5.0, 5.0)
-        x = np.tanh(x @ W[0] + b[0])
-        x = np.tanh(x @ W[1] + b[1])
-        return np.tanh(x @ W[2] + b[2])
-
-    return act, meta
+    p = load_policy(path)
+    return p, p.meta
 
 
 def policy_of(agent):
@@ -374,27 +497,38 @@ def main(
     seed: int = 0,
     ppo=None,
     num_envs: int = N_ENVS,
+    minutes: float = float("inf"),
+    imitation_steps: int = 0,
 ):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    agent, rows = train(timesteps, seed, directory=out, ppo=ppo, num_envs=num_envs)
+    agent, rows = train(timesteps, seed, directory=out, ppo=ppo, num_envs=num_envs,
+                        minutes=minutes, imitation_steps=imitation_steps)  # fmt: skip
     train_s = time.perf_counter() - t0
     agent.save(str(out / "policy.pickle"))
-    export_npz(agent, out / "policy.npz", {"scenario": "paper-in-fov", **TASK})
+    env = make_env(1)
+    export_policy(agent, out / "policy.npz", env.unwrapped, {"scenario": "paper-in-fov", **TASK})
+    env.close()
     results = {
         "task": TASK,
         "timesteps": timesteps,
         "num_envs": num_envs,
+        "steps_trained": int(rows[-1][0]) if rows else 0,
         "train_wall_s": train_s,
         "training_episodes": len(rows),
         "ppo": evaluate(policy_of(agent), eval_episodes),
+        "imitation": evaluate(load_npz(out / "imitation.npz")[0], eval_episodes)
+        if imitation_steps > 0
+        else None,
         "ibvs": evaluate_ibvs(eval_episodes),
     }
     plot_curve(rows, out / "learning_curve.png")
     (out / "results.json").write_text(json.dumps(results, indent=2))
-    for name in ("ppo", "ibvs"):
+    for name in ("ppo", "imitation", "ibvs"):
         r = results[name]
+        if r is None:
+            continue
         print(
             f"{name}: success {r['success_rate']:.2f} on seeds {r['seeds']}, final rmse "
             f"(median) {r['final_rmse_median']}"
@@ -410,9 +544,24 @@ if __name__ == "__main__":
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     ap.add_argument("--timesteps", type=int, default=2_000_000, help="environment steps")
+    ap.add_argument(
+        "--minutes", type=float, default=MINUTES, help="wall-time budget of the training"
+    )
     ap.add_argument("--num-envs", type=int, default=N_ENVS, help="worlds stepped together")
     ap.add_argument("--eval-episodes", type=int, default=100, help="held-out episodes")
     ap.add_argument("--out", default="out/ppo", help="output folder")
     ap.add_argument("--seed", type=int, default=0, help="seed of training")
+    ap.add_argument(
+        "--imitation-steps", type=int, default=IMITATION_STEPS,
+        help="steps of the servo's IBVS twist imitated before PPO (0: none)",
+    )  # fmt: skip
     a = ap.parse_args()
-    main(a.timesteps, a.eval_episodes, a.out, a.seed, num_envs=a.num_envs)
+    main(
+        a.timesteps,
+        a.eval_episodes,
+        a.out,
+        a.seed,
+        num_envs=a.num_envs,
+        minutes=a.minutes,
+        imitation_steps=a.imitation_steps,
+    )

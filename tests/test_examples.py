@@ -50,7 +50,7 @@ def test_train_ppo_smoke(tmp_path):
     assert r["episodes"] == 4 and r["seeds"] == [ex.EVAL_SEED0, ex.EVAL_SEED0 + 3]
     assert sum(r["endings"].values()) == 4
     act, meta = ex.load_npz(tmp_path / "policy.npz")
-    assert meta["options"]["hold_success"] is True and meta["observation_size"] == 31
+    assert meta["env_options"]["hold_success"] is True and meta["observation_size"] == 31
     obs = np.random.default_rng(0).normal(size=(5, 31)).astype(np.float32)
     # the same MLP in float64 (numpy) and float32 (JAX): equal to float32 rounding
     np.testing.assert_allclose(act(obs), ex.policy_of(_agent_of(ex, tmp_path))(obs), atol=1e-5)

@@ -56,12 +56,16 @@ def test_make_vec_gives_the_vector_env_with_the_single_spaces(single):
         env.close()
 
 
-@pytest.mark.parametrize("overrides", [None, {"sensors": {"intrinsics_error": 0.03}}])
+@pytest.mark.parametrize(
+    "overrides",
+    [None, {"ibvs": {"features": "measured"}}, {"sensors": {"intrinsics_error": 0.03}}],
+)
 def test_each_world_follows_the_single_env(overrides):
     """Worlds 0 and 2 of ``reset(seed=7)`` against ``TipServoEnv.reset(seed=7 + i)`` under a
     fixed twist: the observation (1e-9; float32 equal), the plant state (1e-9), the reward and
-    the flags at each of 20 steps; also with a camera intrinsics error (each world's own
-    camera model and reference snapshot, drawn from its seed)."""
+    the flags at each of 20 steps: on the robust servo's predicted features (the default), on
+    the measured points, and with a camera intrinsics error (each world's own camera model and
+    reference snapshot, drawn from its seed)."""
     env = _vec(3, overrides=overrides)
     single = TipServoEnv(overrides=overrides)
     try:
@@ -148,8 +152,11 @@ def test_a_success_ends_then_the_world_restarts():
 def test_a_failure_pays_the_steps_left_as_lost():
     """Twists that turn the camera away: the target leaves the view and the world ends as a
     failure (the env's ``target lost`` after ``max_lost`` = 3 frames, before the servo's
-    recovery starts after ``recovery.lose`` = 5), with ``-lost_penalty`` for each step left."""
-    env = _vec(1, max_steps=100, lost_penalty=2.0, max_lost=3)
+    recovery starts after ``recovery.lose`` = 5), with ``-lost_penalty`` for each step left.
+    On the measured points: the robust servo's prediction outlives the view (its own
+    ``lost_timeout`` decides the loss)."""
+    env = _vec(1, max_steps=100, lost_penalty=2.0, max_lost=3,
+               overrides={"ibvs": {"features": "measured"}})  # fmt: skip
     try:
         env.reset(seed=1)
         a = np.array([[1.0, 1.0, 1.0, 1.0, 1.0, 0.0]], np.float32)
@@ -222,15 +229,13 @@ def test_refusals_name_the_option():
         TipServoVectorEnv(2, action_type="actuators")
     with pytest.raises(ValueError, match="render_mode"):
         TipServoVectorEnv(2, render_mode="rgb_array")
-    with pytest.raises(ValueError, match="ibvs.features"):
-        TipServoVectorEnv(1, overrides={"ibvs": {"features": "predicted"}})
     env = _vec(2)
     try:
         env.reset(seed=0)
         with pytest.raises(ValueError, match="actions"):
             env.step(np.zeros((3, 6)))
         with pytest.raises(ValueError, match="actions"):
-            env.step(np.full((2, 6), np.nan))
+            env.step(np.array([[np.nan, 0, 0, 0, 0, 0], [0] * 6]))
     finally:
         env.close()
 

@@ -376,14 +376,34 @@ def act_worlds(model, data, twist, lo, hi):
 @njit(cache=True, nogil=True)
 def observe_worlds(model, data, points, error, status, lo, hi):
     """What each world ``lo <= w < hi`` sees in the frame :func:`sense_worlds` kept, without
-    changing its state (the env's observation, :meth:`VisualServo.observe`): the points in the
-    servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles wrapped)
-    and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``."""
+    changing its state (the env's observation, the features the servo works on): the points
+    in the servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles
+    wrapped) and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``.
+    The measured points (:meth:`VisualServo.observe`), or with the robust servo the points
+    predicted from the target filter after fusing the frame
+    (:func:`~tdacm.batch.servo.robust_predict` on a copy of the world's servo state: the
+    period's :func:`act_worlds` fuses the same frame into the state itself); ``SEEN`` when a
+    prediction exists."""
     sm = model.servo
     m = model.plant_model
     zv = np.empty(4)
+    robust = sm.params[S.P_ROBUST] != 0.0
+    pix = np.empty((4, 2))
     for w in range(lo, hi):
-        st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w, points[w], zv)
+        if robust:
+            sstate = data.sstate[w].copy()
+            fd = S.FilterData(data.f_state[w].copy(), data.f_pose[w].copy(),
+                              data.f_cov[w].copy(), data.f_hyp[w].copy(), data.f_rc[w].copy(),
+                              data.f_pc[w].copy(), data.f_z[w].copy(), data.t_pose[w].copy(),
+                              data.cam_hist[w].copy())  # fmt: skip
+            k = int(sstate[S.S_PERIOD])
+            valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
+                                           data.meas_uv[w], m, sm, w, sstate, fd, points[w],
+                                           zv, pix)  # fmt: skip
+            st = S.SEEN if valid else S.NOT_SEEN
+        else:
+            st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
+                              points[w], zv)  # fmt: skip
         status[w] = st
         if st == S.SEEN:
             f = S._features_kernel(points[w])

@@ -829,26 +829,15 @@ def _smooth_target(fd, sstate, a):
 
 
 @njit(cache=True)
-def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, twist_in, out,
-                fd):  # fmt: skip
-    """One period of :class:`tdacm.loop.servo.RobustServo` (``ibvs.features = "predicted"``):
-    the delivered frame fused into the target filter with the C_L pose of its capture period
-    (:func:`~tdacm.vision.target_filter.filter_update`), the smoothed target estimate, the
-    feature points predicted in the servo camera (C_V, eq. (18); C_L for a held base) and in
-    C_L (the mode switch's field-of-view test while servoing), the IBVS twist on the
-    predicted points (eqs. (19)-(21), (39)), the joint rates shaped as :func:`servo_step`
-    with the acceleration feed-forward and the leak of ``q_d`` toward ``q``, or the recovery
-    (which holds and retries for ``lost_timeout`` s while C_G misses the target). ``fd``: the
-    world's :class:`FilterData`; ``out`` as :func:`servo_step` (no behind-camera failure: a
-    prediction behind the camera counts as not seen)."""
+def robust_predict(dt, k, q, found, uv, m, sm, w, sstate, fd, pv, zv, pix):
+    """The first part of :func:`robust_step` (:meth:`RobustServo.perceive`): the delivered
+    frame fused into the target filter with the C_L pose of its capture period ``k -
+    latency`` (``k``: this period), the smoothed target estimate and the feature points
+    predicted in the servo camera (``pv``, ``zv``) and in C_L (``pix``, pixels). Returns
+    ``(valid, pix_ok, view)``: a prediction exists (in front of the servo camera, corners
+    apart), it is in front of C_L, the frame was perceived."""
     prm = sm.params
-    n = q.shape[0]
     ctl = sm.ctl_camera[w]
-    k = int(sstate[S_PERIOD])
-    every = int(prm[P_GLOBAL_EVERY])
-    offered = sstate[S_REQUEST] > 0.0 or (every > 0 and k % every == 0)
-    sstate[S_PERIOD] = k + 1
-    sstate[S_REQUEST] = 0.0
     # fuse the delivered frame with the C_L pose of its capture period (latency compensation)
     g_c = np.empty((4, 4))
     tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
@@ -869,9 +858,6 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
     # the prediction in the servo camera and in C_L
     valid = False
     pix_ok = False
-    pv = np.empty((4, 2))
-    zv = np.empty(4)
-    pix = np.empty((4, 2))
     if sstate[S_TP_SET] != 0.0:
         g_s = g_c
         if m.floating:
@@ -898,6 +884,34 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
                     pix_ok = False
                 pix[i, 0] = ctl[FX] * xl[i, 0] / 1.0 + ctl[CX]
                 pix[i, 1] = ctl[FY] * xl[i, 1] / 1.0 + ctl[CY]
+    return valid, pix_ok, view
+
+
+@njit(cache=True)
+def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, twist_in, out,
+                fd):  # fmt: skip
+    """One period of :class:`tdacm.loop.servo.RobustServo` (``ibvs.features = "predicted"``):
+    the delivered frame fused into the target filter with the C_L pose of its capture period
+    (:func:`~tdacm.vision.target_filter.filter_update`), the smoothed target estimate, the
+    feature points predicted in the servo camera (C_V, eq. (18); C_L for a held base) and in
+    C_L (the mode switch's field-of-view test while servoing), the IBVS twist on the
+    predicted points (eqs. (19)-(21), (39)), the joint rates shaped as :func:`servo_step`
+    with the acceleration feed-forward and the leak of ``q_d`` toward ``q``, or the recovery
+    (which holds and retries for ``lost_timeout`` s while C_G misses the target). ``fd``: the
+    world's :class:`FilterData`; ``out`` as :func:`servo_step` (no behind-camera failure: a
+    prediction behind the camera counts as not seen)."""
+    prm = sm.params
+    n = q.shape[0]
+    ctl = sm.ctl_camera[w]
+    k = int(sstate[S_PERIOD])
+    every = int(prm[P_GLOBAL_EVERY])
+    offered = sstate[S_REQUEST] > 0.0 or (every > 0 and k % every == 0)
+    sstate[S_PERIOD] = k + 1
+    sstate[S_REQUEST] = 0.0
+    pv = np.empty((4, 2))
+    zv = np.empty(4)
+    pix = np.empty((4, 2))
+    valid, pix_ok, view = robust_predict(dt, k, q, found, uv, m, sm, w, sstate, fd, pv, zv, pix)
     f = np.zeros(6)
     e = np.zeros(6)
     v = np.zeros(6)

@@ -9,9 +9,10 @@ Cameras: unless ``overrides`` say otherwise, both cameras are the analytic front
 target's corners projected, no image: what the campaigns use; C_G is read only for a recovery
 snapshot), so no renderer runs inside ``step`` and none is initialized in the process
 (fork-safe under ``AsyncVectorEnv``). With PyBullet for C_G (``overrides``), a process forked
-after its parent loaded EGL renders with PyBullet's TinyRenderer instead. The servo works on the
-measured points (``ibvs.features = "measured"``): the robust servo's target filter predicts
-features for its own IBVS twist, which a twist action replaces (about 40 % of a step). ``render()`` draws C_L's view with the planar renderer, created on the
+after its parent loaded EGL renders with PyBullet's TinyRenderer instead. The servo is the
+scenario's (as shipped, the robust servo on the features its target filter predicts,
+``ibvs.features = "predicted"``; ``"measured"``: the detected points): the observation holds
+the features it works on, the twist action replaces its IBVS twist. ``render()`` draws C_L's view with the planar renderer, created on the
 first call in the calling process.
 
 Actions (``action_type``):
@@ -23,18 +24,11 @@ Actions (``action_type``):
 * ``"actuators"``: raw inputs in ``[0, 1]`` scaled to ``[0, max_thrust]`` per motor and
   ``[0, max_tension]`` per tendon (fixed base: tensions only); no controller.
 
-Observation (float32, size ``15 + 2 n`` for a robot of ``n`` coordinates, each entry clipped to
-``[-OBS_CLIP, OBS_CLIP]``; :data:`OBSERVATION_SCALES`):
-
-* ``[0:6]`` the advanced-feature error ``p* - p*_d`` divided by ``FEATURE_SCALE``;
-* ``[6:14]`` the four normalized image points in C_V (C_L for a fixed base), divided by C_L's
-  half-extent in normalized coordinates (``cx / fx``, ``cy / fy``): +-1 is the image border
-  (zeros when the target is not detected);
-* ``[14]`` the detection flag (0 or 1);
-* ``[15:15+n]`` the state estimate's offset from the desired configuration,
-  ``(q_hat - q*) / q_scale`` (q_scale: ``ANGLE_SCALE`` rad for the drone's angles,
-  ``POSITION_SCALE`` m for its position, ``STRAIN_SCALE`` 1/m for the strain coefficients);
-* ``[15+n:]`` the velocity estimate ``qdot_hat / q_scale`` (per second).
+Observation (float32, size ``15 + 2 n`` for a robot of ``n`` coordinates): the one of the
+policy block, :func:`tdacm.loop.policy.observation` (its layout and scaling,
+:data:`OBSERVATION_SCALES`): the feature error, the four points in C_V, the detection flag,
+the state estimate's offset from ``q*`` and its velocity, scaled and clipped to
+``[-OBS_CLIP, OBS_CLIP]``.
 
 Reward per step: ``-rmse``, minus the normalized RMSE of the four points to the reference
 snapshot (C_V); ``-lost_penalty`` when the target is not detected. Success (``rmse <=
@@ -59,28 +53,32 @@ import numpy as np
 from gymnasium import spaces
 
 from ..loop.data import Termination
+from ..loop.policy import (
+    ANGLE_SCALE,
+    FEATURE_SCALE,
+    OBS_CLIP,
+    OBSERVATION_SCALES,
+    POSITION_SCALE,
+    STRAIN_SCALE,
+    observation,
+    observation_size,
+    state_scales,
+)
 from ..vision.virtual import BehindVirtualCamera
 from .options import EnvOptions
 
-#: Observation scaling (module docstring).
-FEATURE_SCALE = 0.5
-ANGLE_SCALE = 0.5  # rad
-POSITION_SCALE = 1.0  # m
-STRAIN_SCALE = 1.0  # 1/m
-OBS_CLIP = 5.0
-OBSERVATION_SCALES = {
-    "feature_error": FEATURE_SCALE,
-    "angle": ANGLE_SCALE,
-    "position": POSITION_SCALE,
-    "strain": STRAIN_SCALE,
-    "clip": OBS_CLIP,
-}
+#: Observation scaling (module docstring), one definition with the policy block's
+#: (:mod:`tdacm.loop.policy`).
+__all__ = [
+    "ANGLE_SCALE", "FEATURE_SCALE", "OBSERVATION_SCALES", "OBS_CLIP", "POSITION_SCALE",
+    "STRAIN_SCALE", "TipServoEnv",
+]  # fmt: skip
+
 #: Roll/pitch (rad) beyond which the episode ends (Termination.OUT_OF_ENVELOPE).
 MAX_TILT = 1.2
 #: The env's scenario defaults (module docstring), under the user's overrides.
 ENV_DEFAULTS = {
     "cameras": {"local_renderer": "analytic", "global_renderer": "planar"},
-    "ibvs": {"features": "measured"},
 }
 
 
@@ -110,6 +108,11 @@ class TipServoEnv(gym.Env):
         if not o.safety:
             ov = _merge(ov, {"safety": {"enabled": False}})
         sc = sc.with_overrides(ov, "env overrides")
+        if sc.config.servo.policy is not None:
+            raise ValueError(
+                "servo.policy: the env's action replaces the servo's twist; run a saved policy "
+                "on the env's observation (tdacm.loop.policy.load_policy) or in the block loop"
+            )
         self.scenario = sc
         self.action_type = action_type
         self.max_steps = int(o.max_steps)
@@ -138,12 +141,8 @@ class TipServoEnv(gym.Env):
             ]
         cam = self.loop.perception.local_camera
         self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
-        q_scale = np.full(n, STRAIN_SCALE)
-        if s.floating:
-            q_scale[:3] = ANGLE_SCALE
-            q_scale[3:6] = POSITION_SCALE
-        self.q_scale = q_scale
-        high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
+        self.q_scale = state_scales(n, s.floating)
+        high = np.full(observation_size(n), OBS_CLIP, np.float32)
         low = -high
         high[14], low[14] = 1.0, 0.0
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
@@ -151,21 +150,27 @@ class TipServoEnv(gym.Env):
         self._sensed = None
 
     def _quiet_log(self) -> None:
-        """No logging in the env, and the servo's ``observe`` (pure) computed once per view:
-        the env observes the view it then hands to the servo's step."""
+        """No logging in the env, and the servo's ``perceive`` (the mode switch, the target
+        filter's fusion) run once per period: the env observes the features it returns, then
+        the servo's step reuses them."""
         from ..loop.logger import NullLog
 
         loop = self.loop
         loop.log = NullLog(loop.servo.desired_points)
-        observe = type(loop.servo).observe.__get__(loop.servo)
-        memo = [None, None, None]
+        perceive = type(loop.servo).perceive.__get__(loop.servo)
+        memo = [None, None, None, None]
 
-        def observe_once(view, q):
-            if memo[0] is not view or memo[1] is not q:
-                memo[:] = view, q, observe(view, q)
+        def perceive_once(t, dt, view, est):
+            if memo[0] is not view or memo[1] is not est:
+                try:
+                    memo[:] = view, est, perceive(t, dt, view, est), None
+                except BehindVirtualCamera as exc:
+                    memo[:] = view, est, None, exc
+            if memo[3] is not None:
+                raise memo[3]
             return memo[2]
 
-        loop.servo.observe = observe_once
+        loop.servo.perceive = perceive_once
 
     @property
     def desired_points(self) -> np.ndarray:
@@ -178,29 +183,29 @@ class TipServoEnv(gym.Env):
 
     # ------------------------------------------------------------------ helpers
     def _observe(self):
-        """``(observation, view, points, rmse, behind)`` at the loop's current state."""
+        """``(observation, seen, points, rmse, behind)`` at the loop's current state: the
+        features of the servo's own first part (the detected points, or the robust servo's
+        prediction from its target filter)."""
         sensed = self._sensed = self.loop.sense()
         view, est = sensed.view, sensed.estimate
-        n = self.n
-        obs = np.zeros(15 + 2 * n)
         rmse = math.nan
-        points = None
-        behind = False
-        if view.found:
-            try:
-                points, _, _, error, rmse = self.loop.servo.observe(view, est.q)
-            except BehindVirtualCamera:
-                behind = True
-            else:
-                obs[:6] = error / FEATURE_SCALE
-                obs[6:14] = (np.asarray(points) / self.point_scale).ravel()
-                obs[14] = 1.0
-        obs[15 : 15 + n] = (est.q - self.world.q_star) / self.q_scale
-        obs[15 + n :] = est.qd / self.q_scale
-        if not np.isfinite(obs).all():
-            np.nan_to_num(obs, copy=False, nan=0.0)
-        np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
-        return obs.astype(np.float32), view, points, rmse, behind
+        points = error = None
+        behind = seen = False
+        loop = self.loop
+        try:
+            parts = loop.servo.perceive(loop.plant.state.t, loop.dt, view, est)
+        except BehindVirtualCamera:
+            behind = True
+        else:
+            _, _, seen, _, points, _, error, rmse, _ = parts
+        seen = bool(seen) and not behind
+        obs = observation(
+            np.zeros((1, 6)) if error is None else np.asarray(error)[None],
+            np.zeros((1, 4, 2)) if points is None else np.asarray(points)[None],
+            [seen], est.q[None], est.qd[None], self.world.q_star, self.q_scale,
+            self.point_scale,
+        )[0]  # fmt: skip
+        return obs, seen, points, rmse, behind
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
@@ -214,8 +219,8 @@ class TipServoEnv(gym.Env):
         self.steps = 0
         self.lost = 0
         self._reached = self._left = False
-        obs, view, _, rmse, _ = self._observe()
-        return obs, {"rmse": rmse, "detected": bool(view.found), "loop_seed": self._seed}
+        obs, seen, _, rmse, _ = self._observe()
+        return obs, {"rmse": rmse, "detected": seen, "loop_seed": self._seed}
 
     def _reseed(self, seed: int) -> None:
         from ..sim.assemble import build_loop, reseed
@@ -248,10 +253,9 @@ class TipServoEnv(gym.Env):
             or (self.loop.plant.system.floating and np.max(np.abs(q[:2])) > MAX_TILT)
         ):
             termination = Termination.OUT_OF_ENVELOPE
-        obs, view, _, rmse, behind = self._observe()
+        obs, seen, _, rmse, behind = self._observe()
         if behind and termination is None:
             termination = Termination.BEHIND_CAMERA
-        seen = bool(view.found and not behind)
         self.lost = 0 if seen else self.lost + 1
         if termination is None and self.lost >= self.max_lost:
             termination = Termination.TARGET_LOST

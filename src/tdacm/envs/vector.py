@@ -8,7 +8,9 @@ observation (layout, scaling, float32, clipped), reward, success and failure end
 ``info`` keys (Gymnasium's vector form: one array per key and a ``_key`` mask of the worlds that
 returned it, as :class:`gymnasium.vector.SyncVectorEnv` over single envs gives).
 
-A step: the scaled twists replace the IBVS twists of the running worlds
+A step: the scaled twists replace the IBVS twists of the running worlds (a row of NaN keeps
+the servo's own IBVS twist, a teacher for imitation; ``batch.data.twist`` holds the twist
+each world applied)
 (:func:`~tdacm.batch.engine.act_worlds`: the servo's mapping and shaping, the low-level
 controller, the plant), then each world's tip camera delivers its next frame
 (:func:`~tdacm.batch.engine.sense_worlds`) and the env reads it
@@ -30,8 +32,10 @@ number of worlds or the threads (tested). Unlike the single env, every reset (th
 too) draws a new loop seed: each episode has another model error and noise.
 
 What differs from the single env: the twist action only; the engine's scenario support (the
-robust servo's target filter, the EKF, contact and the multi-arm robots are refused naming the
-key). The recovery with the global camera runs batched as in the single env's loop (its
+EKF, contact and the multi-arm robots are refused naming the key). The observation holds the
+features the servo works on, as the single env's: with the robust servo (the shipped
+``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame
+(:func:`~tdacm.batch.engine.observe_worlds`), else the detected points. The recovery with the global camera runs batched as in the single env's loop (its
 failure ends a world as ``recovery failed``). No ``render``.
 """
 
@@ -46,17 +50,9 @@ from gymnasium.vector.utils import batch_space
 from ..batch import engine as E
 from ..batch import servo as BS
 from ..loop.data import Termination
+from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
 from .options import EnvOptions
-from .servo import (
-    ANGLE_SCALE,
-    ENV_DEFAULTS,
-    FEATURE_SCALE,
-    MAX_TILT,
-    OBS_CLIP,
-    POSITION_SCALE,
-    STRAIN_SCALE,
-    _merge,
-)
+from .servo import ENV_DEFAULTS, MAX_TILT, _merge
 
 
 def _ending(name):
@@ -140,14 +136,6 @@ class TipServoVectorEnv(VectorEnv):
         seed0 = int(sc.config.seed)
         self.assembly = a = build_loop(sc, seed0)
         loop = a.loop
-        from ..loop.servo import RobustServo
-
-        if isinstance(loop.servo, RobustServo):  # the env observes and acts on measured points
-            loop.close()
-            raise ValueError(
-                "scenario: the vector env's servo works on the measured points: set "
-                "ibvs.features = 'measured'"
-            )
         # the engine never ends a world by its duration: the env truncates
         duration = (self.horizon + 2) * loop.dt
         try:
@@ -169,14 +157,10 @@ class TipServoVectorEnv(VectorEnv):
         self.q_star = np.asarray(a.world.q_star, float)
         cam = loop.perception.local_camera
         self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
-        q_scale = np.full(n, STRAIN_SCALE)
-        if s.floating:
-            q_scale[:3] = ANGLE_SCALE
-            q_scale[3:6] = POSITION_SCALE
-        self.q_scale = q_scale
+        self.q_scale = state_scales(n, s.floating)
 
         self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
-        high = np.full(15 + 2 * n, OBS_CLIP, np.float32)
+        high = np.full(observation_size(n), OBS_CLIP, np.float32)
         low = -high
         high[14], low[14] = 1.0, 0.0
         self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
@@ -192,7 +176,7 @@ class TipServoVectorEnv(VectorEnv):
         self._reached = np.zeros(N, np.bool_)
         self._left = np.zeros(N, np.bool_)
         self._autoreset = np.zeros(N, np.bool_)
-        self._obs = np.zeros((N, 15 + 2 * n), np.float32)
+        self._obs = np.zeros((N, observation_size(n)), np.float32)
         self._rmse = np.full(N, np.nan)
         self._status = np.zeros(N, np.int64)
         self._points = np.zeros((N, 4, 2))
@@ -242,17 +226,11 @@ class TipServoVectorEnv(VectorEnv):
         self._parallel(
             E.observe_worlds, (self.batch.model, d, self._points, self._error, self._status)
         )
-        n = self.n
         seen = self._status == BS.SEEN
-        obs = np.zeros((self.num_envs, 15 + 2 * n))
-        obs[:, :6] = np.where(seen[:, None], self._error / FEATURE_SCALE, 0.0)
-        pts = self._points / self.point_scale
-        obs[:, 6:14] = np.where(seen[:, None], pts.reshape(-1, 8), 0.0)
-        obs[:, 14] = seen
-        obs[:, 15 : 15 + n] = (d.q - self.q_star) / self.q_scale
-        obs[:, 15 + n :] = d.qd / self.q_scale
-        np.nan_to_num(obs, copy=False, nan=0.0)
-        np.clip(obs, -OBS_CLIP, OBS_CLIP, out=obs)
+        obs = observation(
+            self._error, self._points, seen, d.q, d.qd, self.q_star, self.q_scale,
+            self.point_scale,
+        )  # fmt: skip
         dp = self.batch.model.servo.desired_points
         with np.errstate(invalid="ignore"):
             rmse = np.sqrt(np.mean(np.sum((self._points - dp) ** 2, axis=2), axis=1))
@@ -306,9 +284,11 @@ class TipServoVectorEnv(VectorEnv):
             raise RuntimeError("call reset before step")
         N = self.num_envs
         a = np.asarray(actions, dtype=float)
-        if a.shape != (N, 6) or not np.all(np.isfinite(a)):
+        finite = np.isfinite(a).all(axis=1) if a.shape == (N, 6) else None
+        if finite is None or not np.all(finite | np.isnan(a).all(axis=1)):
             raise ValueError(
-                f"actions must be a finite array of shape ({N}, 6), got shape {a.shape}"
+                f"actions must be an array of shape ({N}, 6), each row finite or all NaN (the "
+                f"servo's own twist), got shape {a.shape}"
             )
         twist = np.clip(a, -1.0, 1.0) * self.scale
         d = self.batch.data

@@ -1,5 +1,5 @@
 """Parameter records of the loop's blocks, one per scenario section they read: ``[ibvs]``,
-``[recovery]``, ``[controller]``, ``[model]``, ``[cameras]``, ``[safety]``,
+``[servo]``, ``[recovery]``, ``[controller]``, ``[model]``, ``[cameras]``, ``[safety]``,
 ``[disturbances]`` and the camera imperfections of ``[sensors]`` (:class:`SensorModel`).
 
 Layout: a block's parameter record lives with its block (this module for the loop's blocks,
@@ -91,6 +91,23 @@ class IbvsConfig(ConfigModel):
     @classmethod
     def _unit(cls, v):
         unit_vector("target_level_normal", v)
+        return v
+
+
+class ServoConfig(ConfigModel):
+    """Section ``[servo]``: what gives the servo's twist (:mod:`tdacm.loop.policy`)."""
+
+    policy: str | None = Field(
+        None,
+        description="a saved policy file (.npz, relative to the scenario file's folder or "
+        "the current one) whose twist replaces the IBVS twist (unset: IBVS)",
+    )
+
+    @field_validator("policy")
+    @classmethod
+    def _path(cls, v):
+        if v is not None and not v.strip():
+            raise ValueError("must be a file path (or unset)")
         return v
 
 

@@ -6,7 +6,8 @@ from and its seed. It reads the scenario's typed record once
 (:attr:`~tdacm.sim.scenario.Scenario.config`) and wires the blocks the factories of
 :mod:`tdacm.sim.blocks` build from its sections: the robot of ``[robot]`` and the scene
 (:func:`build_world`), the cameras and their imperfections (``[cameras]``, ``[sensors]``), the
-reference snapshot, the servo (``[ibvs]``, ``[recovery]``, ``[touch]``), the controller
+reference snapshot, the servo (``[ibvs]``, ``[recovery]``, ``[touch]``; a learned policy's twist with
+``[servo] policy``), the controller
 (``[model]``, ``[controller]``, or a user class), the plant with its disturbances, aerodynamics,
 wind and obstacles, the estimator (``[estimation]``) and the safety monitor (``[safety]``).
 Randomness: the model perturbation is drawn from the run's seed, the sensor imperfections from
@@ -40,6 +41,7 @@ from .blocks import (
     known_rotor_drag,
     perception_block,
     plant_block,
+    policy_block,
     proprioceptive_sensors,
     reference_snapshot,
     search_folders,
@@ -232,6 +234,7 @@ def build_loop(
         )
     if servo is None:
         servo = servo_block(cfg.ibvs, cfg.recovery, touch, paper, world, ctl_camera, desired, src)
+        servo = policy_block(cfg, servo, world, ctl_camera, src, scenario.folder)
     model, controller, plant = _controller_and_plant(scenario, world, seed, controller, suite)
     force = force_block(touch, servo, model, robot)
     if suite is not None:
@@ -284,6 +287,7 @@ def _refuse_for_arms(cfg, src: str) -> None:
         (bool(cfg.scene.obstacles), "[[scene.obstacles]]"),
         (cfg.scene.contact.target_box, "scene.contact.target_box"),
         (cfg.aerodynamics.enabled, "aerodynamics.enabled"),
+        (cfg.servo.policy is not None, "servo.policy"),
     )
     for bad, key in checks:
         if bad:

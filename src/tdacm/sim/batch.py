@@ -33,6 +33,11 @@ def build_batch(scenario, seeds, duration=None, q0=None, threads=None, assembly=
     one (:func:`reseed_world` needs it)."""
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     seeds = np.asarray(seeds, np.int64).ravel()
+    if sc.config.servo.policy is not None:
+        raise ScenarioError(
+            f"{sc.source}: the batched engine: servo.policy runs in the block loop "
+            "(tdacm run, a campaign with batched = false or 'auto')"
+        )
     if seeds.size == 0:
         raise ScenarioError("seeds: at least one world")
     a = build_loop(sc, int(seeds[0])) if assembly is None else assembly

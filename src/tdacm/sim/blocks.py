@@ -12,7 +12,10 @@ proprioceptive sensors from ``[seed, 11..13]``.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -39,11 +42,13 @@ from ..loop.config import (
     ModelConfig,
     RecoveryConfig,
     SensorModel,
+    ServoConfig,
     TouchConfig,
 )
 from ..loop.lowlevel import make_low_level
 from ..loop.perception import Perception
 from ..loop.plant import Disturbances, Plant
+from ..loop.policy import PolicyError, PolicyServo, load_policy, observation_size
 from ..loop.precompile import wait
 from ..loop.protocols import ControllerContext
 from ..loop.sensors import (
@@ -308,6 +313,61 @@ def search_folders(folder: str | None) -> tuple[str, ...]:
     """Where a user controller's module is looked for after ``sys.path``: the current folder
     (as ``python -m`` would), then the scenario file's folder."""
     return (os.getcwd(),) + ((folder,) if folder else ())
+
+
+def robot_signature(cfg: ScenarioConfig, n: int, name: str | None = None) -> dict:
+    """What a saved policy records of the robot it was trained for (:mod:`tdacm.loop.policy`)
+    and :func:`policy_block` compares: ``signature``, a hash of the ``[robot]`` record and
+    the base (``[system]``); ``n``, the robot's coordinates; ``floating``; ``scenario``:
+    ``name``."""
+    sysc = cfg.system
+    robot = {"robot": cfg.robot.model_dump(mode="json"), "base": sysc.base}
+    if sysc.base == "fixed":
+        robot["held_base_q"] = list(sysc.held_base_q)
+    text = json.dumps(robot, sort_keys=True)
+    return {
+        "signature": hashlib.sha256(text.encode()).hexdigest()[:16],
+        "n": int(n),
+        "floating": sysc.base == "floating",
+        "scenario": name,
+    }
+
+
+def policy_block(cfg: ScenarioConfig, servo, world, camera, source: str, folder: str | None):
+    """``servo`` itself without ``servo.policy``; else the :class:`~tdacm.loop.policy.PolicyServo`
+    of the saved policy (the file relative to ``folder``, the scenario file's, then to the
+    current folder), refused (one line naming the key) when it cannot be read or was trained
+    for another observation size or robot (:func:`robot_signature`)."""
+    servo_cfg: ServoConfig = cfg.servo
+    if servo_cfg.policy is None:
+        return servo
+    if cfg.touch.enabled:
+        raise ScenarioError(f"{source}: servo.policy: not with touch.enabled (IBVS only)")
+    path = Path(servo_cfg.policy).expanduser()
+    if not path.is_absolute() and folder is not None and (Path(folder) / path).exists():
+        path = Path(folder) / path
+    try:
+        policy = load_policy(path)
+    except PolicyError as exc:
+        raise ScenarioError(f"{source}: servo.policy: {exc}") from None
+    s = world.robot.system
+    m = observation_size(s.n)
+    if policy.observation_size != m:
+        raise ScenarioError(
+            f"{source}: servo.policy: {str(path)!r} takes observations of "
+            f"{policy.observation_size} entries; this scenario's robot ({s.n} coordinates) "
+            f"gives {m}"
+        )
+    mine = robot_signature(cfg, s.n)["signature"]
+    theirs = policy.meta.get("robot", {})
+    if theirs.get("signature") != mine:
+        raise ScenarioError(
+            f"{source}: servo.policy: {str(path)!r} was trained for another robot "
+            f"(signature {theirs.get('signature')}, scenario {theirs.get('scenario')!r}); "
+            f"this scenario's robot is {mine}"
+        )
+    cam = camera
+    return PolicyServo(servo, policy, world.q_star, (cam.cx / cam.fx, cam.cy / cam.fy))
 
 
 # ----------------------------------------------------------------------------- plant

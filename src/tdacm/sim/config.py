@@ -37,6 +37,7 @@ from ..loop.config import (
     RecoveryConfig,
     SafetyConfig,
     SensorModel,
+    ServoConfig,
     TouchConfig,
     Vec2,
     Vec6,
@@ -138,6 +139,7 @@ class ScenarioConfig(ConfigModel):
     model: ModelConfig = ModelConfig()
     controller: ControllerConfig = ControllerConfig()
     ibvs: IbvsConfig = IbvsConfig()
+    servo: ServoConfig = ServoConfig()
     recovery: RecoveryConfig = RecoveryConfig()
     scene: SceneSection = SceneSection()
     cameras: CamerasConfig = CamerasConfig()

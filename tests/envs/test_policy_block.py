@@ -1,0 +1,125 @@
+"""A saved policy is a block of the loop: trained (a tiny one), saved, loaded by ``[servo]
+policy``, run by ``tdacm run``; its observation is the env's; a policy of another robot or
+observation size is refused with one line."""
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import tdacm.envs  # noqa: F401  (registers the id)
+from tdacm.cli import main
+from tdacm.loop.policy import PolicyServo, load_policy, save_policy
+from tdacm.sim import load_scenario
+from tdacm.sim.assemble import build_loop
+from tdacm.sim.blocks import robot_signature
+
+#: the robustness campaigns' initial spread of paper-in-fov (examples/train_ppo.py)
+SPREAD = (0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05)
+
+
+def _train_tiny(env, steps: int = 300):
+    """A one-layer policy ``tanh(x W + b)`` fitted by least squares to the IBVS twist over
+    ``steps`` periods of the single env (behaviour cloning, numpy only): the saved format's
+    smallest case, trained in a few seconds."""
+    obs, acts = [], []
+    seed = 0
+    while len(obs) < steps:
+        env.reset(seed=seed)
+        seed += 1
+        for _ in range(100):
+            o, *_ = env._observe()
+            st = env.loop.act(env._sensed)  # the servo's own IBVS twist
+            obs.append(o)
+            acts.append(st.command.twist / env.scale)
+            if st.done:
+                break
+    X = np.asarray(obs, float)
+    mean, var = X.mean(axis=0), X.var(axis=0) + 1e-4
+    Xs = np.clip((X - mean) / (np.sqrt(var) + 1e-8), -5, 5)
+    Y = np.arctanh(np.clip(np.asarray(acts), -0.9, 0.9))
+    A = np.c_[Xs, np.ones(len(Xs))]
+    coef = np.linalg.lstsq(A, Y, rcond=None)[0]
+    return [coef[:-1]], [coef[-1]], mean, var
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    env = gym.make("tdacm/TipServo-v0", init_noise=SPREAD, max_steps=50).unwrapped
+    W, b, mean, var = _train_tiny(env)
+    meta = {
+        "robot": robot_signature(env.scenario.config, env.n, env.scenario.name),
+        "action_scale": {"max_angular": float(env.scale[0]), "max_linear": float(env.scale[3])},
+    }
+    path = save_policy(tmp_path_factory.mktemp("policy") / "tiny.npz", W, b, mean, var, meta)
+    yield env, path, (W, b, mean, var, meta)
+    env.close()
+
+
+def test_policy_runs_in_tdacm_run(saved, tmp_path, capsys):
+    _, path, _ = saved
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text(f'[servo]\npolicy = "{path}"\n')
+    out = tmp_path / "run"
+    code = main(["run", "paper-in-fov", "--duration", "0.5", "--config", str(cfg), "--out",
+                 str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["terminated"] is False
+    tw = np.load(out / "timeseries.npz")
+    # the logged twists are the policy's (bounded by its action scale), not zero
+    twist = next(tw[k] for k in tw.files if "twist" in k)
+    assert np.isfinite(twist).all() and np.abs(twist).max() > 0
+
+
+def test_env_and_block_loop_see_the_same_observation(saved):
+    """The env acting with the policy and the block loop running the policy as its servo
+    follow the same trajectory from the same seed and initial state: one observation."""
+    env, path, _ = saved
+    policy = load_policy(path)
+    obs, _ = env.reset(seed=7)
+    q0, seed = env.loop.plant.state.q.copy(), env._seed
+    env_q, env_obs = [], []
+    for _ in range(25):
+        env_obs.append(obs)
+        obs, *_ = env.step(policy(obs))
+        env_q.append(env.loop.plant.state.q.copy())
+    sc = env.scenario.with_overrides({"servo": {"policy": str(path)}}, "test")
+    a = build_loop(sc, seed)
+    loop = a.loop
+    assert isinstance(loop.servo, PolicyServo)
+    loop.reset(q0, env.world.qd0)
+    for k in range(25):
+        loop.step()
+        np.testing.assert_array_equal(loop.servo.last_observation, env_obs[k])
+        np.testing.assert_allclose(loop.plant.state.q, env_q[k], rtol=0, atol=1e-12)
+    loop.close()
+
+
+def test_mismatched_policy_refused(saved, tmp_path, capsys):
+    _, _, (W, b, mean, var, meta) = saved
+    wide = save_policy(tmp_path / "wide.npz", [np.vstack([W[0], np.zeros((2, 6))])], b,
+                       np.r_[mean, 0, 0], np.r_[var, 1, 1], meta)  # fmt: skip
+    other = dict(meta, robot=dict(meta["robot"], signature="0123456789abcdef"))
+    alien = save_policy(tmp_path / "alien.npz", W, b, mean, var, other)
+    for path, needle in ((wide, "observations of 33 entries"), (alien, "another robot"),
+                         (tmp_path / "none.npz", "no such file")):  # fmt: skip
+        cfg = tmp_path / "cfg.toml"
+        cfg.write_text(f'[servo]\npolicy = "{path}"\n')
+        code = main(["run", "paper-in-fov", "--duration", "0.1", "--config", str(cfg), "--out",
+                     str(tmp_path / "o")])  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert "servo.policy" in err and needle in err, err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_batched_engine_refuses_policy(saved):
+    from tdacm.sim.batch import build_batch
+    from tdacm.sim.scenario import ScenarioError
+
+    env, path, _ = saved
+    sc = load_scenario("paper-in-fov").with_overrides({"servo": {"policy": str(path)}}, "t")
+    with pytest.raises(ScenarioError, match="servo.policy"):
+        build_batch(sc, [0])
