@@ -23,7 +23,8 @@ A world that ends (a :class:`~tdacm.loop.data.Termination`, or its last period) 
 others go on. The state of all worlds is a :class:`BatchData` (arrays with a leading world
 axis); the constants are a :class:`BatchModel` (shared arrays, and per-world rows where
 worlds differ: the controller's model error, its camera model and reference snapshot, the
-initial state). A world's result depends only on its own seed and parameters, not on the
+initial state, and each world's parameters of :class:`~tdacm.batch.params.WorldParams`: its
+robot, C_L imperfections and target pose). A world's result depends only on its own seed and parameters, not on the
 batch size, its index or the thread count (every random draw comes from its own
 counter-based stream, :mod:`tdacm.batch.random`).
 
