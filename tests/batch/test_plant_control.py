@@ -331,7 +331,9 @@ def _worlds(
     ``ControllerArrays(...)``)."""
     n = q.shape[0]
     for w in prange(stiffness.shape[0]):
-        m = model_of_world(mp, mb6[w], stiffness[w], damping[w], step_mass[w])
+        m = model_of_world(
+            mp, mb6[w], stiffness[w], damping[w], step_mass[w], mp.tendon_d, mp.tendon_dd
+        )
         cw = ControllerArrays(
             ca.loads, params[w], ca.coord, ca.damping, gains[w], ca.g4_lu, ca.g4_piv
         )

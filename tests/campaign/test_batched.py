@@ -63,10 +63,23 @@ duration = 1.5
 )
 
 
+#: runs that sample per-world parameters: the target's tilt, the rod's stiffness and density,
+#: the drone's mass, the tendons' radius (noise off)
+PER_WORLD = SPEC.replace("runs = 8", "runs = 4") + (
+    """
+"scene.target_tilt_deg" = { kind = "normal", std = [0.5, 0.5] }
+"robot.rod.youngs_modulus" = { kind = "uniform", low = 4.5e10, high = 5.5e10 }
+"robot.rod.density" = { kind = "uniform", low = 5800.0, high = 7100.0 }
+"robot.drone.mass" = { kind = "uniform", low = 0.66, high = 0.81 }
+"robot.tendons.radius" = { kind = "uniform", low = 0.009, high = 0.011 }
+"""
+)
+
+
 @pytest.mark.parametrize(
     "text, scenario",
-    [(SPEC, "paper-in-fov"), (OUT_OF_FOV, "paper-out-of-fov")],
-    ids=["in-fov", "recovery-then-safety-stop"],
+    [(SPEC, "paper-in-fov"), (OUT_OF_FOV, "paper-out-of-fov"), (PER_WORLD, "paper-in-fov")],
+    ids=["in-fov", "recovery-then-safety-stop", "per-world-parameters"],
 )
 def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
     """Runs with sampled initial states and seeded model errors (in-FoV: 8 runs to their
@@ -94,13 +107,16 @@ def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
 def test_auto_falls_back_naming_the_key_and_true_refuses(caplog):
     """A key the engine cannot vary per world, or a scenario it does not run: ``"auto"``
     runs the block loop with a notice naming it, ``true`` stops with that line."""
-    varied = SPEC + '"sensors.pixel_noise" = { kind = "uniform", low = 0.0, high = 1.0 }\n'
+    varied = SPEC.replace(
+        '"model.perturbation" = { kind = "fixed", value = 0.1 }',
+        '"model.perturbation" = { kind = "uniform", low = 0.0, high = 0.1 }',
+    )
     spec = _spec(varied)
-    assert "sensors.pixel_noise" in refusal(spec)
+    assert "model.perturbation" in refusal(spec)
     with caplog.at_level("INFO", logger="tdacm.campaign"):
         assert use_batched(spec) is False
-    assert "not batched" in caplog.text and "sensors.pixel_noise" in caplog.text
-    with pytest.raises(CampaignSpecError, match=r"batched = true: .*sensors\.pixel_noise"):
+    assert "not batched" in caplog.text and "model.perturbation" in caplog.text
+    with pytest.raises(CampaignSpecError, match=r"batched = true: .*model\.perturbation"):
         use_batched(dataclasses.replace(spec, batched=True))
     rendered = _spec(SPEC.replace(ENGINE, ""), batched=True)
     with pytest.raises(CampaignSpecError, match="cameras.local_renderer"):

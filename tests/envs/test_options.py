@@ -58,13 +58,28 @@ def test_randomization_is_off_by_default_and_within_its_limits():
 
 
 @pytest.mark.parametrize("name", sorted(RANDOMIZATION_LIMITS))
-def test_both_envs_refuse_a_range_the_engines_cannot_draw_per_world(name):
-    """Per-world ranges are refused with one line naming the option, never ignored."""
+def test_the_single_env_refuses_a_range_it_cannot_draw(name):
+    """The block loop's env refuses ranges with one line naming the option, never ignores
+    them (the vector env draws them: tests/envs/test_vector_env.py)."""
     r = {name: RANDOMIZATION_LIMITS[name]}
-    for make in (lambda: TipServoEnv(randomize=r), lambda: TipServoVectorEnv(2, randomize=r)):
-        with pytest.raises(ValueError, match=f"randomize\\.{name}") as e:
-            make()
-        assert "\n" not in str(e.value)
+    with pytest.raises(ValueError, match=f"randomize\\.{name}") as e:
+        TipServoEnv(randomize=r)
+    assert "\n" not in str(e.value)
+
+
+def test_draws_are_within_the_ranges_and_only_for_the_active_ones():
+    r = Randomization(stiffness=0.1, masses=0.05, pixel_noise=2.0, latency=2)
+    rng = np.random.default_rng(0)
+    draws = [r.draw(rng) for _ in range(200)]
+    assert set(draws[0]) == {"stiffness", "drone_mass", "rod_mass", "pixel_noise", "latency"}
+    k = np.array([d["stiffness"][0] for d in draws])
+    m = np.array([d["drone_mass"][0] for d in draws])
+    lat = {d["latency"][0] for d in draws}
+    px = np.array([d["pixel_noise"][0] for d in draws])
+    assert 0.9 <= k.min() < 0.92 and 1.08 < k.max() <= 1.1
+    assert 0.95 <= m.min() and m.max() <= 1.05
+    assert lat == {0, 1, 2} and 0 <= px.min() and px.max() <= 2.0
+    assert Randomization().draw(rng) == {}
 
 
 def test_initial_spread_per_coordinate():

@@ -200,6 +200,42 @@ def test_a_world_does_not_depend_on_the_number_of_worlds():
         e1.close()
 
 
+def test_a_randomized_world_does_not_depend_on_the_number_of_worlds():
+    """Domain randomization on (every range at its limit): each reset world draws its robot
+    and sensor parameters from its own generator; world 3 of ``reset(seed=10)`` with 5 worlds
+    on 2 threads equals the only world of ``reset(seed=13)`` bit for bit, through autoresets
+    (new draws), and the worlds' parameters differ within their ranges."""
+    from tdacm.envs.options import RANDOMIZATION_LIMITS
+
+    kw = {"max_steps": 5, "randomize": dict(RANDOMIZATION_LIMITS)}
+    e5, e1 = _vec(5, threads=2, **kw), _vec(1, threads=1, **kw)
+    try:
+        o5, _ = e5.reset(seed=10)
+        o1, _ = e1.reset(seed=13)
+        np.testing.assert_array_equal(o5[3], o1[0])
+        m5, m1 = e5.unwrapped.batch.model, e1.unwrapped.batch.model
+        k = m5.stiffness[:, -1, -1] / m5.stiffness[0, -1, -1]
+        assert len(set(k)) == 5 and np.all(np.abs(k - 1) <= 0.2)
+        lat = m5.servo.sensor[:, 2]
+        assert set(lat) <= {0.0, 1.0, 2.0}
+        assert np.all((m5.servo.sensor[:, 0] >= 0) & (m5.servo.sensor[:, 0] <= 2.0))
+        rng = np.random.default_rng(1)
+        dones = 0
+        for _ in range(12):
+            a = rng.uniform(-1, 1, (5, 6)).astype(np.float32)
+            o5, r5, te5, tr5, _ = e5.step(a)
+            o1, r1, te1, tr1, _ = e1.step(a[3:4])
+            np.testing.assert_array_equal(o5[3], o1[0])
+            assert r5[3] == r1[0] and te5[3] == te1[0] and tr5[3] == tr1[0]
+            np.testing.assert_array_equal(m5.stiffness[3], m1.stiffness[0])
+            np.testing.assert_array_equal(m5.servo.sensor[3], m1.servo.sensor[0])
+            dones += bool(te1[0] or tr1[0])
+        assert dones >= 2  # autoresets drew again
+    finally:
+        e5.close()
+        e1.close()
+
+
 def test_resetting_some_worlds_leaves_the_others_running():
     """``reset(options={"reset_mask": ...})`` restarts only the masked worlds; world 1 runs on
     exactly as in an env where nothing was reset."""

@@ -97,6 +97,8 @@ class Batch:
         self.q0 = np.ascontiguousarray(q0)
         self.qd0 = np.zeros_like(self.q0) if qd0 is None else np.broadcast_to(qd0, q0.shape).copy()
         self.n_worlds = n_worlds
+        #: the per-world parameters the batch was built with (``None``: the scenario's)
+        self.params = None
         self.data = E.empty_data(model, n_worlds, q0.shape[1], n_u)
         self.reset()
 

@@ -23,7 +23,8 @@ A world that ends (a :class:`~tdacm.loop.data.Termination`, or its last period) 
 others go on. The state of all worlds is a :class:`BatchData` (arrays with a leading world
 axis); the constants are a :class:`BatchModel` (shared arrays, and per-world rows where
 worlds differ: the controller's model error, its camera model and reference snapshot, the
-initial state). A world's result depends only on its own seed and parameters, not on the
+initial state, and each world's parameters of :class:`~tdacm.batch.params.WorldParams`: its
+robot, C_L imperfections and target pose). A world's result depends only on its own seed and parameters, not on the
 batch size, its index or the thread count (every random draw comes from its own
 counter-based stream, :mod:`tdacm.batch.random`).
 
@@ -65,9 +66,17 @@ class BatchModel(NamedTuple):
     ``coord`` (N, 5, n), ``damping`` (N, n, n) and ``control_params`` (N, p): each world's
     model error, its rotor-drag estimate included) with its model's
     :class:`~tdacm.system.kernels.ModelArrays` ``control_model``, the plant
-    (:class:`~tdacm.batch.plant.PlantArrays`) with the system's ``plant_model``, the control period ``dt`` and the number of
-    periods of a run ``steps`` (a run has ``steps + 1`` samples, the last without a plant
-    step, as :meth:`~tdacm.loop.ClosedLoop.run`)."""
+    (:class:`~tdacm.batch.plant.PlantArrays`) with the system's ``plant_model``, the control
+    period ``dt`` and the number of periods of a run ``steps`` (a run has ``steps + 1``
+    samples, the last without a plant step, as :meth:`~tdacm.loop.ClosedLoop.run`).
+
+    Each world's robot (the plant's and the controller model's arrays, which describe the same
+    robot): the stacks ``stiffness``, ``rod_damping`` (N, n, n), ``step_mass``
+    (N, n_steps, 6), ``mb6`` (N, 6), ``tendon_d``, ``tendon_dd`` (N, n_g, n_a, 3) replace
+    those fields of ``plant_model`` and ``control_model``
+    (:func:`~tdacm.batch.plant.model_of_world`; rows equal to the scenario's when the worlds
+    share its robot). ``gains`` (N, 3, n, n): each world's ``A_d, A_p, A_a`` (the default
+    gains are shaped by the robot's inertia, :func:`~tdacm.control.hierarchical.default_gains`)."""
 
     servo: S.ServoModel
     control: CT.ControllerArrays
@@ -79,6 +88,13 @@ class BatchModel(NamedTuple):
     plant_model: object
     dt: float
     steps: int
+    stiffness: np.ndarray
+    rod_damping: np.ndarray
+    step_mass: np.ndarray
+    mb6: np.ndarray
+    tendon_d: np.ndarray
+    tendon_dd: np.ndarray
+    gains: np.ndarray
 
 
 class BatchData(NamedTuple):
@@ -138,7 +154,7 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
     """Zeroed state for ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs (then
     :func:`reset_worlds`)."""
     n_strains = n - (6 if model.plant_model.floating else 0)
-    cap = int(model.servo.params[S.P_LATENCY]) + 1
+    cap = int(model.servo.sensor[:, S.SN_LATENCY].max()) + 1
     na = model.plant.aero.shape[0]
     robust = model.servo.params[S.P_ROBUST] != 0.0
     win = int(model.servo.filter_params[FP_WINDOW]) if robust else 0
@@ -247,7 +263,7 @@ def _sense(model, data, w):
     """The first half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.sense`): the
     tip camera's frame at the current state, kept in ``meas_found``, ``meas_uv``."""
     uv = data.meas_uv[w]
-    data.meas_found[w] = S.measure(data.q[w], model.plant_model, model.servo,
+    data.meas_found[w] = S.measure(data.q[w], model.plant_model, model.servo, w,
                                    data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
                                    data.sstate[w], uv)  # fmt: skip
 
@@ -301,14 +317,17 @@ def _act(model, data, w, twist_in):
     if out[2] == 2.0:
         _end(data, w, RECOVERY_FAILED)
         return
-    # the low-level controller on this world's model error
+    # the low-level controller on this world's model error, its model of this world's robot
+    mc = PL.model_of_world(model.control_model, model.mb6[w], model.stiffness[w],
+                           model.rod_damping[w], model.step_mass[w], model.tendon_d[w],
+                           model.tendon_dd[w])  # fmt: skip
     base = model.control
     ca = CT.ControllerArrays(base.loads, model.control_params[w], model.coord[w],
-                             model.damping[w], base.gains, base.g4_lu, base.g4_piv)  # fmt: skip
+                             model.damping[w], model.gains[w], base.g4_lu, base.g4_piv)  # fmt: skip
     tau = np.empty(n)
     q_ref = np.empty(n)
     work = np.zeros((CT.N_WORK, n))
-    CT.controller_period(ca, model.control_model, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
+    CT.controller_period(ca, mc, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
                          q, qd, data.q_d[w], data.qd_d[w], qdd_d, dt, data.u[w], tau,
                          q_ref, work)  # fmt: skip
     for i in range(data.u.shape[1]):
@@ -333,7 +352,9 @@ def _act(model, data, w, twist_in):
     loads = np.empty(pa.loads.shape[0])
     q_out = np.empty(n)
     qd_out = np.empty(n)
-    ok, tumbled, _ = PL.plant_period(pa, m, data.aero[w], q, qd, data.wind[w], data.u[w], dt, 0.0,
+    mw = PL.model_of_world(m, model.mb6[w], model.stiffness[w], model.rod_damping[w],
+                           model.step_mass[w], model.tendon_d[w], model.tendon_dd[w])  # fmt: skip
+    ok, tumbled, _ = PL.plant_period(pa, mw, data.aero[w], q, qd, data.wind[w], data.u[w], dt, 0.0,
                                      k, dn, wn, loads, q_out, qd_out)  # fmt: skip
     for i in range(n):
         q[i] = q_out[i]

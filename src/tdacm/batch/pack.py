@@ -21,6 +21,7 @@ from ..vision.target_filter import N_FPARAMS, filter_params
 from ..vision.targets import ArucoMarker
 from ..vision.virtual import METHODS
 from . import servo as S
+from .params import MAX_LATENCY
 
 
 class Unsupported(ValueError):
@@ -62,11 +63,26 @@ def check_loop(loop) -> None:
         )
 
 
-def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S.ServoModel:
+def target_points(target, pose):
+    """``(corners (M, 4, 3), features (4, 3))``: the target's marker corners and feature
+    points in the world for the target pose ``pose`` (4, 4), as
+    :class:`~tdacm.loop.sensors.AnalyticFrontEnd` places them."""
+    ids = tuple(getattr(target, "ids", ())) or (target.marker_id,)
+    r, p = pose[:3, :3], pose[:3, 3]
+    corners = np.array([target.corner_points(i) @ r.T + p for i in ids], float)
+    return corners, target.feature_points @ r.T + p
+
+
+def servo_model(
+    loop, n_worlds: int = 1, ctl_cameras=None, references=None, targets=None, sensor_rows=None
+) -> S.ServoModel:
     """The :class:`~tdacm.batch.servo.ServoModel` of an assembled loop, for ``n_worlds``
-    worlds sharing its controller camera and reference snapshot unless ``ctl_cameras``
-    (``n_worlds`` cameras) and ``references`` (``n_worlds`` pairs ``(points, depths)`` in
-    C_V) give each world its own (an intrinsics error drawn per seed)."""
+    worlds sharing its controller camera, reference snapshot, target and C_L imperfections
+    unless ``ctl_cameras`` (``n_worlds`` cameras) and ``references`` (``n_worlds`` pairs
+    ``(points, depths)`` in C_V) give each world its own (an intrinsics error drawn per seed,
+    another target pose), ``targets`` (``n_worlds`` pairs ``(corners, features)``,
+    :func:`target_points`) each world's target and ``sensor_rows`` (``n_worlds``, 3) its pixel
+    noise, dropout and latency (:data:`~tdacm.batch.servo.SN_PIXEL_NOISE`, ...)."""
     check_loop(loop)
     sensor = loop.sensors.local
     fe = sensor.front_end
@@ -84,6 +100,16 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
     )
     if len(ctl) != n_worlds or len(refs) != n_worlds:
         raise ValueError("ctl_cameras and references need one entry per world")
+    if targets is None:
+        targets = [(np.array(fe._corners_w, float), fe._features_w)] * n_worlds
+    if len(targets) != n_worlds:
+        raise ValueError("targets need one entry per world")
+    cam_model = sensor.model
+    nominal = [cam_model.pixel_noise, cam_model.dropout, cam_model.latency_steps]
+    sn = np.tile(np.asarray(nominal, float), (n_worlds, 1)) if sensor_rows is None else sensor_rows
+    sn = np.ascontiguousarray(sn, float)
+    if sn.shape != (n_worlds, S.N_SENSOR):
+        raise ValueError(f"sensor needs ({n_worlds}, {S.N_SENSOR}) rows, got {sn.shape}")
     from ..vision.features import advanced_features, feature_interaction_matrix
 
     dpts = np.array([np.asarray(p, float) for p, _ in refs])
@@ -94,7 +120,6 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
     sm = servo.shaping
     rc = servo.recovery
     sf = loop.safety
-    cam_model = sensor.model
     prm = np.zeros(S.N_PARAMS)
     prm[S.P_GAIN] = ib.gain
     prm[S.P_MODE] = MODES.index(ib.mode)
@@ -123,8 +148,11 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
     robust = isinstance(servo, RobustServo)
     prm[S.P_ROBUST] = 1.0 if robust else 0.0
     if robust:
-        if loop.sensors.local.model.latency_steps > 63:
-            raise Unsupported("the robust servo keeps 64 camera poses: sensors.latency_steps <= 63")
+        if sn[:, S.SN_LATENCY].max() > MAX_LATENCY:
+            raise Unsupported(
+                f"the robust servo keeps {MAX_LATENCY + 1} camera poses: "
+                f"sensors.latency_steps <= {MAX_LATENCY}"
+            )
         tf = servo.target_filter
         if not np.array_equal(tf.object_points, loop.perception.target.feature_points):
             raise ValueError("the target filter and the perception see different targets")
@@ -145,8 +173,9 @@ def servo_model(loop, n_worlds: int = 1, ctl_cameras=None, references=None) -> S
         ctl_camera=np.array([camera_row(c) for c in ctl]),
         mount=np.ascontiguousarray(sensor.mount, float),
         ad_mount=np.ascontiguousarray(servo._ad_mount, float),
-        corners=np.ascontiguousarray(np.array(fe._corners_w, float)),
-        features=np.ascontiguousarray(fe._features_w, float),
+        corners=np.ascontiguousarray(np.array([c for c, _ in targets], float)),
+        features=np.ascontiguousarray(np.array([f for _, f in targets], float)),
+        sensor=sn,
         object_2d=obj2d,
         desired_points=np.ascontiguousarray(dpts),
         desired_depths=np.ascontiguousarray(dz),

@@ -17,8 +17,8 @@ the first period none; its initial state takes 5 more (:func:`wind_start`). The 
 used in the order of :class:`tdacm.aero.wind.DrydenTurbulence` (``u``, then ``v``'s two, then
 ``w``'s two), so the same normals give its samples.
 
-Per-world parameters: the model arrays' stiffness, damping, step masses and ``mb6``
-(:func:`model_of_world` builds a world's :class:`~tdacm.system.kernels.ModelArrays` inside
+Per-world parameters: the model arrays' stiffness, damping, step masses, ``mb6`` and tendon
+offsets (:func:`model_of_world` builds a world's :class:`~tdacm.system.kernels.ModelArrays` inside
 compiled code), ``loads``, ``disturbances``, ``aero`` and ``wind`` may differ per world (a
 leading world axis; each world integrates with its own ``aero`` copy, whose wind slot the
 period overwrites).
@@ -199,17 +199,18 @@ def plant_state(plant: Plant):
 
 
 @njit(cache=True)
-def model_of_world(m, mb6, stiffness, damping, step_mass):
+def model_of_world(m, mb6, stiffness, damping, step_mass, tendon_d, tendon_dd):
     """``m`` (:class:`~tdacm.system.kernels.ModelArrays`) with one world's drone inertia
-    ``mb6`` (6,), ``stiffness`` and ``damping`` (n, n) and ``step_mass`` (n_steps, 6), for
-    an engine that stacks these along a world axis: built inside compiled code (numba
-    constructs the NamedTuple; it has no ``_replace``). Pass C-contiguous rows of C-contiguous
-    stacks (``stack[w]``): the record then has the type of ``m`` and the kernels run their
-    compiled build (no new specialization)."""
+    ``mb6`` (6,), ``stiffness`` and ``damping`` (n, n), ``step_mass`` (n_steps, 6) and tendon
+    offsets ``tendon_d``, ``tendon_dd`` (n_g, n_a, 3), for an engine that stacks these along a
+    world axis: built inside compiled code (numba constructs the NamedTuple; it has no
+    ``_replace``). Pass C-contiguous rows of C-contiguous stacks (``stack[w]``): the record
+    then has the type of ``m`` and the kernels run their compiled build (no new
+    specialization)."""
     return ModelArrays(
         m.floating, m.g_fixed, m.g_att, m.rod_steps, m.h, m.xi0s, m.bs, m.step_col, m.step_nc,
         m.step_w, step_mass, m.step_load, mb6, stiffness, damping, m.gamma, m.wq, m.xi0g, m.bg,
-        m.g_col, m.g_nc, m.tendon_d, m.tendon_dd, m.tendon_on,
+        m.g_col, m.g_nc, tendon_d, tendon_dd, m.tendon_on,
     )  # fmt: skip
 
 

@@ -34,6 +34,11 @@ CURRENT, DESIRED, MEAN = 0, 1, 2
 # indices of :attr:`ServoModel.camera` rows: a pinhole camera
 FX, FY, CX, CY, WIDTH, HEIGHT, NEAR, FAR = range(8)
 
+#: columns of :attr:`ServoModel.sensor` (a world's C_L imperfections): pixel noise (px,
+#: standard deviation), dropout probability, latency (frames)
+SN_PIXEL_NOISE, SN_DROPOUT, SN_LATENCY = range(3)
+N_SENSOR = 3
+
 # indices of :attr:`ServoModel.params`
 (
     P_GAIN,
@@ -73,8 +78,11 @@ class ServoModel(NamedTuple):
 
     ``camera`` (8,): the true C_L (``FX, ..., FAR``); ``ctl_camera`` (N, 8): the controller's
     model of C_L (the intrinsics error of each world's seed); ``mount`` (4, 4) and
-    ``ad_mount`` (6, 6): ``g_{C_L}^L`` and its adjoint; ``corners`` (M, 4, 3) and ``features``
-    (4, 3): the target's marker corners and feature points in the world; ``object_2d`` (4, 2):
+    ``ad_mount`` (6, 6): ``g_{C_L}^L`` and its adjoint; ``corners`` (N, M, 4, 3) and ``features``
+    (N, 4, 3): the target's marker corners and feature points in the world (each world's
+    target pose); ``sensor`` (N, :data:`N_SENSOR`): each world's C_L imperfections by the
+    ``SN_*`` columns (the ``P_PIXEL_NOISE``, ``P_DROPOUT``, ``P_LATENCY`` of ``params`` are the
+    scenario's, the first world's at packing); ``object_2d`` (4, 2):
     the feature points in the target plane's canonical frame (:func:`~tdacm.vision.ippe.canonical_frame`);
     ``desired_points`` (N, 4, 2), ``desired_depths`` (N, 4), ``desired_features`` (N, 6),
     ``desired_interaction`` (N, 6, 6): the reference snapshot in C_V; ``limits`` (n,): the
@@ -95,6 +103,7 @@ class ServoModel(NamedTuple):
     ad_mount: np.ndarray
     corners: np.ndarray
     features: np.ndarray
+    sensor: np.ndarray
     object_2d: np.ndarray
     desired_points: np.ndarray
     desired_depths: np.ndarray
@@ -474,18 +483,19 @@ R_ON, R_T0, R_TF, R_Q0 = 0, 1, 2, 3
 
 
 @njit(cache=True)
-def measure(q, m, sm, rng, fifo_uv, fifo_found, sstate, out_uv):
-    """The tip camera's measurement of this period (:meth:`CameraSensor.measure`): the
-    analytic detection at the true ``q``, its imperfections, then the latency buffer (a frame
-    captured ``latency_steps`` periods ago, the first one until then). Returns whether the
-    delivered frame is a detection, its pixels in ``out_uv``."""
+def measure(q, m, sm, w, rng, fifo_uv, fifo_found, sstate, out_uv):
+    """World ``w``'s tip camera measurement of this period (:meth:`CameraSensor.measure`):
+    the analytic detection at the true ``q``, its imperfections, then the latency buffer (a
+    frame captured ``latency_steps`` periods ago, the first one until then; the buffer holds
+    at least the world's latency + 1 frames). Returns whether the delivered frame is a
+    detection, its pixels in ``out_uv``."""
     g_c = np.empty((4, 4))
     tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
     uv = np.empty((4, 2))
-    found = detect(sm.camera, g_c, sm.corners, sm.features, uv)
-    prm = sm.params
-    found = imperfect(found, uv, prm[P_PIXEL_NOISE], prm[P_DROPOUT], rng)
-    cap = fifo_found.shape[0]
+    found = detect(sm.camera, g_c, sm.corners[w], sm.features[w], uv)
+    sn = sm.sensor[w]
+    found = imperfect(found, uv, sn[SN_PIXEL_NOISE], sn[SN_DROPOUT], rng)
+    cap = int(sn[SN_LATENCY]) + 1
     head, count = int(sstate[S_HEAD]), int(sstate[S_COUNT])
     if count < cap:
         slot = (head + count) % cap
@@ -507,7 +517,7 @@ def first_mode(q, m, sm, w):
     g_c = np.empty((4, 4))
     tip_camera_pose(q, m, sm.rod, sm.mount, g_c)
     uv = np.empty((4, 2))
-    if not detect(sm.camera, g_c, sm.corners, sm.features, uv):
+    if not detect(sm.camera, g_c, sm.corners[w], sm.features[w], uv):
         return RECOVERY
     xy = np.empty((4, 2))
     z = np.empty(4)
@@ -561,7 +571,7 @@ def rmse_to(pv, dp):
 
 
 @njit(cache=True)
-def detect_global(q, m, sm, corners_uv):
+def detect_global(q, m, sm, w, corners_uv):
     """C_G's analytic detection at the drone's pose (:class:`AnalyticFrontEnd` of the global
     camera, ideal): True when every marker's corners are in its view, their pixels (OpenCV
     order) in ``corners_uv`` (M, 4, 2)."""
@@ -570,11 +580,12 @@ def detect_global(q, m, sm, corners_uv):
     g = np.empty((4, 4))
     _mul4(g_b, sm.drone_mount, g)
     cam = sm.global_camera
-    for mk in range(sm.corners.shape[0]):
+    corners = sm.corners[w]
+    for mk in range(corners.shape[0]):
         for k in range(4):
-            d0 = sm.corners[mk, k, 0] - g[0, 3]
-            d1 = sm.corners[mk, k, 1] - g[1, 3]
-            d2 = sm.corners[mk, k, 2] - g[2, 3]
+            d0 = corners[mk, k, 0] - g[0, 3]
+            d1 = corners[mk, k, 1] - g[1, 3]
+            d2 = corners[mk, k, 2] - g[2, 3]
             x = d0 * g[0, 0] + d1 * g[1, 0] + d2 * g[2, 0]
             y = d0 * g[0, 1] + d1 * g[1, 1] + d2 * g[2, 1]
             z = d0 * g[0, 2] + d1 * g[1, 2] + d2 * g[2, 2]
@@ -737,7 +748,7 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, 
         rates = joint_rates(q, v, m, sm, m.floating)
         shape(rates, t, dt, sstate[S_IBVS_START], sm, q_d, qd_d)
     elif mode == RECOVERY:
-        recovery_period(t, q, m, sm, offered, -1.0, sstate, rstate, q_d, qd_d, qdd_d, out)
+        recovery_period(t, q, m, sm, w, offered, -1.0, sstate, rstate, q_d, qd_d, qdd_d, out)
     else:
         for i in range(n):
             qd_d[i] = 0.0
@@ -745,7 +756,7 @@ def servo_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, 
 
 
 @njit(cache=True)
-def recovery_period(t, q, m, sm, offered, retry_for, sstate, rstate, q_d, qd_d, qdd_d, out):
+def recovery_period(t, q, m, sm, w, offered, retry_for, sstate, rstate, q_d, qd_d, qdd_d, out):
     """The servo's recovery mode for one period: before a trajectory exists, hold and ask C_G
     for a snapshot (``offered`` false), detect the target in it, plan (the target's pose from
     the snapshot, the cubic trajectory) and start from the current pose with a level drone;
@@ -760,8 +771,8 @@ def recovery_period(t, q, m, sm, offered, retry_for, sstate, rstate, q_d, qd_d, 
                 qd_d[i] = 0.0
             sstate[S_REQUEST] = 1.0
             return
-        corners_uv = np.empty((sm.corners.shape[0], 4, 2))
-        if not detect_global(q, m, sm, corners_uv):
+        corners_uv = np.empty((sm.corners.shape[1], 4, 2))
+        if not detect_global(q, m, sm, w, corners_uv):
             for i in range(n):
                 qd_d[i] = 0.0
             if retry_for <= 0.0:
@@ -846,7 +857,7 @@ def robust_predict(dt, k, q, found, uv, m, sm, w, sstate, fd, pv, zv, pix):
     xy = np.empty((4, 2))
     zz = np.empty(4)
     view = found and perceive(ctl, sm.object_2d, uv, xy, zz)
-    cap = max(0, k - int(prm[P_LATENCY]))
+    cap = max(0, k - int(sm.sensor[w, SN_LATENCY]))
     if view and cap > sstate[S_LAST_FUSED]:
         sstate[S_LAST_FUSED] = cap
         if filter_update(sm.filter_params, ctl[:4], fd.st, fd.pose, fd.cov, fd.hyp, fd.rc,
@@ -963,7 +974,7 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
                     q_d[j] += leak * dt * (q[j] - q_d[j])
     elif mode == RECOVERY:
         recovery_period(
-            t, q, m, sm, offered, prm[P_LOST_TIMEOUT], sstate, rstate, q_d, qd_d, qdd_d, out
+            t, q, m, sm, w, offered, prm[P_LOST_TIMEOUT], sstate, rstate, q_d, qd_d, qdd_d, out
         )
     else:
         for i in range(n):

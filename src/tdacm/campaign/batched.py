@@ -7,13 +7,16 @@ What a run samples must be what the engine can give each world:
 * a distribution whose every draw is the same value (kind ``fixed``, a ``choice`` of one
   value) is applied to the chunk's shared scenario;
 * ``initial.q`` and ``initial.qd`` vary per world (the batch's ``q0``, ``qd0`` rows);
+* the keys of :data:`~tdacm.sim.batch.SCENARIO_KEYS` vary per world (the batch's
+  :class:`~tdacm.batch.params.WorldParams`: C_L's pixel noise, dropout and latency, the
+  target's tilt, yaw and position, the rod's Young's modulus, damping and density, the drone's
+  mass, the tendons' radius), each world equal to the block loop of its run's scenario;
 * the run's seed gives each world its controller's model error, its camera model with an
   intrinsics error and its random streams (:func:`~tdacm.sim.batch.build_batch`).
 
-Anything else that varies between runs (a sampled noise level, latency, mass, target tilt,
-...) cannot be given per world: :func:`refusal` names it, and the campaign runs on the block
-loop (``batched = "auto"``) or stops (``batched = true``); a sampled parameter is never
-ignored. Without noise a batched row equals the block loop's to 1e-9; with noise the worlds
+Anything else that varies between runs cannot be given per world: :func:`refusal` names it,
+and the campaign runs on the block loop (``batched = "auto"``) or stops (``batched =
+true``); a sampled parameter is never ignored. Without noise a batched row equals the block loop's to 1e-9; with noise the worlds
 draw from the engine's own streams (docs/batch.md, "Determinism"), so rows differ run by run
 and agree in distribution (``tests/campaign/test_batched.py``).
 """
@@ -26,10 +29,12 @@ import traceback
 
 import numpy as np
 
+from ..sim.batch import SCENARIO_KEYS
 from .spec import CampaignSpec, sample_overrides
 
-#: the sampled keys the engine varies per world (the batch's initial states)
-PER_WORLD = ("initial.q", "initial.qd")
+#: the sampled keys the engine varies per world (the batch's initial states and per-world
+#: parameters)
+PER_WORLD = ("initial.q", "initial.qd", *SCENARIO_KEYS)
 
 #: worlds per chunk (one ``build_batch`` on a worker): large enough that the batch set-up
 #: (one loop assembly, ~1 s) is small against the run, small enough to spread over workers
@@ -83,6 +88,9 @@ def refusal(spec: CampaignSpec) -> str | None:
                 f"distributions.{key!r}: the batched engine cannot vary {key} per world "
                 f"(it varies {', '.join(PER_WORLD)} and the seed's draws)"
             )
+    if "robot.tendons.radius" in varying_keys(spec):
+        if load_scenario(spec.scenario).config.robot.tendons.offsets is not None:
+            return "distributions.'robot.tendons.radius': the tendons are given by offsets"
     try:
         base = load_scenario(spec.scenario)
         sc = base.with_overrides(shared_overrides(spec, base.data), spec.source)
@@ -98,7 +106,7 @@ def execute_chunk(spec_dict: dict, indices, seeds, threads: int = 1) -> list[dic
     becomes error rows."""
     spec = CampaignSpec(**spec_dict)
     t0 = time.perf_counter()
-    rows, worlds, q0s, qd0s = [], [], [], []
+    rows, worlds, q0s, qd0s, cfgs = [], [], [], [], []
     try:
         from ..sim.scenario import load_scenario
 
@@ -114,12 +122,13 @@ def execute_chunk(spec_dict: dict, indices, seeds, threads: int = 1) -> list[dic
             cfg = base.with_overrides(ov, f"campaign run {i}").config  # the run's own checks
             q0s.append(np.asarray(cfg.initial.q, float))
             qd0s.append(None if cfg.initial.qd is None else np.asarray(cfg.initial.qd, float))
+            cfgs.append(cfg)
             worlds.append(row)
         except Exception as exc:  # noqa: BLE001 - a failing run is data
             rows.append(_error_row(i, s, exc, row["overrides"]))
     if worlds:
         try:
-            rows += _run_worlds(spec, shared, worlds, q0s, qd0s, threads)
+            rows += _run_worlds(spec, shared, worlds, q0s, qd0s, threads, cfgs)
         except Exception as exc:  # noqa: BLE001 - the chunk's runs become error rows
             rows += [_error_row(r["run"], r["seed"], exc, r["overrides"]) for r in worlds]
     wall = (time.perf_counter() - t0) / max(1, len(rows))
@@ -139,17 +148,21 @@ def _error_row(i, s, exc, overrides: str = "") -> dict:
     }
 
 
-def _run_worlds(spec, scenario, rows, q0s, qd0s, threads) -> list[dict]:
-    """Run the worlds of ``rows`` (their seeds, initial states) and fill their rows."""
+def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
+    """Run the worlds of ``rows`` (their seeds, initial states, scenario records ``cfgs``)
+    and fill their rows."""
     from ..batch import engine as E
     from ..batch import servo as S
     from ..sim.assemble import build_loop
-    from ..sim.batch import build_batch
+    from ..sim.batch import build_batch, world_params
 
     seeds = np.array([r["seed"] for r in rows], np.int64)
     a = build_loop(scenario, int(seeds[0]))
     t_build = time.perf_counter()
-    batch = build_batch(scenario, seeds, spec.duration, np.array(q0s), threads, assembly=a)
+    params = world_params(scenario, cfgs, varying_keys(spec))
+    batch = build_batch(
+        scenario, seeds, spec.duration, np.array(q0s), threads, assembly=a, params=params
+    )
     if any(qd is not None for qd in qd0s):
         zero = np.zeros(batch.q0.shape[1])
         batch.qd0 = np.array([zero if qd is None else qd for qd in qd0s])
@@ -186,7 +199,7 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads) -> list[dict]:
     for w, row in enumerate(rows):
         sel = recorded[:, w]
         summary = _summary(a, model.servo.desired_points[w], t[sel], rmse[sel, w], mode[sel, w], found[sel, w], u_max[w],
-                           q_last[w], d, w, wall)  # fmt: skip
+                           q_last[w], d, w, wall, _truth(a, params, w))  # fmt: skip
         _fill(spec, row, summary, t[sel], rmse[sel, w])
     return rows
 
@@ -228,7 +241,23 @@ def _reason(code: int, a, t, rmse, d, w) -> str | None:
     }.get(code)
 
 
-def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall) -> dict:
+def _truth(a, params, w):
+    """World ``w``'s true points (``q -> points``, :func:`~tdacm.sim.blocks.truth_of`): the
+    loop's own unless the world has its own target pose."""
+    from dataclasses import replace
+
+    from ..batch.params import TARGET_FIELDS
+    from ..sim.batch import world_scene
+    from ..sim.blocks import truth_of
+
+    loop = a.loop
+    if loop.log.truth is None or params is None or not params.given(TARGET_FIELDS):
+        return loop.log.truth
+    world = replace(a.world, scene=world_scene(a.world, params, w))
+    return truth_of(world, loop.sensors.local)
+
+
+def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall, truth) -> dict:
     """World ``w``'s summary fields of :data:`~tdacm.campaign.store.ROW_FIELDS`, computed as
     :meth:`tdacm.sim.runner.Simulation.summary` computes them from the run's arrays
     (``final_rmse_true`` at the last recorded state, where the block loop takes the last
@@ -258,8 +287,8 @@ def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall) -> dic
         cam_dp, cam_da = camera_pose_error(loop, q_last, world.q_star)
         if s.floating:
             drone_dp = float(np.linalg.norm(q_last[3:6] - world.q_star[3:6]))
-        if loop.log.truth is not None:  # the world's own reference (its camera model)
-            pts, _ = loop.log.truth(q_last)
+        if truth is not None:  # the world's own reference (its camera model, its target)
+            pts, _ = truth(q_last)
             rmse_true = float(normalized_rmse(pts, desired))
             rmse_true = rmse_true if np.isfinite(rmse_true) else None
     na = s.n_a

@@ -8,10 +8,12 @@ ready :class:`EnvOptions` as ``options=``. The values are checked once, here, wi
 
 Domain randomization (:class:`Randomization`, off by default): each field is the half-width
 (relative, for the physical parameters) or the upper end (for the sensor imperfections) of a
-range a world would draw its value from at every reset. Both engines hold one plant model and
-one set of sensor parameters for all worlds of a scenario, so a non-zero range is refused with
-one line naming the option instead of being ignored; fixed sensor imperfections are scenario
-keys (``overrides={"sensors": {"pixel_noise": 1.0}}``). The initial pose spread is supported:
+range a world draws its value from at every reset. The vector env draws them from each
+world's own generator (:meth:`Randomization.draw`) and gives them to the world as per-world
+parameters of the batched engine (:class:`~tdacm.batch.params.WorldParams`). The single env
+(the block loop, one plant model built with the scenario) refuses a non-zero range with one
+line naming the option instead of ignoring it; fixed values are scenario keys
+(``overrides={"sensors": {"pixel_noise": 1.0}}``). The initial pose spread is supported:
 ``init_noise`` is one standard deviation for every coordinate or one per coordinate (the
 robustness campaigns' spread of ``paper-in-fov`` is ``[0, 0, 0.05, 0.1, 0.1, 0.2, 0.05,
 0.05]``, ``examples/campaigns/paper-in-fov-200.toml``).
@@ -41,7 +43,8 @@ class Randomization:
     (the rod's K and D), ``masses`` (the drone's and the rod's), ``moment_arm`` (the
     tendons' moment arms): relative half-widths in ``[0, 0.1]`` (a value ``x`` scales by a
     factor uniform in ``[1 - x, 1 + x]``); ``pixel_noise`` (px, ``[0, 2]``), ``dropout``
-    (``[0, 0.1]``), ``latency`` (frames, ``0..2``): upper ends of ranges starting at 0."""
+    (``[0, 0.1]``), ``latency`` (frames, ``0..2``): upper ends of ranges starting at 0 (a
+    drawn sensor value replaces the scenario's)."""
 
     stiffness: float = 0.0
     damping: float = 0.0
@@ -68,14 +71,34 @@ class Randomization:
 
     def refuse(self, engine: str) -> None:
         """Raise ``ValueError`` (one line) naming the first non-zero range: ``engine``
-        holds one plant model and one set of sensor parameters for every world."""
+        draws no parameters at reset."""
         if self.active:
             name = self.active[0]
             raise ValueError(
-                f"randomize.{name}: {engine} has one plant model and one set of sensor "
-                f"parameters for all worlds; per-world ranges are not supported (set it to 0, "
-                f"or fix the value with a scenario override)"
+                f"randomize.{name}: {engine} runs one model built from the scenario and draws "
+                f"no parameters at reset; use the vector env (gym.make_vec), set it to 0, or "
+                f"fix the value with a scenario override"
             )
+
+    def draw(self, rng) -> dict:
+        """One world's draws from ``rng`` (a ``numpy.random.Generator``), in the order of
+        :data:`RANDOMIZATION_LIMITS` (``masses``: the drone's, then the rod's), only for the
+        non-zero ranges: the fields of :class:`~tdacm.batch.params.WorldParams` (the robot's
+        as factors uniform in ``[1 - x, 1 + x]``, the sensors' uniform in ``[0, x]``, the
+        latency a whole number of frames in ``0..x``), each a one-element list."""
+        out = {}
+        for name in self.active:
+            x = getattr(self, name)
+            if name == "masses":
+                out["drone_mass"] = [rng.uniform(1.0 - x, 1.0 + x)]
+                out["rod_mass"] = [rng.uniform(1.0 - x, 1.0 + x)]
+            elif name in ("stiffness", "damping", "moment_arm"):
+                out[name] = [rng.uniform(1.0 - x, 1.0 + x)]
+            elif name == "latency":
+                out[name] = [int(rng.integers(0, int(x) + 1))]
+            else:
+                out[name] = [rng.uniform(0.0, x)]
+        return out
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,13 @@ then its initial offset (``init_noise``, roll and pitch kept). So world ``i`` st
 number of worlds or the threads (tested). Unlike the single env, every reset (the autoreset
 too) draws a new loop seed: each episode has another model error and noise.
 
+Domain randomization (``randomize``, :class:`~tdacm.envs.options.Randomization`): a reset
+world then draws its parameters from its generator, after its loop seed and initial offset
+(:meth:`~tdacm.envs.options.Randomization.draw`), and runs with them as per-world
+parameters of the engine (:class:`~tdacm.batch.params.WorldParams`): its rod's stiffness and
+damping, the drone's and the rod's masses, the tendons' moment arms, C_L's pixel noise,
+dropout and latency. Still a function of ``s + i`` only (tested).
+
 What differs from the single env: the twist action only; the engine's scenario support (the
 EKF, contact and the multi-arm robots are refused naming the key). The observation holds the
 features the servo works on, as the single env's: with the robust servo (the shipped
@@ -102,7 +109,6 @@ class TipServoVectorEnv(VectorEnv):
         from ..sim.scenario import ScenarioError, load_scenario
 
         o = self.options = EnvOptions.of(options, kwargs)
-        o.randomize.refuse("the batched engine")
         if o.action_type != "twist":
             raise ValueError(
                 f"action_type: the vector env takes 'twist' only (the engine's act path), "
@@ -138,8 +144,17 @@ class TipServoVectorEnv(VectorEnv):
         loop = a.loop
         # the engine never ends a world by its duration: the env truncates
         duration = (self.horizon + 2) * loop.dt
+        self.randomize = o.randomize
+        params = None
+        if o.randomize.latency:  # the latency buffers hold the largest draw
+            from ..batch.params import WorldParams
+
+            lat = max(int(o.randomize.latency), loop.sensors.local.model.latency_steps)
+            params = WorldParams(latency=[lat] * N)
         try:
-            self.batch = build_batch(sc, [seed0] * N, duration, threads=threads, assembly=a)
+            self.batch = build_batch(
+                sc, [seed0] * N, duration, threads=threads, assembly=a, params=params
+            )
         except ScenarioError as exc:
             loop.close()
             raise ValueError(f"scenario: {exc}") from None
@@ -195,17 +210,20 @@ class TipServoVectorEnv(VectorEnv):
     def _start(self, which: np.ndarray) -> None:
         """Reset the worlds ``which``: a new loop seed then an initial offset, each drawn
         from the world's generator (module docstring)."""
+        from ..batch.params import WorldParams
         from ..sim.batch import reseed_world
 
         idx = np.flatnonzero(which)
         q0 = np.empty((idx.size, self.n))
         for j, w in enumerate(idx):
             rng = self._rngs[w]
-            reseed_world(self.batch, self.assembly, int(w), int(rng.integers(2**31)))
+            seed = int(rng.integers(2**31))
             q = self.q0 + rng.normal(0.0, self.init_noise, size=self.n)
             if self.floating:
                 q[:2] = self.q0[:2]  # roll/pitch are not free: start level as the scenario
             q0[j] = q
+            params = WorldParams(**self.randomize.draw(rng)) if self.randomize.active else None
+            reseed_world(self.batch, self.assembly, int(w), seed, params)
         self.batch.reset(which, q0, self.qd0)
         self.steps[which] = 0
         self.lost[which] = 0
