@@ -5,19 +5,23 @@ The same recursion and the same floating-point operations, in the same order, as
 :func:`tdacm.system.kernels.coupled_terms_env` with ``want_c = False`` (the arithmetic of each
 entry is unchanged, so the results are identical), but:
 
-* the Jacobian is stored transposed, ``J^T`` (n x 6): each column of ``J`` is a contiguous
-  twist, and ``Ad^-1``, ``ad`` and the tangent operator act on one twist at a time held in
-  registers;
+* the Jacobian ``J`` (6 x n) is stored by rows, so that ``Ad^-1``, the tangent operator
+  and ``M += w J^T Mb J`` (eq. (10)) run as loops over the columns (twists) with no dependence
+  between iterations; written from index 0 over views (no wrap-around test on the index) and
+  in place, the compiler vectorizes them (the same operations on several columns at once,
+  each column's arithmetic unchanged);
 * only the columns of ``J`` that can be non-zero are visited: a column of a strain coordinate
   becomes non-zero at the first Magnus step of its section (eq. (9): the rod's columns before
   that step are exactly zero), so the products and sums with the later sections' columns,
   which add exact zeros, are skipped;
 * ``J_dot`` is not propagated (the forward dynamics needs only ``J_dot qdot``), nor ``Z_dot``;
-* ``J^T Mb`` is formed once per column for ``M += w J^T Mb J`` (eq. (10)); the tangent
-  coefficients are scalars; the drone's rotation and Euler-rate matrix serve both the
+* ``J^T Mb`` is formed once per column for ``M += w J^T Mb J``, whose upper triangle only is
+  summed (every entry receives the same sums as its mirror: the lower triangle is copied at
+  the end); the tangent coefficients are scalars; the drone's six sines and cosines are
+  computed once for its rotation, Euler-rate matrix and its rate, which serve both the
   Jacobian and ``B(q)``, and ``B u`` is summed without forming ``B``;
-* every scratch array of an evaluation is a view of one buffer (:func:`workspace`), which
-  :func:`rk4_steps` allocates once per call instead of once per evaluation.
+* the scratch arrays of an evaluation are row blocks of eight arrays (:func:`workspace`),
+  which :func:`rk4_steps` allocates once per call instead of once per evaluation.
 """
 
 from __future__ import annotations
