@@ -37,8 +37,8 @@ Python callers' build.
 
 The forward dynamics (``forward_dynamics*``, ``rk4_run*``, and ``coupled_terms*`` with
 ``want_c = False``) runs the recursion of :mod:`tdacm.system.forward`: the same arithmetic as the
-recursion below without ``C`` (bit-identical results), over ``J^T``, without ``J_dot``, with one
-scratch buffer per call.
+recursion below without ``C`` (bit-identical results), over ``J`` stored by rows with loops the
+compiler vectorizes, without ``J_dot``, with one workspace per call.
 """
 
 from __future__ import annotations
