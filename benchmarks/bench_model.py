@@ -1,8 +1,146 @@
 """Benchmark of the coupled model (speed targets).  Run: ``python benchmarks/bench_model.py``
-or ``tdacm bench``.  Reports medians; see ``docs/benchmarks.md`` for this machine's figures."""
+or ``tdacm bench``.  Reports medians; see ``docs/benchmarks.md`` for this machine's figures.
 
-from tdacm.bench import configure_logging, run_model_bench
+``python benchmarks/bench_model.py --against REV`` times instead the forward dynamics of this
+checkout against that of the git revision ``REV`` in one process: the module
+``tdacm/system/forward.py`` of ``REV`` (the recursion, its workspace and solve; the helpers it
+takes from ``tdacm.system.kernels`` are this checkout's) is loaded beside the current one, and
+compiled loops of ``workspace`` + ``forward_dynamics_ws`` (what ``forward_dynamics`` does per
+call) run alternately, round by round, on the paper system and the 18-DoF rod.  Prints the
+medians, the 10th percentiles, the median of the paired ratios and the largest difference of
+``qdd`` between the two on random states, and the load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_forward_at(rev: str, where: Path):
+    """The forward module of ``rev`` as a top-level module (relative imports made absolute)."""
+    text = subprocess.run(
+        ["git", "show", f"{rev}:src/tdacm/system/forward.py"],
+        cwd=ROOT, check=True, capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    text = re.sub(r"from \.\.(\w)", r"from tdacm.\1", text)
+    text = text.replace("from . import kernels as K", "from tdacm.system import kernels as K")
+    name = "forward_at_" + re.sub(r"\W", "_", rev)
+    where.mkdir(parents=True, exist_ok=True)
+    path = where / f"{name}.py"
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _loop(F):
+    from numba import njit
+
+    @njit
+    def loop(q, qd, u, m, loads, count):
+        e = np.empty(0)
+        acc = 0.0
+        for _ in range(count):
+            ws = F.workspace(q.shape[0], m)
+            qdd = np.empty(q.shape[0])
+            F.forward_dynamics_ws(q, qd, u, m, loads, e, e, ws, qdd)
+            acc += qdd[0]
+        return acc
+
+    return loop
+
+
+def _qdd(F, q, qd, u, m, loads):
+    e = np.empty(0)
+    qdd = np.empty(q.shape[0])
+    F.forward_dynamics_ws(q, qd, u, m, loads, e, e, F.workspace(q.shape[0], m), qdd)
+    return qdd
+
+
+def compare(rev: str, rounds: int = 41, calls: int = 200, out: str = "out/bench-model-ab"):
+    import tdacm.system.forward as new
+    from tdacm.rod import StrainBasis
+    from tdacm.system import paper_system
+
+    old = _load_forward_at(rev, Path(out) / "modules")
+    loops = {"current": _loop(new), rev: _loop(old)}
+    mods = {"current": new, rev: old}
+    load0 = open("/proc/loadavg").read().split()[:3]
+    rows = []
+    rich = paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4)
+    for name, s in (("paper", paper_system()), ("18-DoF", rich)):
+        m, loads = s.model_arrays, s.loads.packed()
+        rng = np.random.default_rng(0)
+        q = np.zeros(s.n)
+        q[5] = 3.0
+        q[6:] = rng.normal(size=s.n_s) * 0.3
+        qd = rng.normal(size=s.n) * 0.1
+        u = np.r_[np.full(4, s.total_mass * 9.81 / 4), np.zeros(s.n_a)]
+        diff = 0.0
+        for seed in range(5):  # random states: the two versions' qdd
+            r = np.random.default_rng(100 + seed)
+            qs = q + r.normal(size=s.n) * 0.2
+            qds = r.normal(size=s.n)
+            a, b = (_qdd(mods[k], qs, qds, u, m, loads) for k in mods)
+            diff = max(diff, float(np.abs(a - b).max() / max(1.0, np.abs(b).max())))
+        times = {k: [] for k in loops}
+        for f in loops.values():
+            f(q, qd, u, m, loads, 1)
+        for _ in range(rounds):
+            for k, f in loops.items():
+                t0 = time.perf_counter()
+                f(q, qd, u, m, loads, calls)
+                times[k].append((time.perf_counter() - t0) / calls * 1e6)
+        cur, ref = np.array(times["current"]), np.array(times[rev])
+        row = {
+            "system": name,
+            "n": s.n,
+            "current_median_us": float(np.median(cur)),
+            "current_p10_us": float(np.percentile(cur, 10)),
+            "reference_median_us": float(np.median(ref)),
+            "reference_p10_us": float(np.percentile(ref, 10)),
+            "ratio_median_of_paired": float(np.median(ref / cur)),
+            "max_relative_difference_qdd": diff,
+        }
+        rows.append(row)
+        print(
+            f"{name:7s} n={s.n:2d}  current {row['current_median_us']:7.2f} us "
+            f"(p10 {row['current_p10_us']:6.2f})  {rev} {row['reference_median_us']:7.2f} us "
+            f"(p10 {row['reference_p10_us']:6.2f})  ratio {row['ratio_median_of_paired']:.2f}x  "
+            f"qdd difference {diff:.1e}"
+        )
+    load1 = open("/proc/loadavg").read().split()[:3]
+    print(f"load average (1, 5, 15 min): {load0} at the start, {load1} at the end")
+    res = {"against": rev, "rounds": rounds, "calls": calls, "rows": rows, "load": [load0, load1]}
+    Path(out).mkdir(parents=True, exist_ok=True)
+    (Path(out) / "ab.json").write_text(json.dumps(res, indent=2))
+    return res
+
 
 if __name__ == "__main__":
-    configure_logging()  # the tables on stdout, progress on stderr
-    run_model_bench()
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--against", metavar="REV", help="time against the forward module of REV")
+    p.add_argument("--rounds", type=int, default=41)
+    p.add_argument("--out", default="out/bench-model-ab")
+    a = p.parse_args()
+    if a.against:
+        compare(a.against, rounds=a.rounds, out=a.out)
+    else:
+        from tdacm.bench import configure_logging, run_model_bench
+
+        configure_logging()  # the tables on stdout, progress on stderr
+        run_model_bench()

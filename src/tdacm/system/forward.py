@@ -5,19 +5,23 @@ The same recursion and the same floating-point operations, in the same order, as
 :func:`tdacm.system.kernels.coupled_terms_env` with ``want_c = False`` (the arithmetic of each
 entry is unchanged, so the results are identical), but:
 
-* the Jacobian is stored transposed, ``J^T`` (n x 6): each column of ``J`` is a contiguous
-  twist, and ``Ad^-1``, ``ad`` and the tangent operator act on one twist at a time held in
-  registers;
+* the Jacobian ``J`` (6 x n) is stored by rows, so that ``Ad^-1``, the tangent operator
+  and ``M += w J^T Mb J`` (eq. (10)) run as loops over the columns (twists) with no dependence
+  between iterations; written from index 0 over views (no wrap-around test on the index) and
+  in place, the compiler vectorizes them (the same operations on several columns at once,
+  each column's arithmetic unchanged);
 * only the columns of ``J`` that can be non-zero are visited: a column of a strain coordinate
   becomes non-zero at the first Magnus step of its section (eq. (9): the rod's columns before
   that step are exactly zero), so the products and sums with the later sections' columns,
   which add exact zeros, are skipped;
 * ``J_dot`` is not propagated (the forward dynamics needs only ``J_dot qdot``), nor ``Z_dot``;
-* ``J^T Mb`` is formed once per column for ``M += w J^T Mb J`` (eq. (10)); the tangent
-  coefficients are scalars; the drone's rotation and Euler-rate matrix serve both the
+* ``J^T Mb`` is formed once per column for ``M += w J^T Mb J``, whose upper triangle only is
+  summed (every entry receives the same sums as its mirror: the lower triangle is copied at
+  the end); the tangent coefficients are scalars; the drone's six sines and cosines are
+  computed once for its rotation, Euler-rate matrix and its rate, which serve both the
   Jacobian and ``B(q)``, and ``B u`` is summed without forming ``B``;
-* every scratch array of an evaluation is a view of one buffer (:func:`workspace`), which
-  :func:`rk4_steps` allocates once per call instead of once per evaluation.
+* the scratch arrays of an evaluation are row blocks of eight arrays (:func:`workspace`),
+  which :func:`rk4_steps` allocates once per call instead of once per evaluation.
 """
 
 from __future__ import annotations
@@ -28,7 +32,6 @@ from numba import njit
 from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..lie.blocks import ad_scalars, compose_rp_into, expmap_rp_into
-from ..lie.euler import euler_rate_matrix, euler_rate_matrix_dot, rot_zyx
 from ..lie.se3 import _A1, _A2, _A3, _A4, SMALL_ANGLE, _dseries, _series
 from . import kernels as K
 
@@ -62,32 +65,65 @@ def tangent_coefficients_scalar(th):
 
 
 @njit(cache=True)
-def _tangent_row(om, co, x, c, out):
-    """``out[c] = T(Omega) x[c]`` for one twist ``x[c]`` (6,): ``x + sum a_i ad(Omega)^i x``,
-    the recursion of :func:`tdacm.lie.blocks.tangent_apply_into`; ``co = (a_1..a_4, ...)``."""
+def _tangent_cols(om, co, x, c0, c1):
+    """``x[:, c] <- T(Omega) x[:, c]`` for the twists ``c0 <= c < c1`` (columns of ``x``,
+    6 x k): ``x + sum a_i ad(Omega)^i x``, the recursion of
+    :func:`tdacm.lie.blocks.tangent_apply_into`; ``co = (a_1..a_4, ...)``.  The loop over the
+    columns has no dependence between iterations and works in place (six arrays: the compiler
+    vectorizes it)."""
     k0, k1, k2, u0, u1, u2 = om[0], om[1], om[2], om[3], om[4], om[5]
-    p0, p1, p2, p3, p4, p5 = x[c, 0], x[c, 1], x[c, 2], x[c, 3], x[c, 4], x[c, 5]
-    t0, t1, t2, t3, t4, t5 = p0, p1, p2, p3, p4, p5
-    for i in range(4):
-        ai = co[i]
+    a1, a2, a3, a4 = co[0], co[1], co[2], co[3]
+    # views from c0: a loop from 0 has non-negative indices (no wrap-around test: vectorized)
+    x0, x1, x2, x3, x4, x5 = (
+        x[0, c0:c1],
+        x[1, c0:c1],
+        x[2, c0:c1],
+        x[3, c0:c1],
+        x[4, c0:c1],
+        x[5, c0:c1],
+    )
+    o0, o1, o2, o3, o4, o5 = x0, x1, x2, x3, x4, x5
+    for c in range(c1 - c0):
+        p0, p1, p2, p3, p4, p5 = x0[c], x1[c], x2[c], x3[c], x4[c], x5[c]
+        t0, t1, t2, t3, t4, t5 = p0, p1, p2, p3, p4, p5
         p0, p1, p2, p3, p4, p5 = ad_scalars(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
-        t0 += ai * p0
-        t1 += ai * p1
-        t2 += ai * p2
-        t3 += ai * p3
-        t4 += ai * p4
-        t5 += ai * p5
-    out[c, 0], out[c, 1], out[c, 2], out[c, 3], out[c, 4], out[c, 5] = t0, t1, t2, t3, t4, t5
+        t0 += a1 * p0
+        t1 += a1 * p1
+        t2 += a1 * p2
+        t3 += a1 * p3
+        t4 += a1 * p4
+        t5 += a1 * p5
+        p0, p1, p2, p3, p4, p5 = ad_scalars(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        t0 += a2 * p0
+        t1 += a2 * p1
+        t2 += a2 * p2
+        t3 += a2 * p3
+        t4 += a2 * p4
+        t5 += a2 * p5
+        p0, p1, p2, p3, p4, p5 = ad_scalars(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        t0 += a3 * p0
+        t1 += a3 * p1
+        t2 += a3 * p2
+        t3 += a3 * p3
+        t4 += a3 * p4
+        t5 += a3 * p5
+        p0, p1, p2, p3, p4, p5 = ad_scalars(k0, k1, k2, u0, u1, u2, p0, p1, p2, p3, p4, p5)
+        o0[c] = t0 + a4 * p0
+        o1[c] = t1 + a4 * p1
+        o2[c] = t2 + a4 * p2
+        o3[c] = t3 + a4 * p3
+        o4[c] = t4 + a4 * p4
+        o5[c] = t5 + a4 * p5
 
 
 @njit(cache=True)
-def _tangent_rate_row(om, co, x, out, dout):
-    """``out = T(Omega) x`` and ``dout = T_dot x`` for one twist (the rate recursion of
-    :func:`tdacm.lie.blocks.tangent_apply_into`: ``D_i = ad(Omega_dot) P_{i-1} + ad(Omega)
-    D_{i-1}``, ``T_dot x = sum b_i (w . w_dot) P_i + a_i D_i``), for ``x = Omega_dot``
-    (``x[0]``; result in ``out[0]``)."""
+def _tangent_rate_col(om, co, x, out, dout):
+    """``out[:, 0] = T(Omega) x[:, 0]`` and ``dout = T_dot x[:, 0]`` for the twist
+    ``x[:, 0] = Omega_dot`` (the rate recursion of :func:`tdacm.lie.blocks.tangent_apply_into`:
+    ``D_i = ad(Omega_dot) P_{i-1} + ad(Omega) D_{i-1}``,
+    ``T_dot x = sum b_i (w . w_dot) P_i + a_i D_i``)."""
     k0, k1, k2, u0, u1, u2 = om[0], om[1], om[2], om[3], om[4], om[5]
-    e0, e1, e2, e3, e4, e5 = x[0, 0], x[0, 1], x[0, 2], x[0, 3], x[0, 4], x[0, 5]
+    e0, e1, e2, e3, e4, e5 = x[0, 0], x[1, 0], x[2, 0], x[3, 0], x[4, 0], x[5, 0]
     wwd = om[0] * e0 + om[1] * e1 + om[2] * e2
     p0, p1, p2, p3, p4, p5 = e0, e1, e2, e3, e4, e5
     t0, t1, t2, t3, t4, t5 = p0, p1, p2, p3, p4, p5
@@ -113,7 +149,7 @@ def _tangent_rate_row(om, co, x, out, dout):
         s4 += bi * c4 + ai * d4
         s5 += bi * c5 + ai * d5
         p0, p1, p2, p3, p4, p5 = c0, c1, c2, c3, c4, c5
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4], out[0, 5] = t0, t1, t2, t3, t4, t5
+    out[0, 0], out[1, 0], out[2, 0], out[3, 0], out[4, 0], out[5, 0] = t0, t1, t2, t3, t4, t5
     dout[0], dout[1], dout[2], dout[3], dout[4], dout[5] = s0, s1, s2, s3, s4, s5
 
 
@@ -131,79 +167,93 @@ def _adinv_row(r, p, x):
 
 
 @njit(cache=True)
-def _rows_adinv(r, p, x, ncols):
-    """``Ad(g)^-1`` applied to the first ``ncols`` rows of ``x`` (twists as rows)."""
+def _cols_adinv(r, p, x, ncols):
+    """``Ad(g)^-1`` applied to the first ``ncols`` columns of ``x`` (6 x n, twists as columns;
+    :func:`tdacm.lie.blocks.adinv_apply`); the loop over the columns vectorizes."""
     r00, r01, r02 = r[0, 0], r[0, 1], r[0, 2]
     r10, r11, r12 = r[1, 0], r[1, 1], r[1, 2]
     r20, r21, r22 = r[2, 0], r[2, 1], r[2, 2]
     p0, p1, p2 = p[0], p[1], p[2]
+    x0, x1, x2, x3, x4, x5 = x[0], x[1], x[2], x[3], x[4], x[5]
     for c in range(ncols):
-        a0, a1, a2 = x[c, 0], x[c, 1], x[c, 2]
-        b0 = x[c, 3] - (p1 * a2 - p2 * a1)
-        b1 = x[c, 4] - (p2 * a0 - p0 * a2)
-        b2 = x[c, 5] - (p0 * a1 - p1 * a0)
-        x[c, 0] = r00 * a0 + r10 * a1 + r20 * a2
-        x[c, 1] = r01 * a0 + r11 * a1 + r21 * a2
-        x[c, 2] = r02 * a0 + r12 * a1 + r22 * a2
-        x[c, 3] = r00 * b0 + r10 * b1 + r20 * b2
-        x[c, 4] = r01 * b0 + r11 * b1 + r21 * b2
-        x[c, 5] = r02 * b0 + r12 * b1 + r22 * b2
+        a0, a1, a2 = x0[c], x1[c], x2[c]
+        b0 = x3[c] - (p1 * a2 - p2 * a1)
+        b1 = x4[c] - (p2 * a0 - p0 * a2)
+        b2 = x5[c] - (p0 * a1 - p1 * a0)
+        x0[c] = r00 * a0 + r10 * a1 + r20 * a2
+        x1[c] = r01 * a0 + r11 * a1 + r21 * a2
+        x2[c] = r02 * a0 + r12 * a1 + r22 * a2
+        x3[c] = r00 * b0 + r10 * b1 + r20 * b2
+        x4[c] = r01 * b0 + r11 * b1 + r21 * b2
+        x5[c] = r02 * b0 + r12 * b1 + r22 * b2
 
 
 @njit(cache=True)
-def _matvec_t(jt, x, ncols, out):
-    """``out = J x`` (6,) from ``J^T`` (n x 6), over its first ``ncols`` rows (the others are
-    zero)."""
+def _matvec_c(j, x, ncols, out):
+    """``out = J x`` (6,) over the first ``ncols`` columns of ``J`` (the others are zero)."""
     for i in range(6):
         acc = 0.0
         for k in range(ncols):
-            acc += jt[k, i] * x[k]
+            acc += j[i, k] * x[k]
         out[i] = acc
 
 
 @njit(cache=True)
-def _tmatvec_add_t(jt, f, weight, ncols, out):
-    """``out += weight J^T f`` (:func:`tdacm.system.kernels._tmatvec_add`) from ``J^T``."""
+def _tmatvec_add_c(j, f, weight, ncols, out):
+    """``out += weight J^T f`` (:func:`tdacm.system.kernels._tmatvec_add`) over the first
+    ``ncols`` columns of ``J``."""
     f0, f1, f2, f3, f4, f5 = f[0], f[1], f[2], f[3], f[4], f[5]
+    j0, j1, j2, j3, j4, j5 = j[0], j[1], j[2], j[3], j[4], j[5]
     for k in range(ncols):
         out[k] += weight * (
-            0.0 + jt[k, 0] * f0 + jt[k, 1] * f1 + jt[k, 2] * f2 + jt[k, 3] * f3 + jt[k, 4] * f4
-            + jt[k, 5] * f5
-        )  # fmt: skip
+            0.0 + j0[k] * f0 + j1[k] * f1 + j2[k] * f2 + j3[k] * f3 + j4[k] * f4 + j5[k] * f5
+        )
 
 
 @njit(cache=True)
-def _add_body_t(mass6, jt, eta, jdq, weight, ncols, m_out, cqd_out, mj):
-    """``M += w J^T Mb J`` and ``C qdot += w J^T (Mb J_dot qdot + coad(eta) Mb eta)`` (paper eqs.
-    (10), (11)) with ``J^T`` (n x 6) over its first ``ncols`` rows; ``mj`` is an (n, 6)
-    scratch array (:func:`tdacm.system.kernels._add_body`, ``want_c = False``)."""
+def _add_body_c(mass6, j, eta, jdq, weight, ncols, m_out, cqd_out, mj):
+    """``M += w J^T Mb J`` (its upper triangle; :func:`_mirror` fills the lower one) and
+    ``C qdot += w J^T (Mb J_dot qdot + coad(eta) Mb eta)`` (paper eqs. (10), (11)) over the
+    first ``ncols`` columns of ``J`` (6 x n); ``mj`` is a (6, n) scratch array
+    (:func:`tdacm.system.kernels._add_body`, ``want_c = False``)."""
+    for r in range(6):
+        mr = mass6[r]
+        jr = j[r]
+        mjr = mj[r]
+        for a in range(ncols):
+            mjr[a] = jr[a] * mr
     for a in range(ncols):
-        for r in range(6):
-            mj[a, r] = jt[a, r] * mass6[r]
-    for a in range(ncols):
-        x0, x1, x2, x3, x4, x5 = mj[a, 0], mj[a, 1], mj[a, 2], mj[a, 3], mj[a, 4], mj[a, 5]
-        acc = 0.0 + x0 * jt[a, 0] + x1 * jt[a, 1] + x2 * jt[a, 2] + x3 * jt[a, 3]
-        acc = acc + x4 * jt[a, 4] + x5 * jt[a, 5]
-        m_out[a, a] += weight * acc
-        for b in range(a + 1, ncols):
-            acc = 0.0 + x0 * jt[b, 0] + x1 * jt[b, 1] + x2 * jt[b, 2] + x3 * jt[b, 3]
-            acc = acc + x4 * jt[b, 4] + x5 * jt[b, 5]
-            m_out[a, b] += weight * acc
-            m_out[b, a] += weight * acc
+        x0, x1, x2, x3, x4, x5 = mj[0, a], mj[1, a], mj[2, a], mj[3, a], mj[4, a], mj[5, a]
+        # views from column a: the loop from 0 vectorizes (no wrap-around test)
+        row = m_out[a, a:ncols]
+        j0, j1, j2, j3, j4, j5 = j[0, a:], j[1, a:], j[2, a:], j[3, a:], j[4, a:], j[5, a:]
+        for b in range(ncols - a):
+            acc = 0.0 + x0 * j0[b] + x1 * j1[b] + x2 * j2[b] + x3 * j3[b]
+            acc = acc + x4 * j4[b] + x5 * j5[b]
+            row[b] += weight * acc
+    j0, j1, j2, j3, j4, j5 = j[0], j[1], j[2], j[3], j[4], j[5]
     f0, f1, f2, f3, f4, f5 = K.body_bias_wrench(mass6, eta, jdq)
     for a in range(ncols):
         cqd_out[a] += weight * (
-            jt[a, 0] * f0 + jt[a, 1] * f1 + jt[a, 2] * f2 + jt[a, 3] * f3 + jt[a, 4] * f4
-            + jt[a, 5] * f5
-        )  # fmt: skip
+            j0[a] * f0 + j1[a] * f1 + j2[a] * f2 + j3[a] * f3 + j4[a] * f4 + j5[a] * f5
+        )
 
 
 @njit(cache=True)
-def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
-    """One Magnus step of the pose / Jacobian recursion (paper eqs. (7), (9)) with ``J^T``
-    (n x 6), the twist ``eta = J qdot`` and ``J_dot qdot`` updated in place; the arithmetic of
+def _mirror(m_out, n):
+    """The lower triangle of ``M`` from its upper one (every entry ``(a, b)`` received the same
+    sums as ``(b, a)`` would have: ``M`` is exactly symmetric)."""
+    for a in range(n):
+        for b in range(a + 1, n):
+            m_out[b, a] = m_out[a, b]
+
+
+@njit(cache=True)
+def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, j, ncols, eta, jdq, ws):
+    """One Magnus step of the pose / Jacobian recursion (paper eqs. (7), (9)) with ``J``
+    (6 x n), the twist ``eta = J qdot`` and ``J_dot qdot`` updated in place; the arithmetic of
     :func:`tdacm.system.kernels.rod_step` with ``full_rate = False``.  The step's strain
-    coordinates are ``off .. off + len(qs)``; only the first ``ncols`` rows of ``J^T`` can be
+    coordinates are ``off .. off + len(qs)``; only the first ``ncols`` columns of ``J`` can be
     non-zero after it (the others are left untouched: zero)."""
     r, gr, xc, tx, xiv = ws
     omega = xiv[4]
@@ -211,7 +261,7 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
     tdx = xiv[3]  # rows 0-3 hold xi1, xi2, v1, v2 until Z is formed, then T_dot Omega_dot, w, v, e
     ns = qs.shape[0]
     order4 = xi0s.shape[0] == 2
-    # Magnus step (tdacm.lie.magnus.magnus_step_into): Omega, Z^T (rows 1..ns), Z_dot qdot
+    # Magnus step (tdacm.lie.magnus.magnus_step_into): Omega, Z (columns 1..ns), Z_dot qdot
     if not order4:
         b = bs[0]
         for rr in range(6):
@@ -220,7 +270,7 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
                 acc += b[rr, c] * qs[c]
             omega[rr] = acc * h
             for c in range(ns):
-                xc[1 + c, rr] = h * b[rr, c]
+                xc[rr, 1 + c] = h * b[rr, c]
     else:
         b0 = bs[0]
         b1 = bs[1]
@@ -246,40 +296,39 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
                   v2[0], v2[1], v2[2], v2[3], v2[4], v2[5])  # fmt: skip
         for rr in range(6):
             omega[rr] = 0.5 * h * (xi1[rr] + xi2[rr]) + c4 * a12[rr]
-            xc[ns + 1, rr] = 2.0 * c4 * v12[rr]
+            xc[rr, ns + 1] = 2.0 * c4 * v12[rr]
         for c in range(ns):
             t1 = ad_scalars(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
                      b1[0, c], b1[1, c], b1[2, c], b1[3, c], b1[4, c], b1[5, c])  # fmt: skip
             t2 = ad_scalars(xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5],
                      b0[0, c], b0[1, c], b0[2, c], b0[3, c], b0[4, c], b0[5, c])  # fmt: skip
             for rr in range(6):
-                xc[1 + c, rr] = 0.5 * h * (b0[rr, c] + b1[rr, c]) + c4 * (t1[rr] - t2[rr])
+                xc[rr, 1 + c] = 0.5 * h * (b0[rr, c] + b1[rr, c]) + c4 * (t1[rr] - t2[rr])
     # Omega_dot = Z qdot
     for i in range(6):
         acc = 0.0
         for c in range(ns):
-            acc += xc[1 + c, i] * qsd[c]
-        xc[0, i] = acc
+            acc += xc[i, 1 + c] * qsd[c]
+        xc[i, 0] = acc
     expmap_rp_into(omega, r, p)
     th = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
     co = tangent_coefficients_scalar(th)
-    _tangent_rate_row(omega, co, xc, tx, tdx)
-    for c in range(1, ns + 1):
-        _tangent_row(omega, co, xc, c, tx)
-    if order4:
-        _tangent_row(omega, co, xc, ns + 1, tx)
+    _tangent_rate_col(omega, co, xc, tx, tdx)
+    _tangent_cols(omega, co, xc, 1, ns + 2 if order4 else ns + 1)  # T Z, T Z_dot qdot in xc
     # increments before the change of frame; T Omega_dot is the relative twist of the step
     w = xiv[0]
     v = xiv[1]
     e = xiv[2]
-    for c in range(ns):
-        for i in range(6):
-            jt[off + c, i] += tx[1 + c, i]
     for i in range(6):
-        w[i] = tx[0, i]
-        v[i] = jdq[i] + tdx[i] + (tx[ns + 1, i] if order4 else 0.0)
-        e[i] = eta[i] + tx[0, i]
-    _rows_adinv(r, p, jt, ncols)
+        ji = j[i, off : off + ns]
+        ti = xc[i, 1 : ns + 1]
+        for c in range(ns):
+            ji[c] += ti[c]
+    for i in range(6):
+        w[i] = tx[i, 0]
+        v[i] = jdq[i] + tdx[i] + (xc[i, ns + 1] if order4 else 0.0)
+        e[i] = eta[i] + tx[i, 0]
+    _cols_adinv(r, p, j, ncols)
     _adinv_row(r, p, w)
     _adinv_row(r, p, v)
     _adinv_row(r, p, e)
@@ -291,81 +340,93 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, jt, ncols, eta, jdq, ws):
 
 
 @njit(cache=True)
-def _add_point_force_t(jt, g, fx, fy, fz, ncols, tau, f):
+def _add_point_force_c(j, g, fx, fy, fz, ncols, tau, f):
     """``tau += J^T [0; R^T f]`` (:func:`tdacm.system.kernels._add_point_force`); ``f`` (6,)
     scratch."""
     for i in range(3):
         f[i] = 0.0
         f[3 + i] = g[0, i] * fx + g[1, i] * fy + g[2, i] * fz
-    _tmatvec_add_t(jt, f, 1.0, ncols, tau)
-
-
-@njit(cache=True)
-def _carve(buf, at, rows, cols):
-    """A C-contiguous (rows, cols) view of ``buf`` at offset ``at``, and the next offset."""
-    end = at + rows * cols
-    return buf[at:end].reshape((rows, cols)), end
+    _tmatvec_add_c(j, f, 1.0, ncols, tau)
 
 
 @njit(cache=True)
 def workspace(n, m):
     """Every scratch array of one evaluation of :func:`forward_terms_ws` and
-    :func:`forward_dynamics_ws` for a system of ``n`` coordinates with model arrays ``m``, as
-    views of one buffer (one allocation)."""
+    :func:`forward_dynamics_ws` for a system of ``n`` coordinates with model arrays ``m``: row
+    blocks of eight arrays (row slices are views without a reshape, which numba does through a
+    library call; one workspace costs about a tenth of the nineteen reshaped views of one
+    buffer)."""
     ns = m.bs.shape[3]
     nst = max(n - (6 if m.floating else 0), 1)
     na = m.tendon_d.shape[1]
-    size = 8 * n * n + 6 * 6 * n + 2 * ns * 6 + nst * na + 8 * n + 400
-    buf = np.empty(size)
-    at = 0
-    m_out, at = _carve(buf, at, n, n)
-    vn, at = _carve(buf, at, 6, n)  # C qdot, tau, B u, rhs, y, scratch
-    gb, at = _carve(buf, at, 4, 4)
-    jbt, at = _carve(buf, at, n, 6)
-    jbdt, at = _carve(buf, at, n, 6)
-    v6, at = _carve(buf, at, 12, 6)  # f, eta_b, J_dot_b qdot, eta, J_dot qdot, prev, fa, ...
-    rot, at = _carve(buf, at, 4, 8)  # the rotors' states (tdacm.aero.layout.ROTOR_STATE)
-    xc, at = _carve(buf, at, ns + 2, 6)
-    tx, at = _carve(buf, at, ns + 2, 6)
-    m33, at = _carve(buf, at, 6, 9)  # R and R copy of the step, R_a, R_b, T, T_dot
-    xiv, at = _carve(buf, at, 7, 6)  # xi1, xi2, v1, v2, w, v, e
-    mj, at = _carve(buf, at, n, 6)
-    g, at = _carve(buf, at, 4, 4)
-    jt, at = _carve(buf, at, n, 6)
-    jdt, at = _carve(buf, at, n, 6)
-    g_prev, at = _carve(buf, at, 4, 4)
-    jt_prev, at = _carve(buf, at, n, 6)
-    bs_t, at = _carve(buf, at, nst, na)
-    lo, at = _carve(buf, at, n, n)
+    nn = np.empty((2, n, n))  # M, its Cholesky factor
+    rows = np.empty(
+        (42, n)
+    )  # C qdot, tau, B u, rhs, y, scratch; J_b, J_dot_b, Mb J, J, J_dot, J_prev
+    s6 = np.empty((19, 6))  # f, eta_b, J_dot_b qdot, eta, J_dot qdot, prev, fa, ...; xi1, xi2, ...
+    g4 = np.empty((12, 4))  # g_b, g, g_prev
+    rot = np.empty((4, 8))  # the rotors' states (tdacm.aero.layout.ROTOR_STATE)
+    m33 = np.empty((6, 3, 3))  # R and R copy of the step, R_a, R_b, T, T_dot
+    xt = np.empty((12, ns + 2))  # the step's twists [Omega_dot | Z | Z_dot qdot], T Omega_dot
+    bs_t = np.empty((nst, na))  # B_s(q)
     return (
-        m_out, vn, gb, jbt, jbdt, v6, rot, xc, tx, m33, xiv, mj, g, jt, jdt, g_prev, jt_prev,
-        bs_t, lo,
+        nn[0], rows[0:6], g4[0:4], rows[6:12], rows[12:18], s6[0:12], rot, xt[0:6], xt[6:12],
+        m33, s6[12:19], rows[18:24], g4[4:8], rows[24:30], rows[30:36], g4[8:12], rows[36:42],
+        bs_t, nn[1],
     )  # fmt: skip
 
 
 @njit(cache=True)
-def _base_into(q, qd, floating, g_fixed, gb, jbt, jbdt, m33):
-    """:func:`tdacm.system.kernels.base_state` written into ``gb`` and the transposed ``jbt``,
-    ``jbdt`` (the same arithmetic); keeps ``R`` and ``T`` in ``m33[3]``, ``m33[4]``."""
+def _base_into(q, qd, floating, g_fixed, gb, jb, jbd, m33):
+    """:func:`tdacm.system.kernels.base_state` written into ``gb``, ``jb`` and ``jbd`` (the same
+    arithmetic); keeps ``R`` and ``T`` in ``m33[3]``, ``m33[4]``."""
     n = q.shape[0]
-    for c in range(n):
-        for i in range(6):
-            jbt[c, i] = 0.0
-            jbdt[c, i] = 0.0
+    for i in range(6):
+        for c in range(n):
+            jb[i, c] = 0.0
+            jbd[i, c] = 0.0
     if not floating:
         gb[:, :] = g_fixed
         return
-    r = rot_zyx(q[0], q[1], q[2])
-    t = euler_rate_matrix(q[0], q[1])
-    td = euler_rate_matrix_dot(q[0], q[1], qd[0], qd[1])
+    # rot_zyx, euler_rate_matrix, euler_rate_matrix_dot (tdacm.lie.euler), the same entries,
+    # with the six sines and cosines computed once, into m33[3], m33[4], m33[5]
+    r = m33[3]
+    t = m33[4]
+    td = m33[5]
+    phi, theta, psi, phi_dot, theta_dot = q[0], q[1], q[2], qd[0], qd[1]
+    cf, sf = np.cos(phi), np.sin(phi)
+    ct, st = np.cos(theta), np.sin(theta)
+    cp, sp = np.cos(psi), np.sin(psi)
+    r[0, 0] = cp * ct
+    r[0, 1] = cp * st * sf - sp * cf
+    r[0, 2] = cp * st * cf + sp * sf
+    r[1, 0] = sp * ct
+    r[1, 1] = sp * st * sf + cp * cf
+    r[1, 2] = sp * st * cf - cp * sf
+    r[2, 0] = -st
+    r[2, 1] = ct * sf
+    r[2, 2] = ct * cf
+    for i in range(3):
+        for k in range(3):
+            t[i, k] = 0.0
+            td[i, k] = 0.0
+    t[0, 0] = 1.0
+    t[0, 2] = -st
+    t[1, 1] = cf
+    t[1, 2] = sf * ct
+    t[2, 1] = -sf
+    t[2, 2] = cf * ct
+    td[0, 2] = -ct * theta_dot
+    td[1, 1] = -sf * phi_dot
+    td[1, 2] = cf * ct * phi_dot - sf * st * theta_dot
+    td[2, 1] = -cf * phi_dot
+    td[2, 2] = -sf * ct * phi_dot - cf * st * theta_dot
     for i in range(4):
         for k in range(4):
             gb[i, k] = 1.0 if i == k else 0.0
     for i in range(3):
         for k in range(3):
             gb[i, k] = r[i, k]
-            m33[3, 3 * i + k] = r[i, k]
-            m33[4, 3 * i + k] = t[i, k]
         gb[i, 3] = q[3 + i]
     w0 = w1 = w2 = 0.0
     for k in range(3):
@@ -374,36 +435,36 @@ def _base_into(q, qd, floating, g_fixed, gb, jbt, jbdt, m33):
         w2 += t[2, k] * qd[k]
     for i in range(3):
         for k in range(3):
-            jbt[k, i] = t[i, k]
-            jbdt[k, i] = td[i, k]
-            jbt[3 + k, 3 + i] = r[k, i]
+            jb[i, k] = t[i, k]
+            jbd[i, k] = td[i, k]
+            jb[3 + i, 3 + k] = r[k, i]
     w = (w0, w1, w2)
     for i in range(3):
         for k in range(3):
             acc = 0.0
             for p in range(3):
                 acc -= K.skew_entry(w, i, p) * r[k, p]
-            jbdt[3 + k, 3 + i] = acc
+            jbd[3 + i, 3 + k] = acc
 
 
 @njit(cache=True)
 def forward_terms(q, qd, m, loads, u, aero, contact):
     """``M``, ``C qdot``, ``tau_ext`` (paper eqs. (10), (11), (16)), the last rod's tip pose,
-    its ``J^T`` (n x 6) and its base's ``J_dot`` (6 x n): the outputs of
+    its ``J`` (6 x n) and its base's ``J_dot`` (6 x n): the outputs of
     :func:`tdacm.system.kernels.coupled_terms_env` with ``want_c = False``, computed with the
     same arithmetic (module docstring); fresh arrays."""
     ws = workspace(q.shape[0], m)
     forward_terms_ws(q, qd, m, loads, u, aero, contact, ws)
-    m_out, vn, g, jt, jdt = ws[0], ws[1], ws[12], ws[13], ws[14]
-    return m_out.copy(), vn[0].copy(), vn[1].copy(), g.copy(), jt.copy(), jdt.T.copy()
+    m_out, vn, g, j, jd = ws[0], ws[1], ws[12], ws[13], ws[14]
+    return m_out.copy(), vn[0].copy(), vn[1].copy(), g.copy(), j.copy(), jd.copy()
 
 
 @njit(cache=True)
 def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
     """:func:`forward_terms` into the :func:`workspace` ``ws``: ``M`` in ``ws[0]``, ``C qdot``
-    and ``tau_ext`` in ``ws[1][0]``, ``ws[1][1]``, the tip pose, ``J^T`` and the rod base's
-    ``J_dot^T`` in ``ws[12]``, ``ws[13]``, ``ws[14]``."""
-    m_out, vn, gb, jbt, jbdt, v6, rot, xc, tx, m33, xiv, mj, g, jt, jdt, g_prev, jt_prev = ws[:17]
+    and ``tau_ext`` in ``ws[1][0]``, ``ws[1][1]``, the tip pose, ``J`` and the rod base's
+    ``J_dot`` (6 x n) in ``ws[12]``, ``ws[13]``, ``ws[14]``."""
+    m_out, vn, gb, jb, jbd, v6, rot, xc, tx, m33, xiv, mj, g, j, jd, g_prev, j_prev = ws[:17]
     floating = m.floating
     n = q.shape[0]
     off = 6 if floating else 0
@@ -415,7 +476,7 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
         for k in range(n):
             m_out[i, k] = 0.0
     grav = loads[0:3]
-    _base_into(q, qd, floating, m.g_fixed, gb, jbt, jbdt, m33)
+    _base_into(q, qd, floating, m.g_fixed, gb, jb, jbd, m33)
     nb = off  # the base's Jacobian has non-zero columns only for the drone's coordinates
     f, eb, ebd, eta, jdq, prev, fa = v6[0], v6[1], v6[2], v6[3], v6[4], v6[5], v6[6]
     fb, mb = v6[7, 0:3], v6[7, 3:6]
@@ -428,9 +489,9 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
         ax, ay, az = K._rotor_setup(q, qd, u, m, gb, aero, rot)
     nst = m.h.shape[0]
     if floating:
-        _matvec_t(jbt, qd, n, eb)
-        _matvec_t(jbdt, qd, n, ebd)
-        _add_body_t(m.mb6, jbt, eb, ebd, 1.0, nb, m_out, cqd, mj)
+        _matvec_c(jb, qd, n, eb)
+        _matvec_c(jbd, qd, n, ebd)
+        _add_body_c(m.mb6, jb, eb, ebd, 1.0, nb, m_out, cqd, mj)
         for i in range(6):
             f[i] = loads[3 + i]
         for i in range(3):
@@ -441,13 +502,13 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
             f[3] += d0
             f[4] += d1
             f[5] += d2
-        _tmatvec_add_t(jbt, f, 1.0, nb, tau)
+        _tmatvec_add_c(jb, f, 1.0, nb, tau)
     cont = contact.shape[0] > 0
     for i in range(3):
         mb[i] = 0.0
     probe = cont and K._has_probe(contact)
-    ra = m33[2].reshape((3, 3))
-    rws = (m33[0].reshape((3, 3)), m33[1].reshape((3, 3)), xc, tx, xiv)
+    ra = m33[2]
+    rws = (m33[0], m33[1], xc, tx, xiv)
     pa = xiv[6, 0:3]
     for rod in range(m.rod_steps.shape[0] - 1):
         # rod base: J_a = Ad(g_a^b)^-1 J_b^b (kernels.rod_start)
@@ -456,12 +517,12 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
             pa[i] = ga[i, 3]
             for k in range(3):
                 ra[i, k] = ga[i, k]
-        for c in range(n):
-            for i in range(6):
-                jt[c, i] = jbt[c, i]
-                jdt[c, i] = jbdt[c, i]
-        _rows_adinv(ra, pa, jt, n)
-        _rows_adinv(ra, pa, jdt, n)
+        for i in range(6):
+            for c in range(n):
+                j[i, c] = jb[i, c]
+                jd[i, c] = jbd[i, c]
+        _cols_adinv(ra, pa, j, n)
+        _cols_adinv(ra, pa, jd, n)
         for i in range(4):  # g = g_b g_a^b (kernels._matmul)
             for c in range(4):
                 g[i, c] = 0.0
@@ -469,48 +530,49 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
                 aik = gb[i, k]
                 for c in range(4):
                     g[i, c] += aik * ga[k, c]
-        _matvec_t(jdt, qd, n, jdq)
-        _matvec_t(jt, qd, n, eta)
+        _matvec_c(jd, qd, n, jdq)
+        _matvec_c(j, qd, n, eta)
         nact = nb
         if cont:
             K._rod_base_node(g, eta, prev)
             g_prev[:] = g
-            jt_prev[:] = jt
+            j_prev[:] = j
         for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
             c0 = off + m.step_col[k]
             c1 = c0 + m.step_nc[k]
             if c1 > nact:
                 nact = c1
             rod_step_rate(
-                m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, jt, nact, eta, jdq, rws
+                m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, nact, eta, jdq, rws
             )
             w = m.step_w[k]
             if w == 0.0:
                 continue
             mass6 = m.step_mass[k]
             if K.has_inertia(mass6):
-                _add_body_t(mass6, jt, eta, jdq, w, nact, m_out, cqd, mj)
+                _add_body_c(mass6, j, eta, jdq, w, nact, m_out, cqd, mj)
             lo = m.step_load[k]
             K.step_wrench(
                 f, g, eta, k, lo, mass6, grav, loads, rod_air, aero, nst, rot, ax, ay, az, wake
             )
-            _tmatvec_add_t(jt, f, w, nact, tau)
+            _tmatvec_add_c(j, f, w, nact, tau)
             if cont and lo != K.LOAD_GRAVITY:
                 hit_a, hit_b = K._node_contact(contact, k, g, eta, prev, fa, fb)
                 mb[0] = mb[1] = mb[2] = 0.0
                 if lo == K.LOAD_TIP and K._tip_contact(contact, g, eta, fb, mb):
                     hit_b = True
                 if hit_a:
-                    _add_point_force_t(jt_prev, g_prev, fa[0], fa[1], fa[2], n, tau, f)
+                    _add_point_force_c(j_prev, g_prev, fa[0], fa[1], fa[2], n, tau, f)
                 if hit_b:
-                    _add_point_force_t(jt, g, fb[0], fb[1], fb[2], nact, tau, f)
+                    _add_point_force_c(j, g, fb[0], fb[1], fb[2], nact, tau, f)
                     if probe and lo == K.LOAD_TIP:
                         for i in range(3):
                             f[i] = mb[i]
                             f[3 + i] = 0.0
-                        _tmatvec_add_t(jt, f, 1.0, nact, tau)
+                        _tmatvec_add_c(j, f, 1.0, nact, tau)
                 g_prev[:] = g
-                jt_prev[:] = jt
+                j_prev[:] = j
+    _mirror(m_out, n)
 
 
 @njit(cache=True)
@@ -539,8 +601,8 @@ def _input_force(q, u, m, ws, out):
                 a0 = 0.0
                 a1 = 0.0
                 for k in range(3):
-                    a0 += t[3 * k + i] * g[k, c]
-                    a1 += r[3 * i + k] * g[3 + k, c]
+                    a0 += t[k, i] * g[k, c]
+                    a1 += r[i, k] * g[3 + k, c]
                 acc_a += a0 * u[c]
                 acc_b += a1 * u[c]
             out[i] = acc_a

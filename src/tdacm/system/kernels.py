@@ -37,8 +37,8 @@ Python callers' build.
 
 The forward dynamics (``forward_dynamics*``, ``rk4_run*``, and ``coupled_terms*`` with
 ``want_c = False``) runs the recursion of :mod:`tdacm.system.forward`: the same arithmetic as the
-recursion below without ``C`` (bit-identical results), over ``J^T``, without ``J_dot``, with one
-scratch buffer per call.
+recursion below without ``C`` (bit-identical results), over ``J`` stored by rows with loops the
+compiler vectorizes, without ``J_dot``, with one workspace per call.
 """
 
 from __future__ import annotations
@@ -558,9 +558,9 @@ def coupled_terms_env(q, qd, m, loads, want_c, u, aero, contact):
     ``tau_ext`` through the node Jacobians (eq. (16)).  Empty arrays: none (the arithmetic of
     :func:`coupled_terms`)."""
     if not want_c:  # the same arithmetic, faster (tdacm.system.forward)
-        m_out, cqd, tau, g, jt, jd = _F.forward_terms(q, qd, m, loads, u, aero, contact)
+        m_out, cqd, tau, g, j, jd = _F.forward_terms(q, qd, m, loads, u, aero, contact)
         n = q.shape[0]
-        return m_out, np.zeros((n, n)), cqd, tau, g, np.ascontiguousarray(jt.T), jd
+        return m_out, np.zeros((n, n)), cqd, tau, g, j, jd
     floating = m.floating
     n = q.shape[0]
     off = 6 if floating else 0
