@@ -48,25 +48,19 @@ from .servo import normalized_rmse
 ARM_SERIES = ("rmse_arms", "rmse_true_arms", "detected_arms")
 
 
+def _arm0(name: str) -> property:
+    """A read-only attribute that reads arm 0's ``name``."""
+    return property(lambda self: getattr(self[0], name), doc=f"arm 0's ``{name}``")
+
+
 class ArmsMeasurement(tuple):
     """One :class:`~.data.CameraMeasurement` per arm's C_L; reads as arm 0's (``detection``,
     ``found``, ``image``, ``t_capture``) where a single C_L is expected."""
 
-    @property
-    def t_capture(self) -> float:
-        return self[0].t_capture
-
-    @property
-    def detection(self):
-        return self[0].detection
-
-    @property
-    def found(self) -> bool:
-        return self[0].found
-
-    @property
-    def image(self):
-        return self[0].image
+    t_capture = _arm0("t_capture")
+    detection = _arm0("detection")
+    found = _arm0("found")
+    image = _arm0("image")
 
 
 class ArmsGlobal(DeferredMeasurement):
@@ -174,6 +168,13 @@ class ArmsPerception:
         return self.arms[0].global_(m)
 
 
+#: What the servo of several arms takes from arm 0's servo (the joint reference's owner).
+_FROM_LEAD = (
+    "system", "n", "config", "shaping", "recovery", "ibvs", "local_camera", "global_camera",
+    "target", "tip_mount", "desired_points", "desired_depths",
+)  # fmt: skip
+
+
 class ArmsServo:
     """The servo of a robot with several arms (module docstring): ``arms`` are single-arm
     servos (:class:`~.servo.VisualServo` or :class:`~.servo.RobustServo`), one per arm, built
@@ -186,19 +187,8 @@ class ArmsServo:
         self.arms = list(arms)
         if len(self.arms) < 2:
             raise ValueError("ArmsServo needs two or more arm servos")
-        lead = self.arms[0]
-        self.system = lead.system
-        self.n = lead.n
-        self.config = lead.config
-        self.shaping = lead.shaping
-        self.recovery = lead.recovery
-        self.ibvs = lead.ibvs
-        self.local_camera = lead.local_camera
-        self.global_camera = lead.global_camera
-        self.target = lead.target
-        self.tip_mount = lead.tip_mount
-        self.desired_points = lead.desired_points
-        self.desired_depths = lead.desired_depths
+        for name in _FROM_LEAD:
+            setattr(self, name, getattr(self.arms[0], name))
 
     @property
     def mode(self) -> str:
