@@ -52,13 +52,11 @@ from scipy.spatial.transform import Rotation
 from .data import Recording
 from .experiments import NOISE, project_points
 from .params import PARAMETERS, parse_params
+from .solve import Blocks, levenberg_marquardt, parameter_rows
 
 log = logging.getLogger(__name__)
 
 FD_STEP = 1e-6
-#: The trust-region subproblem solver of ``least_squares`` ("exact": an SVD of the m x n_z
-#: Jacobian every iteration; "lsmr": iterative).
-TR_SOLVER = "exact"
 #: How far the fit may move a parameter from its start: a factor (log-parameters) or as many
 #: scales (linear ones).
 SEARCH_FACTOR = 3.0
@@ -132,6 +130,15 @@ class Problem:
             self.setups.append(s)
         self.n_z = off
         self._last = (None, None)
+        rows, cols, row = [], [], 0
+        for s in self.setups:
+            k2 = 2 * s.rec.model.system.n
+            for g, (a, b) in enumerate(zip(s.starts, s.ends, strict=True)):
+                rows.append((row + int(a) * s.kdim, row + int(b) * s.kdim))
+                cols.append((s.offset + g * k2, s.offset + (g + 1) * k2))
+            row += len(s.rec.t) * s.kdim
+        #: the windows' rows and state columns of the Jacobian (:mod:`tdacm.identify.solve`)
+        self.blocks = Blocks(len(self.names), rows, cols)
 
     # ---------------------------------------------------------------- variables
     def to_z(self, values: dict) -> np.ndarray:
@@ -257,7 +264,8 @@ def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int
     """The parameters' (scaled) covariance ``A S A`` robust to correlated residuals, and the
     lag window used.
 
-    ``A = (J^T J)^+``; the parameter rows of ``A J^T`` map the residuals to the estimate, so
+    ``A = (J^T J)^-1``; the parameter rows of ``A J^T`` (:func:`~tdacm.identify.solve.parameter_rows`,
+    the window states eliminated block by block) map the residuals to the estimate, so
     the estimate's error is ``sum_t h_t`` with ``h_t = (A J^T)_{p, rows t} r_t`` the score of
     sample ``t``. ``S = sum_l w_l sum_t h_t h_{t-l}^T`` (both signs of ``l``) with Bartlett
     weights ``w_l = 1 - |l| / (L + 1)`` within each recording (recordings independent); the
@@ -265,8 +273,7 @@ def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int
     at least 1 and at most one shooting window. ``m / (m - n_z)`` corrects for the fitted
     variables' share of the residuals."""
     m, nz = jac.shape
-    a = np.linalg.pinv(jac.T @ jac)
-    h = a[:npar] @ jac.T
+    h, _ = parameter_rows(jac, prob.blocks)
     cov = np.zeros((npar, npar))
     row = 0
     used = 0
@@ -546,18 +553,14 @@ def identify(
                  time.perf_counter() - t0)  # fmt: skip
         return prob.jacobian(z)
 
-    sol = least_squares(
-        prob.residual, z0, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
-        tr_solver=TR_SOLVER,
-        ftol=1e-7, xtol=1e-7, gtol=1e-8, max_nfev=max_nfev,
-    )  # fmt: skip
+    sol = levenberg_marquardt(prob.residual, jacobian, z0, prob.blocks, lb, ub, ftol=1e-7,
+                              xtol=1e-7, max_nfev=max_nfev)  # fmt: skip
     jac = sol.jac
     m, nz = jac.shape
     cost = float(2 * sol.cost)
     s2 = cost / max(m - nz, 1)
-    jtj = jac.T @ jac
     npar = len(names)
-    cov_iid = s2 * np.linalg.pinv(jtj)[:npar, :npar]
+    cov_iid = s2 * parameter_rows(jac, prob.blocks)[1]
     cp, lags = sandwich_covariance(prob, jac, sol.fun, npar)
     at_bound = [n for i, n in enumerate(names) if min(sol.x[i] - lb[i], ub[i] - sol.x[i]) < 1e-6]
     if at_bound:
