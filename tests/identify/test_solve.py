@@ -3,12 +3,14 @@ block by block) against the dense one: same estimates, same covariances."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
 from tdacm.identify import DEFAULT_TRUTH, synthesize
-from tdacm.identify.fit import Problem, sandwich_covariance
+from tdacm.identify.fit import Problem, input_noise_covariance, sandwich_covariance
 from tdacm.identify.solve import Blocks, levenberg_marquardt, parameter_rows
 
 
@@ -65,3 +67,24 @@ def test_damped_step_equals_the_dense_solve():
     jtj = jac.T @ jac
     want = np.linalg.solve(jtj + lam * np.diag(np.diag(jtj)), -jac.T @ r)
     np.testing.assert_allclose(np.r_[got_p, np.concatenate(got_s)], want, rtol=1e-10)
+
+
+def test_input_noise_moves_the_estimate_as_its_first_order_map(small):
+    # the covariance of tension noise (input_noise_covariance) rests on d(theta) = -h dr:
+    # refit with one draw of 2 % tension noise and compare with the first-order prediction
+    prob, z0 = small
+    sol = levenberg_marquardt(prob.residual, prob.jacobian, z0, prob.blocks, ftol=1e-12,
+                              xtol=1e-12, max_nfev=40)  # fmt: skip
+    h, _ = parameter_rows(sol.jac, prob.blocks)
+    rec = prob.setups[0].rec
+    u = rec.u.copy()
+    u[:, -4:] *= 1.0 + 0.02 * np.random.default_rng(9).standard_normal((len(u), 4))
+    prob2 = Problem([replace(rec, u=u)], prob.names, segment=1.0)
+    sol2 = levenberg_marquardt(prob2.residual, prob2.jacobian, sol.x, prob2.blocks,
+                               ftol=1e-12, xtol=1e-12, max_nfev=40)  # fmt: skip
+    moved = sol2.x[:2] - sol.x[:2]
+    predicted = -h @ (prob2.residual(sol.x) - sol.fun)
+    assert np.all(np.abs(moved) > 1e-5)  # the noise moves the estimates measurably
+    np.testing.assert_allclose(moved, predicted, rtol=0.05)  # second-order terms: a few %
+    cov = input_noise_covariance(prob, sol.x, h, draws=16)
+    assert np.all(np.diag(cov) > 0)
