@@ -12,6 +12,7 @@ Run: ``python benchmarks/bench_identify_coverage.py [out] --seeds 1000-1019``.""
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -54,14 +55,19 @@ if __name__ == "__main__":
         runs.append({"seed": seed, "errors": err, "relative_std": res.rel_std,
                      "relative_std_noise_model": nm, "relative_std_sandwich": sw,
                      "relative_std_white": iid, "residual_variance": res.residual_variance,
-                     "lags": res.lags, "seconds": time.perf_counter() - t0})  # fmt: skip
+                     "lags": res.lags, "seconds": time.perf_counter() - t0,
+                     "load_average": os.getloadavg()})  # fmt: skip
         print(f"seed {seed}: " + "  ".join(
             f"{k} {100 * err[k]:+.3f}% (reported {100 * res.rel_std[k]:.3f}%, noise model "
             f"{100 * nm[k]:.3f}%, sandwich {100 * sw[k]:.3f}%, white {100 * iid[k]:.3f}%)"
             for k in ROD) + f"  s2 {res.residual_variance:.2f}  {runs[-1]['seconds']:.0f} s",
             flush=True)  # fmt: skip
-        kinds = (("reported", "relative_std"), ("noise_model", "relative_std_noise_model"),
-                 ("sandwich", "relative_std_sandwich"), ("white", "relative_std_white"))
+        kinds = (
+            ("reported", "relative_std"),
+            ("noise_model", "relative_std_noise_model"),
+            ("sandwich", "relative_std_sandwich"),
+            ("white", "relative_std_white"),
+        )
         cover = {
             kind: {k: float(np.mean([abs(r["errors"][k]) <= 2 * r[key][k] for r in runs]))
                    for k in ROD}
