@@ -598,7 +598,7 @@ def identify(
     lb, ub = np.full(z0.size, -np.inf), np.full(z0.size, np.inf)
     npar = len(names)
     # a log-parameter stays within a factor SEARCH_FACTOR of its start, a linear one within
-    # SEARCH_FACTOR scales (a trust region's first steps can otherwise leave the stable models)
+    # SEARCH_FACTOR scales (a solver's first steps can otherwise leave the stable models)
     lb[:npar] = z0[:npar] - np.log(SEARCH_FACTOR)
     ub[:npar] = z0[:npar] + np.log(SEARCH_FACTOR)
     for i, n in enumerate(names):
