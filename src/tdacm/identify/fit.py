@@ -351,6 +351,9 @@ def input_noise_covariance(prob: Problem, z: np.ndarray, h: np.ndarray, decimate
         r = s.rec
         na = r.model.system.n_a
         nrow = len(r.t) * s.kdim
+        if na == 0:  # no tendon: no load cell
+            row += nrow
+            continue
         base = prob.measurement_residual(prob.predict(z, s, values), s, values)
         q0, qd0 = prob._states(z, s)
         hs = h[:, row : row + nrow].reshape(npar, len(r.t), s.kdim)
