@@ -9,6 +9,7 @@ time; writes ``bench_identify.json``. See ``docs/identify.md``."""
 
 import argparse
 import json
+import os
 import statistics
 import time
 from pathlib import Path
@@ -35,6 +36,7 @@ def one(seed: int, scale: float) -> dict:
         "start_scale": scale,
         "seconds": wall,
         "cpu_seconds": cpu,
+        "load_average": os.getloadavg(),  # the machine is shared: (1, 5, 15 min) at the end
         "estimates": res.values,
         "relative_std": res.rel_std,
         "relative_error": truth_errors(res, DEFAULT_TRUTH),

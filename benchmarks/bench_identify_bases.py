@@ -12,6 +12,7 @@ Run: ``python benchmarks/bench_identify_bases.py [out] --truth bending:2,bending
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -42,6 +43,7 @@ def one(truth_basis: str, seed: int, bases, scale: float = 1.3) -> dict:
         "selection": res.selection,
         "seconds": wall,
         "cpu_seconds": cpu,
+        "load_average": os.getloadavg(),  # the machine is shared: (1, 5, 15 min) at the end
         "table": selection_table(res.selection),
     }
 

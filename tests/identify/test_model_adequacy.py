@@ -16,6 +16,7 @@ from tdacm.identify import synthesize
 from tdacm.identify.experiments import PRIOR_DAMPING
 from tdacm.identify.fit import sandwich_covariance
 from tdacm.identify.misfit import EXIT_MISFIT
+from tdacm.identify.solve import Blocks
 
 #: A hidden robot with the scenario's nominal values but E and a richer basis: fitting E
 #: alone is then exact on the right basis.
@@ -25,7 +26,7 @@ TRUTH = {"E": 4.3e10, "damping": PRIOR_DAMPING, "tip_mass": 0.01, "radius": 0.01
 def _fake_problem(nt):
     rec = SimpleNamespace(t=np.arange(nt))
     s = SimpleNamespace(rec=rec, kdim=1, starts=np.array([0]), ends=np.array([nt]))
-    return SimpleNamespace(setups=[s])
+    return SimpleNamespace(setups=[s], blocks=Blocks(1, [(0, nt)], [(1, 1)]))
 
 
 def test_sandwich_covariance_is_the_long_run_variance_of_correlated_residuals():

@@ -3,8 +3,9 @@
 Estimate physical parameters (the rod's Young's modulus and damping, the tip mass, the tendon
 moment arm and friction, the drone's mass, inertia and thrust constant, the tip camera's offset)
 by fitting the model's simulated motion to what a lab measures (motion capture of the drone
-and the tip, tendon tensions, optionally the tip camera's pixels): multiple shooting with
-``scipy.optimize.least_squares`` on the system's RK4 (:mod:`tdacm.identify.fit`).
+and the tip, tendon tensions, optionally the tip camera's pixels): multiple shooting on the
+system's RK4 (or ROS34PW2 for stiff bases), solved by Levenberg-Marquardt with the windows'
+states eliminated block by block (:mod:`tdacm.identify.fit`, :mod:`tdacm.identify.solve`).
 """
 
 from .data import Recording, RecordingInputError, load_recording

@@ -24,19 +24,31 @@ camera's pixels when given. Motion capture alone: no strain is measured.
 **Jacobian.** Forward differences (step 1e-6 on the scaled variables) with the structure of
 multiple shooting: a parameter column re-simulates every segment; a state column perturbs the
 same component of every segment's state at once (segments are independent), so a Jacobian
-costs ``1 + p + 2 n`` simulations per recording. Solver: ``scipy.optimize.least_squares``
-(trust region reflective).
+costs ``1 + p + 2 n`` simulations per recording. Solver: Levenberg-Marquardt with every
+window's states eliminated block by block (:mod:`tdacm.identify.solve`; a window's state
+moves only its window's residuals), so a step costs ``O(m (p + 2 n)^2)``, not the dense
+factorization of the ``m x n_z`` Jacobian.
 
-**Uncertainty.** The least-squares covariance ``s^2 (J^T J)^-1`` (``s^2 = |r|^2 / (m - n_z)``,
-the residual variance, 1 when the noise levels are right) assumes white residuals. They are
-not: the tension noise drives the lightly damped rod (a slow, correlated response the fit
-treats as residual) and any model error is smooth in time. The reported covariance is the
-sandwich ``A S A`` (:func:`sandwich_covariance`), ``A = (J^T J)^-1`` and ``S`` the
-heteroskedasticity- and autocorrelation-consistent (Newey-West, Bartlett weights) long-run
-covariance of the per-sample scores ``J_t^T r_t`` of each recording, so correlated residuals
-widen the intervals by what they cost; the white-noise covariance is kept as ``std_iid``.
-The parameter block accounts for the unknown segment states (``A``'s rows eliminate them).
-A log-parameter's standard deviation is relative.
+**Uncertainty.** Two estimates of the parameters' covariance, the larger variance of the two
+reported per parameter (correlations from the first):
+
+* the **stated noise model**: the motion capture's white noise (``F^-1``, the Fisher
+  information with the window states eliminated) plus the load cells' noise propagated
+  through the fitted model (:func:`input_noise_covariance`). The fit takes the measured
+  tensions as exact inputs (errors in variables): their noise drives the model's lightly
+  damped rod where the real one was not driven, a residual correlated over the mode's decay
+  time that the white-noise formula ignores and that moves the damping most;
+* the **sandwich** ``A S A`` (:func:`sandwich_covariance`), ``A = (J^T J)^-1`` and ``S`` the
+  heteroskedasticity- and autocorrelation-consistent (Newey-West, Bartlett weights) long-run
+  covariance of the per-sample scores ``J_t^T r_t`` of each recording: it needs no noise
+  model, so it also covers a model error smooth in time, but its lag window (at most one
+  shooting window, the correlation of an oscillation cut short) underestimates a long
+  correlation.
+
+The white-residual covariance ``s^2 (J^T J)^-1`` (``s^2 = |r|^2 / (m - n_z)``) is kept as
+``std_iid``; the two above as ``std_noise`` and ``std_sandwich``. The parameter block accounts
+for the unknown segment states (they are eliminated). A log-parameter's standard deviation is
+relative.
 """
 
 from __future__ import annotations
@@ -52,13 +64,11 @@ from scipy.spatial.transform import Rotation
 from .data import Recording
 from .experiments import NOISE, project_points
 from .params import PARAMETERS, parse_params
+from .solve import Blocks, levenberg_marquardt, parameter_rows
 
 log = logging.getLogger(__name__)
 
 FD_STEP = 1e-6
-#: The trust-region subproblem solver of ``least_squares`` ("exact": an SVD of the m x n_z
-#: Jacobian every iteration; "lsmr": iterative).
-TR_SOLVER = "exact"
 #: How far the fit may move a parameter from its start: a factor (log-parameters) or as many
 #: scales (linear ones).
 SEARCH_FACTOR = 3.0
@@ -132,6 +142,15 @@ class Problem:
             self.setups.append(s)
         self.n_z = off
         self._last = (None, None)
+        rows, cols, row = [], [], 0
+        for s in self.setups:
+            k2 = 2 * s.rec.model.system.n
+            for g, (a, b) in enumerate(zip(s.starts, s.ends, strict=True)):
+                rows.append((row + int(a) * s.kdim, row + int(b) * s.kdim))
+                cols.append((s.offset + g * k2, s.offset + (g + 1) * k2))
+            row += len(s.rec.t) * s.kdim
+        #: the windows' rows and state columns of the Jacobian (:mod:`tdacm.identify.solve`)
+        self.blocks = Blocks(len(self.names), rows, cols)
 
     # ---------------------------------------------------------------- variables
     def to_z(self, values: dict) -> np.ndarray:
@@ -257,7 +276,8 @@ def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int
     """The parameters' (scaled) covariance ``A S A`` robust to correlated residuals, and the
     lag window used.
 
-    ``A = (J^T J)^+``; the parameter rows of ``A J^T`` map the residuals to the estimate, so
+    ``A = (J^T J)^-1``; the parameter rows of ``A J^T`` (:func:`~tdacm.identify.solve.parameter_rows`,
+    the window states eliminated block by block) map the residuals to the estimate, so
     the estimate's error is ``sum_t h_t`` with ``h_t = (A J^T)_{p, rows t} r_t`` the score of
     sample ``t``. ``S = sum_l w_l sum_t h_t h_{t-l}^T`` (both signs of ``l``) with Bartlett
     weights ``w_l = 1 - |l| / (L + 1)`` within each recording (recordings independent); the
@@ -265,8 +285,7 @@ def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int
     at least 1 and at most one shooting window. ``m / (m - n_z)`` corrects for the fitted
     variables' share of the residuals."""
     m, nz = jac.shape
-    a = np.linalg.pinv(jac.T @ jac)
-    h = a[:npar] @ jac.T
+    h, _ = parameter_rows(jac, prob.blocks)
     cov = np.zeros((npar, npar))
     row = 0
     used = 0
@@ -296,6 +315,59 @@ def sandwich_covariance(prob: Problem, jac: np.ndarray, r: np.ndarray, npar: int
             c += (1 - lag_i / (lag + 1)) * (x + x.T)
         cov += c
     return cov * m / max(m - nz, 1), used
+
+
+#: Draws of the load cells' noise propagated through the fitted model
+#: (:func:`input_noise_covariance`; each draw gives every shooting window an independent
+#: sample, so the covariance averages draws x windows outer products: 8 x 20 on the shipped
+#: steps, a sampling error near 6 % on the standard deviations).
+INPUT_DRAWS = 8
+
+
+def input_noise_covariance(prob: Problem, z: np.ndarray, h: np.ndarray, decimate: int = 1,
+                           draws: int = INPUT_DRAWS, seed: int = 0) -> np.ndarray:  # fmt: skip
+    """The parameters' (scaled) covariance due to the noise of the measured tensions.
+
+    The fit replays the measured tensions as exact inputs (errors in variables): a load cell's
+    noise drives the model's rod where the real one was not driven, a residual correlated over
+    the rod's slow, lightly damped response that moves the damping most. To first order the
+    estimate moves by ``h dr`` (``h`` the parameter rows of ``(J^T J)^-1 J^T``,
+    :func:`~tdacm.identify.solve.parameter_rows`) with ``dr`` the residuals' response to the
+    input noise. ``draws`` draws of that noise at its stated level (``sigma["tension"]``,
+    relative, white per sample; averaged over the ``decimate`` samples of a fitted step) are
+    simulated through the fitted model from the fitted window states. A window's residuals
+    respond only to its own inputs, so the windows' shares ``c_w = h_w dr_w`` are independent
+    and zero-mean: the covariance is ``sum_w E[c_w c_w^T]``, estimated by the mean over the
+    draws (``seed``: the draws' generator)."""
+    npar = len(prob.names)
+    rel = float(prob.sigma.get("tension", 0.0))
+    cov = np.zeros((npar, npar))
+    if rel == 0.0 or npar == 0:
+        return cov
+    rng = np.random.default_rng(seed)
+    values = prob.from_z(z[:npar])
+    row = 0
+    for s in prob.setups:
+        r = s.rec
+        na = r.model.system.n_a
+        nrow = len(r.t) * s.kdim
+        if na == 0:  # no tendon: no load cell
+            row += nrow
+            continue
+        base = prob.measurement_residual(prob.predict(z, s, values), s, values)
+        q0, qd0 = prob._states(z, s)
+        hs = h[:, row : row + nrow].reshape(npar, len(r.t), s.kdim)
+        vals = r.values(values)
+        for _ in range(draws):
+            u = np.array(r.u, dtype=float, copy=True)
+            u[:, -na:] *= 1.0 + rel / np.sqrt(decimate) * rng.standard_normal((len(r.t), na))
+            pred = r.model.simulate(vals, q0, qd0, s.starts, s.ends, u, r.dt, prob.substeps)
+            dr = prob.measurement_residual(pred, s, values) - base
+            for a, b in zip(s.starts, s.ends, strict=True):
+                c = np.einsum("ptk,tk->p", hs[:, a:b], dr[a:b])
+                cov += np.outer(c, c)
+        row += nrow
+    return cov / draws
 
 
 def basis_map(old_model, new_model) -> np.ndarray:
@@ -420,6 +492,8 @@ class Identification:
     z: np.ndarray | None = None
     stages: list = field(default_factory=list)
     std_iid: dict = field(default_factory=dict)  # white-residual std (s^2 (J^T J)^-1)
+    std_sandwich: dict = field(default_factory=dict)  # the sandwich's (residuals' correlation)
+    std_noise: dict = field(default_factory=dict)  # the stated noise's (mocap and load cells)
     n_free: int = 0  # fitted variables: parameters and segment states
     lags: int = 0  # the sandwich's lag window (samples)
     rod_basis: str = ""  # the rod's strain basis fitted
@@ -443,6 +517,8 @@ class Identification:
                     "std": self.std[n],
                     "relative_std": self.rel_std[n],
                     "std_white_residuals": self.std_iid.get(n),
+                    "std_sandwich": self.std_sandwich.get(n),
+                    "std_noise_model": self.std_noise.get(n),
                     "start": self.start[n],
                     "unit": PARAMETERS[n].unit,
                 }
@@ -525,7 +601,7 @@ def identify(
     lb, ub = np.full(z0.size, -np.inf), np.full(z0.size, np.inf)
     npar = len(names)
     # a log-parameter stays within a factor SEARCH_FACTOR of its start, a linear one within
-    # SEARCH_FACTOR scales (a trust region's first steps can otherwise leave the stable models)
+    # SEARCH_FACTOR scales (a solver's first steps can otherwise leave the stable models)
     lb[:npar] = z0[:npar] - np.log(SEARCH_FACTOR)
     ub[:npar] = z0[:npar] + np.log(SEARCH_FACTOR)
     for i, n in enumerate(names):
@@ -546,19 +622,21 @@ def identify(
                  time.perf_counter() - t0)  # fmt: skip
         return prob.jacobian(z)
 
-    sol = least_squares(
-        prob.residual, z0, jac=jacobian, bounds=(lb, ub), method="trf", x_scale="jac",
-        tr_solver=TR_SOLVER,
-        ftol=1e-7, xtol=1e-7, gtol=1e-8, max_nfev=max_nfev,
-    )  # fmt: skip
+    sol = levenberg_marquardt(prob.residual, jacobian, z0, prob.blocks, lb, ub, ftol=1e-7,
+                              xtol=1e-7, max_nfev=max_nfev)  # fmt: skip
     jac = sol.jac
     m, nz = jac.shape
     cost = float(2 * sol.cost)
     s2 = cost / max(m - nz, 1)
-    jtj = jac.T @ jac
     npar = len(names)
-    cov_iid = s2 * np.linalg.pinv(jtj)[:npar, :npar]
-    cp, lags = sandwich_covariance(prob, jac, sol.fun, npar)
+    h, f_inv = parameter_rows(jac, prob.blocks)
+    cov_iid = s2 * f_inv
+    cov_sw, lags = sandwich_covariance(prob, jac, sol.fun, npar)
+    # the stated noise model: the motion capture's (white, F^-1) and the load cells'
+    cov_noise = f_inv + input_noise_covariance(prob, sol.x, h, decimate)
+    var = np.maximum(np.diag(cov_noise), np.diag(cov_sw))
+    dn = np.sqrt(np.clip(np.diag(cov_noise), 1e-300, None))
+    cp = cov_noise / np.outer(dn, dn) * np.sqrt(np.outer(var, var))
     at_bound = [n for i, n in enumerate(names) if min(sol.x[i] - lb[i], ub[i] - sol.x[i]) < 1e-6]
     if at_bound:
         log.warning("estimates at the search bound (factor %g from the start): %s",
@@ -567,16 +645,21 @@ def identify(
     corr = cp / np.outer(sd, sd) if np.all(sd > 0) else np.full_like(cp, np.nan)
     values = {n: v for n, v in prob.from_z(sol.x[:npar]).items() if n in names}
     sd_iid = np.sqrt(np.clip(np.diag(cov_iid), 0, None))
-    std, rel, std_iid = {}, {}, {}
+    sd_sw = np.sqrt(np.clip(np.diag(cov_sw), 0, None))
+    sd_noise = np.sqrt(np.clip(np.diag(cov_noise), 0, None))
+    std, rel, std_iid, std_sw, std_noise = {}, {}, {}, {}, {}
     for i, n in enumerate(names):
         p = PARAMETERS[n]
         std[n] = float(values[n] * sd[i]) if p.log else float(p.scale * sd[i])
         rel[n] = float(sd[i]) if p.log else float(std[n] / max(abs(values[n]), 1e-300))
         std_iid[n] = float(values[n] * sd_iid[i]) if p.log else float(p.scale * sd_iid[i])
+        std_sw[n] = float(values[n] * sd_sw[i]) if p.log else float(p.scale * sd_sw[i])
+        std_noise[n] = float(values[n] * sd_noise[i]) if p.log else float(p.scale * sd_noise[i])
     res = Identification(
         names, values, std, rel, corr, start, nominal, cost, s2, m, int(sol.nfev),
         time.perf_counter() - t0, bool(sol.success), str(sol.message), {}, prob, sol.x,
         std_iid=std_iid, n_free=nz, lags=lags, rod_basis=recs[0].model.basis,
+        std_sandwich=std_sw, std_noise=std_noise,
     )  # fmt: skip
     for rec, pred in res.predictions():
         key = rec.name
@@ -624,5 +707,6 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
         a.nfev + b.nfev, a.seconds + b.seconds, a.success and b.success,
         f"rod: {a.message}; drone: {b.message}", {**a.rms, **b.rms}, None, None,
         stages=[a, b], std_iid={**a.std_iid, **b.std_iid}, n_free=a.n_free + b.n_free,
+        std_sandwich={**a.std_sandwich, **b.std_sandwich}, std_noise={**a.std_noise, **b.std_noise},
         lags=max(a.lags, b.lags), rod_basis=a.rod_basis,
     )  # fmt: skip

@@ -25,11 +25,11 @@ remedies (a richer strain basis, tendon friction, the sample rate / step, the st
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..system import kernels as K
 from .fit import Problem
 from .model import RK4_LIMIT
+from .solve import levenberg_marquardt
 
 #: Exit code of ``tdacm identify --strict`` when the misfit is detected (1: failure, 2: usage).
 EXIT_MISFIT = 3
@@ -109,8 +109,8 @@ def held_out_ratio(values: dict, recording, segment=None, sigma=None, max_nfev: 
     fit) are fitted, nothing else. 1 for a model right to the noise."""
     prob = Problem([recording], [], sigma=sigma, segment=segment, fixed=values)
     z0 = prob.initial({})
-    sol = least_squares(prob.residual, z0, jac=prob.jacobian, method="trf", x_scale="jac",
-                        max_nfev=max_nfev, ftol=1e-6, xtol=1e-8)  # fmt: skip
+    sol = levenberg_marquardt(prob.residual, prob.jacobian, z0, prob.blocks, ftol=1e-6,
+                              xtol=1e-8, max_nfev=max_nfev)  # fmt: skip
     return float(2 * sol.cost / max(len(sol.fun) - len(z0), 1))
 
 
