@@ -1,14 +1,15 @@
 """Benchmark of the coupled model (speed targets).  Run: ``python benchmarks/bench_model.py``
 or ``tdacm bench``.  Reports medians; see ``docs/benchmarks.md`` for this machine's figures.
 
-``python benchmarks/bench_model.py --against REV`` times instead the forward dynamics of this
-checkout against that of the git revision ``REV`` in one process: the module
+``python benchmarks/bench_model.py --against REV [REV ...]`` times instead the forward dynamics
+of this checkout against that of each git revision ``REV`` in one process: the module
 ``tdacm/system/forward.py`` of ``REV`` (the recursion, its workspace and solve; the helpers it
 takes from ``tdacm.system.kernels`` are this checkout's) is loaded beside the current one, and
 compiled loops of ``workspace`` + ``forward_dynamics_ws`` (what ``forward_dynamics`` does per
-call) run alternately, round by round, on the paper system and the 18-DoF rod.  Prints the
-medians, the 10th percentiles, the median of the paired ratios and the largest difference of
-``qdd`` between the two on random states, and the load average.
+call) run alternately, round by round, on the paper system and the 18-DoF rod.  Prints, per
+revision, the medians, the 10th percentiles, the median of the paired ratios (revision over
+current) and the largest difference of ``qdd`` from the current one on random states, and the
+load average.
 """
 
 from __future__ import annotations
@@ -71,14 +72,16 @@ def _qdd(F, q, qd, u, m, loads):
     return qdd
 
 
-def compare(rev: str, rounds: int = 41, calls: int = 200, out: str = "out/bench-model-ab"):
+def compare(revs, rounds: int = 41, calls: int = 200, out: str = "out/bench-model-ab"):
     import tdacm.system.forward as new
     from tdacm.rod import StrainBasis
     from tdacm.system import paper_system
 
-    old = _load_forward_at(rev, Path(out) / "modules")
-    loops = {"current": _loop(new), rev: _loop(old)}
-    mods = {"current": new, rev: old}
+    revs = [revs] if isinstance(revs, str) else list(revs)
+    mods = {"current": new}
+    for rev in revs:
+        mods[rev] = _load_forward_at(rev, Path(out) / "modules")
+    loops = {k: _loop(f) for k, f in mods.items()}
     load0 = open("/proc/loadavg").read().split()[:3]
     rows = []
     rich = paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4)
@@ -90,13 +93,16 @@ def compare(rev: str, rounds: int = 41, calls: int = 200, out: str = "out/bench-
         q[6:] = rng.normal(size=s.n_s) * 0.3
         qd = rng.normal(size=s.n) * 0.1
         u = np.r_[np.full(4, s.total_mass * 9.81 / 4), np.zeros(s.n_a)]
-        diff = 0.0
-        for seed in range(5):  # random states: the two versions' qdd
+        diff = dict.fromkeys(revs, 0.0)
+        for seed in range(5):  # random states: each revision's qdd against the current one
             r = np.random.default_rng(100 + seed)
             qs = q + r.normal(size=s.n) * 0.2
             qds = r.normal(size=s.n)
-            a, b = (_qdd(mods[k], qs, qds, u, m, loads) for k in mods)
-            diff = max(diff, float(np.abs(a - b).max() / max(1.0, np.abs(b).max())))
+            a = _qdd(new, qs, qds, u, m, loads)
+            for rev in revs:
+                b = _qdd(mods[rev], qs, qds, u, m, loads)
+                d = float(np.abs(a - b).max() / max(1.0, np.abs(b).max()))
+                diff[rev] = max(diff[rev], d)
         times = {k: [] for k in loops}
         for f in loops.values():
             f(q, qd, u, m, loads, 1)
@@ -105,27 +111,35 @@ def compare(rev: str, rounds: int = 41, calls: int = 200, out: str = "out/bench-
                 t0 = time.perf_counter()
                 f(q, qd, u, m, loads, calls)
                 times[k].append((time.perf_counter() - t0) / calls * 1e6)
-        cur, ref = np.array(times["current"]), np.array(times[rev])
+        cur = np.array(times["current"])
         row = {
             "system": name,
             "n": s.n,
             "current_median_us": float(np.median(cur)),
             "current_p10_us": float(np.percentile(cur, 10)),
-            "reference_median_us": float(np.median(ref)),
-            "reference_p10_us": float(np.percentile(ref, 10)),
-            "ratio_median_of_paired": float(np.median(ref / cur)),
-            "max_relative_difference_qdd": diff,
+            "against": {},
         }
-        rows.append(row)
         print(
             f"{name:7s} n={s.n:2d}  current {row['current_median_us']:7.2f} us "
-            f"(p10 {row['current_p10_us']:6.2f})  {rev} {row['reference_median_us']:7.2f} us "
-            f"(p10 {row['reference_p10_us']:6.2f})  ratio {row['ratio_median_of_paired']:.2f}x  "
-            f"qdd difference {diff:.1e}"
+            f"(p10 {row['current_p10_us']:6.2f})"
         )
+        for rev in revs:
+            ref = np.array(times[rev])
+            r = {
+                "median_us": float(np.median(ref)),
+                "p10_us": float(np.percentile(ref, 10)),
+                "ratio_median_of_paired": float(np.median(ref / cur)),
+                "max_relative_difference_qdd": diff[rev],
+            }
+            row["against"][rev] = r
+            print(
+                f"{'':13s}{rev:>8s} {r['median_us']:7.2f} us (p10 {r['p10_us']:6.2f})  "
+                f"ratio {r['ratio_median_of_paired']:.2f}x  qdd difference {diff[rev]:.1e}"
+            )
+        rows.append(row)
     load1 = open("/proc/loadavg").read().split()[:3]
     print(f"load average (1, 5, 15 min): {load0} at the start, {load1} at the end")
-    res = {"against": rev, "rounds": rounds, "calls": calls, "rows": rows, "load": [load0, load1]}
+    res = {"against": revs, "rounds": rounds, "calls": calls, "rows": rows, "load": [load0, load1]}
     Path(out).mkdir(parents=True, exist_ok=True)
     (Path(out) / "ab.json").write_text(json.dumps(res, indent=2))
     return res
@@ -133,7 +147,9 @@ def compare(rev: str, rounds: int = 41, calls: int = 200, out: str = "out/bench-
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--against", metavar="REV", help="time against the forward module of REV")
+    p.add_argument(
+        "--against", metavar="REV", nargs="+", help="time against the forward module of each REV"
+    )
     p.add_argument("--rounds", type=int, default=41)
     p.add_argument("--out", default="out/bench-model-ab")
     a = p.parse_args()
