@@ -18,12 +18,9 @@ SINGULAR_COS = 1e-6
 
 
 @njit(cache=True)
-def rot_zyx(phi, theta, psi):
-    """``Rz(psi) Ry(theta) Rx(phi)``."""
-    cf, sf = np.cos(phi), np.sin(phi)
-    ct, st = np.cos(theta), np.sin(theta)
-    cp, sp = np.cos(psi), np.sin(psi)
-    r = np.empty((3, 3))
+def rot_zyx_into(r, cf, sf, ct, st, cp, sp):
+    """``Rz(psi) Ry(theta) Rx(phi)`` into ``r`` (3x3) from the sines and cosines of ``phi``
+    (``cf, sf``), ``theta`` (``ct, st``) and ``psi`` (``cp, sp``)."""
     r[0, 0] = cp * ct
     r[0, 1] = cp * st * sf - sp * cf
     r[0, 2] = cp * st * cf + sp * sf
@@ -33,36 +30,56 @@ def rot_zyx(phi, theta, psi):
     r[2, 0] = -st
     r[2, 1] = ct * sf
     r[2, 2] = ct * cf
-    return r
 
 
 @njit(cache=True)
-def euler_rate_matrix(phi, theta):
-    """``T(phi, theta)`` of paper eq. (4): Euler rates -> body angular velocity."""
-    cf, sf = np.cos(phi), np.sin(phi)
-    ct, st = np.cos(theta), np.sin(theta)
-    t = np.zeros((3, 3))
+def euler_rates_into(t, td, cf, sf, ct, st, phi_dot, theta_dot):
+    """``T(phi, theta)`` of paper eq. (4) into ``t`` and its time derivative into ``td`` (3x3
+    each) from the sines and cosines of ``phi`` (``cf, sf``) and ``theta`` (``ct, st``)."""
+    for i in range(3):
+        for k in range(3):
+            t[i, k] = 0.0
+            td[i, k] = 0.0
     t[0, 0] = 1.0
     t[0, 2] = -st
     t[1, 1] = cf
     t[1, 2] = sf * ct
     t[2, 1] = -sf
     t[2, 2] = cf * ct
+    td[0, 2] = -ct * theta_dot
+    td[1, 1] = -sf * phi_dot
+    td[1, 2] = cf * ct * phi_dot - sf * st * theta_dot
+    td[2, 1] = -cf * phi_dot
+    td[2, 2] = -sf * ct * phi_dot - cf * st * theta_dot
+
+
+@njit(cache=True)
+def rot_zyx(phi, theta, psi):
+    """``Rz(psi) Ry(theta) Rx(phi)``."""
+    r = np.empty((3, 3))
+    rot_zyx_into(
+        r, np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta), np.cos(psi), np.sin(psi)
+    )
+    return r
+
+
+@njit(cache=True)
+def euler_rate_matrix(phi, theta):
+    """``T(phi, theta)`` of paper eq. (4): Euler rates -> body angular velocity."""
+    t = np.empty((3, 3))
+    td = np.empty((3, 3))
+    euler_rates_into(t, td, np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta), 0.0, 0.0)
     return t
 
 
 @njit(cache=True)
 def euler_rate_matrix_dot(phi, theta, phi_dot, theta_dot):
     """Time derivative of :func:`euler_rate_matrix`."""
-    cf, sf = np.cos(phi), np.sin(phi)
-    ct, st = np.cos(theta), np.sin(theta)
-    t = np.zeros((3, 3))
-    t[0, 2] = -ct * theta_dot
-    t[1, 1] = -sf * phi_dot
-    t[1, 2] = cf * ct * phi_dot - sf * st * theta_dot
-    t[2, 1] = -cf * phi_dot
-    t[2, 2] = -sf * ct * phi_dot - cf * st * theta_dot
-    return t
+    t = np.empty((3, 3))
+    td = np.empty((3, 3))
+    cf, sf, ct, st = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
+    euler_rates_into(t, td, cf, sf, ct, st, phi_dot, theta_dot)
+    return td
 
 
 def is_singular(theta: float) -> bool:

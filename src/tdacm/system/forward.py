@@ -32,6 +32,7 @@ from numba import njit
 from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..lie.blocks import ad_scalars, compose_rp_into, expmap_rp_into
+from ..lie.euler import euler_rates_into, rot_zyx_into
 from ..lie.se3 import _A1, _A2, _A3, _A4, SMALL_ANGLE, _dseries, _series
 from . import kernels as K
 
@@ -413,39 +414,16 @@ def _base_into(q, qd, floating, g_fixed, gb, jb, jbd, m33):
     if not floating:
         gb[:, :] = g_fixed
         return
-    # rot_zyx, euler_rate_matrix, euler_rate_matrix_dot (tdacm.lie.euler), the same entries,
-    # with the six sines and cosines computed once, into m33[3], m33[4], m33[5]
+    # the drone's R, T and dT/dt (tdacm.lie.euler), the six sines and cosines computed once,
+    # into m33[3], m33[4], m33[5]
     r = m33[3]
     t = m33[4]
     td = m33[5]
     phi, theta, psi, phi_dot, theta_dot = q[0], q[1], q[2], qd[0], qd[1]
     cf, sf = np.cos(phi), np.sin(phi)
     ct, st = np.cos(theta), np.sin(theta)
-    cp, sp = np.cos(psi), np.sin(psi)
-    r[0, 0] = cp * ct
-    r[0, 1] = cp * st * sf - sp * cf
-    r[0, 2] = cp * st * cf + sp * sf
-    r[1, 0] = sp * ct
-    r[1, 1] = sp * st * sf + cp * cf
-    r[1, 2] = sp * st * cf - cp * sf
-    r[2, 0] = -st
-    r[2, 1] = ct * sf
-    r[2, 2] = ct * cf
-    for i in range(3):
-        for k in range(3):
-            t[i, k] = 0.0
-            td[i, k] = 0.0
-    t[0, 0] = 1.0
-    t[0, 2] = -st
-    t[1, 1] = cf
-    t[1, 2] = sf * ct
-    t[2, 1] = -sf
-    t[2, 2] = cf * ct
-    td[0, 2] = -ct * theta_dot
-    td[1, 1] = -sf * phi_dot
-    td[1, 2] = cf * ct * phi_dot - sf * st * theta_dot
-    td[2, 1] = -cf * phi_dot
-    td[2, 2] = -sf * ct * phi_dot - cf * st * theta_dot
+    rot_zyx_into(r, cf, sf, ct, st, np.cos(psi), np.sin(psi))
+    euler_rates_into(t, td, cf, sf, ct, st, phi_dot, theta_dot)
     for i in range(4):
         for k in range(4):
             gb[i, k] = 1.0 if i == k else 0.0
