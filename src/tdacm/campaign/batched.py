@@ -267,7 +267,7 @@ def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall, truth)
     from ..batch.engine import TERMINATIONS
     from ..loop.servo import normalized_rmse
     from ..sim.assemble import camera_pose_error
-    from ..sim.runner import _window, late_rmse
+    from ..sim.runner import last_samples, late_rmse
 
     loop, world = a.loop, a.world
     s = loop.plant.system
@@ -279,7 +279,7 @@ def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall, truth)
         return float(t[idx[0]]) if idx.size else None
 
     switch = np.flatnonzero((mode[1:] == 0) & (mode[:-1] == 1))
-    last2 = _window(t, rmse, 2.0)
+    last2 = last_samples(t, rmse, 2.0)
     code = int(d.termination[w])
     cam_dp = cam_da = drone_dp = None
     rmse_true = None

@@ -122,7 +122,7 @@ class Simulation:
 
         # after convergence the RMSE wanders (docs/estimation.md, "What limits test C"): the last
         # sample alone (final_rmse) ranks runs noisily; late_rmse_1s is the windowed criterion
-        last2 = _window(t, rmse, 2.0)
+        last2 = last_samples(t, rmse, 2.0)
 
         u = a["u"]
         na = s.n_a
@@ -283,7 +283,7 @@ def arms_summary(a: dict) -> dict:
     }
 
 
-def _window(t, rmse, seconds):
+def last_samples(t, rmse, seconds):
     """The finite samples of ``rmse`` in the last ``seconds`` of the run."""
     finite = np.isfinite(rmse)
     return rmse[finite & (t >= t[-1] - seconds - 1e-9)] if t.size else rmse[:0]
@@ -292,7 +292,7 @@ def _window(t, rmse, seconds):
 def late_rmse(t, rmse, seconds: float = 1.0):
     """The RMS of the normalized feature RMSE over the last ``seconds`` of a run (its finite
     samples; ``None`` if there is none): the campaigns' windowed success criterion."""
-    last = _window(np.asarray(t), np.asarray(rmse), seconds)
+    last = last_samples(np.asarray(t), np.asarray(rmse), seconds)
     return float(np.sqrt(np.mean(last**2))) if last.size else None
 
 
