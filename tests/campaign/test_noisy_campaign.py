@@ -18,11 +18,14 @@ global_renderer = "planar"
 global_every = 0
 """
 
+# The block loop: `tdacm run` replays its rows bit for bit (a batched world draws its noise
+# from its own stream; docs/campaigns.md).
 SPEC = """
 scenario = "fast.toml"
 runs = 3
 seed = 11
 duration = 0.4
+batched = false
 [distributions]
 "sensors.pixel_noise" = { kind = "truncnormal", mean = 22.0, std = 5.0, low = 15.0, high = 30.0 }
 """

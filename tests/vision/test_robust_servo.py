@@ -265,6 +265,7 @@ class _HeldCamera:
     floating = False
     n = 1
     n_s = 1
+    n_rods = 1
 
 
 def _servo(smoothing=0.0):

@@ -126,7 +126,7 @@ class VisualServo:
         self._lim = lim
         self._ad_mount, self._ad_mount_inv = adjoint_pair(self.tip_mount)
         # the coordinates of this servo's rod's strains in q (all strains for one arm)
-        cols = rod_columns(s, self.rod)
+        cols = slice(0, s.n_s) if s.n_rods == 1 else rod_columns(s, self.rod)
         base = n - s.n_s
         self._strains = np.arange(base + cols.start, base + cols.stop)
         self.switch = ModeSwitch(
