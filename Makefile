@@ -18,7 +18,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/lint-imports --no-cache   # the layers of [tool.importlinter] in pyproject.toml
-	$(PY) -m pytest -q   # includes the strict docs build (tests/test_docs.py) and the layers
+	$(PY) -m pytest -q --durations=15   # includes the strict docs build (tests/test_docs.py) and the layers; lists the slowest tests (the 10-minute budget)
 
 docs: $(STAMP)
 	$(PY) -m mkdocs build --strict -d site
