@@ -74,6 +74,7 @@ def _qdd(F, q, qd, u, m, loads):
 
 def compare(revs, rounds: int = 41, calls: int = 200, out: str = "out/bench-model-ab"):
     import tdacm.system.forward as new
+    from tdacm.bench.model import bench_state
     from tdacm.rod import StrainBasis
     from tdacm.system import paper_system
 
@@ -87,12 +88,7 @@ def compare(revs, rounds: int = 41, calls: int = 200, out: str = "out/bench-mode
     rich = paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), n_gauss=8, magnus_order=4)
     for name, s in (("paper", paper_system()), ("18-DoF", rich)):
         m, loads = s.model_arrays, s.loads.packed()
-        rng = np.random.default_rng(0)
-        q = np.zeros(s.n)
-        q[5] = 3.0
-        q[6:] = rng.normal(size=s.n_s) * 0.3
-        qd = rng.normal(size=s.n) * 0.1
-        u = np.r_[np.full(4, s.total_mass * 9.81 / 4), np.zeros(s.n_a)]
+        q, qd, u = bench_state(s)
         diff = dict.fromkeys(revs, 0.0)
         for seed in range(5):  # random states: each revision's qdd against the current one
             r = np.random.default_rng(100 + seed)
