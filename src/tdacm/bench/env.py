@@ -113,7 +113,7 @@ def env_bench(steps: int = 1000, repeats: int = 5, progress=print) -> dict:
     return res
 
 
-#: the vector env's env-steps/s at 256 worlds (issue target, a ratio >= 1 meets it)
+#: the vector env's env-steps/s at 256 worlds (the speed target; a ratio >= 1 meets it)
 VECTOR_TARGET = 8000.0
 
 
