@@ -337,7 +337,6 @@ class ArmsTouchServo(ArmsServo):
         """The squeeze's force loop (module docstring), once every arm has touched."""
         tc = self.touch
         lead = self.arms[0]
-        k = len(self.arms)
         if not all(p in (CONTACT, HOLD) for p in self.phases):
             return
         if not all(tt is not None for tt in self._touch_t):
