@@ -7,24 +7,28 @@ from its own arm's tendons (``[touch] enabled`` with ``[[robot.arms]]``, docs/co
   residual of the model's balance (the momentum observer's, or with differenced velocities)
   is one for the whole system, and the drone's rows see every arm's force, so the arms'
   normal forces are solved together (:func:`~tdacm.estimation.contact_force.normal_forces_of`).
-* :class:`ArmsTouchServo`: the servo of several arms (:class:`~.arms.ArmsServo`, the stacked
-  joint-rate mapping) over one :class:`~.touch.TouchServo` per arm. Each arm has its own
-  phase (approach, contact, hold, release), its own twist and its own force loop; the steps
-  that need every side wait for the others: moving in starts once every arm has held its
-  standoff view for ``dwell`` s (all estimators tared then), the hold starts ``settle`` s
-  after the last arm's first touch (an arm that touched earlier holds its force meanwhile)
-  and ends for all after ``hold_time`` s, then all release. The run's phase
-  (``touch_phase``) is the least advanced arm's.
+* :class:`ArmsTouchServo`: the servo of several arms (:class:`~.arms.ArmsServo`) over one
+  :class:`~.touch.TouchServo` per arm. Each arm has its own phase (approach, contact, hold,
+  release), its own twist and its own force estimate; the steps that need every side wait
+  for the others: moving in starts once every arm has held its standoff view for ``dwell``
+  s (all estimators tared then), every arm moves in until all have touched, the hold starts
+  ``settle`` s after the last arm's first touch and ends for all after ``hold_time`` s, then
+  all release. The run's phase (``touch_phase``) is the least advanced arm's.
 * :class:`ArmsTouchLog`: the log of several arms with the per-arm touch series
   :data:`TOUCH_ARM_SERIES`.
 
-The admittance of several arms: arm ``k``'s force loop sets the reference along ``a_k``, the
-joint displacement of the stacked mapping that moves C_V^k one metre along its optical axis
-and leaves the other arms' views still (least squares). With ``Z = [a_k]`` over the arms in
-contact, the offsets ``c = Z^+ (q_d - q_hat)`` of the reference along them are set to the PI
-offsets ``o_k = force_gain e_k + force_integral int e_k dt`` (``q_d += Z (o - c)``), and the
-reference rate along them is removed; with one arm this is the single-arm law of
-:mod:`tdacm.loop.touch`.
+The joint-rate mapping is the stacked one of :mod:`tdacm.loop.arms` in feature space: arm
+``k``'s rows ``L_k Ad(g_{C_Lk}^{Lk})^-1 J_k(q_v)[:, c]`` against ``L_k v_k`` (``L_k`` its
+interaction matrix), which converges where the twists' least squares stalls with cameras
+looking off vertical; while pressing, the arms' distance rows are replaced by one row for
+the sum of their cameras' axial velocities (:data:`AXIAL_WEIGHT`), so the drone may move
+one camera forward and the other back for the views (docs/contact.md, "The squeeze").
+
+The force loop: once every arm has touched, ``touch-target``'s PI law of
+:mod:`tdacm.loop.touch` on the arms' mean force error ``F_d - mean_k f_k``, along ``a``, the
+joint displacement of that mapping moving every camera one metre along its axis
+(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds. The
+difference of the arms' forces follows from the views the servo holds.
 """
 
 from __future__ import annotations
