@@ -140,7 +140,9 @@ def build_world(scenario: Scenario) -> World:
             for arm in robot.arms
         )  # fmt: skip
     except ValueError as exc:
-        raise ScenarioError(f"{scenario.source}: robot.arms[].marker.tilt_deg: {exc}") from None
+        raise ScenarioError(
+            f"{scenario.source}: robot.arms[].marker.extra_tilt_deg: {exc}"
+        ) from None
     if scenes:
         scene = scenes[0]
     n = robot.system.n
