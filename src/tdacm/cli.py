@@ -179,7 +179,9 @@ def _cmd_info(args) -> int:
         "    [g_a1, g_a2]); q = [drone, rod 1, rod 2, ...]; dual_paper_system() = the dual TD-CR\n"
         "  several arms in a scenario: [[robot.arms]] (attachment.position, rod, tendons, camera,\n"
         "    tip, marker per arm); the closed loop servoes each arm's C_L to its own marker with\n"
-        "    one stacked joint-rate mapping (docs/control.md, 'Two arms'; scenario dual-in-fov)\n"
+        "    one stacked joint-rate mapping (docs/control.md, 'Two arms'; scenario dual-in-fov);\n"
+        "    with [touch] both probes squeeze one object, each arm's force estimated from its\n"
+        "    tendons (docs/contact.md, 'The squeeze'; scenario dual-squeeze)\n"
         "  integrators: simulate(method='auto'|'rk4'|'rosenbrock'|'radau'|'adaptive'); 'auto' = RK4\n"
         "    unless a torsion/elongation/shear basis needs RK4 steps < 1 ms, then 'radau'"
     )

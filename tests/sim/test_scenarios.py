@@ -22,6 +22,7 @@ NAMES = [
     "custom-robot-example",
     "dual-in-fov",
     "dual-out-of-fov",
+    "dual-squeeze",
     "flight-test-c",
     "ground-test-a",
     "ground-test-b",

@@ -51,9 +51,12 @@ class TipForceEstimator:
         (scalar or one per input)
     offset : (3,) m, where the force acts in the tip frame (a probe ahead of the tip,
         :func:`tdacm.system.contact.probe_offset`); zero: at the tip
+    rod : the arm whose tip the force acts on (a system with several rods; 0: the first)
     """
 
-    def __init__(self, model: EstimatedModel, rows: str = "strain", *, input_sigma, offset=None):
+    def __init__(
+        self, model: EstimatedModel, rows: str = "strain", *, input_sigma, offset=None, rod=0
+    ):
         if not isinstance(model, EstimatedModel):
             raise ValueError(f"model must be an EstimatedModel, got {model!r}")
         if rows not in ("strain", "all"):
@@ -61,6 +64,9 @@ class TipForceEstimator:
         self.model = model
         s = model.system
         self.system = s
+        self.rod = int(rod)
+        if not 0 <= self.rod < s.n_rods:
+            raise ValueError(f"rod must be in [0, {s.n_rods}), got {rod!r}")
         off = 6 if s.floating else 0
         self.rows = np.arange(off if rows == "strain" else 0, s.n)
         self.input_sigma = np.broadcast_to(np.asarray(input_sigma, float), (s.n_u,)).copy()
@@ -94,8 +100,8 @@ class TipForceEstimator:
 
     def _a(self, q) -> np.ndarray:
         s = self.system
-        g = s.tip_pose(q)
-        j = s.tip_jacobian(q)
+        g = s.tip_pose(q, self.rod)
+        j = s.tip_jacobian(q, self.rod)
         if self.offset_skew is None:
             return j[3:6].T @ g[:3, :3].T
         return (j[3:6].T + j[0:3].T @ self.offset_skew) @ g[:3, :3].T
@@ -143,6 +149,12 @@ class TipForceEstimator:
             raise ValueError("the chosen rows do not see a force along this normal")
         cov = np.asarray(residual_cov, float)[np.ix_(self.rows, self.rows)]
         return float(a @ r / aa), float(np.sqrt(a @ cov @ a) / aa)
+
+    def normal_column(self, q, normal) -> np.ndarray:
+        """``A n`` over the estimator's rows: the residual of a unit force along the unit
+        ``normal`` (inertial) on this estimator's tip point."""
+        n = np.asarray(normal, float)
+        return self._a(q)[self.rows] @ (n / np.linalg.norm(n))
 
     def input_cov(self, q) -> np.ndarray:
         """Covariance of ``B(q) u`` from the inputs' (n x n)."""
@@ -212,3 +224,19 @@ class MomentumObserver:
         self._prev = (beta, p)
         self._q_prev, self._u_prev = q, u
         return self.r.copy()
+
+
+def normal_forces_of(estimators, q, residual, normals, residual_cov):
+    """``(f, sigma)`` (k,) the forces along the unit ``normals[i]`` on the tip points of
+    ``estimators[i]`` (one :class:`TipForceEstimator` per arm of one system, the same rows and
+    tare), solved together from one residual: ``r - bias = sum_i A_i n_i f_i`` by least
+    squares, with the standard deviations from ``residual_cov`` (n x n). The arms share the
+    drone's rows, which see every arm's force: one arm's estimate alone would count the
+    other's there. With one estimator this is :meth:`TipForceEstimator.normal_force_of`."""
+    first = estimators[0]
+    rows = first.rows
+    a = np.column_stack([e.normal_column(q, n) for e, n in zip(estimators, normals, strict=True)])
+    r = (np.asarray(residual, float) - first.bias)[rows]
+    pinv = np.linalg.pinv(a)
+    cov = pinv @ np.asarray(residual_cov, float)[np.ix_(rows, rows)] @ pinv.T
+    return pinv @ r, np.sqrt(np.clip(np.diag(cov), 0.0, None))

@@ -19,6 +19,7 @@ from ..contact.geometry import clearance
 from ..system.aero import check_aero
 from ..system.contact import check_contact
 from ..system.kernels import (
+    LOAD_GRAVITY,
     contact_nodes,
     forward_dynamics,
     forward_dynamics_aero,
@@ -145,6 +146,13 @@ class Plant:
             self._reach = 1.05 * reach + max(self.contact[CL.TIP_RADIUS], float(
                 np.max(self.contact[CL.N_HEADER : CL.N_HEADER + m.h.shape[0]])
             ))  # fmt: skip
+            # the rod of every node of contact_nodes (its base, Gauss points and tip)
+            self._node_rod = np.array([
+                rod
+                for rod in range(m.rod_steps.shape[0] - 1)
+                for k in [-1, *range(m.rod_steps[rod], m.rod_steps[rod + 1])]
+                if k < 0 or (m.step_w[k] != 0.0 and m.step_load[k] != LOAD_GRAVITY)
+            ])  # fmt: skip
             probe = float(np.linalg.norm(self.contact[CL.PROBE : CL.PROBE + 3]))
             if probe > 0.0:  # the tip sphere on a rigid probe ahead of the tip
                 self._reach += probe
@@ -246,7 +254,10 @@ class Plant:
         )  # fmt: skip
         if self.force_limit is not None and self.ok:
             _, f, _, _, _ = contact_nodes(q, qd, m, self.contact)
-            total = float(np.linalg.norm(f.sum(axis=0)))
+            # on each arm (the rod's nodes and its tip sphere): the largest over the arms
+            per = np.zeros((self._node_rod.max() + 1, 3))
+            np.add.at(per, self._node_rod, f)
+            total = float(np.max(np.linalg.norm(per, axis=1)))
             if total > self.force_limit:
                 self.over_limit = (
                     f"contact force {total:.3f} N above the limit {self.force_limit:g} N "

@@ -133,10 +133,16 @@ def build_world(scenario: Scenario) -> World:
         target_yaw_deg=sc.target_yaw_deg,
         target_tilt_deg=tuple(sc.target_tilt_deg),
     )
-    scenes = tuple(
-        replace(scene, box_xy=arm.marker_xy, target_yaw_deg=arm.marker_yaw_deg)
-        for arm in robot.arms
-    )
+    try:
+        scenes = tuple(
+            replace(scene, box_xy=arm.marker_xy, target_yaw_deg=arm.marker_yaw_deg,
+                    target_tilt_deg=tuple(np.add(sc.target_tilt_deg, arm.marker_tilt_deg)))
+            for arm in robot.arms
+        )  # fmt: skip
+    except ValueError as exc:
+        raise ScenarioError(
+            f"{scenario.source}: robot.arms[].marker.extra_tilt_deg: {exc}"
+        ) from None
     if scenes:
         scene = scenes[0]
     n = robot.system.n
@@ -283,8 +289,6 @@ def _refuse_for_arms(cfg, src: str) -> None:
     """What the loop of several arms does not run yet: one line naming the key."""
     checks = (
         (cfg.estimation.source == "estimated", "estimation.source = 'estimated'"),
-        (cfg.touch.enabled, "touch.enabled"),
-        (bool(cfg.scene.obstacles), "[[scene.obstacles]]"),
         (cfg.scene.contact.target_box, "scene.contact.target_box"),
         (cfg.aerodynamics.enabled, "aerodynamics.enabled"),
         (cfg.servo.policy is not None, "servo.policy"),
@@ -292,6 +296,15 @@ def _refuse_for_arms(cfg, src: str) -> None:
     for bad, key in checks:
         if bad:
             raise ScenarioError(f"{src}: {key} is for one arm (not with [[robot.arms]])")
+    if cfg.touch.enabled and not cfg.scene.obstacles:
+        raise ScenarioError(f"{src}: touch.enabled needs something to touch: [[scene.obstacles]]")
+    arms = cfg.robot.arms
+    for k, arm in enumerate(arms[1:], start=1):  # the kernels carry one probe for every rod
+        if arm.tip.probe_length != arms[0].tip.probe_length:
+            raise ScenarioError(
+                f"{src}: robot.arms[{k}].tip.probe_length must equal robot.arms[0]'s "
+                "(one probe for every arm)"
+            )
 
 
 def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator, composer):
@@ -300,6 +313,8 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
     :class:`~tdacm.loop.arms.ArmsServo`; the controller, plant and safety monitor as for one
     arm, over all coordinates and inputs."""
     from ..loop.arms import ArmsLog, ArmsPerception, ArmsServo
+    from ..loop.touch_arms import ArmsForceBlock, ArmsTouchLog, ArmsTouchServo, arm_contact_forces
+    from ..system.contact import probe_offset
 
     cfg, src = scenario.config, scenario.source
     _refuse_for_arms(cfg, src)
@@ -313,14 +328,25 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
         for k in range(len(robot.arms))
     ]  # fmt: skip
     paper = cfg.controller.profile == "paper"
+    touch = cfg.touch.enabled
     if servo is None:
-        servo = ArmsServo([
+        servo = [
             servo_block(cfg.ibvs, cfg.recovery, cfg.touch, paper, world.arm(k), cams[k],
                         desired[k], src, arm=arm)
             for k, arm in enumerate(robot.arms)
-        ])  # fmt: skip
+        ]  # fmt: skip
+        servo = ArmsTouchServo(servo, cfg.touch) if touch else ArmsServo(servo)
     model, controller, plant = _controller_and_plant(scenario, world, seed, controller, None)
     truths = [truth_of(world.arm(k), sensors.locals_[k]) for k in range(len(robot.arms))]
-    log = ArmsLog([p for p, _ in desired], composer, truths)
+    force = None
+    if touch and isinstance(servo, ArmsTouchServo):
+        tc = cfg.touch
+        offset = probe_offset(robot.tip_mount, robot.probe_length)
+        force = ArmsForceBlock(model, [a.tip_mount for a in robot.arms], offset,
+                               tc.input_sigma, tc.force_estimator, tc.observer_gain)  # fmt: skip
+        log = ArmsTouchLog([p for p, _ in desired], composer, truths,
+                           arm_contact_forces(robot.system, plant.contact))  # fmt: skip
+    else:
+        log = ArmsLog([p for p, _ in desired], composer, truths)
     blocks = (plant, sensors, perception, servo, controller)
-    return _assembly(scenario, world, seed, model, blocks, estimator, log)
+    return _assembly(scenario, world, seed, model, blocks, estimator, log, force)

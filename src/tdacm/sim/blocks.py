@@ -253,7 +253,7 @@ def servo_block(
                 f"{source}: touch.enabled needs the robust servo "
                 "(ibvs.features = 'predicted', controller.profile = 'default')"
             )
-        return TouchServo(*args, config=config, recovery=recovery, touch=touch)
+        return TouchServo(*args, config=config, recovery=recovery, touch=touch, **rod)
     if ibvs.features == "predicted":
         return RobustServo(*args, config=config, recovery=recovery, **rod)
     return VisualServo(*args, config=config, recovery=recovery, **rod)

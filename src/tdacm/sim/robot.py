@@ -205,11 +205,16 @@ class ArmAttachmentConfig(AttachmentConfig):
 
 
 class MarkerConfig(ConfigModel):
-    """``[robot.arms.marker]``: the arm's own target (a marker on its own box; the box size,
-    the marker type and tilt are those of ``[scene]``)."""
+    """``[robot.arms.marker]``: the arm's own target (a marker on its own box; the box size
+    and the marker type are those of ``[scene]``, its tilt that of ``[scene]`` plus its own)."""
 
     xy: Vec2 = Field(..., description="m, the centre of the box carrying this arm's marker")
     yaw_deg: float = Field(0.0, description="deg, the marker's yaw about world z")
+    extra_tilt_deg: Vec2 = Field(
+        [0.0, 0.0],
+        description="deg, the marker's tilt about world x, y, added to scene.target_tilt_deg "
+        "(the sum within +-30)",
+    )
 
 
 class ArmConfig(ConfigModel):
@@ -326,6 +331,7 @@ class ArmRobot:
     probe_length: float
     marker_xy: tuple
     marker_yaw_deg: float
+    marker_tilt_deg: tuple = (0.0, 0.0)  # added to the scene's tilt
 
 
 @dataclass(frozen=True)
@@ -462,7 +468,7 @@ def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:
         except ValueError as exc:
             raise RobotError(f"{where}: {exc}") from None
         built.append(ArmRobot(k, cam, mount, a.tip.probe_length, tuple(a.marker.xy),
-                              a.marker.yaw_deg))  # fmt: skip
+                              a.marker.yaw_deg, tuple(a.marker.extra_tilt_deg)))  # fmt: skip
     first = built[0]
     return Robot(system, first.local_camera, glob, first.tip_mount, drone_mount,
                  first.probe_length, tuple(built))  # fmt: skip

@@ -223,7 +223,11 @@ def touch_summary(a: dict, cfg) -> dict:
     normal force minus the desired one over the hold, relative to the desired one;
     ``hold_image_error_max``: the largest normalized RMSE (the servo's, to the reference view
     at the contact pose) during the hold; ``hold_duration``: how long the hold lasted (s);
-    ``max_contact_force``: the largest total contact force of the run (N)."""
+    ``max_contact_force``: the largest total contact force of the run (N). With several arms
+    (a squeeze, :mod:`tdacm.loop.touch_arms`) every arm's force is judged over the hold (all
+    arms holding) and the worst kept: ``hold_force_rms_rel`` is the largest of the arms'
+    (``hold_force_rms_rel_arms``), the image error the largest over the arms,
+    ``max_contact_force`` the largest force on one arm."""
     if "touch_phase" not in a:
         return {}
     tc = cfg.touch
@@ -247,20 +251,28 @@ def touch_summary(a: dict, cfg) -> dict:
         "hold_image_error_max": None,
         "hold_image_error_true_max": None,
     }
+    arms = "force_true_arms" in a  # several arms (a squeeze): every arm judged, the worst kept
     if hold.any():
-        f = a["force_true"][hold]
-        out["hold_force_rms_rel"] = float(np.sqrt(np.mean((f - fd) ** 2)) / fd)
+        f = a["force_true_arms"][hold] if arms else a["force_true"][hold]
+        fh = a["force_hat_arms"][hold] if arms else a["force_hat"][hold]
+        rms = np.sqrt(np.mean((f - fd) ** 2, axis=0)) / fd
+        out["hold_force_rms_rel"] = float(np.max(rms))
+        if arms:
+            out["hold_force_rms_rel_arms"] = [float(x) for x in rms]
         out["hold_force_mean"] = float(np.mean(f))
         out["hold_force_max"] = float(np.max(f))
-        out["hold_force_estimate_error_max"] = float(np.nanmax(np.abs(a["force_hat"][hold] - f)))
-        out["hold_force_estimate_error_rms"] = float(
-            np.sqrt(np.nanmean((a["force_hat"][hold] - f) ** 2))
-        )
+        out["hold_force_estimate_error_max"] = float(np.nanmax(np.abs(fh - f)))
+        out["hold_force_estimate_error_rms"] = float(np.sqrt(np.nanmean((fh - f) ** 2)))
         r = a["rmse"][hold]
         out["hold_image_error_max"] = float(np.max(np.where(np.isfinite(r), r, np.inf)))
         rt = a["rmse_true"][hold]
         out["hold_image_error_true_max"] = float(np.nanmax(rt)) if np.isfinite(rt).any() else None
-    if "contact_tip" in a and t.size:
+    if arms and t.size:  # the force on each arm (the vector sum over the arms cancels)
+        total = np.max(a["contact_force_arms"], axis=1)
+        out["max_contact_force"] = float(total.max())
+        rel = phase == PHASES.index("release")
+        out["released"] = bool(rel.any() and total[rel][-1] == 0.0)
+    elif "contact_tip" in a and t.size:
         total = np.linalg.norm(a["contact_tip"] + a["contact_rod"], axis=1)
         out["max_contact_force"] = float(total.max())
         rel = phase == PHASES.index("release")

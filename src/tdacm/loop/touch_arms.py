@@ -1,0 +1,430 @@
+"""A squeeze with several arms: every probe touches one object and holds a force estimated
+from its own arm's tendons (``[touch] enabled`` with ``[[robot.arms]]``, docs/contact.md,
+"The squeeze").
+
+* :class:`ArmsForceBlock`: one :class:`~tdacm.estimation.contact_force.TipForceEstimator` per
+  arm (its rod's tip, its probe, along its camera's optical axis), tared together; the
+  residual of the model's balance (the momentum observer's, or with differenced velocities)
+  is one for the whole system, and the drone's rows see every arm's force, so the arms'
+  normal forces are solved together (:func:`~tdacm.estimation.contact_force.normal_forces_of`).
+* :class:`ArmsTouchServo`: the servo of several arms (:class:`~.arms.ArmsServo`) over one
+  :class:`~.touch.TouchServo` per arm. Each arm has its own phase (approach, contact, hold,
+  release), its own twist and its own force estimate; the steps that need every side wait
+  for the others: moving in starts once every arm has held its standoff view for ``dwell``
+  s (all estimators tared then), every arm moves in until all have touched, the hold starts
+  ``settle`` s after the last arm's first touch and ends for all after ``hold_time`` s, then
+  all release. The run's phase (``touch_phase``) is the least advanced arm's.
+* :class:`ArmsTouchLog`: the log of several arms with the per-arm touch series
+  :data:`TOUCH_ARM_SERIES`.
+
+The joint-rate mapping is the stacked one of :mod:`tdacm.loop.arms` in feature space: arm
+``k``'s rows ``L_k Ad(g_{C_Lk}^{Lk})^-1 J_k(q_v)[:, c]`` against ``L_k v_k`` (``L_k`` its
+interaction matrix), which converges where the twists' least squares stalls with cameras
+looking off vertical; while pressing, the arms' distance rows are replaced by one row for
+the sum of their cameras' axial velocities (:data:`AXIAL_WEIGHT`), so the drone may move
+one camera forward and the other back for the views (docs/contact.md, "The squeeze").
+
+The force loop: once every arm has touched, ``touch-target``'s PI law of
+:mod:`tdacm.loop.touch` on the arms' mean force error ``F_d - mean_k f_k``, along ``a``, the
+joint displacement of that mapping moving every camera one metre along its axis
+(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds. The
+difference of the arms' forces follows from the views the servo holds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control import Mode
+from ..estimation.contact_force import (
+    MomentumObserver,
+    TipForceEstimator,
+    normal_forces_of,
+)
+from ..system import kernels as K
+from ..vision.tip import rates_from_jacobian
+from .arms import ArmServoState, ArmsLog, ArmsServo
+from .data import PHASES, ForceReading, ServoCommand, ServoEvent
+from .servo import normalized_rmse
+from .touch import _AXIAL
+
+APPROACH, CONTACT, HOLD, RELEASE = PHASES
+
+#: The weight of a pressing arm's axial-velocity row against its feature rows (normalized
+#: image units per second; a feature row is about 1 / depth, 3 at the contact pose): the axial
+#: motion is met almost exactly, the view's other features in the least squares.
+AXIAL_WEIGHT = 10.0
+
+#: Per-arm series of :class:`ArmsTouchLog` (one column per arm).
+TOUCH_ARM_SERIES = ("force_true_arms", "force_hat_arms", "touch_phase_arms", "contact_force_arms")
+
+
+@dataclass(frozen=True)
+class ArmsForceReading(ForceReading):
+    """Arm 0's :class:`~.data.ForceReading` in the single-arm fields, and every arm's
+    (``arms``)."""
+
+    arms: tuple = ()
+
+
+@dataclass(frozen=True)
+class ArmTouchState(ArmServoState):
+    """:class:`~.arms.ArmServoState` with the arm's touch phase and filtered force."""
+
+    phase: str = APPROACH
+    force: float = math.nan
+
+
+class ArmsForceBlock:
+    """The estimated normal force on every arm's probe along its tip camera's optical axis
+    (module docstring). ``model``: the controller's
+    :class:`~tdacm.control.EstimatedModel`; ``mounts``: each arm's ``g_{C_L}^L``;
+    ``offset``: the contact sphere's centre in the tip frame (the same for every arm: the
+    kernels carry one probe); ``kind``, ``gain``: as :class:`~.touch.TipForceBlock`."""
+
+    def __init__(self, model, mounts, offset, input_sigma: float, kind: str, gain: float):
+        if kind not in ("momentum", "differenced"):
+            raise ValueError(f"kind must be 'momentum' or 'differenced', got {kind!r}")
+        self.kind = kind
+        self.mounts = [np.asarray(m, float) for m in mounts]
+        self.estimators = [
+            TipForceEstimator(model, "all", input_sigma=input_sigma, offset=offset, rod=k)
+            for k in range(len(self.mounts))
+        ]
+        self.observer = MomentumObserver(model, gain) if kind == "momentum" else None
+        self.system = model.system
+        self.reset()
+
+    def reset(self) -> None:
+        for e in self.estimators:
+            e.clear_tare()
+        if self.observer is not None:
+            self.observer.reset()
+        self._qd_prev = None
+        self._last = None
+
+    def normals(self, q) -> list:
+        """Each arm's direction the surface pushes its probe: minus its camera's axis."""
+        s = self.system
+        return [-(s.tip_pose(q, k) @ m)[:3, 2] for k, m in enumerate(self.mounts)]
+
+    def _reading(self, t, q, r, cov) -> ArmsForceReading:
+        normals = self.normals(q)
+        f, sigma = normal_forces_of(self.estimators, q, r, normals, cov)
+        arms = tuple(
+            ForceReading(t, float(fk), float(sk), nk, True)
+            for fk, sk, nk in zip(f, sigma, normals, strict=True)
+        )
+        a0 = arms[0]
+        return ArmsForceReading(t, a0.force, a0.sigma, a0.normal, True, arms)
+
+    def step(self, est, u_applied, dt: float) -> ArmsForceReading:
+        q, qd = np.asarray(est.q, float), np.asarray(est.qd, float)
+        e0 = self.estimators[0]
+        if self.observer is not None:
+            if u_applied is None:
+                self.observer.reset()
+                self._last = None
+                return ArmsForceReading(est.t)
+            started = self.observer.started
+            r = self.observer.step(q, qd, u_applied, dt)
+            self._last = r
+            if not started:
+                return ArmsForceReading(est.t)
+            k = self.observer.gain * dt  # the inputs' noise through the observer's lag
+            return self._reading(est.t, q, r, e0.input_cov(q) * (k / (2.0 - k)))
+        qdd = None if self._qd_prev is None else (qd - self._qd_prev) / dt
+        self._qd_prev = qd.copy()
+        if u_applied is None or qdd is None:
+            self._last = None
+            return ArmsForceReading(est.t)
+        u = np.asarray(u_applied, float)
+        r = e0.residual(q, qd, u, qdd)
+        self._last = r
+        return self._reading(est.t, q, r, e0._r_cov(q, qd, u, qdd, est.P))
+
+    def tare(self) -> None:
+        """Every arm's estimator takes the last period's residual as the model's bias."""
+        if self._last is None:
+            return
+        for e in self.estimators:
+            e.bias = self._last.copy()
+
+
+class ArmsTouchServo(ArmsServo):
+    """The squeeze of the module docstring over ``arms``, one
+    :class:`~.touch.TouchServo` per arm (each with its rod), sharing ``touch``
+    (:class:`~.config.TouchConfig`)."""
+
+    def __init__(self, arms, touch):
+        super().__init__(arms)
+        self.touch = touch
+        self._reset_squeeze()
+
+    def _reset_squeeze(self) -> None:
+        k = len(self.arms)
+        self.phases = [APPROACH] * k
+        self._below_since = [None] * k
+        self._touch_t = [None] * k
+        self._f = [None] * k
+        self._integral = 0.0
+        self._hold_end = None
+        self._weights = None
+        self._pressing = set()
+        self._engaged = False  # the force loop runs
+
+    def reset(self, q0, first_view=None) -> None:
+        super().reset(q0, first_view)
+        self._reset_squeeze()
+
+    @property
+    def phase(self) -> str:
+        """The run's phase: the least advanced arm's."""
+        return PHASES[min(PHASES.index(p) for p in self.phases)]
+
+    def _filter(self, k: int, reading, dt: float) -> float:
+        tc = self.touch
+        f_hat = reading.force if reading is not None and reading.valid else math.nan
+        if math.isfinite(f_hat):
+            a = min(1.0, dt / tc.force_filter) if tc.force_filter > 0 else 1.0
+            self._f[k] = f_hat if self._f[k] is None else self._f[k] + a * (f_hat - self._f[k])
+        return self._f[k] if self._f[k] is not None else 0.0
+
+    def _transitions(self, t: float, pss, forces) -> bool:
+        """The phases' changes this period (module docstring); True: tare the estimators."""
+        tc = self.touch
+        k = len(self.arms)
+        if all(p == APPROACH for p in self.phases):
+            for i, (arm, ps) in enumerate(zip(self.arms, pss, strict=True)):
+                ok = ps is not None and ps.valid
+                if ok and normalized_rmse(ps.points, arm.standoff_points) <= tc.start_rmse:
+                    self._below_since[i] = self._below_since[i] or t
+                else:
+                    self._below_since[i] = None
+            if all(b is not None and t - b >= tc.dwell for b in self._below_since):
+                self.phases = [CONTACT] * k
+                self._f = [None] * k
+                return True
+            return False
+        for i in range(k):
+            if self.phases[i] == CONTACT and self._touch_t[i] is None:
+                if forces[i] >= tc.detect_force:
+                    self._touch_t[i] = t
+            if self.phases[i] == CONTACT and self._touch_t[i] is not None:
+                if t - self._touch_t[i] >= tc.settle:
+                    self.phases[i] = HOLD
+        if self._hold_end is None and all(p == HOLD for p in self.phases):
+            self._hold_end = t + tc.hold_time
+        elif self._hold_end is not None and t >= self._hold_end - 1e-9:
+            self.phases = [RELEASE] * k
+        return False
+
+    def step(self, t: float, dt: float, view, gview, est, twist=None, force=None) -> ServoCommand:
+        q = est.q
+        lead, n, tc = self.arms[0], self.n, self.touch
+        for a in self.arms:
+            a._ps = None
+        per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
+        pss = [a._ps for a in self.arms]
+        readings = getattr(force, "arms", ()) or (None,) * len(self.arms)
+        forces = [self._filter(k, r, dt) for k, r in enumerate(readings)]
+        prev_phase, prev_arms = self.phase, list(self.phases)
+        tare = self._transitions(t, pss, forces)
+        if tare:
+            forces = [0.0] * len(self.arms)
+        modes = [p[0] for p in per]
+        was_lost = self._lost
+        self._lost = any(m == Mode.RECOVERY for m in modes)
+        event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
+        if event is None and was_lost and not self._lost:
+            event = ServoEvent.IBVS_ENGAGED
+        if event is None and per[0][1] != ServoEvent.IBVS_ENGAGED:
+            event = per[0][1]
+        valid = [ps is not None and ps.valid for ps in pss]
+        seen_all = all(p[2] for p in per) and all(valid)
+        external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
+        states, twists, weights = [], [], []
+        for k, (arm, p, ps) in enumerate(zip(self.arms, per, pss, strict=True)):
+            mode, rmse, extra = p[0], p[7], p[8]
+            v = np.zeros(6)
+            phase = self.phases[k]
+            if mode == Mode.IBVS and seen_all:
+                if external is not None:
+                    v = external[k].copy()
+                elif phase in (CONTACT, HOLD):
+                    e = ps.error.copy()
+                    e[5] = 0.0  # p_z (the distance) is the force loop's
+                    v = arm.ibvs.twist(ps.points, ps.depths, error=e)
+                    v[5] = 0.0  # after the touch the axis is the admittance's (below)
+                    if not all(tt is not None for tt in self._touch_t):
+                        dist = arm._depth * max(0.0, -ps.error[5]) / ps.features[5]
+                        v[5] = min(tc.approach_speed, max(tc.touch_speed, tc.approach_gain * dist))
+                else:
+                    v = arm.standoff_ibvs.features_error_twist(ps.points, ps.depths)[2]
+            if phase in (APPROACH, RELEASE) and ps is not None and ps.valid:
+                rmse = normalized_rmse(ps.points, arm.standoff_points)
+            if ps is not None and ps.valid:
+                law = arm.ibvs if phase in (CONTACT, HOLD) else arm.standoff_ibvs
+                weights.append(law.interaction(ps.points, ps.depths))
+            twists.append(v)
+            states.append(ArmTouchState(p[4], rmse, extra.get("rmse_measured", math.nan), v,
+                                        bool(p[2]), phase, forces[k]))  # fmt: skip
+        self._weights = weights if len(weights) == len(self.arms) else None
+        self._pressing = {k for k, p in enumerate(self.phases) if p in (CONTACT, HOLD)}
+        qdd_d = np.zeros(n)
+        failure = plan = None
+        request = False
+        lost = [k for k, m in enumerate(modes) if m == Mode.RECOVERY]
+        if lost:
+            qdd_d, request, failure, plan = self.recover(t, q, gview, lost)
+            if plan is not None and event is None:
+                event = "recovery planned"
+        elif seen_all:
+            qdd_d = lead.follow_rates(q, self.joint_rates(q, twists), t, dt)
+            self._admittance(q, forces, dt)
+        else:
+            lead.qd_d = np.zeros(n)
+        if prev_phase != self.phase:
+            event = f"touch: {self.phase}"
+        rmses = [s.rmse for s in states]
+        rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
+        meas = [s.rmse_measured for s in states]
+        p0, e0 = per[0], per[0][8]
+        return ServoCommand(
+            self.mode, lead.q_d.copy(), lead.qd_d.copy(), qdd_d, twists[0], p0[5], p0[6], p0[4],
+            rmse, event=event, failure=failure,
+            rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
+            target_pose=e0.get("target_pose"), arms=tuple(states), request_global=request,
+            plan=plan, phase=self.phase, tare_force=tare,
+            phase_changed=prev_arms != self.phases,
+        )  # fmt: skip
+
+    def joint_rates(self, q, twists, pressing=None) -> np.ndarray:
+        """The stacked mapping (:meth:`~.arms.ArmsServo.joint_rates`) in feature space
+        (module docstring): arm k's rows ``L_k Ad(g_{C_Lk}^{Lk})^-1 J_k(q_v)[:, c]``, its
+        right-hand side ``L_k v_k``, with ``L_k`` its interaction matrix this period; for an
+        arm in ``pressing`` (default: those in contact or hold) the distance row of ``L_k``
+        is replaced by its camera's axial velocity, weighted by :data:`AXIAL_WEIGHT`. Without
+        the interaction matrices (no view yet) the twists' least squares."""
+        if self._weights is None:
+            return super().joint_rates(q, twists)
+        pressing = self._pressing if pressing is None else pressing
+        rows, rhs = [], []
+        axial, speed = np.zeros(self.n), 0.0
+        for k, (a, v, w) in enumerate(zip(self.arms, twists, self._weights, strict=True)):
+            jc = a._ad_mount_inv @ a.task_jacobian(q)
+            if k in pressing:
+                rows.append(w[:5] @ jc)
+                rhs.append(w[:5] @ v)
+                axial += jc[5]
+                speed += v[5]
+            else:
+                rows.append(w @ jc)
+                rhs.append(w @ v)
+        if pressing:
+            rows.append(AXIAL_WEIGHT * axial[None, :])
+            rhs.append([AXIAL_WEIGHT * speed])
+        return rates_from_jacobian(np.vstack(rows), np.concatenate(rhs), self.arms[0]._cmd)
+
+    def squeeze_direction(self, q) -> np.ndarray:
+        """``(n,)``: the joint displacement of the stacked mapping (:meth:`joint_rates`, every
+        arm pressing) that moves the arms' cameras one metre along their optical axes (the
+        sum of their axial displacements: ``k`` metres), every view's other features as that
+        motion leaves them (least squares)."""
+        k = len(self.arms)
+        return self.joint_rates(q, [_AXIAL] * k, set(range(k)))
+
+    def _admittance(self, q, forces, dt: float) -> None:
+        """The squeeze's force loop (module docstring), once every arm has touched."""
+        tc = self.touch
+        lead = self.arms[0]
+        if not all(p in (CONTACT, HOLD) for p in self.phases):
+            return
+        if not all(tt is not None for tt in self._touch_t):
+            return
+        a = self.squeeze_direction(q)
+        aa = float(a @ a)
+        if aa == 0.0:
+            return
+        err = tc.force - float(np.mean(forces))
+        now = float(a @ (lead.q_d - q)) / aa
+        if not self._engaged:  # bumpless: the PI starts from the offset it finds
+            self._engaged = True
+            self._integral = now - tc.force_gain * err
+        self._integral += tc.force_integral * err * dt
+        offset = tc.force_gain * err + self._integral
+        lead.q_d = lead.q_d + a * (offset - now)
+        lead.qd_d = lead.qd_d - a * (float(a @ lead.qd_d) / aa)
+
+
+def arm_contact_forces(system, contact):
+    """``(q, qd) -> (k, 3)``: the obstacles' total force on each arm (its rod's capsules and
+    its tip sphere, inertial, N), from the contact kernel's per-node forces."""
+    m = system.model_arrays
+    rod_of = []
+    for rod in range(m.rod_steps.shape[0] - 1):
+        rod_of.append(rod)  # the rod base
+        for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
+            if m.step_w[k] != 0.0 and m.step_load[k] != K.LOAD_GRAVITY:
+                rod_of.append(rod)
+    rod_of = np.asarray(rod_of)
+    nrod = m.rod_steps.shape[0] - 1
+
+    def forces(q, qd) -> np.ndarray:
+        f = K.contact_nodes(np.asarray(q, float), np.asarray(qd, float), m, contact)[1]
+        out = np.zeros((nrod, 3))
+        np.add.at(out, rod_of, f)
+        return out
+
+    return forces
+
+
+class ArmsTouchLog(ArmsLog):
+    """:class:`~.arms.ArmsLog` with the squeeze's per-arm series :data:`TOUCH_ARM_SERIES`
+    (each arm's true contact force along its estimate's normal, its estimate, its phase and
+    the norm of the obstacles' total force on it); ``force_true`` is the arms' mean of theirs
+    (the summary judges each arm, :func:`tdacm.sim.runner.touch_summary`). ``arm_forces``:
+    :func:`arm_contact_forces`."""
+
+    def __init__(self, desired, frame_composer=None, truths=None, arm_forces=None):
+        super().__init__(desired, frame_composer, truths)
+        self.arm_forces = arm_forces
+
+    def record(self, plant, readings, view, estimate, cmd, act, force=None) -> None:
+        super().record(plant, readings, view, estimate, cmd, act, force)
+        r = self.rows
+        k = len(self.desired)
+        per = self.arm_forces(plant.q, plant.qd) if self.arm_forces else np.full((k, 3), np.nan)
+        arms = getattr(force, "arms", ())
+        true = np.full(k, np.nan)
+        hat = np.full(k, np.nan)
+        for i, fr in enumerate(arms):
+            if fr.valid:
+                true[i] = float(per[i] @ fr.normal)
+                hat[i] = fr.force
+        if not arms:
+            true = np.linalg.norm(per, axis=1)
+        states = cmd.arms or ()
+        phases = np.array([PHASES.index(s.phase) if getattr(s, "phase", None) in PHASES else -1
+                           for s in states] if len(states) == k else [-1] * k)  # fmt: skip
+        r.setdefault("force_true_arms", []).append(true)
+        r.setdefault("force_hat_arms", []).append(hat)
+        r.setdefault("touch_phase_arms", []).append(phases)
+        r.setdefault("contact_force_arms", []).append(np.linalg.norm(per, axis=1))
+        if "force_true" in r:
+            r["force_true"][-1] = float(np.mean(true))
+            r["force_hat"][-1] = float(np.mean(hat))
+
+
+__all__ = [
+    "TOUCH_ARM_SERIES",
+    "ArmTouchState",
+    "ArmsForceBlock",
+    "ArmsForceReading",
+    "ArmsTouchLog",
+    "ArmsTouchServo",
+    "arm_contact_forces",
+]
