@@ -20,8 +20,8 @@ SPREAD = (0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05)
 
 
 def _train_tiny(env, steps: int = 300):
-    """A tiny policy of the ``"linear+mlp"`` format, ``clip(x L + c + tanh(x W0 + b0) W1 +
-    b1, -1, 1)``, fitted to the IBVS twist over ``steps`` periods of the single env
+    """A tiny policy of the ``"linear+mlp"`` format, ``clip(clip(x L + c, -1, 1) + tanh(x W0 +
+    b0) W1 + b1, -1, 1)``, fitted to the IBVS twist over ``steps`` periods of the single env
     (behaviour cloning, numpy only): the linear path by least squares, then the MLP's output
     layer (8 random tanh features) by least squares on what it leaves; a few seconds."""
     obs, acts = [], []
@@ -45,7 +45,7 @@ def _train_tiny(env, steps: int = 300):
     rng = np.random.default_rng(0)
     W0, b0 = rng.normal(0, 0.3, (X.shape[1], 8)), rng.normal(0, 0.1, 8)
     H = np.c_[np.tanh(Xs @ W0 + b0), np.ones(len(Xs))]
-    out = np.linalg.lstsq(H, Y - A @ lin, rcond=None)[0]
+    out = np.linalg.lstsq(H, Y - np.clip(A @ lin, -1, 1), rcond=None)[0]
     return [W0, out[:-1]], [b0, out[-1]], mean, var, (lin[:-1], lin[-1])
 
 
@@ -104,7 +104,8 @@ def test_env_and_block_loop_see_the_same_observation(saved):
 
 
 def test_saved_policy_is_the_fitted_map(saved):
-    """The loaded file computes ``clip(x L + c + mlp(x), -1, 1)`` of the fitted arrays (the
+    """The loaded file computes ``clip(clip(x L + c, -1, 1) + mlp(x), -1, 1)`` of the fitted
+    arrays (the
     linear path kept in float64), and a file of the one-MLP format still loads."""
     env, path, (W, b, mean, var, meta, (L, c)) = saved
     p = load_policy(path)
@@ -113,7 +114,7 @@ def test_saved_policy_is_the_fitted_map(saved):
     # the scaling and the MLP are stored in float32, the linear path in float64
     m32, v32, W0, b0, W1, b1 = (np.float32(a).astype(float) for a in (mean, var, *W, *b))
     xs = np.clip((obs - m32) / (np.sqrt(v32) + 1e-8), -5, 5)
-    expect = np.clip(xs @ L + c + np.tanh(xs @ W0 + b0) @ W1 + b1, -1, 1)
+    expect = np.clip(np.clip(xs @ L + c, -1, 1) + np.tanh(xs @ W0 + b0) @ W1 + b1, -1, 1)
     np.testing.assert_allclose(p(obs), expect, rtol=0, atol=1e-12)
     old = load_policy(save_policy(path.with_name("old.npz"), [L], [c], mean, var, meta))
     assert old.linear is None and old.meta["architecture"] == "tanh-mlp"

@@ -30,9 +30,10 @@ architecture, the observation size, the robot's signature and description, the a
   layer, the last one included: the action ``a`` in ``[-1, 1]^6``;
 * ``"linear+mlp"`` (format 2): an exact linear path ``L, c`` beside the MLP ``W0, b0, ...,
   Wk, bk`` (``tanh`` after the hidden layers, the last one linear):
-  ``a = clip(x L + c + mlp(x), -1, 1)``. Near the goal the servo's twist is an affine map of
-  the observation (``-lambda J^+ e`` with a nearly constant ``J``), which the linear path
-  holds exactly, the MLP adding the rest.
+  ``a = clip(clip(x L + c, -1, 1) + mlp(x), -1, 1)``. Near the goal the servo's twist is an
+  affine map of the observation (``-lambda J^+ e`` with a nearly constant ``J``), which the
+  linear path holds exactly; the MLP adds the rest, a bounded correction of the clipped
+  linear map far from the goal.
 
 Running it needs numpy only.
 
@@ -144,7 +145,7 @@ class Policy:
             h = h @ W + b
             if i < len(self.weights) - 1:
                 h = np.tanh(h)
-        return np.clip(x @ L + c + h, -1.0, 1.0)
+        return np.clip(np.clip(x @ L + c, -1.0, 1.0) + h, -1.0, 1.0)
 
 
 def save_policy(path, weights, biases, obs_mean, obs_var, meta: dict, linear=None) -> Path:
