@@ -99,7 +99,9 @@ def figure(res, path: Path) -> None:
         if ok.any():
             lo, hi = min(p[ok].min(), i[ok].min()), max(p[ok].max(), i[ok].max())
             ax[j].plot([lo, hi], [lo, hi], "k--", lw=0.8)
-        ax[j].set(xlabel=f"IBVS: {key.replace('_', ' ')}", ylabel=f"policy: {key.replace('_', ' ')}")
+        ax[j].set(
+            xlabel=f"IBVS: {key.replace('_', ' ')}", ylabel=f"policy: {key.replace('_', ' ')}"
+        )
         if key == "final_rmse":
             ax[j].set(xscale="log", yscale="log")
             ax[j].axhline(0.01, c="gray", lw=0.6)

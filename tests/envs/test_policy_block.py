@@ -112,7 +112,9 @@ def test_saved_policy_is_the_fitted_map(saved):
     assert p.meta["architecture"] == "linear+mlp" and p.meta["format"] == 2
     obs = np.random.default_rng(1).normal(size=(7, mean.size))
     # the scaling and the MLP are stored in float32, the linear path in float64
-    m32, v32, W0, b0, W1, b1 = (np.float32(a).astype(float) for a in (mean, var, *W, *b))
+    m32, v32, W0, b0, W1, b1 = (
+        np.float32(a).astype(float) for a in (mean, var, W[0], b[0], W[1], b[1])
+    )
     xs = np.clip((obs - m32) / (np.sqrt(v32) + 1e-8), -5, 5)
     expect = np.clip(np.clip(xs @ L + c, -1, 1) + np.tanh(xs @ W0 + b0) @ W1 + b1, -1, 1)
     np.testing.assert_allclose(p(obs), expect, rtol=0, atol=1e-12)
