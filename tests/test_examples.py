@@ -35,33 +35,42 @@ def test_target_information_bounds(capsys):
 
 
 @pytest.mark.slow  # JAX's compilation and skrl's set-up: 1-2 min on the shared 2-core machine
-def test_train_ppo_smoke(tmp_path):
-    """examples/train_ppo.py end to end on a tiny budget (8 worlds, 256 steps: two small
-    updates; 4 held-out episodes): the figure, the results and the policy are written, and the
-    numpy-only policy of ``policy.npz`` acts as the agent's deterministic policy."""
+def test_train_ppo_smoke(tmp_path, monkeypatch):
+    """examples/train_ppo.py end to end on a tiny budget (8 worlds: two DAgger rounds of 256
+    steps, two small PPO updates; 4 validation and 4 held-out episodes): the figure, the
+    results and the policy files are written, and the numpy-only policy of ``ppo.npz`` acts
+    as the agent's deterministic policy."""
     pytest.importorskip("skrl")
     pytest.importorskip("jax")
     ex = _load("train_ppo")
+    monkeypatch.setitem(ex.DAGGER, "steps", 256)
+    monkeypatch.setitem(ex.DAGGER, "iterations", 20)
     small = {"rollouts": 16, "learning_epochs": 2, "mini_batches": 2}
-    res = ex.main(timesteps=256, eval_episodes=4, out=tmp_path, ppo=small, num_envs=8)
+    res = ex.main(timesteps=256, eval_episodes=4, out=tmp_path, ppo=small, num_envs=8,
+                  dagger_rounds=2, val_episodes=4)  # fmt: skip
     assert (tmp_path / "learning_curve.png").is_file()
     assert (tmp_path / "results.json").is_file()
-    r = res["ppo"]
+    r = res["policy"]
     assert r["episodes"] == 4 and r["seeds"] == [ex.EVAL_SEED0, ex.EVAL_SEED0 + 3]
     assert sum(r["endings"].values()) == 4
-    act, meta = ex.load_npz(tmp_path / "policy.npz")
+    assert res["kept"] in ("ppo", "dagger") and set(res["validation_success"]) == {"ppo", "dagger"}
+    act, meta = ex.load_npz(tmp_path / "ppo.npz")
     assert meta["env_options"]["hold_success"] is True and meta["observation_size"] == 31
+    assert meta["architecture"] == "linear+mlp"
     obs = np.random.default_rng(0).normal(size=(5, 31)).astype(np.float32)
-    # the same MLP in float64 (numpy) and float32 (JAX): equal to float32 rounding
-    np.testing.assert_allclose(act(obs), ex.policy_of(_agent_of(ex, tmp_path))(obs), atol=1e-5)
+    # the same policy in float64 (numpy) and float32 (JAX): equal to float32 rounding
+    agent = ex.policy_of(_agent_of(ex, tmp_path, act))
+    np.testing.assert_allclose(act(obs), np.clip(agent(obs), -1, 1), atol=1e-4)
 
 
-def _agent_of(ex, path):
+def _agent_of(ex, path, policy):
+    """The PPO agent saved in ``path`` (its models built with the policy file's scaling)."""
     from skrl.envs.wrappers.jax import wrap_env
 
     ex._cpu()
     venv = ex.make_env(2)
-    agent = ex.make_agent(wrap_env(venv, wrapper="gymnasium", verbose=False), path)
+    env = wrap_env(venv, wrapper="gymnasium", verbose=False)
+    agent = ex.make_agent(env, policy.obs_mean, policy.obs_std, path)
     agent.init()
     agent.load(str(path / "policy.pickle"))
     venv.close()

@@ -20,9 +20,10 @@ SPREAD = (0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05)
 
 
 def _train_tiny(env, steps: int = 300):
-    """A one-layer policy ``tanh(x W + b)`` fitted by least squares to the IBVS twist over
-    ``steps`` periods of the single env (behaviour cloning, numpy only): the saved format's
-    smallest case, trained in a few seconds."""
+    """A tiny policy of the ``"linear+mlp"`` format, ``clip(clip(x L + c, -1, 1) + tanh(x W0 +
+    b0) W1 + b1, -1, 1)``, fitted to the IBVS twist over ``steps`` periods of the single env
+    (behaviour cloning, numpy only): the linear path by least squares, then the MLP's output
+    layer (8 random tanh features) by least squares on what it leaves; a few seconds."""
     obs, acts = [], []
     seed = 0
     while len(obs) < steps:
@@ -38,22 +39,27 @@ def _train_tiny(env, steps: int = 300):
     X = np.asarray(obs, float)
     mean, var = X.mean(axis=0), X.var(axis=0) + 1e-4
     Xs = np.clip((X - mean) / (np.sqrt(var) + 1e-8), -5, 5)
-    Y = np.arctanh(np.clip(np.asarray(acts), -0.9, 0.9))
+    Y = np.clip(np.asarray(acts), -1.0, 1.0)
     A = np.c_[Xs, np.ones(len(Xs))]
-    coef = np.linalg.lstsq(A, Y, rcond=None)[0]
-    return [coef[:-1]], [coef[-1]], mean, var
+    lin = np.linalg.lstsq(A, Y, rcond=None)[0]
+    rng = np.random.default_rng(0)
+    W0, b0 = rng.normal(0, 0.3, (X.shape[1], 8)), rng.normal(0, 0.1, 8)
+    H = np.c_[np.tanh(Xs @ W0 + b0), np.ones(len(Xs))]
+    out = np.linalg.lstsq(H, Y - np.clip(A @ lin, -1, 1), rcond=None)[0]
+    return [W0, out[:-1]], [b0, out[-1]], mean, var, (lin[:-1], lin[-1])
 
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
     env = gym.make("tdacm/TipServo-v0", init_noise=SPREAD, max_steps=50).unwrapped
-    W, b, mean, var = _train_tiny(env)
+    W, b, mean, var, lin = _train_tiny(env)
     meta = {
         "robot": robot_signature(env.scenario.config, env.n, env.scenario.name),
         "action_scale": {"max_angular": float(env.scale[0]), "max_linear": float(env.scale[3])},
     }
-    path = save_policy(tmp_path_factory.mktemp("policy") / "tiny.npz", W, b, mean, var, meta)
-    yield env, path, (W, b, mean, var, meta)
+    path = save_policy(tmp_path_factory.mktemp("policy") / "tiny.npz", W, b, mean, var, meta,
+                       linear=lin)  # fmt: skip
+    yield env, path, (W, b, mean, var, meta, lin)
     env.close()
 
 
@@ -97,12 +103,34 @@ def test_env_and_block_loop_see_the_same_observation(saved):
     loop.close()
 
 
+def test_saved_policy_is_the_fitted_map(saved):
+    """The loaded file computes ``clip(clip(x L + c, -1, 1) + mlp(x), -1, 1)`` of the fitted
+    arrays (the
+    linear path kept in float64), and a file of the one-MLP format still loads."""
+    env, path, (W, b, mean, var, meta, (L, c)) = saved
+    p = load_policy(path)
+    assert p.meta["architecture"] == "linear+mlp" and p.meta["format"] == 2
+    obs = np.random.default_rng(1).normal(size=(7, mean.size))
+    # the scaling and the MLP are stored in float32, the linear path in float64
+    m32, v32, W0, b0, W1, b1 = (
+        np.float32(a).astype(float) for a in (mean, var, W[0], b[0], W[1], b[1])
+    )
+    xs = np.clip((obs - m32) / (np.sqrt(v32) + 1e-8), -5, 5)
+    expect = np.clip(np.clip(xs @ L + c, -1, 1) + np.tanh(xs @ W0 + b0) @ W1 + b1, -1, 1)
+    np.testing.assert_allclose(p(obs), expect, rtol=0, atol=1e-12)
+    old = load_policy(save_policy(path.with_name("old.npz"), [L], [c], mean, var, meta))
+    assert old.linear is None and old.meta["architecture"] == "tanh-mlp"
+    L32, c32 = np.float32(L).astype(float), np.float32(c).astype(float)
+    np.testing.assert_allclose(old(obs), np.tanh(xs @ L32 + c32), rtol=0, atol=1e-12)
+
+
 def test_mismatched_policy_refused(saved, tmp_path, capsys):
-    _, _, (W, b, mean, var, meta) = saved
-    wide = save_policy(tmp_path / "wide.npz", [np.vstack([W[0], np.zeros((2, 6))])], b,
-                       np.r_[mean, 0, 0], np.r_[var, 1, 1], meta)  # fmt: skip
+    _, _, (W, b, mean, var, meta, (L, c)) = saved
+    wide = save_policy(tmp_path / "wide.npz", [np.vstack([W[0], np.zeros((2, 8))]), W[1]], b,
+                       np.r_[mean, 0, 0], np.r_[var, 1, 1], meta,
+                       linear=(np.vstack([L, np.zeros((2, 6))]), c))  # fmt: skip
     other = dict(meta, robot=dict(meta["robot"], signature="0123456789abcdef"))
-    alien = save_policy(tmp_path / "alien.npz", W, b, mean, var, other)
+    alien = save_policy(tmp_path / "alien.npz", W, b, mean, var, other, linear=(L, c))
     for path, needle in ((wide, "observations of 33 entries"), (alien, "another robot"),
                          (tmp_path / "none.npz", "no such file")):  # fmt: skip
         cfg = tmp_path / "cfg.toml"

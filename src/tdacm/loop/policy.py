@@ -19,13 +19,23 @@ policy file and the servo that runs it in place of the IBVS twist.
 The features are those the servo works on: the detected points (``ibvs.features =
 "measured"``) or the target filter's prediction (``"predicted"``, the robust servo).
 
-**Policy file** (:func:`save_policy`, :func:`load_policy`): one ``.npz`` holding the MLP's
-layers ``W0, b0, ..., Wk, bk`` (``tanh`` after every layer, the last one included: the action
-in ``[-1, 1]^6``), the observation scaling ``obs_mean``, ``obs_var`` (the input is
-``clip((obs - mean) / (sqrt(var) + 1e-8), -5, 5)``) and ``meta``, a JSON text: the
-observation size, the robot's signature and description, the action scale
-(``max_angular`` rad/s, ``max_linear`` m/s) and what it was trained on. Running it needs numpy
-only.
+**Policy file** (:func:`save_policy`, :func:`load_policy`): one ``.npz`` holding the
+observation scaling ``obs_mean``, ``obs_var`` (the input is ``x = clip((obs - mean) /
+(sqrt(var) + 1e-8), -5, 5)``), the layers and ``meta``, a JSON text: the format, the
+architecture, the observation size, the robot's signature and description, the action scale
+(``max_angular`` rad/s, ``max_linear`` m/s) and what it was trained on. Two architectures
+(``meta["architecture"]``):
+
+* ``"tanh-mlp"`` (format 1): the MLP's layers ``W0, b0, ..., Wk, bk``, ``tanh`` after every
+  layer, the last one included: the action ``a`` in ``[-1, 1]^6``;
+* ``"linear+mlp"`` (format 2): an exact linear path ``L, c`` beside the MLP ``W0, b0, ...,
+  Wk, bk`` (``tanh`` after the hidden layers, the last one linear):
+  ``a = clip(clip(x L + c, -1, 1) + mlp(x), -1, 1)``. Near the goal the servo's twist is an
+  affine map of the observation (``-lambda J^+ e`` with a nearly constant ``J``), which the
+  linear path holds exactly; the MLP adds the rest, a bounded correction of the clipped
+  linear map far from the goal.
+
+Running it needs numpy only.
 
 **The block** (:class:`PolicyServo`): the scenario's servo (its mode switch, features,
 recovery, joint-rate mapping and command shaping) with the policy's twist ``action * scale``
@@ -56,8 +66,8 @@ OBSERVATION_SCALES = {
 #: the policy input's standardization: ``clip((obs - mean) / (sqrt(var) + SCALER_EPS), +-5)``
 SCALER_EPS = 1e-8
 SCALER_CLIP = 5.0
-#: the policy file's format version (``meta["format"]``)
-POLICY_FORMAT = 1
+#: the policy file's format versions (``meta["format"]``) and their architectures
+POLICY_FORMATS = {1: "tanh-mlp", 2: "linear+mlp"}
 
 
 def observation_size(n: int) -> int:
@@ -102,17 +112,19 @@ class PolicyError(ValueError):
 @dataclass(frozen=True)
 class Policy:
     """A saved deterministic policy ``obs (.., m) -> action (.., 6)`` in ``[-1, 1]``
-    (module docstring), evaluated with numpy."""
+    (module docstring), evaluated with numpy. ``linear``: ``(L, c)`` of the linear path, or
+    ``None`` (the ``"tanh-mlp"`` architecture)."""
 
     weights: tuple
     biases: tuple
     obs_mean: np.ndarray
     obs_std: np.ndarray
     meta: dict
+    linear: tuple | None = None
 
     @property
     def observation_size(self) -> int:
-        return int(self.weights[0].shape[0])
+        return int(self.obs_mean.shape[0])
 
     @property
     def twist_scale(self) -> np.ndarray:
@@ -123,15 +135,25 @@ class Policy:
     def __call__(self, obs) -> np.ndarray:
         x = np.asarray(obs, float)
         x = np.clip((x - self.obs_mean) / self.obs_std, -SCALER_CLIP, SCALER_CLIP)
-        for W, b in zip(self.weights, self.biases, strict=True):
-            x = np.tanh(x @ W + b)
-        return x
+        if self.linear is None:
+            for W, b in zip(self.weights, self.biases, strict=True):
+                x = np.tanh(x @ W + b)
+            return x
+        L, c = self.linear
+        h = x
+        for i, (W, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            h = h @ W + b
+            if i < len(self.weights) - 1:
+                h = np.tanh(h)
+        return np.clip(np.clip(x @ L + c, -1.0, 1.0) + h, -1.0, 1.0)
 
 
-def save_policy(path, weights, biases, obs_mean, obs_var, meta: dict) -> Path:
+def save_policy(path, weights, biases, obs_mean, obs_var, meta: dict, linear=None) -> Path:
     """Write a policy file (module docstring): the layers ``weights[i]`` (m_i, m_{i+1}) and
-    ``biases[i]``, the observation scaling and ``meta`` (JSON-serializable; must hold
-    ``robot`` and ``action_scale``, see :func:`policy_meta`)."""
+    ``biases[i]``, the observation scaling, ``meta`` (JSON-serializable; must hold ``robot``
+    and ``action_scale``) and ``linear``: ``(L, c)`` of the linear path (format 2,
+    ``"linear+mlp"``), or ``None`` (format 1, ``"tanh-mlp"``). The linear path is stored in
+    float64 (its precision is the policy's near the goal), the MLP in float32."""
     path = Path(path)
     if path.suffix != ".npz":
         path = path.with_suffix(".npz")
@@ -139,10 +161,15 @@ def save_policy(path, weights, biases, obs_mean, obs_var, meta: dict) -> Path:
     for i, (W, b) in enumerate(zip(weights, biases, strict=True)):
         arrays[f"W{i}"] = np.asarray(W, np.float32)
         arrays[f"b{i}"] = np.asarray(b, np.float32)
+    fmt = 1 if linear is None else 2
+    if linear is not None:
+        arrays["L"] = np.asarray(linear[0], np.float64)
+        arrays["c"] = np.asarray(linear[1], np.float64)
     meta = {
         **meta,
-        "format": POLICY_FORMAT,
-        "observation_size": int(arrays["W0"].shape[0]),
+        "format": fmt,
+        "architecture": POLICY_FORMATS[fmt],
+        "observation_size": int(np.shape(obs_mean)[0]),
         "observation_scales": OBSERVATION_SCALES,
     }
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -168,26 +195,35 @@ def load_policy(path) -> Policy:
             b = tuple(z[f"b{i}"].astype(float) for i in range(k))
             mean = z["obs_mean"].astype(float)
             std = np.sqrt(z["obs_var"].astype(float)) + SCALER_EPS
+            linear = (z["L"].astype(float), z["c"].astype(float)) if "L" in z.files else None
     except FileNotFoundError:
         raise PolicyError(f"no such file {str(path)!r}") from None
     except (OSError, ValueError, KeyError) as exc:
         raise PolicyError(f"{str(path)!r} is not a policy file ({exc})") from None
-    if meta.get("format") != POLICY_FORMAT:
-        raise PolicyError(f"{str(path)!r}: policy format {meta.get('format')!r}, expected 1")
-    m = W[0].shape[0] if W else 0
-    shapes_ok = k >= 1 and mean.shape == std.shape == (m,) and W[-1].shape[1] == 6
+    fmt = meta.get("format")
+    if fmt not in POLICY_FORMATS or (linear is not None) != (fmt == 2):
+        raise PolicyError(
+            f"{str(path)!r}: policy format {fmt!r}, expected one of {sorted(POLICY_FORMATS)} "
+            f"(2 with a linear path L, c)"
+        )
+    m = mean.shape[0] if mean.ndim == 1 else -1
+    shapes_ok = k >= 1 and std.shape == (m,) and W[0].ndim == 2 and W[0].shape[0] == m
+    shapes_ok = shapes_ok and W[-1].ndim == 2 and W[-1].shape[1] == 6
     for i in range(k):
-        shapes_ok &= W[i].ndim == 2 and b[i].shape == (W[i].shape[1],)
+        shapes_ok = shapes_ok and W[i].ndim == 2 and b[i].shape == (W[i].shape[1],)
         if i:
-            shapes_ok &= W[i].shape[0] == W[i - 1].shape[1]
-    if not shapes_ok or not all(np.isfinite(a).all() for a in (*W, *b, mean, std)):
+            shapes_ok = shapes_ok and W[i].shape[0] == W[i - 1].shape[1]
+    if linear is not None:
+        shapes_ok = shapes_ok and linear[0].shape == (m, 6) and linear[1].shape == (6,)
+    arrays = (*W, *b, mean, std, *(linear or ()))
+    if not shapes_ok or not all(np.isfinite(a).all() for a in arrays):
         raise PolicyError(f"{str(path)!r}: malformed layers or observation scaling")
     if meta.get("observation_scales") != OBSERVATION_SCALES:
         raise PolicyError(
             f"{str(path)!r}: trained with observation scales {meta.get('observation_scales')}, "
             f"this version uses {OBSERVATION_SCALES}"
         )
-    return Policy(W, b, mean, std, meta)
+    return Policy(W, b, mean, std, meta, linear)
 
 
 # ----------------------------------------------------------------------------- the block
