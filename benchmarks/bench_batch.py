@@ -6,8 +6,8 @@ real-time factor, the first call cold and warm.
     python benchmarks/bench_batch.py --filter-only     # the target filter's cost, N = 256
     python benchmarks/bench_batch.py --vector-only     # gym.make_vec(..., num_envs=256)
 
-``--predicted`` adds the table with the robust servo's target filter in the period; the
-table is printed as markdown at the end.
+``--predicted`` adds the table with the robust servo's target filter in the period
+(``--features predicted``: that table alone); the table is printed as markdown at the end.
 
 Writes the ``batch`` section of ``OUT/bench.json`` (see :mod:`tdacm.bench.batch`; with
 ``--filter-only`` its ``filter`` entry only: env-steps/s with and without the robust servo's
@@ -30,6 +30,7 @@ if __name__ == "__main__":
     p.add_argument("--vector-only", action="store_true")
     p.add_argument("--duration", type=float, default=2.0)
     p.add_argument("--predicted", action="store_true")
+    p.add_argument("--features", nargs="+", choices=["measured", "predicted"], default=None)
     p.add_argument("--no-cold", action="store_true")
     p.add_argument("--no-vector", action="store_true")
     a = p.parse_args()
@@ -44,6 +45,8 @@ if __name__ == "__main__":
         data.setdefault("batch", {})["vector_env"] = res
     else:
         feats = ("measured", "predicted") if a.predicted else ("measured",)
+        if a.features:
+            feats = tuple(a.features)
         res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats, duration=a.duration,
                           features=feats, vector=not a.no_vector, cold=not a.no_cold)  # fmt: skip
         data["batch"] = res

@@ -41,18 +41,22 @@ def _batch(n_worlds: int, threads: int, duration: float, features: str | None = 
 
 
 def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repeats: int = 3,
-                       features: str | None = None):  # fmt: skip
+                       features: str | None = None, cpu: bool = False):  # fmt: skip
     """Median world-periods per second of whole runs of ``n_worlds`` worlds (the runs that
     end early count the periods they ran); ``features``: the servo's (``ibvs.features``;
-    default :data:`ENGINE`'s)."""
+    default :data:`ENGINE`'s). ``cpu``: also the median CPU time of this process per
+    world-period (ms; the threads' included), a figure the machine's load changes less."""
     _batch(min(n_worlds, 2), 1, 0.1, features).run()  # warm-up (compiles on a cold cache)
     b = _batch(n_worlds, threads, duration, features)
-    rates = []
+    rates, cpus = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = b.run()
-        wall = time.perf_counter() - t0
+        wall, c = time.perf_counter() - t0, time.process_time() - c0
         rates.append(float(res.samples.sum()) / wall)
+        cpus.append(1e3 * c / float(res.samples.sum()))
+    if cpu:
+        return statistics.median(rates), statistics.median(cpus)
     return statistics.median(rates)
 
 
@@ -169,22 +173,24 @@ def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 
     """The ``batch`` section of ``bench.json`` (module docstring): the table over ``sizes``
     and ``threads`` for each servo of ``features`` (``"measured"``, ``"predicted"``), runs of
     ``duration`` s."""
-    out = {"load": os.getloadavg(), "runs": {}, "steps": {}, "duration": duration}
+    out = {"load": os.getloadavg(), "runs": {}, "steps": {}, "duration": duration, "cpu_ms": {}}
     for feat in features:
         runs = out["runs"] if feat == "measured" else out.setdefault(f"runs_{feat}", {})
         for t in threads:
             for n in sizes:
-                r = periods_per_second(n, t, duration, repeats, feat)
+                r, c = periods_per_second(n, t, duration, repeats, feat, cpu=True)
                 runs[f"{n}x{t}"] = r
+                out["cpu_ms"][f"{feat} {n}x{t}"] = c
                 progress(f"batch run   N={n:5d} threads={t} {feat:9s}: {r:9.0f} world-periods/s"
-                         f"  (load {os.getloadavg()[0]:.1f})")  # fmt: skip
+                         f", {c:.3f} ms CPU each  (load {os.getloadavg()[0]:.1f})")  # fmt: skip
     for t in threads:
         for n in (64, 256):
             if n in sizes:
                 r = step_rate(n, t, repeats=repeats)
                 out["steps"][f"{n}x{t}"] = r
                 progress(f"batch step  N={n:5d} threads={t}: {r:9.0f} world-periods/s")
-    one = out["runs"].get(f"1x{threads[0]}")
+    first = out["runs"] if "measured" in features else out[f"runs_{features[0]}"]
+    one = first.get(f"1x{threads[0]}")
     if one is not None:
         out["one_world_real_time"] = one / 50.0  # 50 periods of 20 ms per simulated second
     out["first_call_warm_s"] = first_call(False)
@@ -196,7 +202,6 @@ def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 
         out["vector_env"] = vector_env_rate(threads=max(threads))
         progress(f"vector env N=256: {out['vector_env']['env_steps_per_s']:.0f} env-steps/s")
     out["load_after"] = os.getloadavg()
-    tabs = {"measured": out["runs"]}
-    tabs.update({f: out[f"runs_{f}"] for f in features if f != "measured"})
+    tabs = {f: out["runs"] if f == "measured" else out[f"runs_{f}"] for f in features}
     progress(table(tabs, sizes, threads))
     return out
