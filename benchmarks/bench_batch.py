@@ -2,7 +2,12 @@
 real-time factor, the first call cold and warm.
 
     python benchmarks/bench_batch.py [--sizes 1 4 16 64 256 1024] [--repeats 3] [--out out/bench]
+        [--duration 2] [--predicted] [--no-cold] [--no-vector]
     python benchmarks/bench_batch.py --filter-only     # the target filter's cost, N = 256
+    python benchmarks/bench_batch.py --vector-only     # gym.make_vec(..., num_envs=256)
+
+``--predicted`` adds the table with the robust servo's target filter in the period
+(``--features predicted``: that table alone); the table is printed as markdown at the end.
 
 Writes the ``batch`` section of ``OUT/bench.json`` (see :mod:`tdacm.bench.batch`; with
 ``--filter-only`` its ``filter`` entry only: env-steps/s with and without the robust servo's
@@ -13,7 +18,7 @@ import argparse
 import json
 from pathlib import Path
 
-from tdacm.bench.batch import batch_bench, filter_cost
+from tdacm.bench.batch import batch_bench, filter_cost, vector_env_rate
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser()
@@ -22,6 +27,12 @@ if __name__ == "__main__":
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--out", default="out/bench")
     p.add_argument("--filter-only", action="store_true")
+    p.add_argument("--vector-only", action="store_true")
+    p.add_argument("--duration", type=float, default=2.0)
+    p.add_argument("--predicted", action="store_true")
+    p.add_argument("--features", nargs="+", choices=["measured", "predicted"], default=None)
+    p.add_argument("--no-cold", action="store_true")
+    p.add_argument("--no-vector", action="store_true")
     a = p.parse_args()
     path = Path(a.out) / "bench.json"
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -29,8 +40,15 @@ if __name__ == "__main__":
     if a.filter_only:
         res = filter_cost(threads=max(a.threads), repeats=a.repeats)
         data.setdefault("batch", {})["filter"] = res
+    elif a.vector_only:
+        res = vector_env_rate(threads=max(a.threads), repeats=a.repeats)
+        data.setdefault("batch", {})["vector_env"] = res
     else:
-        res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats)
+        feats = ("measured", "predicted") if a.predicted else ("measured",)
+        if a.features:
+            feats = tuple(a.features)
+        res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats, duration=a.duration,
+                          features=feats, vector=not a.no_vector, cold=not a.no_cold)  # fmt: skip
         data["batch"] = res
     path.write_text(json.dumps(data, indent=2))
     print(json.dumps(res, indent=2))

@@ -110,7 +110,9 @@ class BatchData(NamedTuple):
     start of the current period (``meas_found``, ``meas_uv``: :func:`sense_worlds`); the
     robust servo's target filter, smoothed target pose and C_L pose history (``f_*``,
     ``t_pose``, ``cam_hist``: the fields of :class:`~tdacm.batch.servo.FilterData`; a window of
-    zero frames when the servo works on the measured points)."""
+    zero frames when the servo works on the measured points); C_L's pose ``meas_gc`` at the
+    state ``meas_q`` the frame was taken at (the period's servo reads it when the state is
+    still that one: one camera-pose recursion a period instead of two)."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -148,6 +150,8 @@ class BatchData(NamedTuple):
     f_z: np.ndarray
     t_pose: np.ndarray
     cam_hist: np.ndarray
+    meas_gc: np.ndarray
+    meas_q: np.ndarray
 
 
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
@@ -196,6 +200,8 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         f_z=np.zeros((n_worlds, win, 4, 2)),
         t_pose=np.zeros((n_worlds, 4, 4)),
         cam_hist=np.zeros((n_worlds, hist, 4, 4)),
+        meas_gc=np.zeros((n_worlds, 4, 4)),
+        meas_q=np.full((n_worlds, n), np.nan),
     )
 
 
@@ -250,6 +256,8 @@ def reset_worlds(model, data, which, q0, qd0):
             data.aero[w, i] = model.plant.aero[i]
         data.rmse[w] = np.nan
         data.found[w] = False
+        for i in range(n):
+            data.meas_q[w, i] = np.nan  # no frame taken at this state yet
 
 
 @njit(cache=True)
@@ -265,7 +273,22 @@ def _sense(model, data, w):
     uv = data.meas_uv[w]
     data.meas_found[w] = S.measure(data.q[w], model.plant_model, model.servo, w,
                                    data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
-                                   data.sstate[w], uv)  # fmt: skip
+                                   data.sstate[w], uv, data.meas_gc[w])  # fmt: skip
+    for i in range(data.q.shape[1]):
+        data.meas_q[w, i] = data.q[w, i]
+
+
+@njit(cache=True)
+def _camera_pose(model, data, w):
+    """C_L's pose at world ``w``'s state: the one :func:`_sense` kept when the state is the
+    one its frame was taken at (always, in a period), else computed."""
+    q = data.q[w]
+    for i in range(q.shape[0]):
+        if not q[i] == data.meas_q[w, i]:
+            g_c = np.empty((4, 4))
+            S.tip_camera_pose(q, model.plant_model, model.servo.rod, model.servo.mount, g_c)
+            return g_c
+    return data.meas_gc[w]
 
 
 @njit(cache=True)
@@ -292,17 +315,18 @@ def _act(model, data, w, twist_in):
     found = data.meas_found[w]
     out = np.empty(15)
     qdd_d = np.empty(n)
+    g_c = _camera_pose(model, data, w)
     if sm.params[S.P_ROBUST] != 0.0:
         fd = S.FilterData(data.f_state[w], data.f_pose[w], data.f_cov[w], data.f_hyp[w],
                           data.f_rc[w], data.f_pc[w], data.f_z[w], data.t_pose[w],
                           data.cam_hist[w])  # fmt: skip
         mode = S.robust_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
                              data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in, out,
-                             fd)  # fmt: skip
+                             fd, g_c)  # fmt: skip
     else:
         mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
                             data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
-                            out)  # fmt: skip
+                            out, g_c)  # fmt: skip
     data.found[w] = found
     data.rmse[w] = out[0]
     for i in range(6):
@@ -419,12 +443,13 @@ def observe_worlds(model, data, points, error, status, lo, hi):
                               data.cam_hist[w].copy())  # fmt: skip
             k = int(sstate[S.S_PERIOD])
             valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
-                                           data.meas_uv[w], m, sm, w, sstate, fd, points[w],
-                                           zv, pix)  # fmt: skip
+                                           data.meas_uv[w], m, sm, w, sstate, fd,
+                                           _camera_pose(model, data, w), points[w], zv,
+                                           pix)  # fmt: skip
             st = S.SEEN if valid else S.NOT_SEEN
         else:
             st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
-                              points[w], zv)  # fmt: skip
+                              _camera_pose(model, data, w), points[w], zv)  # fmt: skip
         status[w] = st
         if st == S.SEEN:
             f = S._features_kernel(points[w])

@@ -3,11 +3,13 @@
 The engine's configuration of ``paper-in-fov`` (analytic cameras, the servo on the measured
 points, 1 px of pixel noise, the scenario's 10 % model error): world-periods per second
 (an env step is one period; 50 periods are one simulated second) for a table of batch
-sizes and thread counts, one world's real-time factor, and the batch's first call on a cold
-and on a warm cache (in fresh processes). Medians of ``repeats`` runs after a warm-up. The
-robust servo's target filter apart (:func:`filter_cost`): the same batch with the servo on
-the features predicted from the filter (the scenario as shipped) against the measured ones,
-measured in one run.
+sizes and thread counts, with the servo on the measured points and on the points predicted
+from the robust servo's target filter (:func:`table`), one world's real-time factor, the
+batch's first call on a cold and on a warm cache (in fresh processes) and the Gymnasium
+vector env's env-steps per second (:func:`vector_env_rate`). Medians of ``repeats`` runs after
+a warm-up. The robust servo's target filter apart (:func:`filter_cost`): the same batch with
+the servo on the features predicted from the filter (the scenario as shipped) against the
+measured ones, measured in one run.
 """
 
 from __future__ import annotations
@@ -39,18 +41,22 @@ def _batch(n_worlds: int, threads: int, duration: float, features: str | None = 
 
 
 def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repeats: int = 3,
-                       features: str | None = None):  # fmt: skip
+                       features: str | None = None, cpu: bool = False):  # fmt: skip
     """Median world-periods per second of whole runs of ``n_worlds`` worlds (the runs that
     end early count the periods they ran); ``features``: the servo's (``ibvs.features``;
-    default :data:`ENGINE`'s)."""
+    default :data:`ENGINE`'s). ``cpu``: also the median CPU time of this process per
+    world-period (ms; the threads' included), a figure the machine's load changes less."""
+    _batch(min(n_worlds, 2), 1, 0.1, features).run()  # warm-up (compiles on a cold cache)
     b = _batch(n_worlds, threads, duration, features)
-    b.run()  # warm-up (compiles on a cold cache)
-    rates = []
+    rates, cpus = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = b.run()
-        wall = time.perf_counter() - t0
+        wall, c = time.perf_counter() - t0, time.process_time() - c0
         rates.append(float(res.samples.sum()) / wall)
+        cpus.append(1e3 * c / float(res.samples.sum()))
+    if cpu:
+        return statistics.median(rates), statistics.median(cpus)
     return statistics.median(rates)
 
 
@@ -107,28 +113,95 @@ def first_call(cold: bool) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 3, progress=print):
-    """The ``batch`` section of ``bench.json`` (module docstring)."""
-    out = {"load": os.getloadavg(), "runs": {}, "steps": {}}
-    for t in threads:
-        for n in sizes:
-            r = periods_per_second(n, t, repeats=repeats)
-            out["runs"][f"{n}x{t}"] = r
-            progress(f"batch run   N={n:5d} threads={t}: {r:9.0f} world-periods/s")
+def vector_env_rate(num_envs: int = 256, steps: int = 200, threads: int | None = None,
+                    seed: int = 0, repeats: int = 3) -> dict:  # fmt: skip
+    """Env-steps per second of ``gym.make_vec("tdacm/TipServo-v0", num_envs,
+    vectorization_mode="vector_entry_point")`` under uniformly random actions (the action
+    space seeded with ``seed``; the autoresets of ended worlds included): the median of
+    ``repeats`` blocks of ``steps`` steps after a warm-up step, with the CPU time per env step
+    of this process and the share of the steps that autoreset a world."""
+    import gymnasium as gym
+
+    import tdacm.envs  # noqa: F401  (registers the env)
+
+    env = gym.make_vec("tdacm/TipServo-v0", num_envs=num_envs,
+                       vectorization_mode="vector_entry_point", threads=threads)  # fmt: skip
+    try:
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        env.step(env.action_space.sample())
+        rates, cpu, resets = [], [], 0
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            for _ in range(steps):
+                _, _, term, trunc, _ = env.step(env.action_space.sample())
+                resets += int(np.count_nonzero(term | trunc))
+            wall, c = time.perf_counter() - t0, time.process_time() - c0
+            rates.append(num_envs * steps / wall)
+            cpu.append(c / (num_envs * steps))
+    finally:
+        env.close()
+    return {
+        "num_envs": num_envs,
+        "env_steps_per_s": statistics.median(rates),
+        "cpu_ms_per_env_step": 1e3 * statistics.median(cpu),
+        "episode_ends_per_env_step": resets / (repeats * steps * num_envs),
+        "load": os.getloadavg(),
+    }
+
+
+def table(runs: dict, sizes, threads) -> str:
+    """A markdown table of world-periods per second (``runs``: ``{"NxT": rate}``, or per
+    servo ``{"measured": {...}, "predicted": {...}}``), a row per batch size, a column per
+    thread count (and servo)."""
+    parts = runs if isinstance(next(iter(runs.values())), dict) else {"": runs}
+    head = [f"{k} {t} thr".strip() for k in parts for t in threads]
+    lines = ["| N | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
+    for n in sizes:
+        cells = []
+        for part in parts.values():
+            for t in threads:
+                r = part.get(f"{n}x{t}")
+                cells.append("" if r is None else f"{r:,.0f}")
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 3,
+                progress=print, duration: float = 2.0, features=("measured",),
+                vector: bool = True, cold: bool = True):  # fmt: skip
+    """The ``batch`` section of ``bench.json`` (module docstring): the table over ``sizes``
+    and ``threads`` for each servo of ``features`` (``"measured"``, ``"predicted"``), runs of
+    ``duration`` s."""
+    out = {"load": os.getloadavg(), "runs": {}, "steps": {}, "duration": duration, "cpu_ms": {}}
+    for feat in features:
+        runs = out["runs"] if feat == "measured" else out.setdefault(f"runs_{feat}", {})
+        for t in threads:
+            for n in sizes:
+                r, c = periods_per_second(n, t, duration, repeats, feat, cpu=True)
+                runs[f"{n}x{t}"] = r
+                out["cpu_ms"][f"{feat} {n}x{t}"] = c
+                progress(f"batch run   N={n:5d} threads={t} {feat:9s}: {r:9.0f} world-periods/s"
+                         f", {c:.3f} ms CPU each  (load {os.getloadavg()[0]:.1f})")  # fmt: skip
     for t in threads:
         for n in (64, 256):
             if n in sizes:
                 r = step_rate(n, t, repeats=repeats)
                 out["steps"][f"{n}x{t}"] = r
                 progress(f"batch step  N={n:5d} threads={t}: {r:9.0f} world-periods/s")
-    one = out["runs"].get(f"1x{threads[0]}")
+    first = out["runs"] if "measured" in features else out[f"runs_{features[0]}"]
+    one = first.get(f"1x{threads[0]}")
     if one is not None:
         out["one_world_real_time"] = one / 50.0  # 50 periods of 20 ms per simulated second
     out["first_call_warm_s"] = first_call(False)
-    out["first_call_cold_s"] = first_call(True)
-    out["filter"] = filter_cost(progress=progress)
+    progress(f"first call: warm {out['first_call_warm_s']:.1f} s")
+    if cold:
+        out["first_call_cold_s"] = first_call(True)
+        progress(f"first call: cold {out['first_call_cold_s']:.1f} s")
+    if vector:
+        out["vector_env"] = vector_env_rate(threads=max(threads))
+        progress(f"vector env N=256: {out['vector_env']['env_steps_per_s']:.0f} env-steps/s")
     out["load_after"] = os.getloadavg()
-    progress(
-        f"first call: cold {out['first_call_cold_s']:.1f} s, warm {out['first_call_warm_s']:.1f} s"
-    )
+    tabs = {f: out["runs"] if f == "measured" else out[f"runs_{f}"] for f in features}
+    progress(table(tabs, sizes, threads))
     return out

@@ -439,7 +439,8 @@ def _filter_append(st, rc, pc, z, g_c, xy):
 
 @njit(cache=True)
 def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
-    """:meth:`TargetFilter._refine`."""
+    """:meth:`TargetFilter._refine`: ``(ok, cost)``, the cost of the window (prior included)
+    at the refined ``pose``."""
     n = int(st[F_COUNT])
     nh = int(st[F_NHYP])
     iters = int(prm[FP_ITERATIONS])
@@ -465,7 +466,7 @@ def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
             cnt += 1
     if cnt == 0:
         _filter_reset(st)
-        return False
+        return False, np.inf
     b, o = 0, 1
     if cnt == 2 and r_cost[1] < r_cost[0]:  # the stable sort by cost
         b, o = 1, 0
@@ -494,7 +495,7 @@ def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
         cost = r_cost[b] - (r_pcost[b] if pw > 0.0 else 0.0)
         st[F_SIGMA_HAT] = prm[FP_PIXEL_SIGMA] * np.sqrt(max(cost, 0.0) / (8 * n - 6))
     _filter_covariance(prm, st, r_info[b], r_pinfo[b], cov)
-    return True
+    return True, r_cost[b]
 
 
 @njit(cache=True)
@@ -506,7 +507,8 @@ def _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, nor
         return False
     _filter_append(st, rc, pc, z, g_c, xy)
     st[F_NHYP] = cnt
-    return _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
+    ok, _ = _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
+    return ok
 
 
 @njit(cache=True)
@@ -558,26 +560,24 @@ def filter_update(prm, cam, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv
         return False
     st[F_BAD] = 0.0
     _filter_append(st, rc, pc, z, g_c, xy)
-    ok = _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
+    ok, cur = _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
     recheck = int(prm[FP_RECHECK])
     if ok and recheck > 0 and int(st[F_UPDATES]) % recheck == 0:  # :meth:`TargetFilter._rescue`
         n = int(st[F_COUNT])
         pw = prm[FP_PRIOR_WEIGHT]
-        _, _, cur, _, _, _, ok0 = _gauss_newton_kernel(
-            pose.copy(), rc[:n], pc[:n], z[:n], obj, w, diag, 0, normal, pw
-        )
-        if ok0:
-            cand = np.empty((2, 4, 4))
-            for c in range(pnp_kernel(obj, obj2d, canon_inv, xy, g_c, cand)):
-                p, info, cost, p_info, _, _, okc = _gauss_newton_kernel(
-                    np.ascontiguousarray(cand[c]), rc[:n], pc[:n], z[:n], obj, w, diag, 4,
-                    normal, pw,
-                )  # fmt: skip
-                if okc and cost < cur - 1.0:
-                    cur = cost
-                    pose[:, :] = p
-                    _filter_covariance(prm, st, info, p_info, cov)
-                    st[F_SWITCHES] += 1
+        # the cost at the current pose is the refined one (the same window and pose: the
+        # same sums), so the rescue starts from it without a pass over the window
+        cand = np.empty((2, 4, 4))
+        for c in range(pnp_kernel(obj, obj2d, canon_inv, xy, g_c, cand)):
+            p, info, cost, p_info, _, _, okc = _gauss_newton_kernel(
+                np.ascontiguousarray(cand[c]), rc[:n], pc[:n], z[:n], obj, w, diag, 4,
+                normal, pw,
+            )  # fmt: skip
+            if okc and cost < cur - 1.0:
+                cur = cost
+                pose[:, :] = p
+                _filter_covariance(prm, st, info, p_info, cov)
+                st[F_SWITCHES] += 1
     return ok
 
 
