@@ -68,12 +68,12 @@ def test_figures_are_per_arm(dual):
     from tdacm.viz import plot_run_dir
 
     run_dir, _ = dual
-    paths = plot_run_dir(run_dir, formats=("png",),
+    paths = plot_run_dir(run_dir, formats=("png",), snapshot_at=(0.0, 0.1),
                          kinds=("features", "feature_error", "camera_twist", "snapshots"))  # fmt: skip
     names = {p.stem: p for p in paths}
     assert set(names) == {"features", "feature_error", "camera_twist", "snapshots"}
     one = mpimg.imread(names["snapshots"])
-    # snapshots: one row of four C_L frames per arm (2.9 inch a row at 110 dpi)
+    # snapshots: one row of C_L frames per arm (2.9 inch a row at 110 dpi)
     assert one.shape[0] > 2 * 2.9 * 110 * 0.9
     # features: an image panel per arm and the error panel (4.4 inch each)
     assert mpimg.imread(names["features"]).shape[1] > 3 * 4.4 * 110 * 0.9
@@ -105,7 +105,7 @@ def test_rerun_has_both_rods_and_cameras(dual, tmp_path):
     from tdacm.viz.rerun_log import record_run
 
     run_dir, _ = dual
-    rrd = record_run(run_dir, tmp_path / "x.rrd", image_size=64)
+    rrd = record_run(run_dir, tmp_path / "x.rrd", image_size=64, image_every=3)
     summary = RrdReader(rrd).stream().collect().summary()
     rows = {ln.split()[0] for ln in summary.splitlines()}
     for entity in ("/world/rod0", "/world/rod1", "/world/C_L0/image", "/world/C_L1/image",

@@ -406,19 +406,19 @@ def export_run(
             )
             static = [_transform(ns0, BASE, rb, arm.attachment)
                       for (rb, _), arm in zip(sections, system.arms, strict=True)]  # fmt: skip
-            for i, a in enumerate(arms):  # each arm's C_L on its rod's tip, its target
-                tip = sections[a.rod][1][-1][0]
-                static.append(_transform(ns0, tip, camera_frame(i), a.tip_mount))
+            for i, arm in enumerate(arms):  # each arm's C_L on its rod's tip, its target
+                tip = sections[arm.rod][1][-1][0]
+                static.append(_transform(ns0, tip, camera_frame(i), arm.tip_mount))
             static.append(_transform(ns0, BASE, C_G_FRAME, robot.drone_mount))
-            static += [_transform(ns0, WORLD, target_frame(i), a.scene.target_pose)
-                       for i, a in enumerate(arms)]  # fmt: skip
+            static += [_transform(ns0, WORLD, target_frame(i), arm.scene.target_pose)
+                       for i, arm in enumerate(arms)]  # fmt: skip
             put("/tf_static", {"transforms": static}, ns0)
-        for i, a in enumerate(arms):
+        for i, arm in enumerate(arms):
             pre = "/tdacm" if i == 0 else f"/tdacm/arm{i}"
             if f"{pre}/target/pose" in topics:
-                put(f"{pre}/target/pose", _pose(ns0, WORLD, a.scene.target_pose), ns0)
+                put(f"{pre}/target/pose", _pose(ns0, WORLD, arm.scene.target_pose), ns0)
             if f"{pre}/goal/camera_pose" in topics:
-                goal = tip_camera_pose(system, run.q_star, a.tip_mount, a.rod)
+                goal = tip_camera_pose(system, run.q_star, arm.tip_mount, arm.rod)
                 put(f"{pre}/goal/camera_pose", _pose(ns0, WORLD, goal), ns0)
         frames_out = {
             cam: (np.rint(np.asarray(ti, float) * 1e9).astype(np.int64) + int(start_ns), fr)
@@ -448,10 +448,10 @@ def export_run(
                 put("/tf", {"transforms": tfs}, ns)
             if "/tdacm/drone/pose" in topics:
                 put("/tdacm/drone/pose", _pose(ns, WORLD, gb), ns)
-            for i, a in enumerate(arms):
+            for i, arm in enumerate(arms):
                 topic = "/tdacm/tip/pose" if i == 0 else f"/tdacm/arm{i}/tip/pose"
                 if topic in topics:
-                    put(topic, _pose(ns, WORLD, system.tip_pose(qk, a.rod)), ns)
+                    put(topic, _pose(ns, WORLD, system.tip_pose(qk, arm.rod)), ns)
             if "/tdacm/strains" in topics:
                 put("/tdacm/strains", {
                     "header": _header(ns, ""),
@@ -485,7 +485,7 @@ def export_run(
                 if topic in topics and rmse_arms is not None:
                     put(topic, {"data": float(rmse_arms[k, i])}, ns)
             infos = [(f"/tdacm/arm{i}/C_L" if i else "/tdacm/C_L", camera_frame(i),
-                      a.local_camera) for i, a in enumerate(arms)]  # fmt: skip
+                      arm.local_camera) for i, arm in enumerate(arms)]  # fmt: skip
             infos.append(("/tdacm/C_G", C_G_FRAME, robot.global_camera))
             for pre, fr, c in infos:
                 if f"{pre}/camera_info" in topics:
