@@ -3,10 +3,12 @@ or ``tdacm bench``.  Reports medians; see ``docs/benchmarks.md`` for this machin
 
 ``python benchmarks/bench_model.py --against REV [REV ...]`` times instead the forward dynamics
 of this checkout against that of each git revision ``REV`` in one process: the module
-``tdacm/system/forward.py`` of ``REV`` (the recursion, its workspace and solve; the helpers it
-takes from ``tdacm.system.kernels`` are this checkout's) is loaded beside the current one, and
-compiled loops of ``workspace`` + ``forward_dynamics_ws`` (what ``forward_dynamics`` does per
-call) run alternately, round by round, on the paper system and the 18-DoF rod.  Prints, per
+``tdacm/system/forward.py`` of ``REV`` (the recursion, its workspace and solve), over the
+module ``tdacm/system/kernels.py`` of ``REV`` (the helpers it calls), is loaded beside the
+current ones, and compiled loops of ``workspace`` + ``forward_dynamics_ws`` (what
+``forward_dynamics`` does per call) run alternately, round by round, on the paper system and
+the 18-DoF rod; the model arrays are this checkout's (a revision reads the fields it knows).
+Prints, per
 revision, the medians, the 10th percentiles, the median of the paired ratios (revision over
 current) and the largest difference of ``qdd`` from the current one on random states, and the
 load average.
@@ -28,24 +30,39 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _load_forward_at(rev: str, where: Path):
-    """The forward module of ``rev`` as a top-level module (relative imports made absolute)."""
+def _module_at(rev: str, path: str, name: str, where: Path, edits=()):
+    """The file ``path`` of ``rev`` as the top-level module ``name`` (relative imports made
+    absolute, then the replacements ``edits``)."""
     text = subprocess.run(
-        ["git", "show", f"{rev}:src/tdacm/system/forward.py"],
-        cwd=ROOT, check=True, capture_output=True, text=True,
-    ).stdout  # fmt: skip
+        ["git", "show", f"{rev}:{path}"], cwd=ROOT, check=True, capture_output=True, text=True
+    ).stdout
     text = re.sub(r"from \.\.(\w)", r"from tdacm.\1", text)
-    text = text.replace("from . import kernels as K", "from tdacm.system import kernels as K")
-    name = "forward_at_" + re.sub(r"\W", "_", rev)
+    for a, b in edits:
+        text = text.replace(a, b)
     where.mkdir(parents=True, exist_ok=True)
-    path = where / f"{name}.py"
-    if not path.exists() or path.read_text() != text:
-        path.write_text(text)
-    spec = importlib.util.spec_from_file_location(name, path)
+    file = where / f"{name}.py"
+    if not file.exists() or file.read_text() != text:
+        file.write_text(text)
+    spec = importlib.util.spec_from_file_location(name, file)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def _load_forward_at(rev: str, where: Path):
+    """The forward module of ``rev`` over the kernels module of ``rev`` (its helpers: the
+    tendon sums, the body wrenches), both as top-level modules; the revision's kernels take
+    this checkout's forward module for their own forward dynamics (unused here)."""
+    tag = re.sub(r"\W", "_", rev)
+    kernels = _module_at(
+        rev, "src/tdacm/system/kernels.py", f"kernels_at_{tag}", where,
+        [("from . import forward as _F", "from tdacm.system import forward as _F")],
+    )  # fmt: skip
+    return _module_at(
+        rev, "src/tdacm/system/forward.py", f"forward_at_{tag}", where,
+        [("from . import kernels as K", f"import {kernels.__name__} as K")],
+    )  # fmt: skip
 
 
 def _loop(F):

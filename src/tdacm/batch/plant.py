@@ -204,13 +204,15 @@ def model_of_world(m, mb6, stiffness, damping, step_mass, tendon_d, tendon_dd):
     ``mb6`` (6,), ``stiffness`` and ``damping`` (n, n), ``step_mass`` (n_steps, 6) and tendon
     offsets ``tendon_d``, ``tendon_dd`` (n_g, n_a, 3), for an engine that stacks these along a
     world axis: built inside compiled code (numba constructs the NamedTuple; it has no
-    ``_replace``). Pass C-contiguous rows of C-contiguous stacks (``stack[w]``): the record
+    ``_replace``); the run constants are the scenario's (the factors keep the zeros of
+    ``stiffness`` and ``damping``). Pass C-contiguous rows of C-contiguous stacks (``stack[w]``): the record
     then has the type of ``m`` and the kernels run their compiled build (no new
     specialization)."""
     return ModelArrays(
         m.floating, m.g_fixed, m.g_att, m.rod_steps, m.h, m.xi0s, m.bs, m.step_col, m.step_nc,
         m.step_w, step_mass, m.step_load, mb6, stiffness, damping, m.gamma, m.wq, m.xi0g, m.bg,
-        m.g_col, m.g_nc, tendon_d, tendon_dd, m.tendon_on,
+        m.g_col, m.g_nc, tendon_d, tendon_dd, m.tendon_on, m.step_z, m.step_c4, m.step_one,
+        m.step_nzc, m.step_nzn, m.g_nzc, m.g_nzn, m.g_nzr, m.g_nzrn, m.kd_lo, m.kd_hi,
     )  # fmt: skip
 
 

@@ -5,7 +5,7 @@ bendings of order 3, ``n = 18``):
 
 * ``terms``: one full :meth:`TDACM.terms` call (M, C, D, K, tau_ext, B) from Python;
 * ``forward_dynamics`` through the Python API, through the numba kernel called from Python (its
-  dispatch included: numba types and unboxes the 26 arrays of the model at every call) and
+  dispatch included: numba types and unboxes the 34 arrays of the model at every call) and
   inside numba (a compiled loop of calls: what the integrators and batched callers pay);
 * the real-time factor of 5 s of passive motion with the default integrator (RK4 at
   :meth:`TDACM.suggested_dt`), from a bent, moving initial state.

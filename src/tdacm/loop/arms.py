@@ -45,7 +45,10 @@ from .sensors import Sensors
 from .servo import normalized_rmse
 
 #: Per-arm series of :class:`ArmsLog` (one column per arm).
-ARM_SERIES = ("rmse_arms", "rmse_true_arms", "detected_arms")
+ARM_SERIES = (
+    "rmse_arms", "rmse_true_arms", "detected_arms", "points_arms", "points_local_arms",
+    "twist_arms",
+)  # fmt: skip
 
 
 def _arm0(name: str) -> property:
@@ -318,7 +321,20 @@ class ArmsLog(RunLog):
             np.array([a.rmse for a in arms]) if len(arms) == k else np.full(k, np.nan)
         )
         r.setdefault("rmse_true_arms", []).append(rt)
+        nan_pts = np.full((4, 2), np.nan)
+        r.setdefault("points_arms", []).append(
+            np.array([nan_pts if a.points is None else np.asarray(a.points, float).reshape(4, 2)
+                      for a in arms]) if len(arms) == k else np.full((k, 4, 2), np.nan)
+        )  # fmt: skip
+        r.setdefault("twist_arms", []).append(
+            np.array([np.asarray(a.twist, float) for a in arms]) if len(arms) == k
+            else np.full((k, 6), np.nan)
+        )  # fmt: skip
         views = getattr(view, "arms", ())
         r.setdefault("detected_arms", []).append(
             np.array([bool(v.found) for v in views]) if len(views) == k else np.zeros(k, bool)
         )
+        r.setdefault("points_local_arms", []).append(
+            np.array([np.asarray(v.points, float).reshape(4, 2) if v.found else nan_pts
+                      for v in views]) if len(views) == k else np.full((k, 4, 2), np.nan)
+        )  # fmt: skip

@@ -108,6 +108,9 @@ SERIES_INFO = {
     "rmse_arms": ("-", "several arms: each arm's normalized RMSE of the points its servo used"),
     "rmse_true_arms": ("-", "several arms: each arm's RMSE of the true points in its C_V"),
     "detected_arms": ("-", "several arms: 1 if the arm's target was detected in its C_L"),
+    "points_arms": ("-", "several arms: the points each arm's servo used (its C_V), normalized"),
+    "points_local_arms": ("-", "several arms: each arm's detected points in its C_L, normalized"),
+    "twist_arms": ("twist", "several arms: each arm's commanded C_L twist [w; v]"),
 }
 
 _NAN4 = np.full((4, 2), np.nan)

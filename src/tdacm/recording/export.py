@@ -25,6 +25,11 @@ one message per control step unless noted:
   ``sensor_msgs/msg/Image``: ``/tdacm/C_L/image_raw``, ``/tdacm/C_G/image_raw`` (when frames
   are given or rendered).
 
+A robot with several arms (``[[robot.arms]]``) adds each arm's camera frame on its rod's tip
+(:func:`camera_frame`), its target (:func:`target_frame`) and the topics of
+:func:`arm_topics` (arm ``i >= 1`` under ``/tdacm/arm{i}/``: tip and target poses, goal camera
+pose, detected points, camera info, images; every arm's ``/tdacm/arm{i}/servo/rmse``).
+
 A ``std_msgs/msg/Float64MultiArray`` names its components in its (last) dimension's label,
 comma-separated (``"p_phi,p_theta,p_psi,p_x,p_y,p_z"``); the names are those of
 ``timeseries.csv`` (:func:`tdacm.sim.outputs.columns`). A run folder holds no raw camera
@@ -78,6 +83,45 @@ DEFAULT_TOPICS = {
     "/tdacm/C_G/image_raw": IMAGE,
 }
 
+
+def arm_topics(n_arms: int) -> dict:
+    """The topics of the arms after the first of a robot with ``n_arms`` arms (arm ``i``
+    under ``/tdacm/arm{i}/``; arm 0 keeps the topics of :data:`DEFAULT_TOPICS`), and with
+    several arms each arm's ``/tdacm/arm{i}/servo/rmse`` (``/tdacm/servo/rmse`` is then the
+    largest over the arms)."""
+    out = {}
+    for i in range(1, n_arms):
+        pre = f"/tdacm/arm{i}"
+        out.update({
+            f"{pre}/tip/pose": POSE,
+            f"{pre}/target/pose": POSE,
+            f"{pre}/goal/camera_pose": POSE,
+            f"{pre}/servo/points_local": ARRAY,
+            f"{pre}/C_L/camera_info": INFO,
+            f"{pre}/C_L/image_raw": IMAGE,
+        })  # fmt: skip
+    if n_arms > 1:
+        out.update({f"/tdacm/arm{i}/servo/rmse": FLOAT for i in range(n_arms)})
+    return out
+
+
+def camera_frame(arm: int) -> str:
+    """The optical frame of arm ``arm``'s C_L (``C_L_optical`` for arm 0)."""
+    return C_L_FRAME if arm == 0 else f"arm{arm}_{C_L_FRAME}"
+
+
+def target_frame(arm: int) -> str:
+    """The frame of arm ``arm``'s target (``target`` for arm 0)."""
+    return TARGET_FRAME if arm == 0 else f"arm{arm}_{TARGET_FRAME}"
+
+
+def _image_topic(cam: str) -> str:
+    """The image topic of camera key ``cam``: ``C_L``, ``C_G``, or ``C_L{i}`` (arm ``i``)."""
+    if cam in ("C_L", "C_G"):
+        return f"/tdacm/{cam}/image_raw"
+    return f"/tdacm/arm{int(cam[3:])}/C_L/image_raw"
+
+
 #: Float64MultiArray topic -> series of ``timeseries.npz``.
 ARRAY_SERIES = {
     "/tdacm/servo/features": "features",
@@ -114,6 +158,7 @@ class RunFolder:
     robot: object
     scene: object
     q_star: np.ndarray
+    scenes: tuple = ()  # several arms: each arm's scene (its target); scene is arm 0's
 
 
 def load_run_folder(run_dir) -> RunFolder:
@@ -127,7 +172,7 @@ def load_run_folder(run_dir) -> RunFolder:
         world = build_world(sc)
     except (RunDirError, ScenarioError) as exc:
         raise ExportError(str(exc)) from None
-    return RunFolder(arrays, summary, sc, world.robot, world.scene, world.q_star)
+    return RunFolder(arrays, summary, sc, world.robot, world.scene, world.q_star, world.scenes)
 
 
 # ------------------------------------------------------------------ message builders
@@ -303,18 +348,21 @@ def export_run(
     Writer = require("mcap_ros2.writer", "recording").Writer
 
     run = load_run_folder(run_dir)
-    topics = set(DEFAULT_TOPICS if topics is None else topics)
-    unknown = sorted(topics - set(DEFAULT_TOPICS))
+    arms = _arms(run)
+    known = {**DEFAULT_TOPICS, **arm_topics(len(arms))}
+    topics = set(known if topics is None else topics)
+    unknown = sorted(topics - set(known))
     if unknown:
-        raise ExportError(f"topics: unknown {unknown[0]!r} (known: {', '.join(DEFAULT_TOPICS)})")
+        raise ExportError(f"topics: unknown {unknown[0]!r} (known: {', '.join(known)})")
     if int(n_sections) < 1:
         raise ExportError(f"n_sections must be a positive integer, got {n_sections!r}")
     if render_every is not None and int(render_every) < 1:
         raise ExportError(f"render_every must be a positive integer, got {render_every!r}")
     images = dict(images or {})
-    bad = sorted(set(images) - {"C_L", "C_G"})
+    cams = ["C_L", "C_G", *(f"C_L{i}" for i in range(1, len(arms)))]
+    bad = sorted(set(images) - set(cams))
     if bad:
-        raise ExportError(f"images: unknown camera {bad[0]!r} (C_L or C_G)")
+        raise ExportError(f"images: unknown camera {bad[0]!r} ({', '.join(cams)})")
     for cam, given in images.items():
         ti, fr = (np.asarray(x) for x in given)
         if ti.ndim != 1 or len(fr) != len(ti) or np.any(np.diff(ti) < 0):
@@ -331,8 +379,8 @@ def export_run(
     n_base = system.n - system.n_s
     m_u = system.n_u - system.n_a
     if render_every is not None:
-        for cam in ("C_L", "C_G"):
-            if cam not in images and f"/tdacm/{cam}/image_raw" in topics:
+        for cam in cams:
+            if cam not in images and _image_topic(cam) in topics:
                 images[cam] = render_images(run, cam, int(render_every))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -340,7 +388,7 @@ def export_run(
         schemas = {}
 
         def put(topic, msg, ns):
-            kind = DEFAULT_TOPICS[topic]
+            kind = known[topic]
             if kind not in schemas:
                 schemas[kind] = w.register_msgdef(kind, schema_text(kind))
             w.write_message(topic, schemas[kind], msg, log_time=int(ns), publish_time=int(ns))
@@ -358,17 +406,20 @@ def export_run(
             )
             static = [_transform(ns0, BASE, rb, arm.attachment)
                       for (rb, _), arm in zip(sections, system.arms, strict=True)]  # fmt: skip
-            static += [
-                _transform(ns0, TIP, C_L_FRAME, robot.tip_mount),
-                _transform(ns0, BASE, C_G_FRAME, robot.drone_mount),
-                _transform(ns0, WORLD, TARGET_FRAME, run.scene.target_pose),
-            ]
+            for i, arm in enumerate(arms):  # each arm's C_L on its rod's tip, its target
+                tip = sections[arm.rod][1][-1][0]
+                static.append(_transform(ns0, tip, camera_frame(i), arm.tip_mount))
+            static.append(_transform(ns0, BASE, C_G_FRAME, robot.drone_mount))
+            static += [_transform(ns0, WORLD, target_frame(i), arm.scene.target_pose)
+                       for i, arm in enumerate(arms)]  # fmt: skip
             put("/tf_static", {"transforms": static}, ns0)
-        if "/tdacm/target/pose" in topics:
-            put("/tdacm/target/pose", _pose(ns0, WORLD, run.scene.target_pose), ns0)
-        if "/tdacm/goal/camera_pose" in topics:
-            goal = tip_camera_pose(system, run.q_star, robot.tip_mount)
-            put("/tdacm/goal/camera_pose", _pose(ns0, WORLD, goal), ns0)
+        for i, arm in enumerate(arms):
+            pre = "/tdacm" if i == 0 else f"/tdacm/arm{i}"
+            if f"{pre}/target/pose" in topics:
+                put(f"{pre}/target/pose", _pose(ns0, WORLD, arm.scene.target_pose), ns0)
+            if f"{pre}/goal/camera_pose" in topics:
+                goal = tip_camera_pose(system, run.q_star, arm.tip_mount, arm.rod)
+                put(f"{pre}/goal/camera_pose", _pose(ns0, WORLD, goal), ns0)
         frames_out = {
             cam: (np.rint(np.asarray(ti, float) * 1e9).astype(np.int64) + int(start_ns), fr)
             for cam, (ti, fr) in images.items()
@@ -377,6 +428,11 @@ def export_run(
         qd = np.asarray(a["qd"], float).reshape(len(t), -1) if "qd" in a else None
         tau = np.asarray(a["tau"], float).reshape(len(t), -1) if "tau" in a else None
         u = np.asarray(a["u"], float).reshape(len(t), -1) if "u" in a else None
+        local = rmse_arms = None
+        if len(arms) > 1 and "points_local_arms" in a:
+            local = np.asarray(a["points_local_arms"], float).reshape(len(t), len(arms), 4, 2)
+        if len(arms) > 1 and "rmse_arms" in a:
+            rmse_arms = np.asarray(a["rmse_arms"], float).reshape(len(t), len(arms))
         for k, ns in enumerate(stamps):
             qk = q[k]
             gb = system.base_pose(qk)
@@ -392,8 +448,10 @@ def export_run(
                 put("/tf", {"transforms": tfs}, ns)
             if "/tdacm/drone/pose" in topics:
                 put("/tdacm/drone/pose", _pose(ns, WORLD, gb), ns)
-            if "/tdacm/tip/pose" in topics:
-                put("/tdacm/tip/pose", _pose(ns, WORLD, system.tip_pose(qk)), ns)
+            for i, arm in enumerate(arms):
+                topic = "/tdacm/tip/pose" if i == 0 else f"/tdacm/arm{i}/tip/pose"
+                if topic in topics:
+                    put(topic, _pose(ns, WORLD, system.tip_pose(qk, arm.rod)), ns)
             if "/tdacm/strains" in topics:
                 put("/tdacm/strains", {
                     "header": _header(ns, ""),
@@ -419,42 +477,72 @@ def export_run(
                     put(topic, _array(a[key][k], names[key]), ns)
             if "/tdacm/servo/rmse" in topics and "rmse" in a:
                 put("/tdacm/servo/rmse", {"data": float(a["rmse"][k])}, ns)
-            for cam, fr, c in (("C_L", C_L_FRAME, robot.local_camera),
-                               ("C_G", C_G_FRAME, robot.global_camera)):  # fmt: skip
-                if f"/tdacm/{cam}/camera_info" in topics:
-                    put(f"/tdacm/{cam}/camera_info", camera_info(ns, fr, c), ns)
+            for i in range(len(arms) if len(arms) > 1 else 0):
+                topic = f"/tdacm/arm{i}/servo/points_local"
+                if i > 0 and topic in topics and local is not None:
+                    put(topic, _array(local[k, i], names["points_local"]), ns)
+                topic = f"/tdacm/arm{i}/servo/rmse"
+                if topic in topics and rmse_arms is not None:
+                    put(topic, {"data": float(rmse_arms[k, i])}, ns)
+            infos = [(f"/tdacm/arm{i}/C_L" if i else "/tdacm/C_L", camera_frame(i),
+                      arm.local_camera) for i, arm in enumerate(arms)]  # fmt: skip
+            infos.append(("/tdacm/C_G", C_G_FRAME, robot.global_camera))
+            for pre, fr, c in infos:
+                if f"{pre}/camera_info" in topics:
+                    put(f"{pre}/camera_info", camera_info(ns, fr, c), ns)
             # images up to the next step's stamp, in time order with the rest
             end = stamps[k + 1] if k + 1 < len(stamps) else np.iinfo(np.int64).max
             for cam, (ti, fr) in frames_out.items():
-                topic = f"/tdacm/{cam}/image_raw"
+                topic = _image_topic(cam)
                 while next_img[cam] < len(ti) and ti[next_img[cam]] < end:
                     j = next_img[cam]
                     if topic in topics:
-                        frame = C_L_FRAME if cam == "C_L" else C_G_FRAME
+                        frame = C_G_FRAME if cam == "C_G" else camera_frame(int(cam[3:] or 0))
                         put(topic, image(int(ti[j]), frame, fr[j]), int(ti[j]))
                     next_img[cam] += 1
     log.info("MCAP written to %s (%d steps)", path, len(t))
     return path
 
 
+@dataclass(frozen=True)
+class _Arm:
+    """One arm as the export writes it: its rod, C_L, mount and scene (its target)."""
+
+    rod: int
+    local_camera: object
+    tip_mount: np.ndarray
+    scene: object
+
+
+def _arms(run: RunFolder) -> list[_Arm]:
+    """The arms of the run's robot (one for the single-arm form)."""
+    r = run.robot
+    if not r.arms:
+        return [_Arm(0, r.local_camera, r.tip_mount, run.scene)]
+    return [_Arm(a.rod, a.local_camera, a.tip_mount, sc)
+            for a, sc in zip(r.arms, run.scenes, strict=True)]  # fmt: skip
+
+
 def render_images(run: RunFolder, cam: str, every: int):
-    """``(t, frames)`` of camera ``cam`` ("C_L" or "C_G") re-rendered from the stored ``q``
-    every ``every`` steps with the planar renderer (what :mod:`tdacm.viz.rerun_log` shows)."""
+    """``(t, frames)`` of camera ``cam`` ("C_L", "C_G", or "C_L{i}": arm ``i``'s C_L)
+    re-rendered from the stored ``q`` every ``every`` steps with the planar renderer (what
+    :mod:`tdacm.viz.rerun_log` shows); a C_L sees its arm's scene, C_G the first arm's."""
     from ..vision import PlanarRenderer
 
     t = np.asarray(run.arrays["t"], float)
     q = np.asarray(run.arrays["q"], float).reshape(len(t), -1)
     r, s = run.robot, run.robot.system
-    camera = r.local_camera if cam == "C_L" else r.global_camera
+    arm = _arms(run)[0 if cam in ("C_L", "C_G") else int(cam[3:])]
+    camera = r.global_camera if cam == "C_G" else arm.local_camera
     idx = np.arange(0, len(t), every)
-    renderer = PlanarRenderer(run.scene)
+    renderer = PlanarRenderer(run.scene if cam == "C_G" else arm.scene)
     try:
         frames = []
         for k in idx:
             g = (
-                tip_camera_pose(s, q[k], r.tip_mount)
-                if cam == "C_L"
-                else s.base_pose(q[k]) @ r.drone_mount
+                s.base_pose(q[k]) @ r.drone_mount
+                if cam == "C_G"
+                else tip_camera_pose(s, q[k], arm.tip_mount, arm.rod)
             )
             frames.append(np.ascontiguousarray(renderer.render(camera, g)[:, :, :3]))
     finally:

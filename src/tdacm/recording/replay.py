@@ -202,6 +202,11 @@ def replay(signals: dict, scenario, *, estimate: bool | None = None, seed: int |
     from ..vision.detect import NOT_DETECTED, Detection
 
     sc = load_scenario(scenario)
+    if sc.config.robot.arms:
+        raise RecordingError(
+            "robot.arms: the offline replay re-runs one arm's perception and servo (the "
+            "recording's image points are one C_L's), not a robot with several arms"
+        )
     asm = build_loop(sc, seed=seed)
     loop, world = asm.loop, asm.world
     s = world.robot.system

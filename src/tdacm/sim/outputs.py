@@ -158,6 +158,14 @@ def columns(a: dict, floating: bool, n_a: int | None = None):
         elif key in ("rmse_arms", "rmse_true_arms", "detected_arms"):  # several arms
             add(key, v, [f"{key.removesuffix('_arms')}_arm{i}" for i in range(width)],
                 ["-"] * width)  # fmt: skip
+        elif key in ("points_arms", "points_local_arms"):  # (T, k, 4, 2): arm i's point j
+            k, tag = width // 8, "V" if key == "points_arms" else "L"
+            add(key, v, [f"{c}{j + 1}_{tag}_arm{i}" for i in range(k) for j in range(4)
+                         for c in ("x", "y")], ["-"] * width)  # fmt: skip
+        elif key == "twist_arms":  # (T, k, 6)
+            k = width // 6
+            add(key, v, [f"{c}_arm{i}" for i in range(k) for c in tw],
+                [u for _ in range(k) for u in tw_units])  # fmt: skip
         elif key in ("contact_tip", "contact_rod"):
             add(key, v, [f"{key}_{c}" for c in "xyz"], ["N"] * 3)
         elif width == 1:

@@ -367,17 +367,20 @@ def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
 
 def write_scene_picture(path: Path, assembly: Assembly) -> None:
     """The scenario's geometry as the cameras see it: C_L at the start, C_L at the desired
-    configuration (the reference snapshot), C_G at the start (arm drawn)."""
+    configuration (the reference snapshot), C_G at the start (arm drawn); with several arms,
+    every arm's C_L (its marker) at the start and at the desired configuration."""
     import cv2
 
     loop, w = assembly.loop, assembly.world
     path.parent.mkdir(parents=True, exist_ok=True)
     tiles = []
-    for label, sensor, q in (
-        ("C_L initial", loop.sensors.local, w.q0),
-        ("C_L desired (reference)", loop.sensors.local, w.q_star),
-        ("C_G initial", loop.sensors.global_, w.q0),
-    ):
+    locals_ = getattr(loop.sensors, "locals_", None) or [loop.sensors.local]
+    views = []
+    for k, sensor in enumerate(locals_):
+        arm = f" arm {k}" if len(locals_) > 1 else ""
+        views += [(f"C_L{arm} initial", sensor, w.q0),
+                  (f"C_L{arm} desired (reference)", sensor, w.q_star)]  # fmt: skip
+    for label, sensor, q in (*views, ("C_G initial", loop.sensors.global_, w.q0)):
         if sensor is None or not isinstance(sensor.front_end, RenderedFrontEnd):
             continue
         img = sensor.front_end.render(sensor.pose(q), loop.plant.system, q)
@@ -388,7 +391,8 @@ def write_scene_picture(path: Path, assembly: Assembly) -> None:
         )
         cv2.putText(t, label, (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 0), 2)
         tiles.append(t)
-    loop.sensors.local.reset()
+    for sensor in locals_:
+        sensor.reset()
     if tiles:
         cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(tiles, axis=1), cv2.COLOR_RGB2BGR))
 

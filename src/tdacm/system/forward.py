@@ -21,7 +21,14 @@ entry is unchanged, so the results are identical), but:
   computed once for its rotation, Euler-rate matrix and its rate, which serve both the
   Jacobian and ``B(q)``, and ``B u`` is summed without forming ``B``;
 * the scratch arrays of an evaluation are row blocks of eight arrays (:func:`workspace`),
-  which :func:`rk4_steps` allocates once per call instead of once per evaluation.
+  which :func:`rk4_steps` allocates once per call instead of once per evaluation;
+* what depends on the model only is computed once when it is built (:func:`run_constants`,
+  the last fields of :class:`~tdacm.system.kernels.ModelArrays`), with the operations the
+  recursion performed per evaluation: the model part of each step's ``Z`` (``h B``,
+  ``h/2 (B_1 + B_2)``) and Zanna's ``sqrt(3) h^2 / 12``; the non-zero columns of the basis
+  blocks at the Magnus and Gauss points and of the rows of ``K`` and ``D``, whose sums skip
+  exact zeros (``0 * x`` adds an exact zero to a sum); and which order-4 steps have equal
+  samples (an order-0 basis), taken as one-sample steps (their commutators are exact zeros).
 """
 
 from __future__ import annotations
@@ -250,16 +257,18 @@ def _mirror(m_out, n):
 
 
 @njit(cache=True)
-def _zanna_cols(hh, c4, xi1, xi2, b0, b1, xc, ns):
+def _zanna_cols(z, c4, xi1, xi2, b0, b1, xc, ns):
     """The order-4 Magnus ``Z`` columns (:func:`tdacm.lie.magnus.magnus_step_into`, Zanna's
-    scheme): ``xc[:, 1 + c] = hh (b0_c + b1_c) + c4 (ad(xi1) b1_c - ad(xi2) b0_c)`` for the
-    basis columns ``c < ns`` at the two sample points, ``hh = h / 2``.  A loop over the columns
-    from index 0 over row views, without dependence between iterations: the compiler
-    vectorizes it (each column's arithmetic unchanged)."""
+    scheme): ``xc[:, 1 + c] = h/2 (b0_c + b1_c) + c4 (ad(xi1) b1_c - ad(xi2) b0_c)`` for the
+    basis columns ``c < ns`` at the two sample points, the first term ``z`` computed once
+    (:func:`run_constants`).  A loop over the columns from index 0 over row views, without
+    dependence between iterations: the compiler vectorizes it (each column's arithmetic
+    unchanged)."""
     k0, k1, k2, u0, u1, u2 = xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5]
     l0, l1, l2, w0, w1, w2 = xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5]
     a0, a1, a2, a3, a4, a5 = b0[0, :ns], b0[1, :ns], b0[2, :ns], b0[3, :ns], b0[4, :ns], b0[5, :ns]
     e0, e1, e2, e3, e4, e5 = b1[0, :ns], b1[1, :ns], b1[2, :ns], b1[3, :ns], b1[4, :ns], b1[5, :ns]
+    h0, h1, h2, h3, h4, h5 = z[0, :ns], z[1, :ns], z[2, :ns], z[3, :ns], z[4, :ns], z[5, :ns]
     o0, o1, o2 = xc[0, 1 : ns + 1], xc[1, 1 : ns + 1], xc[2, 1 : ns + 1]
     o3, o4, o5 = xc[3, 1 : ns + 1], xc[4, 1 : ns + 1], xc[5, 1 : ns + 1]
     for c in range(ns):
@@ -267,37 +276,100 @@ def _zanna_cols(hh, c4, xi1, xi2, b0, b1, xc, ns):
         r0, r1, r2, r3, r4, r5 = e0[c], e1[c], e2[c], e3[c], e4[c], e5[c]
         t0, t1, t2, t3, t4, t5 = ad_scalars(k0, k1, k2, u0, u1, u2, r0, r1, r2, r3, r4, r5)
         s0, s1, s2, s3, s4, s5 = ad_scalars(l0, l1, l2, w0, w1, w2, p0, p1, p2, p3, p4, p5)
-        o0[c] = hh * (p0 + r0) + c4 * (t0 - s0)
-        o1[c] = hh * (p1 + r1) + c4 * (t1 - s1)
-        o2[c] = hh * (p2 + r2) + c4 * (t2 - s2)
-        o3[c] = hh * (p3 + r3) + c4 * (t3 - s3)
-        o4[c] = hh * (p4 + r4) + c4 * (t4 - s4)
-        o5[c] = hh * (p5 + r5) + c4 * (t5 - s5)
+        o0[c] = h0[c] + c4 * (t0 - s0)
+        o1[c] = h1[c] + c4 * (t1 - s1)
+        o2[c] = h2[c] + c4 * (t2 - s2)
+        o3[c] = h3[c] + c4 * (t3 - s3)
+        o4[c] = h4[c] + c4 * (t4 - s4)
+        o5[c] = h5[c] + c4 * (t5 - s5)
+
+
+def run_constants(h, xi0s, bs):
+    """What the forward recursion takes from the model only, computed once when the model is
+    built (the same floating-point operations as the recursion performed per evaluation, so
+    its results are unchanged): per Magnus step ``k`` of length ``h[k]`` with the basis blocks
+    ``bs[k]`` and reference strains ``xi0s[k]`` at its one or two sample points,
+
+    * ``step_z`` (n_steps, 6, w): ``h B`` (one sample) or ``h/2 (B_1 + B_2)`` (two: the first
+      term of Zanna's ``Z``, :func:`tdacm.lie.magnus.magnus_step`);
+    * ``step_c4`` (n_steps,): ``sqrt(3) h^2 / 12`` (two samples; 0 with one);
+    * ``step_one`` (n_steps,) int: 1 when the step takes one sample: the order-2 steps, and the
+      order-4 steps whose two samples are equal (a basis constant along the step, e.g. order 0:
+      there ``ad(xi_1) xi_2``, ``ad(xi_1) B_2 - ad(xi_2) B_1`` and ``ad(v_1) v_2`` are exact
+      zeros and ``h/2 (xi_1 + xi_2) = h xi_1`` exactly, so the order-2 step gives the same
+      numbers);
+    * ``step_nzc`` (n_steps, 6, w) int and ``step_nzn`` (n_steps, 6) int: the columns of every
+      row of the basis blocks where a sample is non-zero, increasing.
+    """
+    h = np.asarray(h, float)
+    ns, p, _, w = bs.shape
+    if p == 2:
+        z = 0.5 * h[:, None, None] * (bs[:, 0] + bs[:, 1])
+        c4 = _C4 * h * h
+        one = np.array(
+            [np.array_equal(bs[k, 0], bs[k, 1]) and np.array_equal(xi0s[k, 0], xi0s[k, 1])
+             for k in range(ns)],
+            dtype=np.int64,
+        )  # fmt: skip
+    else:
+        z = h[:, None, None] * bs[:, 0]
+        c4 = np.zeros(ns)
+        one = np.ones(ns, dtype=np.int64)
+    nzc, nzn = nonzero_columns(bs)
+    return np.ascontiguousarray(z), c4, one, nzc, nzn
+
+
+def nonzero_columns(b):
+    """``(cols, counts)`` of basis blocks ``b`` (..., 6, w) or (..., p, 6, w) (the samples'
+    union): ``cols[..., r, :counts[..., r]]`` the increasing columns where row ``r`` is
+    non-zero (the rest of ``cols`` zero)."""
+    nz = b != 0.0
+    if b.ndim == 4:
+        nz = nz.any(axis=1)
+    w = nz.shape[-1]
+    counts = nz.sum(axis=-1).astype(np.int64)
+    # the non-zero columns first, in increasing order (a stable sort of "is zero")
+    order = np.argsort(~nz, axis=-1, kind="stable")
+    cols = np.where(np.arange(w) < counts[..., None], order, 0).astype(np.int64)
+    return np.ascontiguousarray(cols), counts
+
+
+def nonzero_rows(b):
+    """``(rows, counts)`` of basis blocks ``b`` (n, 6, w): ``rows[i, c, :counts[i, c]]`` the
+    increasing rows where column ``c`` of block ``i`` is non-zero."""
+    cols, counts = nonzero_columns(np.swapaxes(b, -1, -2))
+    return cols, counts
 
 
 @njit(cache=True)
-def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, j, ncols, eta, jdq, ws):
+def rod_step_rate(h, xi0s, bs, z, c4, one, nzc, nzn, qs, qsd, off, g, j, ncols, eta, jdq, ws):
     """One Magnus step of the pose / Jacobian recursion (paper eqs. (7), (9)) with ``J``
     (6 x n), the twist ``eta = J qdot`` and ``J_dot qdot`` updated in place; the arithmetic of
     :func:`tdacm.system.kernels.rod_step` with ``full_rate = False``.  The step's strain
     coordinates are ``off .. off + len(qs)``; only the first ``ncols`` columns of ``J`` can be
-    non-zero after it (the others are left untouched: zero)."""
+    non-zero after it (the others are left untouched: zero).
+
+    The step's run constants (:func:`run_constants`): ``z`` the part of ``Z`` that depends on
+    the model only (``h B`` with one sample, ``h/2 (B_1 + B_2)`` with two), ``c4`` Zanna's
+    ``sqrt(3) h^2 / 12``, ``one`` whether the step takes one sample, and the basis block's
+    non-zero columns of each row (``nzc[r, :nzn[r]]``, increasing): the sums ``B q`` skip its
+    exact zeros, whose products add exact zeros."""
     r, gr, xc, tx, xiv = ws
     omega = xiv[4]
     p = xiv[5, 0:3]
     tdx = xiv[3]  # rows 0-3 hold xi1, xi2, v1, v2 until Z is formed, then T_dot Omega_dot, w, v, e
     ns = qs.shape[0]
-    order4 = xi0s.shape[0] == 2
     # Magnus step (tdacm.lie.magnus.magnus_step_into): Omega, Z (columns 1..ns), Z_dot qdot
-    if not order4:
+    if one:
         b = bs[0]
         for rr in range(6):
             acc = xi0s[0, rr]
-            for c in range(ns):
+            for t in range(nzn[rr]):
+                c = nzc[rr, t]
                 acc += b[rr, c] * qs[c]
             omega[rr] = acc * h
             for c in range(ns):
-                xc[rr, 1 + c] = h * b[rr, c]
+                xc[rr, 1 + c] = z[rr, c]
     else:
         b0 = bs[0]
         b1 = bs[1]
@@ -308,13 +380,13 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, j, ncols, eta, jdq, ws):
             s1 = 0.0
             s2 = 0.0
             # four independent sums in one loop (each in the order of its own loop)
-            for c in range(ns):
+            for t in range(nzn[rr]):
+                c = nzc[rr, t]
                 a1 += b0[rr, c] * qs[c]
                 a2 += b1[rr, c] * qs[c]
                 s1 += b0[rr, c] * qsd[c]
                 s2 += b1[rr, c] * qsd[c]
             xi1[rr], xi2[rr], v1[rr], v2[rr] = a1, a2, s1, s2
-        c4 = _C4 * h * h
         a12 = ad_scalars(xi1[0], xi1[1], xi1[2], xi1[3], xi1[4], xi1[5],
                   xi2[0], xi2[1], xi2[2], xi2[3], xi2[4], xi2[5])  # fmt: skip
         v12 = ad_scalars(v1[0], v1[1], v1[2], v1[3], v1[4], v1[5],
@@ -322,25 +394,33 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, j, ncols, eta, jdq, ws):
         for rr in range(6):
             omega[rr] = 0.5 * h * (xi1[rr] + xi2[rr]) + c4 * a12[rr]
             xc[rr, ns + 1] = 2.0 * c4 * v12[rr]
-        _zanna_cols(0.5 * h, c4, xi1, xi2, b0, b1, xc, ns)
+        _zanna_cols(z, c4, xi1, xi2, b0, b1, xc, ns)
     # Omega_dot = Z qdot: six independent sums over the columns, each in column order
-    z0, z1, z2 = xc[0, 1 : ns + 1], xc[1, 1 : ns + 1], xc[2, 1 : ns + 1]
-    z3, z4, z5 = xc[3, 1 : ns + 1], xc[4, 1 : ns + 1], xc[5, 1 : ns + 1]
-    d0 = d1 = d2 = d3 = d4 = d5 = 0.0
-    for c in range(ns):
-        qc = qsd[c]
-        d0 += z0[c] * qc
-        d1 += z1[c] * qc
-        d2 += z2[c] * qc
-        d3 += z3[c] * qc
-        d4 += z4[c] * qc
-        d5 += z5[c] * qc
-    xc[0, 0], xc[1, 0], xc[2, 0], xc[3, 0], xc[4, 0], xc[5, 0] = d0, d1, d2, d3, d4, d5
+    if one:  # Z = h B: the basis block's zeros (each row's sum skips exact zeros)
+        for rr in range(6):
+            acc = 0.0
+            for t in range(nzn[rr]):
+                c = nzc[rr, t]
+                acc += z[rr, c] * qsd[c]
+            xc[rr, 0] = acc
+    else:
+        z0, z1, z2 = xc[0, 1 : ns + 1], xc[1, 1 : ns + 1], xc[2, 1 : ns + 1]
+        z3, z4, z5 = xc[3, 1 : ns + 1], xc[4, 1 : ns + 1], xc[5, 1 : ns + 1]
+        d0 = d1 = d2 = d3 = d4 = d5 = 0.0
+        for c in range(ns):
+            qc = qsd[c]
+            d0 += z0[c] * qc
+            d1 += z1[c] * qc
+            d2 += z2[c] * qc
+            d3 += z3[c] * qc
+            d4 += z4[c] * qc
+            d5 += z5[c] * qc
+        xc[0, 0], xc[1, 0], xc[2, 0], xc[3, 0], xc[4, 0], xc[5, 0] = d0, d1, d2, d3, d4, d5
     expmap_rp_into(omega, r, p)
     th = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
     co = tangent_coefficients_scalar(th)
     _tangent_rate_col(omega, co, xc, tx, tdx)
-    _tangent_cols(omega, co, xc, 1, ns + 2 if order4 else ns + 1)  # T Z, T Z_dot qdot in xc
+    _tangent_cols(omega, co, xc, 1, ns + 1 if one else ns + 2)  # T Z, T Z_dot qdot in xc
     # increments before the change of frame; T Omega_dot is the relative twist of the step
     w = xiv[0]
     v = xiv[1]
@@ -352,7 +432,7 @@ def rod_step_rate(h, xi0s, bs, qs, qsd, off, g, j, ncols, eta, jdq, ws):
             ji[c] += ti[c]
     for i in range(6):
         w[i] = tx[i, 0]
-        v[i] = jdq[i] + tdx[i] + (xc[i, ns + 1] if order4 else 0.0)
+        v[i] = jdq[i] + tdx[i] + (0.0 if one else xc[i, ns + 1])
         e[i] = eta[i] + tx[i, 0]
     _cols_adinv(r, p, j, ncols)
     _adinv_row(r, p, w)
@@ -546,8 +626,9 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
             if c1 > nact:
                 nact = c1
             rod_step_rate(
-                m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, nact, eta, jdq, rws
-            )
+                m.h[k], m.xi0s[k], m.bs[k], m.step_z[k], m.step_c4[k], m.step_one[k] != 0,
+                m.step_nzc[k], m.step_nzn[k], q[c0:c1], qd[c0:c1], c0, g, j, nact, eta, jdq, rws,
+            )  # fmt: skip
             w = m.step_w[k]
             if w == 0.0:
                 continue
@@ -629,12 +710,13 @@ def forward_dynamics_ws(q, qd, u, m, loads, aero, contact, ws, qdd):
     _input_force(q, u, m, ws, bu)
     dmp = m.damping
     stf = m.stiffness
-    for i in range(n):
+    for i in range(n):  # over the columns where row i of D and K can be non-zero
+        k0, k1 = m.kd_lo[i], m.kd_hi[i]
         a = 0.0
-        for k in range(n):
+        for k in range(k0, k1):
             a += dmp[i, k] * qd[k]
         b = 0.0
-        for k in range(n):
+        for k in range(k0, k1):
             b += stf[i, k] * q[k]
         rhs[i] = bu[i] + tau[i] - cqd[i] - a - b
     if not cholesky_into(mm, n, lo):

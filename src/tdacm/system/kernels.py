@@ -79,6 +79,9 @@ class ModelArrays(NamedTuple):
     0 for none) adds its share to ``M``, ``C`` and ``tau_ext``; ``step_load[k]`` says which loads
     it carries (:data:`LOAD_DISTRIBUTED`, :data:`LOAD_TIP` or :data:`LOAD_GRAVITY` only).
     The Gauss-point arrays (``g_*``, ``wq``, ``bg``, ``tendon_*``) serve the tendon model.
+    The last fields are computed once from the others (:func:`tdacm.system.forward.run_constants`
+    and :meth:`TDACM._build`): a record with other stiffness, damping or basis arrays keeps
+    their zeros (per-world factors do).
     """
 
     floating: bool
@@ -105,6 +108,18 @@ class ModelArrays(NamedTuple):
     tendon_d: np.ndarray  # (n_g, n_a, 3) tendon offsets
     tendon_dd: np.ndarray  # (n_g, n_a, 3) d(offset)/ds
     tendon_on: np.ndarray  # (n_g, n_a) 1 where the tendon runs (its rod, before its end)
+    # run constants (tdacm.system.forward.run_constants): computed once from the arrays above
+    step_z: np.ndarray  # (n_steps, 6, w) h B (one sample) or h/2 (B_1 + B_2) (two)
+    step_c4: np.ndarray  # (n_steps,) sqrt(3) h^2 / 12 (two samples), 0 (one)
+    step_one: np.ndarray  # (n_steps,) int, 1: the step takes one sample
+    step_nzc: np.ndarray  # (n_steps, 6, w) int, non-zero columns of each row of bs[k]
+    step_nzn: np.ndarray  # (n_steps, 6) int, their number
+    g_nzc: np.ndarray  # (n_g, 6, w) int, non-zero columns of each row of bg[i]
+    g_nzn: np.ndarray  # (n_g, 6) int, their number
+    g_nzr: np.ndarray  # (n_g, w, 6) int, non-zero rows of each column of bg[i]
+    g_nzrn: np.ndarray  # (n_g, w) int, their number
+    kd_lo: np.ndarray  # (n,) int, row i of K and D is zero outside columns kd_lo[i]..kd_hi[i]
+    kd_hi: np.ndarray  # (n,) int
 
 
 #: ``step_load`` codes: gravity only (a joint mass), the distributed loads (a Gauss section),
@@ -752,9 +767,11 @@ def tendon_accumulate(qs, m, xi, col, out, lengths, want_lengths):
         b = m.bg[gi]
         c0 = m.g_col[gi]
         nc = m.g_nc[gi]
-        for r in range(6):
+        nzc, nzn, nzr, nzrn = m.g_nzc[gi], m.g_nzn[gi], m.g_nzr[gi], m.g_nzrn[gi]
+        for r in range(6):  # the sums skip the basis block's exact zeros
             acc = 0.0
-            for c in range(nc):
+            for t in range(nzn[r]):
+                c = nzc[r, t]
                 acc += b[r, c] * qs[c0 + c]
             xi[r] = acc + m.xi0g[gi, r]
         k0, k1, k2 = xi[0], xi[1], xi[2]
@@ -778,7 +795,8 @@ def tendon_accumulate(qs, m, xi, col, out, lengths, want_lengths):
                 lengths[i] += wq * nv
             for c in range(nc):
                 acc = 0.0
-                for r in range(6):
+                for t in range(nzrn[c]):
+                    r = nzr[c, t]
                     acc += b[r, c] * col[r]
                 out[c0 + c, i] += wq * acc
 

@@ -24,6 +24,20 @@ from ..lie.euler import SINGULAR_COS
 from ..lie.magnus import MAGNUS_POINTS
 from ..rod import Rod, SectionedRod, Tendons
 from . import kernels as K
+from .forward import nonzero_columns, nonzero_rows, run_constants
+
+
+def _row_ranges(*mats):
+    """``(lo, hi)`` (n,) int: row ``i`` of every matrix in ``mats`` is zero outside the
+    columns ``lo[i] <= c < hi[i]`` (``lo = hi = 0`` for a zero row)."""
+    nz = np.zeros(mats[0].shape, bool)
+    for a in mats:
+        nz |= a != 0.0
+    n = nz.shape[1]
+    any_ = nz.any(axis=1)
+    lo = np.where(any_, np.argmax(nz, axis=1), 0)
+    hi = np.where(any_, n - np.argmax(nz[:, ::-1], axis=1), 0)
+    return lo.astype(np.int64), hi.astype(np.int64)
 
 
 class SingularConfigurationError(ValueError):
@@ -391,6 +405,10 @@ class TDACM:
             c(gcat["d"]),
             c(gcat["dd"]),
             c(gcat["on"]),
+            *run_constants(cat["h"], cat["xi0s"], cat["bs"]),
+            *nonzero_columns(c(gcat["bg"])),
+            *nonzero_rows(c(gcat["bg"])),
+            *_row_ranges(stiffness, damping),
         )
 
     @property

@@ -91,8 +91,48 @@ class RunData:
     def n_base(self) -> int:
         return 6 if self.floating else 0
 
+    @property
+    def n_arms(self) -> int:
+        """The robot's arms: the geometry's, else the width of the per-arm series, else 1."""
+        if self.geometry is not None and getattr(self.geometry, "arms", ()):
+            return len(self.geometry.arms)
+        if "rmse_arms" in self.arrays:
+            return int(np.asarray(self.arrays["rmse_arms"]).reshape(len(self.t), -1).shape[1])
+        return 1
+
     def strain_names(self, n):
-        return [f"$q_{{s{i + 1}}}$" for i in range(n - self.n_base)]
+        """The strain coordinates' labels; with several arms, each arm's own (arm ``i``'s
+        ``q_s1, q_s2, ...``; the arms share one basis in the shipped scenarios, else the
+        coordinates are numbered over the robot)."""
+        ns, k = n - self.n_base, self.n_arms
+        if k > 1 and ns % k == 0:
+            per = ns // k
+            return [f"arm {i} $q_{{s{j + 1}}}$" for i in range(k) for j in range(per)]
+        return [f"$q_{{s{i + 1}}}$" for i in range(ns)]
+
+    def tension_names(self, n_a):
+        """The tendons' labels (``T_1 ...``; with several arms, arm ``i``'s ``T_1 ...``)."""
+        k = self.n_arms
+        if k > 1 and n_a % k == 0:
+            per = n_a // k
+            return [f"arm {i} $T_{j + 1}$" for i in range(k) for j in range(per)]
+        return [f"$T_{i + 1}$" for i in range(n_a)]
+
+    def arm_series(self, key, shape):
+        """Per-arm series ``key`` as (T, k, *shape), or ``None`` when the log lacks it."""
+        if not self.has(key):
+            return None
+        return np.asarray(self.arrays[key], float).reshape(len(self.t), self.n_arms, *shape)
+
+    def arm_desired(self, arm: int):
+        """Arm ``arm``'s desired points in its servo camera (4, 2): the stored reference for
+        arm 0, the true points at ``q*`` for the others (the geometry's); ``None`` when
+        unknown."""
+        if arm == 0 and self.desired_points is not None:
+            return self.desired_points
+        if self.geometry is not None and self.q_star is not None:
+            return self.geometry.servo_points(self.q_star, arm)
+        return None
 
     def switch_times(self):
         """Times where the mode goes from recovery (1) to IBVS (0)."""
@@ -205,8 +245,8 @@ def fig_actuation(rd: RunData, out, formats):
             axes[0].plot(t, u[:, i], label=f"$f_{i + 1}$")
         axes[0].set_ylabel("rotor thrust (N)")
     n_a = u.shape[1] - n_f
-    for i in range(n_a):
-        axes[-1].plot(t, u[:, -n_a + i], label=f"$T_{i + 1}$")
+    for i, name in enumerate(rd.tension_names(n_a)):
+        axes[-1].plot(t, u[:, -n_a + i], label=name)
     axes[-1].set_ylabel("tendon tension (N)")
     axes[-1].set_xlabel("time (s)")
     for a in axes:
@@ -219,7 +259,79 @@ def _to_px(xy, cam):
     return np.stack((cam.fx * xy[..., 0] + cam.cx, cam.fy * xy[..., 1] + cam.cy), axis=-1)
 
 
+def _image_panel(ax, uv, desired_px, cam, title):
+    """The four points' paths ``uv`` (T, 4, 2) px in an image of ``cam``, their start and the
+    desired points."""
+    for k in range(uv.shape[1]):
+        ax.plot(uv[:, k, 0], uv[:, k, 1], lw=1.2, color=f"C{k}", label=f"point {k + 1}")
+        good = np.flatnonzero(np.isfinite(uv[:, k, 0]))
+        if good.size:
+            ax.plot(*uv[good[0], k], "o", color=f"C{k}", mfc="none")
+    if desired_px is not None:
+        ax.plot(desired_px[:, 0], desired_px[:, 1], "x", color="k", ms=8, label="desired")
+    ax.plot([], [], "o", color="0.3", mfc="none", label="start")
+    ax.set_xlim(0, cam.width)
+    ax.set_ylim(cam.height, 0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title(title)
+    ax.legend(loc="lower right")
+
+
+def _rmse_panel(ax, rd: RunData, curves):
+    """Normalized RMSE curves ``[(values, label, style), ...]`` (log scale) with the 0.01 and
+    0.001 lines."""
+    fin = []
+    for r, label, style in curves:
+        r = np.asarray(r, float)
+        ax.semilogy(rd.t, r, style, label=label)
+        fin.append(r[np.isfinite(r) & (r > 0)])
+    fin = np.concatenate(fin) if fin else np.zeros(0)
+    ax.axhline(0.01, color="C3", ls="--", lw=0.9, label="0.01")
+    ax.axhline(0.001, color="C2", ls="--", lw=0.9, label="0.001")
+    ax.set_ylim(max(1e-5, fin.min() / 3) if fin.size else 1e-5, 2)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("normalized RMSE (-)")
+    ax.set_title("normalized image error")
+    _mark(ax, rd, loc="best")
+
+
+def _fig_features_arms(rd: RunData, out, formats):
+    """:func:`fig_features` of several arms: each arm's points in its servo camera and each
+    arm's normalized RMSE (the servo's and the true one)."""
+    pts = rd.arm_series("points_arms", (4, 2))
+    r = rd.arm_series("rmse_arms", ())
+    if pts is None and r is None:
+        return []
+    import matplotlib.pyplot as plt
+
+    k, cam = rd.n_arms, rd.cam
+    fig, axes = plt.subplots(1, k + 1, figsize=(4.4 * (k + 1), 4.0), squeeze=False)
+    where = "virtual camera $C_V$" if rd.floating else "$C_L$"
+    for i in range(k):
+        ax = axes[0, i]
+        if pts is not None:
+            d = rd.arm_desired(i)
+            _image_panel(ax, _to_px(pts[:, i], cam), None if d is None else _to_px(d, cam), cam,
+                         f"arm {i}: image features ({where})")  # fmt: skip
+        else:
+            ax.set_axis_off()
+    curves = []
+    if r is not None:
+        rt = rd.arm_series("rmse_true_arms", ())
+        for i in range(k):
+            curves.append((r[:, i], f"arm {i} (servo)", f"C{i}-"))
+            if rt is not None:
+                curves.append((rt[:, i], f"arm {i} (true)", f"C{i}--"))
+    _rmse_panel(axes[0, k], rd, curves)
+    return _finish(fig, rd, "each arm's feature trajectories and normalized error", out,
+                   "features", formats)  # fmt: skip
+
+
 def fig_features(rd: RunData, out, formats):
+    if rd.n_arms > 1:
+        return _fig_features_arms(rd, out, formats)
     if not rd.has("points_virtual") and not rd.has("rmse"):
         return []
     import matplotlib.pyplot as plt
@@ -258,45 +370,76 @@ def fig_features(rd: RunData, out, formats):
     return _finish(fig, rd, "feature trajectories and normalized error", out, "features", formats)
 
 
+def _arm_columns(plt, rd: RunData, series, top, bottom, labels, what, name, formats, out):
+    """Two rows (the first three and the last three components of ``series`` (T, k, 6)), one
+    column per arm."""
+    k = series.shape[1]
+    fig, axes = plt.subplots(2, k, figsize=(6.4 * (0.75 if k > 1 else 1) * k, 4.4),
+                             sharex=True, squeeze=False)  # fmt: skip
+    for c in range(k):
+        for i in range(3):
+            axes[0, c].plot(rd.t, series[:, c, i], label=labels[i])
+            axes[1, c].plot(rd.t, series[:, c, 3 + i], label=labels[3 + i])
+        axes[0, c].set_ylabel(top)
+        axes[1, c].set_ylabel(bottom)
+        axes[1, c].set_xlabel("time (s)")
+        if k > 1:
+            axes[0, c].set_title(f"arm {c}")
+        for a in axes[:, c]:
+            a.axhline(0, color="0.5", lw=0.6)
+            _mark(a, rd, ncol=4, loc="best")
+    return _finish(fig, rd, what, out, name, formats)
+
+
+_FEATURE_LABELS = (
+    *(rf"$e_{{p_\{n}}}$" for n in ("phi", "theta", "psi")),
+    *(f"$e_{{p_{n}}}$" for n in "xyz"),
+)
+
+
 def fig_feature_error(rd: RunData, out, formats):
-    if not rd.has("feature_error"):
+    """The advanced-feature error; with several arms each arm's, from the points its servo
+    used and its desired points (:meth:`RunData.arm_desired`)."""
+    if rd.n_arms > 1:
+        pts = rd.arm_series("points_arms", (4, 2))
+        desired = [rd.arm_desired(i) for i in range(rd.n_arms)]
+        if pts is None or any(d is None for d in desired):
+            return []
+        from ..vision.features import advanced_features
+
+        e = np.full((len(rd.t), rd.n_arms, 6), np.nan)
+        for i, d in enumerate(desired):
+            pd = advanced_features(np.asarray(d, float))
+            for j in np.flatnonzero(np.all(np.isfinite(pts[:, i]), axis=(1, 2))):
+                e[j, i] = advanced_features(pts[j, i]) - pd
+    elif rd.has("feature_error"):
+        e = np.asarray(rd.arrays["feature_error"], float)[:, None, :]
+    else:
         return []
     import matplotlib.pyplot as plt
 
-    e = np.asarray(rd.arrays["feature_error"], float)
-    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.4), sharex=True)
-    for i, n in enumerate(("phi", "theta", "psi")):
-        axes[0].plot(rd.t, e[:, i], label=rf"$e_{{p_\{n}}}$")
-    axes[0].set_ylabel("angular features (rad)")
-    for i, n in enumerate("xyz"):
-        axes[1].plot(rd.t, e[:, 3 + i], label=f"$e_{{p_{n}}}$")
-    axes[1].set_ylabel("centroid / perimeter\n(normalized image units)")
-    axes[1].set_xlabel("time (s)")
-    for a in axes:
-        a.axhline(0, color="0.5", lw=0.6)
-        _mark(a, rd, ncol=4, loc="best")
-    return _finish(
-        fig, rd, "(a) advanced-feature error $p^* - p^*_d$", out, "feature_error", formats
-    )
+    return _arm_columns(plt, rd, e, "angular features (rad)",
+                        "centroid / perimeter\n(normalized image units)", _FEATURE_LABELS,
+                        "(a) advanced-feature error $p^* - p^*_d$", "feature_error", formats,
+                        out)  # fmt: skip
 
 
 def fig_camera_twist(rd: RunData, out, formats):
-    if not rd.has("twist"):
+    """The commanded C_L twist; with several arms each arm's."""
+    if rd.n_arms > 1:
+        w = rd.arm_series("twist_arms", (6,))
+        if w is None:
+            return []
+    elif rd.has("twist"):
+        w = np.asarray(rd.arrays["twist"], float)[:, None, :]
+    else:
         return []
     import matplotlib.pyplot as plt
 
-    w = np.asarray(rd.arrays["twist"], float)
-    fig, axes = plt.subplots(2, 1, figsize=(6.4, 4.4), sharex=True)
-    for i, n in enumerate("xyz"):
-        axes[0].plot(rd.t, w[:, i], label=rf"$\omega_{n}$")
-        axes[1].plot(rd.t, w[:, 3 + i], label=f"$v_{n}$")
-    axes[0].set_ylabel("angular (rad/s)")
-    axes[1].set_ylabel("linear (m/s)")
-    axes[1].set_xlabel("time (s)")
-    for a in axes:
-        a.axhline(0, color="0.5", lw=0.6)
-        _mark(a, rd, ncol=4, loc="best")
-    return _finish(fig, rd, "(b) commanded local camera twist", out, "camera_twist", formats)
+    labels = (*(rf"$\omega_{n}$" for n in "xyz"), *(f"$v_{n}$" for n in "xyz"))
+    return _arm_columns(plt, rd, w, "angular (rad/s)", "linear (m/s)", labels,
+                        "(b) commanded local camera twist", "camera_twist", formats,
+                        out)  # fmt: skip
 
 
 def fig_strain_rates(rd: RunData, out, formats):
@@ -307,8 +450,8 @@ def fig_strain_rates(rd: RunData, out, formats):
     qd = np.asarray(rd.arrays["qd"], float)
     fig, ax = plt.subplots(figsize=(6.4, 2.8))
     names = rd.strain_names(qd.shape[1])
-    for i, _n in enumerate(names):
-        ax.plot(rd.t, qd[:, rd.n_base + i], label=r"$\dot{q}_{s" + str(i + 1) + "}$")
+    for i, name in enumerate(names):
+        ax.plot(rd.t, qd[:, rd.n_base + i], label=name.replace("$q_", r"$\dot{q}_"))
         if rd.has("qd_d"):
             ax.plot(
                 rd.t,
@@ -316,7 +459,7 @@ def fig_strain_rates(rd: RunData, out, formats):
                 "--",
                 lw=0.9,
                 color=f"C{i}",
-                label=r"$\dot{q}_{s" + str(i + 1) + "}^d$",
+                label=name.replace("$q_", r"$\dot{q}^d_"),
             )
     ax.set_ylabel("strain rate (1/(m s))")
     ax.set_xlabel("time (s)")
@@ -339,64 +482,63 @@ def snapshot_times(rd: RunData, count: int = 4) -> list[float]:
 
 
 def fig_snapshots(rd: RunData, out, formats, times=None):
+    """Four C_L frames re-rendered from the stored ``q`` with the detected (stored) and
+    desired points; with several arms one row per arm (its C_L, its marker)."""
     if rd.geometry is None or not rd.has("q") or len(rd.t) == 0:
         return []
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     from ..vision import PlanarRenderer
 
     g = rd.geometry
-    LOCAL_CAMERA = g.local_camera
+    arms = g.arms or (None,)
     times = snapshot_times(rd) if times is None else list(times)
-    renderer = PlanarRenderer(g.scene)
-    desired = g.desired_local_pixels()
-    fig, axes = plt.subplots(1, len(times), figsize=(2.5 * len(times), 2.9), squeeze=False)
-    try:
-        for ax, ti in zip(axes[0], times, strict=True):
-            k = int(np.argmin(np.abs(rd.t - ti)))
-            q = np.asarray(rd.arrays["q"])[k]
-            img = renderer.render(LOCAL_CAMERA, g.local_pose(q))
-            if img.shape[1] > 512:  # a 2.5-inch panel needs no more (faster to draw and save)
-                import cv2
+    local = rd.arm_series("points_local_arms", (4, 2)) if len(arms) > 1 else None
+    if local is None and rd.has("points_local"):
+        local = np.asarray(rd.arrays["points_local"], float).reshape(len(rd.t), 1, 4, 2)
+    fig, axes = plt.subplots(len(arms), len(times), figsize=(2.5 * len(times),
+                             2.9 * len(arms)), squeeze=False)  # fmt: skip
+    for row, arm in enumerate(arms):
+        cam = g.local_camera if arm is None else arm.local_camera
+        renderer = PlanarRenderer(g.scene if arm is None else arm.scene)
+        desired = g.desired_local_pixels(row)
+        try:
+            for ax, ti in zip(axes[row], times, strict=True):
+                k = int(np.argmin(np.abs(rd.t - ti)))
+                q = np.asarray(rd.arrays["q"])[k]
+                img = renderer.render(cam, g.local_pose(q, row))
+                if img.shape[1] > 512:  # a 2.5-inch panel needs no more (faster to draw, save)
+                    import cv2
 
-                img = cv2.resize(np.ascontiguousarray(img[:, :, :3]), (512, 512),
-                                 interpolation=cv2.INTER_AREA)  # fmt: skip
-            ax.imshow(img, extent=(0, LOCAL_CAMERA.width, LOCAL_CAMERA.height, 0))
-            ax.plot(*np.vstack([desired, desired[:1]]).T, "-", color="lime", lw=0.8)
-            ax.plot(desired[:, 0], desired[:, 1], "x", color="lime", ms=7, mew=1.6, label="desired")
-            if rd.has("points_local"):
-                p = _to_px(np.asarray(rd.arrays["points_local"])[k], LOCAL_CAMERA)
-                if np.all(np.isfinite(p)):
-                    ax.plot(
-                        p[:, 0],
-                        p[:, 1],
-                        "o",
-                        color="red",
-                        ms=4,
-                        mfc="none",
-                        mew=1.4,
-                        label="detected",
-                    )
-            mode = ""
-            if rd.has("mode"):
-                mode = " (recovery)" if int(rd.arrays["mode"][k]) == 1 else " (IBVS)"
-            ax.set_title(f"t = {rd.t[k]:.2f} s{mode}")
-            ax.set_xlim(0, LOCAL_CAMERA.width)
-            ax.set_ylim(LOCAL_CAMERA.height, 0)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            ax.grid(False)
-        from matplotlib.lines import Line2D
-
-        axes[0, 0].legend(
-            handles=[
-                Line2D([], [], ls="", marker="o", color="red", mfc="none", label="detected"),
-                Line2D([], [], ls="", marker="x", color="lime", mew=1.6, label="desired"),
-            ],
-            loc="lower left",
-        )
-    finally:
-        renderer.close()
+                    img = cv2.resize(np.ascontiguousarray(img[:, :, :3]), (512, 512),
+                                     interpolation=cv2.INTER_AREA)  # fmt: skip
+                ax.imshow(img, extent=(0, cam.width, cam.height, 0))
+                ax.plot(*np.vstack([desired, desired[:1]]).T, "-", color="lime", lw=0.8)
+                ax.plot(desired[:, 0], desired[:, 1], "x", color="lime", ms=7, mew=1.6)
+                if local is not None and row < local.shape[1]:
+                    p = _to_px(local[k, row], cam)
+                    if np.all(np.isfinite(p)):
+                        ax.plot(p[:, 0], p[:, 1], "o", color="red", ms=4, mfc="none", mew=1.4)
+                mode = ""
+                if rd.has("mode"):
+                    mode = " (recovery)" if int(rd.arrays["mode"][k]) == 1 else " (IBVS)"
+                who = f"arm {row}, " if len(arms) > 1 else ""
+                ax.set_title(f"{who}t = {rd.t[k]:.2f} s{mode}")
+                ax.set_xlim(0, cam.width)
+                ax.set_ylim(cam.height, 0)
+                ax.set_xticks([])
+                ax.set_yticks([])
+                ax.grid(False)
+        finally:
+            renderer.close()
+    axes[0, 0].legend(
+        handles=[
+            Line2D([], [], ls="", marker="o", color="red", mfc="none", label="detected"),
+            Line2D([], [], ls="", marker="x", color="lime", mew=1.6, label="desired"),
+        ],
+        loc="lower left",
+    )
     return _finish(fig, rd, "(d) local camera $C_L$ snapshots", out, "snapshots", formats)
 
 

@@ -1,6 +1,6 @@
-"""3-D replay of a run folder (``tdacm replay RUN_DIR``): the drone, the rod's backbone, the tip
-camera's frustum, the target, the box and the ground, animated with matplotlib and written to
-GIF or MP4.
+"""3-D replay of a run folder (``tdacm replay RUN_DIR``): the drone, the rods' backbones (every
+arm of a robot with several), each tip camera's frustum, each arm's target and box, and the
+ground, animated with matplotlib and written to GIF or MP4.
 
 Playback is real time by default (``speed = 1``): the frame count and the frame rate are chosen
 so that the animation lasts ``duration / speed``; when ``max_frames`` or an explicit ``fps``
@@ -66,13 +66,18 @@ def replay_frames(
     camera=None,
     captions=None,
     progress=None,
+    arms=None,
 ):
     """RGB frames (list of HxWx3 uint8) of the arm moving along ``q_series[::stride]``.
 
     ``scene`` (a :class:`~tdacm.vision.SceneConfig`) adds the box and the ground; ``camera``
     (default C_L) the tip camera's frustum; ``times`` the simulated time per row of
     ``q_series`` (shown); ``captions`` one extra string per row (e.g. the mode);
-    ``progress(done, total)`` is called per frame."""
+    ``progress(done, total)`` is called per frame. ``arms`` (the
+    :class:`~tdacm.viz._scene.ArmView` of each arm) draws every rod of the system with its
+    own C_L frustum, target and box (``tip_mount``, ``camera``, ``target_points`` and
+    ``scene`` are then unused); without it the system's rods are drawn, the frustum and the
+    target on rod 0."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -86,10 +91,17 @@ def replay_frames(
         from ..vision import LOCAL_CAMERA as camera
     idx = np.arange(len(q_series))[::stride]
     qs = np.asarray(q_series)[idx]
-    bbs = np.array([system.backbone(q, 21) for q in qs])
+    n_rods = system.n_rods
+    # (frames, rods, points, 4, 4): every rod's backbone
+    bbs = np.array([[system.backbone(q, 21, rod=r) for r in range(n_rods)] for q in qs])
     bases = np.array([system.base_pose(q) for q in qs])
-    pts = bbs[:, :, :3, 3].reshape(-1, 3)
-    extra = [target_points] if target_points is not None else []
+    if arms is not None:  # per arm: (rod, mount, camera, target outline, scene)
+        views = [(a.rod, a.tip_mount, a.local_camera, a.scene.target_points_world(), a.scene)
+                 for a in arms]  # fmt: skip
+    else:
+        views = [(0, tip_mount, camera, target_points, scene)]
+    pts = bbs[..., :3, 3].reshape(-1, 3)
+    extra = [v[3] for v in views if v[3] is not None]
     allp = np.vstack([pts, bases[:, :3, 3], *extra])
     lo, hi = allp.min(0), allp.max(0)
     lo[2] = min(lo[2], 0.0)
@@ -97,21 +109,24 @@ def replay_frames(
     arm = getattr(system.base, "arm_length", 0.0) if system.floating else 0.0
     fig = plt.figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
     ax = fig.add_subplot(projection="3d")
-    handles = [
-        Line2D([], [], color="k", lw=2, label="drone"),
-        Line2D([], [], color="C1", lw=3, label="rod"),
-        Line2D([], [], color="C2", lw=1, label="C_L frustum"),
-        Line2D([], [], color="C3", lw=2, label="target"),
+    rod_colors = ["C1", "C4", "C5", "C6"]
+    handles = [Line2D([], [], color="k", lw=2, label="drone")]
+    for r in range(n_rods):
+        label = "rod" if n_rods == 1 else f"rod {r} (arm {r})"
+        handles.append(Line2D([], [], color=rod_colors[r % 4], lw=3, label=label))
+    handles += [
+        Line2D([], [], color="C2", lw=1, label="C_L frustum" + ("s" if len(views) > 1 else "")),
+        Line2D([], [], color="C3", lw=2, label="target" + ("s" if len(views) > 1 else "")),
     ]
-    if scene is not None:
+    if any(v[4] is not None for v in views):
         handles.append(Line2D([], [], color="saddlebrown", lw=1, label="box"))
     frames = []
-    for j, (bb, gb) in enumerate(zip(bbs, bases, strict=True)):
+    for j, (bbr, gb) in enumerate(zip(bbs, bases, strict=True)):
         ax.cla()
-        if view == "follow":  # centred on the arm in x, y; from the ground to above the drone
-            top = max(gb[2, 3], bb[0, 2, 3]) + 0.4
+        if view == "follow":  # centred on the arms in x, y; from the ground to above the drone
+            top = max(gb[2, 3], *bbr[:, 0, 2, 3]) + 0.4
             h = max(1.0, 0.5 * top)
-            c = np.array([*(0.5 * (bb[0, :2, 3] + bb[-1, :2, 3])), h])
+            c = np.array([*(0.5 * (bbr[:, 0, :2, 3].mean(0) + bbr[:, -1, :2, 3].mean(0))), h])
         else:
             c, h = centre, half
         ax.set_xlim(c[0] - h, c[0] + h)
@@ -122,25 +137,30 @@ def replay_frames(
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_zlabel("z (m)")
-        if scene is not None:
+        if any(v[4] is not None for v in views):
             gx = (c[0] - h, c[0] + h)
             gy = (c[1] - h, c[1] + h)
             ground = [[(gx[0], gy[0], 0), (gx[1], gy[0], 0), (gx[1], gy[1], 0), (gx[0], gy[1], 0)]]
             ax.add_collection3d(Poly3DCollection(ground, color=(0.75, 0.78, 0.75, 0.5)))
-            for a, b in _box_edges(scene.box_xy, scene.box_size):
-                ax.plot(*np.array([a, b]).T, color="saddlebrown", lw=1)
-        ax.plot(*bb[:, :3, 3].T, color="C1", lw=3)
+            boxes = {(tuple(v[4].box_xy), v[4].box_size) for v in views if v[4] is not None}
+            for xy, size in sorted(boxes):
+                for a, b in _box_edges(xy, size):
+                    ax.plot(*np.array([a, b]).T, color="saddlebrown", lw=1)
+        for r in range(n_rods):
+            bb = bbr[r]
+            ax.plot(*bb[:, :3, 3].T, color=rod_colors[r % 4], lw=3)
+            ax.plot(*np.array([gb[:3, 3], bb[0, :3, 3]]).T, color="k", lw=1)
         if system.floating:
             for a, b in _drone_arms(gb, arm):
                 ax.plot(*np.array([a, b]).T, color="k", lw=2)
-        ax.plot(*np.array([gb[:3, 3], bb[0, :3, 3]]).T, color="k", lw=1)
-        if tip_mount is not None:
-            cam = bb[-1] @ tip_mount
-            for a, b in _frustum(cam, camera):
-                ax.plot(*np.array([a, b]).T, color="C2", lw=0.9)
-        if target_points is not None:
-            poly = np.vstack([target_points, target_points[:1]])
-            ax.plot(*poly.T, color="C3", lw=2)
+        for rod, mount, cam_model, tp, _ in views:
+            if mount is not None:
+                cam = bbr[rod, -1] @ mount
+                for a, b in _frustum(cam, cam_model):
+                    ax.plot(*np.array([a, b]).T, color="C2", lw=0.9)
+            if tp is not None:
+                poly = np.vstack([tp, tp[:1]])
+                ax.plot(*poly.T, color="C3", lw=2)
         ax.legend(handles=handles, loc="upper left", fontsize=7)
         line = title
         if times is not None:
@@ -232,6 +252,6 @@ def replay_run(
     frames = replay_frames(
         g.system, q, g.scene.target_points_world(), g.tip_mount, stride, title=title,
         times=t, scene=g.scene, view=view, camera=g.local_camera, captions=captions,
-        progress=progress,
+        progress=progress, arms=g.arms,
     )  # fmt: skip
     return write_animation(frames, out, fps)

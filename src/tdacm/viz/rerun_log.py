@@ -9,6 +9,9 @@ Everything is on one timeline ``sim_time`` (the simulated time):
   (re-rendered from the stored ``q`` with the planar renderer, every ``image_every`` steps,
   JPEG-compressed) and the points: detected (red, stored for C_L; detected on the re-rendered
   image for C_G) and desired (green, C_L);
+* a robot with several arms (``[[robot.arms]]``) has arm ``i``'s ``world/rod{i}``,
+  ``world/C_L{i}`` (its C_L sees its own marker), ``world/target{i}`` and ``world/box{i}``,
+  and the plots ``plots/rmse_arms`` and ``plots/rmse_true_arms`` (each arm's RMSE);
 * ``plots/...``: normalized RMSE, mode, advanced-feature error, camera twist, strains and strain
   rates, thrusts and tensions (``Scalars``).
 
@@ -64,7 +67,7 @@ def record_run(
     path = Path(path) if path is not None else run_dir / "run.rrd"
     path.parent.mkdir(parents=True, exist_ok=True)
     g = geometry(scenario)
-    LOCAL_CAMERA, GLOBAL_CAMERA = g.local_camera, g.global_camera
+    GLOBAL_CAMERA = g.global_camera
     s = g.system
     t = np.asarray(arrays["t"], float)
     q = np.asarray(arrays["q"], float)
@@ -75,7 +78,13 @@ def record_run(
     rec = rr.RecordingStream("tdacm", recording_id=f"tdacm-{summary.get('scenario', 'run')}")
     rec.save(str(path))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    # static scene: ground, box, target
+    # the arms: one (rod, C_L, target, box) each; several arms are suffixed with their index
+    arms = g.arms
+    several = len(arms) > 1
+    sfx = [str(a.index) if several else "" for a in arms]
+    cams = [(f"C_L{x}", a.local_camera) for x, a in zip(sfx, arms, strict=True)]
+    cams.append(("C_G", GLOBAL_CAMERA))
+    # static scene: ground, boxes, targets
     sc = g.scene
     gs = 0.5 * getattr(sc, "ground_size", 6.0)
     rec.log(
@@ -86,20 +95,22 @@ def record_run(
         ),
         static=True,
     )
-    bs = sc.box_size
-    bx, by = sc.box_xy
-    rec.log(
-        "world/box",
-        rr.Boxes3D(centers=[[bx, by, bs / 2]], half_sizes=[[bs / 2] * 3], colors=[[170, 130, 80]]),
-        static=True,
-    )
-    tp = sc.target_points_world()
-    rec.log(
-        "world/target",
-        rr.LineStrips3D([np.vstack([tp, tp[:1]])], colors=[[220, 40, 40]], radii=0.01),
-        static=True,
-    )
-    for name, cam in (("C_L", LOCAL_CAMERA), ("C_G", GLOBAL_CAMERA)):
+    for x, a in zip(sfx, arms, strict=True):
+        bs = a.scene.box_size
+        bx, by = a.scene.box_xy
+        rec.log(
+            f"world/box{x}",
+            rr.Boxes3D(centers=[[bx, by, bs / 2]], half_sizes=[[bs / 2] * 3],
+                       colors=[[170, 130, 80]]),
+            static=True,
+        )  # fmt: skip
+        tp = a.scene.target_points_world()
+        rec.log(
+            f"world/target{x}",
+            rr.LineStrips3D([np.vstack([tp, tp[:1]])], colors=[[220, 40, 40]], radii=0.01),
+            static=True,
+        )
+    for name, cam in cams:
         scale = image_size / cam.width
         rec.log(
             f"world/{name}/image",
@@ -112,7 +123,7 @@ def record_run(
             ),
             static=True,
         )
-    desired = g.desired_local_pixels() * image_size / LOCAL_CAMERA.width
+    desired = [g.desired_local_pixels(a.index) * image_size / a.local_camera.width for a in arms]
     arm = getattr(s.base, "arm_length", 0.0) if s.floating else 0.0
     if s.floating:
         rec.log(
@@ -124,36 +135,47 @@ def record_run(
             ),
             static=True,
         )
-    renderer = PlanarRenderer(sc) if images else None
+    # C_L of arm i renders its own scene (its marker), C_G the first arm's (as in the loop)
+    renderers = [PlanarRenderer(a.scene) for a in arms] + [None] if images else []
+    if images:
+        renderers[-1] = renderers[0]
     det_g = TargetDetector(g.target) if images else None
-    pl = arrays.get("points_local")
+    if several and "points_local_arms" in arrays:
+        pl = np.asarray(arrays["points_local_arms"], float).reshape(T, len(arms), 4, 2)
+    elif "points_local" in arrays and not several:
+        pl = np.asarray(arrays["points_local"], float).reshape(T, 1, 4, 2)
+    else:
+        pl = None
+    colors = [[240, 140, 20], [150, 60, 200], [40, 150, 150], [200, 60, 120]]
     try:
         for k in range(T):
             rec.set_time(TIMELINE, duration=float(t[k]))
             gb = s.base_pose(q[k])
             rec.log("world/drone", rr.Transform3D(translation=gb[:3, 3], mat3x3=gb[:3, :3]))
-            bb = s.backbone(q[k], 21)[:, :3, 3]
-            rec.log("world/rod", rr.LineStrips3D([bb], colors=[[240, 140, 20]], radii=0.008))
-            poses = {"C_L": g.local_pose(q[k]), "C_G": g.global_pose(q[k])}
-            for name, gc in poses.items():
+            for x, a in zip(sfx, arms, strict=True):
+                bb = s.backbone(q[k], 21, rod=a.rod)[:, :3, 3]
+                rec.log(f"world/rod{x}", rr.LineStrips3D([bb], colors=[colors[a.index % 4]],
+                                                         radii=0.008))  # fmt: skip
+            poses = [g.local_pose(q[k], a.index) for a in arms] + [g.global_pose(q[k])]
+            for (name, _), gc in zip(cams, poses, strict=True):
                 rec.log(f"world/{name}", rr.Transform3D(translation=gc[:3, 3], mat3x3=gc[:3, :3]))
             if images and k % image_every == 0:
                 import cv2
 
-                for name, cam in (("C_L", LOCAL_CAMERA), ("C_G", GLOBAL_CAMERA)):
-                    img = renderer.render(cam, poses[name])
+                for i, ((name, cam), gc) in enumerate(zip(cams, poses, strict=True)):
+                    img = renderers[i].render(cam, gc)
                     small = cv2.resize(np.ascontiguousarray(img[:, :, :3]),
                                        (image_size, image_size), interpolation=cv2.INTER_AREA)  # fmt: skip
                     rec.log(f"world/{name}/image", rr.Image(small).compress(jpeg_quality=80))
                     sc_px = image_size / cam.width
-                    if name == "C_L":
+                    if i < len(arms):  # a C_L: the stored detections, the desired points
                         pts = None
                         if pl is not None:
-                            p = np.asarray(pl[k], float)
+                            p = pl[k, i]
                             if np.all(np.isfinite(p)):
-                                pts = LOCAL_CAMERA.denormalize(p) * sc_px
+                                pts = cam.denormalize(p) * sc_px
                         rec.log(f"world/{name}/image/desired",
-                                rr.Points2D(desired, colors=[[0, 220, 0]], radii=3))  # fmt: skip
+                                rr.Points2D(desired[i], colors=[[0, 220, 0]], radii=3))  # fmt: skip
                     else:
                         d = det_g.detect(img)
                         pts = np.asarray(d.points) * sc_px if d.found else None
@@ -165,12 +187,17 @@ def record_run(
             if progress is not None:
                 progress(k + 1, T)
     finally:
-        if renderer is not None:
-            renderer.close()
+        for r in renderers[:-1]:
+            r.close()
     # time series as columns (one call each)
     n_base = 6 if s.floating else 0
     if "rmse" in arrays:
-        _cols(rec, "plots/rmse", t, arrays["rmse"], ["normalized RMSE"])
+        _cols(rec, "plots/rmse", t, arrays["rmse"],
+              ["normalized RMSE" + (" (largest over the arms)" if several else "")])  # fmt: skip
+    for key, what in (("rmse_arms", "servo"), ("rmse_true_arms", "true")):
+        if several and key in arrays:
+            _cols(rec, f"plots/{key}", t, np.asarray(arrays[key], float).reshape(T, -1),
+                  [f"arm {a.index} ({what})" for a in arms])  # fmt: skip
     if "mode" in arrays:
         _cols(rec, "plots/mode", t, arrays["mode"], ["mode (0 IBVS, 1 recovery)"])
     if "feature_error" in arrays:
@@ -180,16 +207,23 @@ def record_run(
         _cols(rec, "plots/camera_twist", t, arrays["twist"],
               ["w_x", "w_y", "w_z", "v_x", "v_y", "v_z"])  # fmt: skip
     ns = q.shape[1] - n_base
-    _cols(rec, "plots/strains", t, q[:, n_base:], [f"q_s{i + 1}" for i in range(ns)])
+    snames = [f"q_s{i + 1}" for i in range(ns)]
+    if several:  # each arm's coordinates (Arm.strains of the system)
+        snames = [f"arm{i}_q_s{j + 1}" for i, arm in enumerate(s.arms)
+                  for j in range(arm.strains.stop - arm.strains.start)]  # fmt: skip
+    _cols(rec, "plots/strains", t, q[:, n_base:], snames)
     if "qd" in arrays:
         _cols(rec, "plots/strain_rates", t, np.asarray(arrays["qd"])[:, n_base:],
-              [f"dq_s{i + 1}" for i in range(ns)])  # fmt: skip
+              ["d" + x for x in snames])  # fmt: skip
     if s.floating:
         _cols(rec, "plots/drone_position", t, q[:, 3:6], ["x", "y", "z"])
     if "u" in arrays:
         u = np.asarray(arrays["u"], float)
         m = 4 if s.floating else 0
         names = [f"f{i + 1}" for i in range(m)] + [f"T{i + 1}" for i in range(u.shape[1] - m)]
+        if several:
+            names = names[:m] + [f"arm{i}_T{j + 1}" for i, arm in enumerate(s.arms)
+                                 for j in range(arm.tendons.n)]  # fmt: skip
         _cols(rec, "plots/actuation", t, u, names)
     rec.flush()
     rec.disconnect()

@@ -206,12 +206,41 @@ class CaptionedFrames:
 
     def __init__(self, desired=None):
         self.desired = desired
+        self.desired_arms = None  # several arms: each arm's (bind)
 
     def bind(self, assembly) -> None:
-        """Take the desired points of an assembled loop (:func:`desired_pixels`)."""
+        """Take the desired points of an assembled loop (:func:`desired_pixels`; with several
+        arms, each arm's: :func:`desired_pixels_arms`)."""
         self.desired = desired_pixels(assembly)
+        self.desired_arms = desired_pixels_arms(assembly)
 
     def __call__(self, readings, view, command, t) -> np.ndarray:
+        frame = self._one(readings, view, command, t)
+        loc = readings.local
+        if not (isinstance(loc, tuple) and len(loc) > 1):
+            return frame
+        # several arms: arm 0's C_L | C_G, then every other arm's C_L with its points
+        arms = getattr(command, "arms", None) or ()
+        views = getattr(view, "arms", ()) or ()
+        desired = getattr(self, "desired_arms", None) or [None] * len(loc)
+        # arm 0's column: its caption (the footer keeps the time, the mode and the largest
+        # RMSE over the arms)
+        _caption(frame[:, :TILE], "C_L arm 0 (red: detected, green: desired)")
+        tiles = [frame]
+        for i in range(1, len(loc)):
+            m = loc[i]
+            img = m.image if m.image is not None else np.zeros((TILE, TILE, 3), np.uint8)
+            v = views[i] if i < len(views) else None
+            one = compose_frame(
+                img, None, t=float(t),
+                detected=v.pixels if v is not None and v.found else None,
+                desired=desired[i] if i < len(desired) else None,
+            )[:, :TILE].copy()  # fmt: skip
+            _caption(one, f"C_L arm {i}", _rmse_text(arms[i].rmse if i < len(arms) else None))
+            tiles.append(one)
+        return np.concatenate(tiles, axis=1)
+
+    def _one(self, readings, view, command, t) -> np.ndarray:
         loc = readings.local
         img_l = loc.image if loc is not None and loc.image is not None else None
         if img_l is None:
@@ -229,6 +258,35 @@ class CaptionedFrames:
             desired=self.desired,
             detected_global=det_g,
         )
+
+
+def _rmse_text(rmse) -> str:
+    if rmse is None or not np.isfinite(rmse):
+        return "RMSE: - (no detection)"
+    return f"RMSE: {rmse:.4f}"
+
+
+def _caption(tile, top: str, foot: str | None = None) -> None:
+    """Overwrite the caption (and the footer) of a frame's C_L column ``tile`` (a view)."""
+    tile[:_CAPTION_H] = 30
+    _text(tile, top, (8, 19), 0.5)
+    if foot is not None:
+        tile[-_FOOTER_H:] = 30
+        _text(tile, foot, (8, tile.shape[0] - 9), 0.6)
+
+
+def desired_pixels_arms(assembly) -> list | None:
+    """Each arm's C_L pixels (4, 2) of its target at the desired configuration, for a robot
+    with several arms (``None`` for one arm)."""
+    sensors = assembly.loop.sensors
+    locals_ = getattr(sensors, "locals_", None)
+    world = assembly.world
+    if not locals_ or len(locals_) < 2:
+        return None
+    return [
+        s.camera.project_world(world.arm(k).scene.target_points_world(), s.pose(world.q_star))
+        for k, s in enumerate(locals_)
+    ]
 
 
 def desired_pixels(assembly) -> np.ndarray:
