@@ -279,7 +279,7 @@ def _sense(model, data, w):
 
 
 @njit(cache=True)
-def _camera_pose(model, data, w):
+def world_camera_pose(model, data, w):
     """C_L's pose at world ``w``'s state: the one :func:`_sense` kept when the state is the
     one its frame was taken at (always, in a period), else computed."""
     q = data.q[w]
@@ -315,7 +315,7 @@ def _act(model, data, w, twist_in):
     found = data.meas_found[w]
     out = np.empty(15)
     qdd_d = np.empty(n)
-    g_c = _camera_pose(model, data, w)
+    g_c = world_camera_pose(model, data, w)
     if sm.params[S.P_ROBUST] != 0.0:
         fd = S.FilterData(data.f_state[w], data.f_pose[w], data.f_cov[w], data.f_hyp[w],
                           data.f_rc[w], data.f_pc[w], data.f_z[w], data.t_pose[w],
@@ -444,12 +444,12 @@ def observe_worlds(model, data, points, error, status, lo, hi):
             k = int(sstate[S.S_PERIOD])
             valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
                                            data.meas_uv[w], m, sm, w, sstate, fd,
-                                           _camera_pose(model, data, w), points[w], zv,
+                                           world_camera_pose(model, data, w), points[w], zv,
                                            pix)  # fmt: skip
             st = S.SEEN if valid else S.NOT_SEEN
         else:
             st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
-                              _camera_pose(model, data, w), points[w], zv)  # fmt: skip
+                              world_camera_pose(model, data, w), points[w], zv)  # fmt: skip
         status[w] = st
         if st == S.SEEN:
             f = S._features_kernel(points[w])

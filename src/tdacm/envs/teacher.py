@@ -43,10 +43,12 @@ def teacher_worlds(model, data, out, lo, hi):
                               data.cam_hist[w].copy())  # fmt: skip
             k = int(sstate[S.S_PERIOD])
             valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
-                                           data.meas_uv[w], m, sm, w, sstate, fd, pv, zv,
+                                           data.meas_uv[w], m, sm, w, sstate, fd,
+                                           E.world_camera_pose(model, data, w), pv, zv,
                                            pix)  # fmt: skip
         else:
-            st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w, pv, zv)
+            st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
+                              E.world_camera_pose(model, data, w), pv, zv)  # fmt: skip
             valid = st == S.SEEN
         if valid:
             S.ibvs_twist(pv, zv, sm, w, f, e, v)
