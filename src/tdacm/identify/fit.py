@@ -193,20 +193,28 @@ class Problem:
                                 self.substeps)  # fmt: skip
 
     def measurement_residual(self, pred, s: Setup, values) -> np.ndarray:
-        """(T, kdim) normalized residuals of one recording."""
+        """(T, kdim) normalized residuals of one recording (``(R T, kdim)`` for a prediction of
+        ``R`` runs of it one after another, as :meth:`state_differences` makes)."""
         r = s.rec
+        reps = len(pred.tip) // len(r.t)  # several runs of the recording, one after another
+
+        def meas(a):
+            return a if reps == 1 else np.tile(a, (reps,) + (1,) * (a.ndim - 1))
+
         sp, sr = self.sigma["position"], np.radians(self.sigma["rotation_deg"])
         blocks = []
         if s.use_pose:
-            blocks += [(pred.tip[:, :3, 3] - r.tip[:, :3, 3]) / sp,
-                       _rotvec_err(r.tip[:, :3, :3], pred.tip[:, :3, :3]) / sr]  # fmt: skip
+            tip = meas(r.tip)
+            blocks += [(pred.tip[:, :3, 3] - tip[:, :3, 3]) / sp,
+                       _rotvec_err(tip[:, :3, :3], pred.tip[:, :3, :3]) / sr]  # fmt: skip
             if r.model.floating:
-                blocks += [(pred.base[:, :3, 3] - r.drone[:, :3, 3]) / sp,
-                           _rotvec_err(r.drone[:, :3, :3], pred.base[:, :3, :3]) / sr]  # fmt: skip
+                drone = meas(r.drone)
+                blocks += [(pred.base[:, :3, 3] - drone[:, :3, 3]) / sp,
+                           _rotvec_err(drone[:, :3, :3], pred.base[:, :3, :3]) / sr]  # fmt: skip
         if s.use_pixels:
             mount = r.model.camera_mount(values.get("camera_offset"))
             px = project_points(pred.tip, mount, r.camera, r.target_points)
-            d = (px - r.pixels) / self.sigma["pixel"]
+            d = (px - meas(r.pixels)) / self.sigma["pixel"]
             blocks.append(np.nan_to_num(d.reshape(len(px), -1), nan=0.0))
         return np.hstack(blocks)
 
@@ -233,21 +241,39 @@ class Problem:
             zi[i] += FD_STEP
             jac[:, i] = (self._raw_residual(zi) - r0) / FD_STEP
         row = 0
+        values = self.from_z(z[:npar])
         for s in self.setups:
-            n = s.rec.model.system.n
-            nrow = len(s.rec.t) * s.kdim
-            base = r0[row : row + nrow].reshape(len(s.rec.t), s.kdim)
-            values = self.from_z(z[:npar])
-            for j in range(2 * n):
-                zj = z.copy()
-                cols = s.offset + np.arange(len(s.starts)) * 2 * n + j
-                zj[cols] += FD_STEP
-                pr = self.predict(zj, s, values)
-                d = (self.measurement_residual(pr, s, values) - base) / FD_STEP
+            nt = len(s.rec.t)
+            nrow = nt * s.kdim
+            k2 = 2 * s.rec.model.system.n
+            d = self.state_differences(z, s, values, r0[row : row + nrow].reshape(nt, s.kdim))
+            for j in range(k2):
                 for g, (a, b) in enumerate(zip(s.starts, s.ends, strict=True)):
-                    jac[row + a * s.kdim : row + b * s.kdim, cols[g]] = d[a:b].ravel()
+                    jac[row + a * s.kdim : row + b * s.kdim, s.offset + g * k2 + j] = d[
+                        j, a:b
+                    ].ravel()
             row += nrow
         return jac
+
+    def state_differences(self, z, s: Setup, values, base) -> np.ndarray:
+        """(2n, T, kdim) forward differences of one recording's residuals in each window-state
+        component (step :data:`FD_STEP`; the same component of every window at once: windows
+        are independent). The ``2 n`` perturbed runs of every window go to the cores in one
+        call (:meth:`~tdacm.identify.model.IdentModel.simulate_many`)."""
+        r = s.rec
+        n = r.model.system.n
+        nt, nseg, k2 = len(r.t), len(s.starts), 2 * n
+        x = z[s.offset : s.offset + nseg * k2].reshape(nseg, k2)
+        xs = np.repeat(x[None], k2, axis=0)
+        for j in range(k2):
+            xs[j, :, j] += FD_STEP
+        xs = xs.reshape(k2 * nseg, k2)
+        out0 = (np.arange(k2)[:, None] * nt + s.starts[None, :]).ravel()
+        pred = r.model.simulate_many(r.values(values), xs[:, :n], xs[:, n:], np.tile(s.starts, k2),
+                                     np.tile(s.ends - s.starts, k2), out0, k2 * nt, r.u, r.dt,
+                                     self.substeps)  # fmt: skip
+        res = self.measurement_residual(pred, s, values).reshape(k2, nt, s.kdim)
+        return (res - base[None]) / FD_STEP
 
     def _raw_residual(self, z):
         values = self.from_z(z[: len(self.names)])
@@ -357,12 +383,20 @@ def input_noise_covariance(prob: Problem, z: np.ndarray, h: np.ndarray, decimate
         base = prob.measurement_residual(prob.predict(z, s, values), s, values)
         q0, qd0 = prob._states(z, s)
         hs = h[:, row : row + nrow].reshape(npar, len(r.t), s.kdim)
-        vals = r.values(values)
+        nt = len(r.t)
+        us = []
         for _ in range(draws):
             u = np.array(r.u, dtype=float, copy=True)
-            u[:, -na:] *= 1.0 + rel / np.sqrt(decimate) * rng.standard_normal((len(r.t), na))
-            pred = r.model.simulate(vals, q0, qd0, s.starts, s.ends, u, r.dt, prob.substeps)
-            dr = prob.measurement_residual(pred, s, values) - base
+            u[:, -na:] *= 1.0 + rel / np.sqrt(decimate) * rng.standard_normal((nt, na))
+            us.append(u)
+        # every draw's windows in one parallel call
+        first = (np.arange(draws)[:, None] * nt + s.starts[None, :]).ravel()
+        pred = r.model.simulate_many(r.values(values), np.tile(q0, (draws, 1)),
+                                     np.tile(qd0, (draws, 1)), first,
+                                     np.tile(s.ends - s.starts, draws), first, draws * nt,
+                                     np.vstack(us), r.dt, prob.substeps)  # fmt: skip
+        drs = prob.measurement_residual(pred, s, values).reshape(draws, nt, s.kdim) - base
+        for dr in drs:
             for a, b in zip(s.starts, s.ends, strict=True):
                 c = np.einsum("ptk,tk->p", hs[:, a:b], dr[a:b])
                 cov += np.outer(c, c)

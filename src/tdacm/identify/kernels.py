@@ -15,7 +15,7 @@ system model does not carry are applied to the input before each stage:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..system import kernels as K
 from ..system import stiff as ST
@@ -53,8 +53,59 @@ def _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0):
 
 
 @njit(cache=True)
+def _segment(q0, qd0, k0, length, o, us, substeps, dt, m, loads, thrust_k, mu, cv, v0, stiff,
+             qs, qds):  # fmt: skip
+    """One shooting segment: from ``(q0, qd0)`` through ``length`` samples with the inputs
+    ``us[k0 + j]`` held over sample ``j``, the states written to rows ``o + j`` of
+    ``qs``/``qds``. Returns False when the segment stopped (see :func:`shoot`)."""
+    q = q0.copy()
+    qd = qd0.copy()
+    alive = True
+    for j in range(length):
+        qs[o + j] = q
+        qds[o + j] = qd
+        if j + 1 == length or not alive:
+            continue
+        u = us[k0 + j]
+        for _ in range(substeps):
+            if stiff:
+                ue = effective_input(q, qd, u, m, thrust_k, mu, cv, v0)
+                q1, qd1, _, _, oks = ST.rosw_step(
+                    q, qd, ue, dt, m, loads, ST.A_T, ST.C_T, ST.M_T, ST.E_T, ST.GAMMA
+                )
+                if not (oks and np.all(np.abs(q1) < BLOWUP) and np.all(np.abs(qd1) < BLOWUP)):
+                    alive = False
+                    break
+                q = q1
+                qd = qd1
+                continue
+            a1, ok1 = _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0)
+            a2, ok2 = _acc(q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, thrust_k, mu, cv, v0)
+            a3, ok3 = _acc(
+                q + 0.5 * dt * (qd + 0.5 * dt * a1),
+                qd + 0.5 * dt * a2,
+                u, m, loads, thrust_k, mu, cv, v0,
+            )  # fmt: skip
+            a4, ok4 = _acc(
+                q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, thrust_k, mu, cv, v0
+            )
+            if not (ok1 and ok2 and ok3 and ok4):
+                alive = False
+                break
+            q1 = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)
+            qd1 = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            if not (np.all(np.abs(q1) < BLOWUP) and np.all(np.abs(qd1) < BLOWUP)):
+                alive = False
+                break
+            q = q1
+            qd = qd1
+    return alive
+
+
+@njit(cache=True)
 def shoot(q0s, qd0s, starts, ends, us, substeps, dt, m, loads, thrust_k, mu, cv, v0, stiff=False):
-    """States at every sample of every segment.
+    """States at every sample of every segment (one thread; :func:`shoot_many` runs the
+    segments in parallel to the same result).
 
     Segment ``i`` holds samples ``starts[i] <= k < ends[i]``; it starts at ``(q0s[i], qd0s[i])``
     on sample ``starts[i]`` and reaches sample ``k + 1`` from ``k`` with ``us[k]`` held, in
@@ -71,52 +122,31 @@ def shoot(q0s, qd0s, starts, ends, us, substeps, dt, m, loads, thrust_k, mu, cv,
     qds = np.zeros((total, n))
     ok_all = True
     for i in range(starts.shape[0]):
-        q = q0s[i].copy()
-        qd = qd0s[i].copy()
-        alive = True
-        for k in range(starts[i], ends[i]):
-            qs[k] = q
-            qds[k] = qd
-            if k + 1 == ends[i] or not alive:
-                continue
-            u = us[k]
-            for _ in range(substeps):
-                if stiff:
-                    ue = effective_input(q, qd, u, m, thrust_k, mu, cv, v0)
-                    q1, qd1, _, _, oks = ST.rosw_step(
-                        q, qd, ue, dt, m, loads, ST.A_T, ST.C_T, ST.M_T, ST.E_T, ST.GAMMA
-                    )
-                    if not (oks and np.all(np.abs(q1) < BLOWUP) and np.all(np.abs(qd1) < BLOWUP)):
-                        alive = False
-                        break
-                    q = q1
-                    qd = qd1
-                    continue
-                a1, ok1 = _acc(q, qd, u, m, loads, thrust_k, mu, cv, v0)
-                a2, ok2 = _acc(
-                    q + 0.5 * dt * qd, qd + 0.5 * dt * a1, u, m, loads, thrust_k, mu, cv, v0
-                )
-                a3, ok3 = _acc(
-                    q + 0.5 * dt * (qd + 0.5 * dt * a1),
-                    qd + 0.5 * dt * a2,
-                    u, m, loads, thrust_k, mu, cv, v0,
-                )  # fmt: skip
-                a4, ok4 = _acc(
-                    q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, u, m, loads, thrust_k, mu, cv, v0
-                )
-                if not (ok1 and ok2 and ok3 and ok4):
-                    alive = False
-                    break
-                q1 = q + dt * qd + dt * dt / 6.0 * (a1 + a2 + a3)
-                qd1 = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-                if not (np.all(np.abs(q1) < BLOWUP) and np.all(np.abs(qd1) < BLOWUP)):
-                    alive = False
-                    break
-                q = q1
-                qd = qd1
-            if not alive:
-                ok_all = False
+        ok = _segment(q0s[i], qd0s[i], starts[i], ends[i] - starts[i], starts[i], us, substeps,
+                      dt, m, loads, thrust_k, mu, cv, v0, stiff, qs, qds)  # fmt: skip
+        ok_all = ok_all and ok
     return qs, qds, ok_all
+
+
+@njit(cache=True, parallel=True)
+def shoot_many(q0s, qd0s, in0, lengths, out0, total, us, substeps, dt, m, loads, thrust_k, mu,
+               cv, v0, stiff=False):  # fmt: skip
+    """Independent segments in parallel over the cores (numba ``prange``): segment ``i`` starts
+    at ``(q0s[i], qd0s[i])``, takes its inputs from row ``in0[i]`` of ``us`` on and writes its
+    ``lengths[i]`` states from row ``out0[i]`` of the ``(total, n)`` outputs; otherwise as
+    :func:`shoot` (the same arithmetic per segment, so the same result to the bit whatever
+    the number of threads). Many trajectories in one call: every window of a recording, and
+    the same windows again from perturbed states (a Jacobian's state columns) or with other
+    inputs (the load cells' noise draws). Returns ``(q, qd, ok)``, ``ok`` per segment."""
+    n = q0s.shape[1]
+    ns = q0s.shape[0]
+    qs = np.zeros((total, n))
+    qds = np.zeros((total, n))
+    oks = np.ones(ns, dtype=np.bool_)
+    for i in prange(ns):
+        oks[i] = _segment(q0s[i], qd0s[i], in0[i], lengths[i], out0[i], us, substeps, dt, m,
+                          loads, thrust_k, mu, cv, v0, stiff, qs, qds)  # fmt: skip
+    return qs, qds, oks
 
 
 @njit(cache=True)
@@ -126,6 +156,19 @@ def poses(qs, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
     base = np.empty((total, 4, 4))
     tip = np.empty((total, 4, 4))
     for k in range(total):
+        out, _, gb = K.chain_poses(qs[k], floating, g_fixed, g_att, h, xi0s, bs, cols, ncs)
+        base[k] = gb
+        tip[k] = out[out.shape[0] - 1]
+    return base, tip
+
+
+@njit(cache=True, parallel=True)
+def poses_many(qs, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
+    """:func:`poses` in parallel over the rows (``prange``; the same result per row)."""
+    total = qs.shape[0]
+    base = np.empty((total, 4, 4))
+    tip = np.empty((total, 4, 4))
+    for k in prange(total):
         out, _, gb = K.chain_poses(qs[k], floating, g_fixed, g_att, h, xi0s, bs, cols, ncs)
         base[k] = gb
         tip[k] = out[out.shape[0] - 1]

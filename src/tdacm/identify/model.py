@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from ..rod import Rod, Tendons
@@ -21,6 +22,15 @@ from .params import FRICTION_V0, PARAMETERS
 #: ``|lambda|_max dt`` above which the shooting steps are ROS34PW2 instead of RK4 (RK4 is
 #: stable to 2.79 on the negative real axis; 1.5 keeps a margin for the trial models).
 RK4_LIMIT = 1.5
+
+#: The segments run on every numba thread only on the ROS34PW2 path (a step costs ``n + 4``
+#: evaluations of the dynamics and an LU: a call lasts long); an RK4 call of a few
+#: milliseconds runs on one thread. Measured on the shared 2-core machine at load average
+#: 17-22: a ``bending:2`` (ROS34PW2) Jacobian 41 s wall on two threads against 64 s on one,
+#: but the five main parameters (RK4) 23-36 s on two against 14-21 s on one: thousands of
+#: short parallel loops, each waiting at its end for a thread the busy machine preempted.
+#: The result is the same to the bit either way.
+PARALLEL_STIFF_ONLY = True
 
 
 @dataclass
@@ -167,17 +177,43 @@ class IdentModel:
         ``values`` and return their :class:`Prediction`. The step ``dt_sample / substeps`` is
         taken by RK4, or by the L-stable ROS34PW2 when ``|lambda|_max dt`` at the nominal
         values exceeds :data:`RK4_LIMIT` (:meth:`fastest_rate`; a property of the structure and
-        the step, so every trial model of a fit uses the same integrator)."""
+        the step, so every trial model of a fit uses the same integrator). The segments run in
+        parallel over the cores on the ROS34PW2 path (:meth:`simulate_many`)."""
+        starts = np.asarray(starts, dtype=np.int64)
+        ends = np.asarray(ends, dtype=np.int64)
+        return self.simulate_many(values, q0s, qd0s, starts, ends - starts, starts,
+                                  int(ends[-1]), u, dt_sample, substeps)  # fmt: skip
+
+    def simulate_many(self, values: dict, q0s, qd0s, in0, lengths, out0, total, u, dt_sample,
+                      substeps=1) -> Prediction:  # fmt: skip
+        """Independent segments with parameters ``values``, in parallel over the cores
+        (:func:`tdacm.identify.kernels.shoot_many`; on one thread on the RK4 path, see
+        :data:`PARALLEL_STIFF_ONLY`): segment ``i`` starts at ``(q0s[i],
+        qd0s[i])``, reads the inputs from row ``in0[i]`` of ``u`` and fills ``lengths[i]`` rows
+        from ``out0[i]`` of the ``total`` rows returned (integrator as :meth:`simulate`)."""
         stiff = self.fastest_rate() * dt_sample / substeps > RK4_LIMIT
         v = self.values(values)
         sysm = self.build(v)
-        m = sysm.model_arrays
         dt = dt_sample / substeps
-        q, qd, ok = IK.shoot(
+        threads = numba.get_num_threads()
+        if PARALLEL_STIFF_ONLY and not stiff:
+            numba.set_num_threads(1)
+        try:
+            q, qd, ok, base, tip = self._shoot_many(sysm, v, q0s, qd0s, in0, lengths, out0,
+                                                    total, u, substeps, dt, stiff)  # fmt: skip
+        finally:
+            numba.set_num_threads(threads)
+        return Prediction(q, qd, base, tip, bool(np.all(ok)))
+
+    def _shoot_many(self, sysm, v, q0s, qd0s, in0, lengths, out0, total, u, substeps, dt, stiff):
+        m = sysm.model_arrays
+        q, qd, ok = IK.shoot_many(
             np.ascontiguousarray(q0s, dtype=float),
             np.ascontiguousarray(qd0s, dtype=float),
-            np.asarray(starts, dtype=np.int64),
-            np.asarray(ends, dtype=np.int64),
+            np.asarray(in0, dtype=np.int64),
+            np.asarray(lengths, dtype=np.int64),
+            np.asarray(out0, dtype=np.int64),
+            int(total),
             np.ascontiguousarray(u, dtype=float),
             int(substeps),
             float(dt),
@@ -189,8 +225,8 @@ class IdentModel:
             FRICTION_V0,
             stiff,
         )
-        base, tip = self.poses(sysm, q)
-        return Prediction(q, qd, base, tip, bool(ok))
+        base, tip = self.poses(sysm, q, parallel=True)
+        return q, qd, ok, base, tip
 
     def camera_mount(self, offset=None) -> np.ndarray:
         """``g_{C_L}^L`` with the optical centre ``offset`` beyond the tip (default nominal)."""
@@ -199,11 +235,12 @@ class IdentModel:
         return g
 
     @staticmethod
-    def poses(system: TDACM, q: np.ndarray):
-        """Drone and tip poses (T, 4, 4) of the rows of ``q``."""
+    def poses(system: TDACM, q: np.ndarray, parallel: bool = False):
+        """Drone and tip poses (T, 4, 4) of the rows of ``q`` (``parallel``: over the cores,
+        the same result)."""
         m = system.model_arrays
         lo, hi = system._rod_steps[0], system._rod_steps[1]
-        return IK.poses(
+        return (IK.poses_many if parallel else IK.poses)(
             np.ascontiguousarray(q, dtype=float),
             m.floating,
             m.g_fixed,
