@@ -48,7 +48,7 @@ if __name__ == "__main__":
         if a.features:
             feats = tuple(a.features)
         res = batch_bench(tuple(a.sizes), tuple(a.threads), a.repeats, duration=a.duration,
-                          features=feats, vector=not a.no_vector, cold=not a.no_cold)  # fmt: skip
+                          servo_modes=feats, vector=not a.no_vector, cold=not a.no_cold)  # fmt: skip
         data["batch"] = res
     path.write_text(json.dumps(data, indent=2))
     print(json.dumps(res, indent=2))

@@ -168,13 +168,13 @@ def table(runs: dict, sizes, threads) -> str:
 
 
 def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 3,
-                progress=print, duration: float = 2.0, features=("measured",),
+                progress=print, duration: float = 2.0, servo_modes=("measured",),
                 vector: bool = True, cold: bool = True):  # fmt: skip
     """The ``batch`` section of ``bench.json`` (module docstring): the table over ``sizes``
-    and ``threads`` for each servo of ``features`` (``"measured"``, ``"predicted"``), runs of
+    and ``threads`` for each servo of ``servo_modes`` (``"measured"``, ``"predicted"``), runs of
     ``duration`` s."""
     out = {"load": os.getloadavg(), "runs": {}, "steps": {}, "duration": duration, "cpu_ms": {}}
-    for feat in features:
+    for feat in servo_modes:
         runs = out["runs"] if feat == "measured" else out.setdefault(f"runs_{feat}", {})
         for t in threads:
             for n in sizes:
@@ -189,7 +189,7 @@ def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 
                 r = step_rate(n, t, repeats=repeats)
                 out["steps"][f"{n}x{t}"] = r
                 progress(f"batch step  N={n:5d} threads={t}: {r:9.0f} world-periods/s")
-    first = out["runs"] if "measured" in features else out[f"runs_{features[0]}"]
+    first = out["runs"] if "measured" in servo_modes else out[f"runs_{servo_modes[0]}"]
     one = first.get(f"1x{threads[0]}")
     if one is not None:
         out["one_world_real_time"] = one / 50.0  # 50 periods of 20 ms per simulated second
@@ -202,6 +202,6 @@ def batch_bench(sizes=(1, 4, 16, 64, 256, 1024), threads=(1, 2), repeats: int = 
         out["vector_env"] = vector_env_rate(threads=max(threads))
         progress(f"vector env N=256: {out['vector_env']['env_steps_per_s']:.0f} env-steps/s")
     out["load_after"] = os.getloadavg()
-    tabs = {f: out["runs"] if f == "measured" else out[f"runs_{f}"] for f in features}
+    tabs = {f: out["runs"] if f == "measured" else out[f"runs_{f}"] for f in servo_modes}
     progress(table(tabs, sizes, threads))
     return out
