@@ -188,7 +188,9 @@ def compile_second_half() -> None:
 #: What :func:`fill_cache` runs: the README's first command, on one simulated second.
 WARM_UP_RUN = ("run", "paper-in-fov", "--duration", "1")
 #: ... and, in a second process at the same time, a batch of the engine's configuration
-#: (:mod:`tdacm.batch`, whose kernels compile apart from the block loop's)
+#: (:mod:`tdacm.batch`, whose kernels compile apart from the block loop's), the vector env with
+#: the imitation teacher and a one-step identification (explicit and stiff shooting), so that
+#: their first use loads rather than compiles too
 WARM_UP_BATCH = (
     "from tdacm.sim.batch import build_batch\n"
     "from tdacm.sim.scenario import load_scenario\n"
@@ -196,6 +198,17 @@ WARM_UP_BATCH = (
     "'analytic', 'global_renderer': 'planar'}, 'ibvs': {'features': 'measured'}}, 'warm-up')\n"
     "b = build_batch(sc, [0, 1], duration=0.2, threads=2)\n"
     "b.run(); b.step(); b.reset()\n"
+    # the vector env and the imitation teacher on the robust servo (tdacm.envs)
+    "import gymnasium as gym\n"
+    "import tdacm.envs\n"
+    "from tdacm.envs.teacher import teacher_twists\n"
+    "v = gym.make_vec('tdacm/TipServo-v0', num_envs=2, vectorization_mode='vector_entry_point')\n"
+    "v.reset(seed=0); teacher_twists(v); v.step(v.action_space.sample()); v.close()\n"
+    # identification's shooting on the explicit (RK4) and the stiff path (tdacm.identify)
+    "from tdacm.identify import identify, synthesize\n"
+    "for basis in ('bending:0', 'bending:2'):\n"
+    "    rec = synthesize('tendon-steps-loaded', seed=3, duration=3.0).decimated(2)\n"
+    "    identify(rec.with_basis(basis), ['E'], segment=1.0, max_nfev=1)\n"
 )
 
 
@@ -204,7 +217,8 @@ def fill_cache(timeout: float = 1800.0) -> int:
     ``python -m tdacm.loop.precompile --install``): one ``tdacm run paper-in-fov --duration 1``
     into a temporary folder, which compiles every kernel the scenario runs (in two processes,
     as any cold run) and caches them, so that the user's first run loads them; meanwhile a
-    third process runs a small batch of the batched engine (:data:`WARM_UP_BATCH`).  Returns the
+    third process runs a small batch of the batched engine, the vector env and a one-step
+    identification (:data:`WARM_UP_BATCH`).  Returns the
     run's exit code; a failure only costs the user that compile at the first run."""
     import tempfile
 
