@@ -419,6 +419,33 @@ def act_worlds(model, data, twist, lo, hi):
 
 
 @njit(cache=True, nogil=True)
+def world_view(model, data, w, pv, zv, pix):
+    """World ``w``'s view in the frame :func:`sense_worlds` kept, without changing its state:
+    the points and depths in the servo's camera into ``pv`` (4, 2), ``zv`` (4,) (``pix``
+    (4, 2): scratch for the prediction in C_L). The measured points
+    (:func:`~tdacm.batch.servo.servo_view`), or with the robust servo the points predicted
+    from the target filter after fusing the frame (:func:`~tdacm.batch.servo.robust_predict`
+    on a copy of the world's servo and filter state). Returns
+    :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` (a prediction exists) or ``BEHIND``."""
+    sm = model.servo
+    m = model.plant_model
+    if sm.params[S.P_ROBUST] != 0.0:
+        sstate = data.sstate[w].copy()
+        fd = S.FilterData(data.f_state[w].copy(), data.f_pose[w].copy(),
+                          data.f_cov[w].copy(), data.f_hyp[w].copy(), data.f_rc[w].copy(),
+                          data.f_pc[w].copy(), data.f_z[w].copy(), data.t_pose[w].copy(),
+                          data.cam_hist[w].copy())  # fmt: skip
+        k = int(sstate[S.S_PERIOD])
+        valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
+                                       data.meas_uv[w], m, sm, w, sstate, fd,
+                                       world_camera_pose(model, data, w), pv, zv,
+                                       pix)  # fmt: skip
+        return S.SEEN if valid else S.NOT_SEEN
+    return S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
+                        world_camera_pose(model, data, w), pv, zv)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
 def observe_worlds(model, data, points, error, status, lo, hi):
     """What each world ``lo <= w < hi`` sees in the frame :func:`sense_worlds` kept, without
     changing its state (the env's observation, the features the servo works on): the points
@@ -430,26 +457,10 @@ def observe_worlds(model, data, points, error, status, lo, hi):
     period's :func:`act_worlds` fuses the same frame into the state itself); ``SEEN`` when a
     prediction exists."""
     sm = model.servo
-    m = model.plant_model
     zv = np.empty(4)
-    robust = sm.params[S.P_ROBUST] != 0.0
     pix = np.empty((4, 2))
     for w in range(lo, hi):
-        if robust:
-            sstate = data.sstate[w].copy()
-            fd = S.FilterData(data.f_state[w].copy(), data.f_pose[w].copy(),
-                              data.f_cov[w].copy(), data.f_hyp[w].copy(), data.f_rc[w].copy(),
-                              data.f_pc[w].copy(), data.f_z[w].copy(), data.t_pose[w].copy(),
-                              data.cam_hist[w].copy())  # fmt: skip
-            k = int(sstate[S.S_PERIOD])
-            valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
-                                           data.meas_uv[w], m, sm, w, sstate, fd,
-                                           world_camera_pose(model, data, w), points[w], zv,
-                                           pix)  # fmt: skip
-            st = S.SEEN if valid else S.NOT_SEEN
-        else:
-            st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
-                              world_camera_pose(model, data, w), points[w], zv)  # fmt: skip
+        st = world_view(model, data, w, points[w], zv, pix)
         status[w] = st
         if st == S.SEEN:
             f = S._features_kernel(points[w])

@@ -24,32 +24,16 @@ def teacher_worlds(model, data, out, lo, hi):
     """The IBVS twist (N, 6) into ``out`` of the worlds ``lo <= w < hi`` (module docstring),
     as :func:`~tdacm.batch.engine.observe_worlds` finds their features."""
     sm = model.servo
-    m = model.plant_model
     pv = np.empty((4, 2))
     zv = np.empty(4)
     pix = np.empty((4, 2))
     f = np.empty(6)
     e = np.empty(6)
     v = np.empty(6)
-    robust = sm.params[S.P_ROBUST] != 0.0
     for w in range(lo, hi):
         for i in range(6):
             out[w, i] = np.nan
-        if robust:
-            sstate = data.sstate[w].copy()
-            fd = S.FilterData(data.f_state[w].copy(), data.f_pose[w].copy(),
-                              data.f_cov[w].copy(), data.f_hyp[w].copy(), data.f_rc[w].copy(),
-                              data.f_pc[w].copy(), data.f_z[w].copy(), data.t_pose[w].copy(),
-                              data.cam_hist[w].copy())  # fmt: skip
-            k = int(sstate[S.S_PERIOD])
-            valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
-                                           data.meas_uv[w], m, sm, w, sstate, fd,
-                                           E.world_camera_pose(model, data, w), pv, zv,
-                                           pix)  # fmt: skip
-        else:
-            st = S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
-                              E.world_camera_pose(model, data, w), pv, zv)  # fmt: skip
-            valid = st == S.SEEN
+        valid = E.world_view(model, data, w, pv, zv, pix) == S.SEEN
         if valid:
             S.ibvs_twist(pv, zv, sm, w, f, e, v)
             for i in range(6):

@@ -150,26 +150,26 @@ def shoot_many(q0s, qd0s, in0, lengths, out0, total, us, substeps, dt, m, loads,
 
 
 @njit(cache=True)
+def _pose_row(qs, k, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs, base, tip):
+    """Row ``k`` of :func:`poses`: the drone's pose into ``base[k]``, ``g_L`` into ``tip[k]``."""
+    out, _, gb = K.chain_poses(qs[k], floating, g_fixed, g_att, h, xi0s, bs, cols, ncs)
+    base[k] = gb
+    tip[k] = out[out.shape[0] - 1]
+
+
+@njit(cache=True)
 def poses(qs, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
     """Drone (base) pose and tip pose ``g_L`` at every row of ``qs``: two (T, 4, 4) arrays."""
-    total = qs.shape[0]
-    base = np.empty((total, 4, 4))
-    tip = np.empty((total, 4, 4))
-    for k in range(total):
-        out, _, gb = K.chain_poses(qs[k], floating, g_fixed, g_att, h, xi0s, bs, cols, ncs)
-        base[k] = gb
-        tip[k] = out[out.shape[0] - 1]
+    base, tip = np.empty((qs.shape[0], 4, 4)), np.empty((qs.shape[0], 4, 4))
+    for k in range(qs.shape[0]):
+        _pose_row(qs, k, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs, base, tip)
     return base, tip
 
 
 @njit(cache=True, parallel=True)
 def poses_many(qs, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs):
     """:func:`poses` in parallel over the rows (``prange``; the same result per row)."""
-    total = qs.shape[0]
-    base = np.empty((total, 4, 4))
-    tip = np.empty((total, 4, 4))
-    for k in prange(total):
-        out, _, gb = K.chain_poses(qs[k], floating, g_fixed, g_att, h, xi0s, bs, cols, ncs)
-        base[k] = gb
-        tip[k] = out[out.shape[0] - 1]
+    base, tip = np.empty((qs.shape[0], 4, 4)), np.empty((qs.shape[0], 4, 4))
+    for k in prange(qs.shape[0]):
+        _pose_row(qs, k, floating, g_fixed, g_att, h, xi0s, bs, cols, ncs, base, tip)
     return base, tip

@@ -222,18 +222,8 @@ class ArmsServo:
         """One period. ``twist`` (optional): the arms' twists stacked (``6 k`` values)
         replacing the IBVS twists."""
         q = est.q
-        lead, n = self.arms[0], self.n
         per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
-        modes = [p[0] for p in per]
-        # the robot's events: an arm losing its target; IBVS engaged when the last lost arm
-        # sees its target again (the loop arms the safety monitor then, as for one arm)
-        was_lost = self._lost
-        self._lost = any(m == Mode.RECOVERY for m in modes)
-        event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
-        if event is None and was_lost and not self._lost:
-            event = ServoEvent.IBVS_ENGAGED
-        if event is None and per[0][1] != ServoEvent.IBVS_ENGAGED:
-            event = per[0][1]
+        modes, event = self._robot_event(per)
         states, twists = [], []
         external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
         seen_all = all(p[2] for p in per)
@@ -244,6 +234,48 @@ class ArmsServo:
             twists.append(v)
             states.append(ArmServoState(points, rmse, extra.get("rmse_measured", math.nan), v,
                                         bool(seen)))  # fmt: skip
+        qdd_d, request, failure, plan, event, _ = self._joint_command(
+            t, dt, q, gview, modes, seen_all, twists, event
+        )
+        return self._command(per, states, twists, qdd_d, event, failure, request, plan)
+
+    def _command(self, per, states, twists, qdd_d, event, failure, request, plan, **extra):
+        """The period's :class:`ServoCommand` from the arms' perceptions ``per`` and states:
+        arm 0's twist and points, the largest of the arms' RMSEs (NaN if one is), the lead's
+        joint reference; ``extra``: further fields of the command."""
+        lead = self.arms[0]
+        rmses = [s.rmse for s in states]
+        rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
+        meas = [s.rmse_measured for s in states]
+        p0, e0 = per[0], per[0][8]
+        return ServoCommand(
+            self.mode, lead.q_d.copy(), lead.qd_d.copy(), qdd_d, twists[0], p0[5], p0[6], p0[4],
+            rmse, event=event, failure=failure,
+            rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
+            target_pose=e0.get("target_pose"), arms=tuple(states), request_global=request,
+            plan=plan, **extra,
+        )  # fmt: skip
+
+    def _robot_event(self, per):
+        """The arms' modes and the robot's event of the period from the arms' perceptions
+        ``per``: an arm losing its target; IBVS engaged when the last lost arm sees its
+        target again (the loop arms the safety monitor then, as for one arm)."""
+        modes = [p[0] for p in per]
+        was_lost = self._lost
+        self._lost = any(m == Mode.RECOVERY for m in modes)
+        event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
+        if event is None and was_lost and not self._lost:
+            event = ServoEvent.IBVS_ENGAGED
+        if event is None and per[0][1] != ServoEvent.IBVS_ENGAGED:
+            event = per[0][1]
+        return modes, event
+
+    def _joint_command(self, t, dt, q, gview, modes, seen_all, twists, event):
+        """The period's joint command: the recovery of the arms that lost their target
+        (:meth:`recover`), else the joint rates of the arms' ``twists`` when every arm sees
+        its target, else a hold. Returns ``(qdd_d, request_global, failure, plan, event,
+        following)``, ``following`` when the rates were followed."""
+        lead, n = self.arms[0], self.n
         qdd_d = np.zeros(n)
         failure = plan = None
         request = False
@@ -256,17 +288,7 @@ class ArmsServo:
             qdd_d = lead.follow_rates(q, self.joint_rates(q, twists), t, dt)
         else:  # an arm's target not seen this period (nothing fused yet): hold
             lead.qd_d = np.zeros(n)
-        rmses = [s.rmse for s in states]
-        rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
-        meas = [s.rmse_measured for s in states]
-        p0, e0 = per[0], per[0][8]
-        return ServoCommand(
-            self.mode, lead.q_d.copy(), lead.qd_d.copy(), qdd_d, twists[0], p0[5], p0[6], p0[4],
-            rmse, event=event, failure=failure,
-            rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
-            target_pose=e0.get("target_pose"), arms=tuple(states), request_global=request,
-            plan=plan,
-        )  # fmt: skip
+        return qdd_d, request, failure, plan, event, bool(not lost and seen_all)
 
     def recover(self, t: float, q, gview, lost: list[int]):
         """The recovery of the arms ``lost`` (module docstring): the drone holds its

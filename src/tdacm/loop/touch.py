@@ -50,6 +50,20 @@ from .servo import RobustServo, normalized_rmse
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
 
 
+def observer_step(block, q, qd, u_applied, dt):
+    """One period of a force block's momentum observer (``block.observer``, its last
+    residual kept in ``block._last``): the residual, or None while there is no applied input
+    (the observer restarts) or it is starting."""
+    if u_applied is None:
+        block.observer.reset()
+        block._last = None
+        return None
+    started = block.observer.started
+    r = block.observer.step(q, qd, u_applied, dt)
+    block._last = r
+    return r if started else None
+
+
 class TipForceBlock:
     """Estimated normal force on the probe along the tip camera's axis (module docstring).
 
@@ -93,14 +107,8 @@ class TipForceBlock:
         return ForceReading(est.t, f, sigma, normal, True)
 
     def _step_momentum(self, est, q, qd, u_applied, dt) -> ForceReading:
-        if u_applied is None:
-            self.observer.reset()
-            self._last = None
-            return ForceReading(est.t)
-        started = self.observer.started
-        r = self.observer.step(q, qd, u_applied, dt)
-        self._last = r
-        if not started:
+        r = observer_step(self, q, qd, u_applied, dt)
+        if r is None:
             return ForceReading(est.t)
         normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
         # the inputs' white noise through the observer's first-order lag: the steady variance

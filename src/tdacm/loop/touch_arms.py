@@ -47,9 +47,9 @@ from ..estimation.contact_force import (
 from ..system import kernels as K
 from ..vision.tip import rates_from_jacobian
 from .arms import ArmServoState, ArmsLog, ArmsServo
-from .data import PHASES, ForceReading, ServoCommand, ServoEvent
+from .data import PHASES, ForceReading, ServoCommand
 from .servo import normalized_rmse
-from .touch import _AXIAL
+from .touch import _AXIAL, observer_step
 
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
 
@@ -125,14 +125,8 @@ class ArmsForceBlock:
         q, qd = np.asarray(est.q, float), np.asarray(est.qd, float)
         e0 = self.estimators[0]
         if self.observer is not None:
-            if u_applied is None:
-                self.observer.reset()
-                self._last = None
-                return ArmsForceReading(est.t)
-            started = self.observer.started
-            r = self.observer.step(q, qd, u_applied, dt)
-            self._last = r
-            if not started:
+            r = observer_step(self, q, qd, u_applied, dt)
+            if r is None:
                 return ArmsForceReading(est.t)
             k = self.observer.gain * dt  # the inputs' noise through the observer's lag
             return self._reading(est.t, q, r, e0.input_cov(q) * (k / (2.0 - k)))
@@ -224,7 +218,7 @@ class ArmsTouchServo(ArmsServo):
 
     def step(self, t: float, dt: float, view, gview, est, twist=None, force=None) -> ServoCommand:
         q = est.q
-        lead, n, tc = self.arms[0], self.n, self.touch
+        tc = self.touch
         for a in self.arms:
             a._ps = None
         per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
@@ -235,14 +229,7 @@ class ArmsTouchServo(ArmsServo):
         tare = self._transitions(t, pss, forces)
         if tare:
             forces = [0.0] * len(self.arms)
-        modes = [p[0] for p in per]
-        was_lost = self._lost
-        self._lost = any(m == Mode.RECOVERY for m in modes)
-        event = next((p[1] for p in per if p[1] == ServoEvent.TARGET_LOST), None)
-        if event is None and was_lost and not self._lost:
-            event = ServoEvent.IBVS_ENGAGED
-        if event is None and per[0][1] != ServoEvent.IBVS_ENGAGED:
-            event = per[0][1]
+        modes, event = self._robot_event(per)
         valid = [ps is not None and ps.valid for ps in pss]
         seen_all = all(p[2] for p in per) and all(valid)
         external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
@@ -274,32 +261,16 @@ class ArmsTouchServo(ArmsServo):
                                         bool(p[2]), phase, forces[k]))  # fmt: skip
         self._weights = weights if len(weights) == len(self.arms) else None
         self._pressing = {k for k, p in enumerate(self.phases) if p in (CONTACT, HOLD)}
-        qdd_d = np.zeros(n)
-        failure = plan = None
-        request = False
-        lost = [k for k, m in enumerate(modes) if m == Mode.RECOVERY]
-        if lost:
-            qdd_d, request, failure, plan = self.recover(t, q, gview, lost)
-            if plan is not None and event is None:
-                event = "recovery planned"
-        elif seen_all:
-            qdd_d = lead.follow_rates(q, self.joint_rates(q, twists), t, dt)
+        qdd_d, request, failure, plan, event, following = self._joint_command(
+            t, dt, q, gview, modes, seen_all, twists, event
+        )
+        if following:
             self._admittance(q, forces, dt)
-        else:
-            lead.qd_d = np.zeros(n)
         if prev_phase != self.phase:
             event = f"touch: {self.phase}"
-        rmses = [s.rmse for s in states]
-        rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
-        meas = [s.rmse_measured for s in states]
-        p0, e0 = per[0], per[0][8]
-        return ServoCommand(
-            self.mode, lead.q_d.copy(), lead.qd_d.copy(), qdd_d, twists[0], p0[5], p0[6], p0[4],
-            rmse, event=event, failure=failure,
-            rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
-            target_pose=e0.get("target_pose"), arms=tuple(states), request_global=request,
-            plan=plan, phase=self.phase, tare_force=tare,
-            phase_changed=prev_arms != self.phases,
+        return self._command(
+            per, states, twists, qdd_d, event, failure, request, plan, phase=self.phase,
+            tare_force=tare, phase_changed=prev_arms != self.phases,
         )  # fmt: skip
 
     def joint_rates(self, q, twists, pressing=None) -> np.ndarray:

@@ -259,6 +259,18 @@ def _to_px(xy, cam):
     return np.stack((cam.fx * xy[..., 0] + cam.cx, cam.fy * xy[..., 1] + cam.cy), axis=-1)
 
 
+def _image_axes(ax, cam, title: str) -> None:
+    """An image panel's frame: the camera's pixel area (v downward), equal axes, labels,
+    ``title`` and the legend."""
+    ax.set_xlim(0, cam.width)
+    ax.set_ylim(cam.height, 0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title(title)
+    ax.legend(loc="lower right")
+
+
 def _image_panel(ax, uv, desired_px, cam, title):
     """The four points' paths ``uv`` (T, 4, 2) px in an image of ``cam``, their start and the
     desired points."""
@@ -270,13 +282,7 @@ def _image_panel(ax, uv, desired_px, cam, title):
     if desired_px is not None:
         ax.plot(desired_px[:, 0], desired_px[:, 1], "x", color="k", ms=8, label="desired")
     ax.plot([], [], "o", color="0.3", mfc="none", label="start")
-    ax.set_xlim(0, cam.width)
-    ax.set_ylim(cam.height, 0)
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
-    ax.set_title(title)
-    ax.legend(loc="lower right")
+    _image_axes(ax, cam, title)
 
 
 def _rmse_panel(ax, rd: RunData, curves):
@@ -349,13 +355,9 @@ def fig_features(rd: RunData, out, formats):
             dp = _to_px(rd.desired_points, cam)
             ax0.plot(dp[:, 0], dp[:, 1], "x", color="k", ms=8, label="desired")
         ax0.plot([], [], "o", color="0.3", mfc="none", label="start")
-    ax0.set_xlim(0, cam.width)
-    ax0.set_ylim(cam.height, 0)
-    ax0.set_aspect("equal")
-    ax0.set_xlabel("u (px)")
-    ax0.set_ylabel("v (px)")
-    ax0.set_title("image features" + (" (virtual camera $C_V$)" if rd.floating else " ($C_L$)"))
-    ax0.legend(loc="lower right")
+    _image_axes(
+        ax0, cam, "image features" + (" (virtual camera $C_V$)" if rd.floating else " ($C_L$)")
+    )
     if rd.has("rmse"):
         r = np.asarray(rd.arrays["rmse"], float)
         ax1.semilogy(rd.t, r, color="C0", label="normalized RMSE")
