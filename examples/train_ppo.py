@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tdacm.envs.options import RANDOMIZATION_LIMITS
+
 #: The robustness campaigns' initial spread of paper-in-fov (std on q; roll and pitch level),
 #: ``examples/campaigns/paper-in-fov-200.toml``.
 SPREAD = (0.0, 0.0, 0.05, 0.1, 0.1, 0.2, 0.05, 0.05)
@@ -61,16 +63,8 @@ TASK = {
 }
 #: Domain randomization of the training worlds (env option ``randomize``, drawn at each reset):
 #: rod stiffness and damping, masses and tendon moment arms within +-10 %, pixel noise 0-2 px,
-#: dropout 0-10 %, latency 0-2 frames. Evaluation runs the nominal task.
-RANDOMIZE = {
-    "stiffness": 0.1,
-    "damping": 0.1,
-    "masses": 0.1,
-    "moment_arm": 0.1,
-    "pixel_noise": 2.0,
-    "dropout": 0.1,
-    "latency": 2,
-}
+#: dropout 0-10 %, latency 0-2 frames: the env's whole ranges. Evaluation runs the nominal task.
+RANDOMIZE = dict(RANDOMIZATION_LIMITS)
 #: held-out evaluation seeds (never used in training or selection) and validation seeds
 #: (the choice between the DAgger and the PPO policy)
 EVAL_SEED0 = 10_000
