@@ -20,7 +20,9 @@ Actions (``action_type``):
 * ``"twist"`` (default): the virtual-camera twist ``[w; v]`` (angular first, in C_V, or in C_L
   for a fixed base), scaled by ``max_angular``/``max_linear`` from ``[-1, 1]^6``; it replaces
   the IBVS twist, then goes through the servo's mapping ``qdot_d = pinv(J_L^L) Ad v`` and its
-  command shaping, and the scenario's low-level controller tracks the result.
+  command shaping, and the scenario's low-level controller tracks the result. A robot of
+  ``k`` arms (``[[robot.arms]]``) takes ``6 k`` values, arm 0's twist first, each in its own
+  arm's C_V, mapped jointly (docs/control.md, "Two arms").
 * ``"actuators"``: raw inputs in ``[0, 1]`` scaled to ``[0, max_thrust]`` per motor and
   ``[0, max_tension]`` per tendon (fixed base: tensions only); no controller.
 
@@ -28,10 +30,12 @@ Observation (float32, size ``15 + 2 n`` for a robot of ``n`` coordinates): the o
 policy block, :func:`tdacm.loop.policy.observation` (its layout and scaling,
 :data:`OBSERVATION_SCALES`): the feature error, the four points in C_V, the detection flag,
 the state estimate's offset from ``q*`` and its velocity, scaled and clipped to
-``[-OBS_CLIP, OBS_CLIP]``.
+``[-OBS_CLIP, OBS_CLIP]``. A robot of ``k`` arms: ``15 k + 2 n``, the first 15 entries (error,
+points, detection) per arm, arm 0 first, then the state once.
 
 Reward per step: ``-rmse``, minus the normalized RMSE of the four points to the reference
-snapshot (C_V); ``-lost_penalty`` when the target is not detected. Success (``rmse <=
+snapshot (C_V; with several arms the largest of the arms', the target seen when every arm
+sees its own); ``-lost_penalty`` when the target is not detected. Success (``rmse <=
 success_rmse``) adds ``success_bonus`` and ends the episode. A failure ending (the target lost
 for ``max_lost`` steps, the state out of its envelope, the loop's own termination) gives
 ``-lost_penalty`` for each step left until ``max_steps``, as if the target had stayed lost: a
@@ -89,6 +93,25 @@ def _merge(a: dict, b: dict) -> dict:
     return out
 
 
+def _perceive_once(perceive):
+    """``perceive`` (a servo's bound ``perceive``) memoized on its last ``(view, est)``: the
+    env's observation and the servo's step of the same period share one call (and its
+    :class:`~tdacm.vision.virtual.BehindVirtualCamera`)."""
+    memo = [None, None, None, None]
+
+    def perceive_once(t, dt, view, est):
+        if memo[0] is not view or memo[1] is not est:
+            try:
+                memo[:] = view, est, perceive(t, dt, view, est), None
+            except BehindVirtualCamera as exc:
+                memo[:] = view, est, None, exc
+        if memo[3] is not None:
+            raise memo[3]
+        return memo[2]
+
+    return perceive_once
+
+
 class TipServoEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
@@ -121,7 +144,7 @@ class TipServoEnv(gym.Env):
         self.lost_penalty = float(o.lost_penalty)
         self.max_lost = int(o.max_lost)
         self.hold = bool(o.hold_success)
-        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3)
+        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3)  # one arm's twist
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
         self._renderer = None
@@ -131,46 +154,41 @@ class TipServoEnv(gym.Env):
         s = self.loop.plant.system
         self.n = n = s.n
         self.init_noise = o.initial_std(n)
+        k = len(self._arm_servos)
         if action_type == "twist":
-            self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(6 * k,), dtype=np.float32)
         else:
             self.action_space = spaces.Box(0.0, 1.0, shape=(s.n_u,), dtype=np.float32)
             self._top = np.r_[
                 np.full(4, s.base.max_thrust) if s.floating else [],
                 np.full(s.n_a, s.tendons.max_tension),
             ]
-        cam = self.loop.perception.local_camera
-        self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
+        self.scale = np.tile(self.scale, k)
+        self.point_scales = [
+            np.array([a.local_camera.cx / a.local_camera.fx, a.local_camera.cy / a.local_camera.fy])
+            for a in self._arm_servos
+        ]
+        self.point_scale = self.point_scales[0]
         self.q_scale = state_scales(n, s.floating)
-        high = np.full(observation_size(n), OBS_CLIP, np.float32)
+        high = np.full(observation_size(n) + 15 * (k - 1), OBS_CLIP, np.float32)
         low = -high
-        high[14], low[14] = 1.0, 0.0
+        high[14 : 15 * k : 15], low[14 : 15 * k : 15] = 1.0, 0.0  # each arm's detection flag
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._seed = int(sc.config.seed)
         self._sensed = None
 
     def _quiet_log(self) -> None:
-        """No logging in the env, and the servo's ``perceive`` (the mode switch, the target
-        filter's fusion) run once per period: the env observes the features it returns, then
-        the servo's step reuses them."""
+        """No logging in the env, and each arm's servo's ``perceive`` (the mode switch, the
+        target filter's fusion) run once per period: the env observes the features it
+        returns, then the servo's step reuses them."""
         from ..loop.logger import NullLog
 
         loop = self.loop
         loop.log = NullLog(loop.servo.desired_points)
-        perceive = type(loop.servo).perceive.__get__(loop.servo)
-        memo = [None, None, None, None]
-
-        def perceive_once(t, dt, view, est):
-            if memo[0] is not view or memo[1] is not est:
-                try:
-                    memo[:] = view, est, perceive(t, dt, view, est), None
-                except BehindVirtualCamera as exc:
-                    memo[:] = view, est, None, exc
-            if memo[3] is not None:
-                raise memo[3]
-            return memo[2]
-
-        loop.servo.perceive = perceive_once
+        # a robot of several arms: one single-arm servo per arm (tdacm.loop.arms.ArmsServo)
+        self._arm_servos = list(getattr(loop.servo, "arms", [loop.servo]))
+        for servo in self._arm_servos:
+            servo.perceive = _perceive_once(type(servo).perceive.__get__(servo))
 
     @property
     def desired_points(self) -> np.ndarray:
@@ -188,24 +206,34 @@ class TipServoEnv(gym.Env):
         prediction from its target filter)."""
         sensed = self._sensed = self.loop.sense()
         view, est = sensed.view, sensed.estimate
-        rmse = math.nan
-        points = error = None
-        behind = seen = False
         loop = self.loop
-        try:
-            parts = loop.servo.perceive(loop.plant.state.t, loop.dt, view, est)
-        except BehindVirtualCamera:
-            behind = True
-        else:
-            _, _, seen, _, points, _, error, rmse, _ = parts
-        seen = bool(seen) and not behind
-        obs = observation(
-            np.zeros((1, 6)) if error is None else np.asarray(error)[None],
-            np.zeros((1, 4, 2)) if points is None else np.asarray(points)[None],
-            [seen], est.q[None], est.qd[None], self.world.q_star, self.q_scale,
-            self.point_scale,
-        )[0]  # fmt: skip
-        return obs, seen, points, rmse, behind
+        views = getattr(view, "arms", ()) or (view,)
+        blocks, rmses, seen_all, behind_any, points0 = [], [], True, False, None
+        for k, (servo, v) in enumerate(zip(self._arm_servos, views, strict=True)):
+            rmse = math.nan
+            points = error = None
+            behind = seen = False
+            try:
+                parts = servo.perceive(loop.plant.state.t, loop.dt, v, est)
+            except BehindVirtualCamera:
+                behind = True
+            else:
+                _, _, seen, _, points, _, error, rmse, _ = parts
+            seen = bool(seen) and not behind
+            obs = observation(
+                np.zeros((1, 6)) if error is None else np.asarray(error)[None],
+                np.zeros((1, 4, 2)) if points is None else np.asarray(points)[None],
+                [seen], est.q[None], est.qd[None], self.world.q_star, self.q_scale,
+                self.point_scales[k],
+            )[0]  # fmt: skip
+            blocks.append(obs[:15])
+            state = obs[15:]
+            rmses.append(rmse)
+            seen_all, behind_any = seen_all and seen, behind_any or behind
+            points0 = points if k == 0 else points0
+        rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
+        obs = np.concatenate(blocks + [state])
+        return obs, seen_all, points0, rmse, behind_any
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
@@ -300,9 +328,13 @@ class TipServoEnv(gym.Env):
             from ..vision import PlanarRenderer
 
             self._renderer = PlanarRenderer(self.world.scene)
-        local = self.loop.sensors.local
+        sensors = self.loop.sensors
         q = self.loop.plant.state.q
-        return np.ascontiguousarray(self._renderer.render(local.camera, local.pose(q))[:, :, :3])
+        views = [  # each arm's C_L side by side, arm 0 on the left
+            self._renderer.render(c.camera, c.pose(q))[:, :, :3]
+            for c in getattr(sensors, "locals_", [sensors.local])
+        ]
+        return np.ascontiguousarray(np.concatenate(views, axis=1))
 
     def close(self):
         if self.loop is not None:

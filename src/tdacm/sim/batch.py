@@ -23,7 +23,7 @@ import numpy as np
 from ..batch import Batch, BatchResult
 from ..batch.control import P_MIN_LIFT_FORCE, controller_arrays
 from ..batch.engine import BatchModel
-from ..batch.pack import Unsupported, servo_model, target_points
+from ..batch.pack import Unsupported, check_loop, servo_model, target_points
 from ..batch.params import ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams, robot_rows
 from ..batch.plant import plant_arrays
 from ..control.hierarchical import default_gains
@@ -219,6 +219,7 @@ def build_batch(
     a = build_loop(sc, int(seeds[0])) if assembly is None else assembly
     loop = a.loop
     try:
+        check_loop(loop)  # the blocks first: a refusal names the scenario's key
         base, cm = controller_arrays(loop.controller, loop.dt)
         pa, pm = plant_arrays(loop.plant)
         if any(not np.array_equal(getattr(pm, k), getattr(cm, k)) for k in _ROBOT_FIELDS):
