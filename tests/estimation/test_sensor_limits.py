@@ -7,6 +7,7 @@ import pytest
 from tdacm.estimation import (
     HoverEstimateLimits,
     ImuConfig,
+    PinnedView,
     PoseSensorConfig,
     SensorSuiteConfig,
     hover_estimate_limits,
@@ -71,3 +72,40 @@ def test_a_suite_the_model_cannot_use_names_its_key(kwargs, key):
 def test_gravity_must_be_positive():
     with pytest.raises(ValueError, match="gravity"):
         hover_estimate_limits(gravity=0.0)
+
+
+def test_a_view_without_lever_is_one_more_position_sensor():
+    # lever -> 0: the view measures p, and two independent position sensors at one rate are
+    # one of variance 1 / (1 / r1 + 1 / r2)
+    view = PinnedView(lever=1e-9, noise=0.002, rate_hz=50.0)
+    both = hover_estimate_limits(view=view)
+    r = 1.0 / (1.0 / 0.003**2 + 1.0 / 0.002**2)
+    one = hover_estimate_limits(suite(pose={"position_noise": float(np.sqrt(r))}))
+    np.testing.assert_allclose(
+        [both.position, both.velocity, both.attitude],
+        [one.position, one.velocity, one.attitude],
+        rtol=1e-6,
+    )
+
+
+def test_a_pinned_view_bounds_the_tilt_by_the_position_over_the_lever():
+    # the tip camera pressed on the marker (touch-target): 1.1 m below the centre of mass,
+    # 1 px of 886.8 px at 0.305 m over 4 corners, 50 Hz; the figures docs/contact.md quotes
+    view = PinnedView(lever=1.1, noise=0.305 / 886.8 / 2.0, rate_hz=50.0)
+    free = hover_estimate_limits()
+    pinned = hover_estimate_limits(view=view)
+    assert pinned.attitude == pytest.approx(0.456e-3, rel=0.01)
+    assert pinned.velocity == pytest.approx(2.54e-3, rel=0.01)
+    assert pinned.attitude < free.attitude and pinned.velocity < free.velocity
+    # a nearly exact view (0.01 mm) and an attitude sensor of 1 rad: the tilt is known only
+    # through theta = (view - p) / lever, its error the position's over the lever
+    s = suite(pose={"attitude_noise": 1.0})
+    exact = hover_estimate_limits(s, view=PinnedView(1.1, 1e-5, 50.0))
+    assert exact.attitude == pytest.approx(exact.position / 1.1, rel=1e-3)
+
+
+@pytest.mark.parametrize("field", ["lever", "noise", "rate_hz"])
+def test_a_pinned_view_needs_positive_values(field):
+    kw = {"lever": 1.0, "noise": 1e-4, "rate_hz": 50.0, field: 0.0}
+    with pytest.raises(ValueError, match=field):
+        PinnedView(**kw)

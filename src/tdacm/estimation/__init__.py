@@ -36,7 +36,7 @@ from .proprioception import (
     SensorSuite,
     TendonEncoders,
 )
-from .sensor_limits import HoverEstimateLimits, hover_estimate_limits
+from .sensor_limits import HoverEstimateLimits, PinnedView, hover_estimate_limits
 
 __all__ = [
     "EstimationConfig",
@@ -62,5 +62,6 @@ __all__ = [
     "TendonEncoders",
     "euler_from_rotation",
     "hover_estimate_limits",
+    "PinnedView",
     "strains_from_tendon_lengths",
 ]

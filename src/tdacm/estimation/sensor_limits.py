@@ -16,6 +16,13 @@ reaches with these sensors alone. The EKF has more to go on (the tip camera's vi
 target, the model's commanded torques), so in the closed loop it can do somewhat better; it
 cannot do much better, and a filter far above these figures is mis-tuned.
 
+With a :class:`PinnedView` the axis has one more measurement: a camera on the arm, ``lever``
+below the drone's centre of mass, that sees a static point at a fixed place in its image (the
+tip camera's view of the marker while the probe presses it, docs/contact.md) measures the
+drone's position plus the lever times its tilt, ``p + lever theta``. Such a view pins the sum,
+not the tilt: the tilt is then known as well as the pose sensor's position over the lever, which
+is what bounds contact on estimates.
+
 Uses: choosing a pose sensor for a wanted velocity accuracy; checking a filter's tuning.
 """
 
@@ -31,6 +38,25 @@ from .config import SensorSuiteConfig
 
 
 @dataclass(frozen=True)
+class PinnedView:
+    """A camera ``lever`` m below the drone's centre of mass (along the body z axis in hover)
+    seeing a static point: per frame it measures ``p + lever theta`` on each horizontal axis
+    with the standard deviation ``noise`` (m), at ``rate_hz`` frames per second. For a camera
+    of focal length ``f`` px with ``k`` corners of ``sigma`` px at depth ``d``:
+    ``noise = sigma / f * d / sqrt(k)`` (the centroid's line of sight)."""
+
+    lever: float  # m
+    noise: float  # m, per frame and axis
+    rate_hz: float  # frames per second
+
+    def __post_init__(self):
+        for name in ("lever", "noise", "rate_hz"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
 class HoverEstimateLimits:
     """Steady-state standard deviations per horizontal axis of an optimal hover estimate."""
 
@@ -40,11 +66,14 @@ class HoverEstimateLimits:
 
 
 def hover_estimate_limits(
-    sensors: SensorSuiteConfig | None = None, gravity: float | None = None
+    sensors: SensorSuiteConfig | None = None,
+    gravity: float | None = None,
+    view: PinnedView | None = None,
 ) -> HoverEstimateLimits:
     """Steady-state errors of the drone's horizontal position, velocity and tilt estimated
     from the pose sensor and the IMU of ``sensors`` (default: the project's sensor suite) in
     hover (module docstring). ``gravity``: m/s^2 (default: that of :class:`~tdacm.system.Loads`).
+    ``view``: a :class:`PinnedView` fused as well (default: none).
 
     Raises ``ValueError`` naming the scenario key when the pose sensor or the IMU is off or a
     noise the model needs is zero (the filter would know that quantity exactly)."""
@@ -70,6 +99,11 @@ def hover_estimate_limits(
     process += np.diag([0.0, 1e-16, 1e-16])
     h = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     meas = np.diag([s.pose.position_noise**2, s.pose.attitude_noise**2]) / pose_rate
+    if view is not None:
+        if not isinstance(view, PinnedView):
+            raise ValueError(f"view must be a PinnedView or None, got {view!r}")
+        h = np.vstack([h, [1.0, 0.0, view.lever]])
+        meas = np.diag([*np.diag(meas), view.noise**2 / view.rate_hz])
     p = solve_continuous_are(a.T, h.T, process, meas)
     sd = np.sqrt(np.diag(p))
     return HoverEstimateLimits(position=float(sd[0]), velocity=float(sd[1]), attitude=float(sd[2]))
