@@ -288,7 +288,6 @@ def _assembly(scenario, world, seed, model, blocks, estimator, log, force=None) 
 def _refuse_for_arms(cfg, src: str) -> None:
     """What the loop of several arms does not run yet: one line naming the key."""
     checks = (
-        (cfg.estimation.source == "estimated", "estimation.source = 'estimated'"),
         (cfg.scene.contact.target_box, "scene.contact.target_box"),
         (cfg.aerodynamics.enabled, "aerodynamics.enabled"),
         (cfg.servo.policy is not None, "servo.policy"),
@@ -319,8 +318,11 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
     cfg, src = scenario.config, scenario.source
     _refuse_for_arms(cfg, src)
     robot = world.robot
+    suite = None  # the EKF's proprioceptive sensors, as for one arm
+    if estimator is None and cfg.estimation.source == "estimated":
+        suite = proprioceptive_sensors(cfg.sensors, robot.system, seed)
     imperfections = camera_imperfections(cfg.sensors)
-    sensors, cams = arms_camera_sensors(cfg.cameras, imperfections, world, seed, video)
+    sensors, cams = arms_camera_sensors(cfg.cameras, imperfections, world, seed, video, suite)
     perception = ArmsPerception([perception_block(c, world.arm(k)) for k, c in enumerate(cams)])
     desired = [
         reference_snapshot(sensors.locals_[k], robot, world.target, world.scenes[k],
@@ -336,7 +338,13 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
             for k, arm in enumerate(robot.arms)
         ]  # fmt: skip
         servo = ArmsTouchServo(servo, cfg.touch) if touch else ArmsServo(servo)
-    model, controller, plant = _controller_and_plant(scenario, world, seed, controller, None)
+    model, controller, plant = _controller_and_plant(scenario, world, seed, controller, suite)
+    if suite is not None:  # the EKF over all coordinates; it fuses arm 0's view of its marker
+        arm0 = world.arm(0)
+        estimator = estimation_block(
+            cfg.estimation, cfg.ibvs.target_level_normal, robot.system, seed, plant, suite,
+            world.q0, model, robot.arms[0].tip_mount, arm0.target, cams[0],
+        )  # fmt: skip
     truths = [truth_of(world.arm(k), sensors.locals_[k]) for k in range(len(robot.arms))]
     force = None
     if touch and isinstance(servo, ArmsTouchServo):

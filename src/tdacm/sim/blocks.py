@@ -140,15 +140,15 @@ def camera_sensors(
 
 
 def arms_camera_sensors(cameras: CamerasConfig, imperfections: SensorModel, world, seed: int,
-                        video: bool):  # fmt: skip
+                        video: bool, suite=None):  # fmt: skip
     """:func:`camera_sensors` for ``[[robot.arms]]``: ``(sensors, controller_cameras)`` with
     one C_L per arm (:class:`~tdacm.loop.arms.ArmsSensors`), each seeing its own marker, and
-    C_G detecting each arm's marker (the recovery per arm); arm
-    0's imperfections (and its controller camera's intrinsics error) from ``[seed, 1]`` as for
-    one arm, arm k's from ``[seed, 1, k]``."""
+    C_G detecting each arm's marker (the recovery per arm), and the proprioceptive ``suite``
+    if any; arm 0's imperfections (and its controller camera's intrinsics error) from
+    ``[seed, 1]`` as for one arm, arm k's from ``[seed, 1, k]``."""
     from ..loop.arms import ArmsSensors
 
-    one, cam0 = camera_sensors(cameras, imperfections, world, seed, video)
+    one, cam0 = camera_sensors(cameras, imperfections, world, seed, video, suite)
     robot, s = world.robot, world.robot.system
     kind = "planar-local" if cameras.local_renderer == "planar" else "analytic"
     locals_, cams, globals_ = [one.local], [cam0], []
