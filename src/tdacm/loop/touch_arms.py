@@ -27,8 +27,14 @@ one camera forward and the other back for the views (docs/contact.md, "The squee
 The force loop: once every arm has touched, ``touch-target``'s PI law of
 :mod:`tdacm.loop.touch` on the arms' mean force error ``F_d - mean_k f_k``, along ``a``, the
 joint displacement of that mapping moving every camera one metre along its axis
-(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds. The
-difference of the arms' forces follows from the views the servo holds.
+(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds.
+
+The balance loop, on the arms' difference (for two arms the drone's x and the same in-plane
+bend of both rods, a weakly damped mode of the views' loop): along each balance direction
+``b_j`` (:meth:`ArmsTouchServo.balance_directions`, made orthogonal to ``a``), the correction
+``balance_gain (mean_i f_i - f_j) - balance_damping s_j`` (``s_j`` the mode's velocity
+``b_j . qdot / |b_j|^2``, low-pass filtered over ``balance_filter``) added to the reference
+the views set, replacing the last period's (docs/contact.md, "The balance loop").
 """
 
 from __future__ import annotations
