@@ -336,7 +336,8 @@ class ArmsTouchServo(ArmsServo):
         return out
 
     def _admittance(self, q, forces, dt: float) -> None:
-        """The squeeze's force loop (module docstring), once every arm has touched."""
+        """The squeeze's force loops (module docstring), once every arm has touched: the
+        mean loop along ``a``, then the balance loop (:meth:`_balance_step`)."""
         tc = self.touch
         lead = self.arms[0]
         if not all(p in (CONTACT, HOLD) for p in self.phases):
