@@ -106,6 +106,53 @@ def test_dual_squeeze_reaches_contact_on_both_arms():
     assert s["max_contact_force"] < sc.config.scene.contact.force_limit
 
 
+def _servo_at_contact():
+    """The squeeze's servo at the contact pose with every arm pressing, its interaction
+    matrices those of the reference views."""
+    a = build_loop(_squeeze())
+    servo, q = a.loop.servo, a.world.q_star.copy()
+    servo.reset(q)
+    servo._weights = [arm.ibvs.interaction(arm.desired_points, arm.desired_depths)
+                      for arm in servo.arms]  # fmt: skip
+    servo._pressing = {0, 1}
+    return servo, q
+
+
+def _axial(servo, q, dq):
+    """Each arm's camera displacement along its optical axis for the joint displacement
+    ``dq``."""
+    return np.array([(arm._ad_mount_inv @ arm.task_jacobian(q) @ dq)[5] for arm in servo.arms])
+
+
+def test_balance_direction_moves_one_probe_in_and_the_other_out():
+    """The balance direction b: camera 0 half a metre in along its axis, camera 1 half a
+    metre out (the axial rows weighted in a least squares against the views' features: met to
+    1.2 %, measured), the drone's x and both rods' in-plane bend; the squeeze
+    direction a moves both in by one metre each. A force on arm 0 above the mean moves its
+    camera back, arm 1's forward, by balance_gain times the difference, and leaves the mean
+    loop's offset along a as it is."""
+    servo, q = _servo_at_contact()
+    (b,) = servo.balance_directions(q)
+    np.testing.assert_allclose(_axial(servo, q, b), [0.5, -0.5], rtol=0.02)
+    # at the symmetric contact pose: the drone's x and the same in-plane bend of both rods
+    # (measured: x -1.55 m, strains -1.68 /m per unit), nothing else
+    assert abs(b[3]) > 1.0 and b[6] == pytest.approx(b[8], rel=1e-9)
+    assert np.abs(np.delete(b, [3, 6, 8])).max() < 1e-9
+    a = servo.squeeze_direction(q)
+    np.testing.assert_allclose(_axial(servo, q, a), [1.0, 1.0], rtol=0.02)
+    lead, tc = servo.arms[0], servo.touch
+    lead.q_d = q.copy()
+    servo._qd = np.zeros_like(q)
+    servo._balance_step(q, a, [0.35, 0.25], 0.02)
+    dq = lead.q_d - q
+    assert abs(a @ dq) < 1e-12 * np.linalg.norm(a) * np.linalg.norm(dq)
+    bo = b - a * (a @ b) / (a @ a)  # the direction the step uses: b made orthogonal to a
+    expected = tc.balance_gain * (0.30 - 0.35)
+    np.testing.assert_allclose(dq, bo * expected, rtol=1e-9, atol=1e-15)
+    ax = _axial(servo, q, dq)
+    assert ax[0] < 0 < ax[1]
+
+
 def test_squeeze_refusals():
     """One probe for every arm (the kernels carry one), and something to touch."""
     sc = _squeeze()

@@ -303,3 +303,20 @@ class TouchConfig(ConfigModel):
         description="1/s, the momentum observer's gain K_o (a first-order lag of 1/K_o s on "
         "the force; K_o dt < 2)",
     )
+    balance_gain: float = Field(
+        0.01,
+        ge=0,
+        description="m per N, several arms: each arm's axial reference offset per N of its "
+        "force below the arms' mean (the squeeze's balance loop, docs/contact.md)",
+    )
+    balance_damping: float = Field(
+        4.0,
+        ge=0,
+        description="s, several arms: axial reference offset per m/s of the arms' "
+        "differential axial velocity (damping of the balance mode)",
+    )
+    balance_filter: float = Field(
+        0.3,
+        ge=0,
+        description="s, time constant of the low-pass filter of that velocity",
+    )

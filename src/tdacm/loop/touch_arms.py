@@ -27,8 +27,14 @@ one camera forward and the other back for the views (docs/contact.md, "The squee
 The force loop: once every arm has touched, ``touch-target``'s PI law of
 :mod:`tdacm.loop.touch` on the arms' mean force error ``F_d - mean_k f_k``, along ``a``, the
 joint displacement of that mapping moving every camera one metre along its axis
-(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds. The
-difference of the arms' forces follows from the views the servo holds.
+(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds.
+
+The balance loop, on the arms' difference (for two arms the drone's x and the same in-plane
+bend of both rods, a weakly damped mode of the views' loop): along each balance direction
+``b_j`` (:meth:`ArmsTouchServo.balance_directions`, made orthogonal to ``a``), the correction
+``balance_gain (mean_i f_i - f_j) - balance_damping s_j`` (``s_j`` the mode's velocity
+``b_j . qdot / |b_j|^2``, low-pass filtered over ``balance_filter``) added to the reference
+the views set, replacing the last period's (docs/contact.md, "The balance loop").
 """
 
 from __future__ import annotations
@@ -169,6 +175,9 @@ class ArmsTouchServo(ArmsServo):
         self._weights = None
         self._pressing = set()
         self._engaged = False  # the force loop runs
+        self._qd = None
+        self._balance = None  # the balance loop's last correction
+        self._rate = None  # its filtered rates
 
     def reset(self, q0, first_view=None) -> None:
         super().reset(q0, first_view)
@@ -265,6 +274,7 @@ class ArmsTouchServo(ArmsServo):
             t, dt, q, gview, modes, seen_all, twists, event
         )
         if following:
+            self._qd = est.qd
             self._admittance(q, forces, dt)
         if prev_phase != self.phase:
             event = f"touch: {self.phase}"
@@ -273,13 +283,14 @@ class ArmsTouchServo(ArmsServo):
             tare_force=tare, phase_changed=prev_arms != self.phases,
         )  # fmt: skip
 
-    def joint_rates(self, q, twists, pressing=None) -> np.ndarray:
+    def joint_rates(self, q, twists, pressing=None, separate: bool = False) -> np.ndarray:
         """The stacked mapping (:meth:`~.arms.ArmsServo.joint_rates`) in feature space
         (module docstring): arm k's rows ``L_k Ad(g_{C_Lk}^{Lk})^-1 J_k(q_v)[:, c]``, its
         right-hand side ``L_k v_k``, with ``L_k`` its interaction matrix this period; for an
         arm in ``pressing`` (default: those in contact or hold) the distance row of ``L_k``
-        is replaced by its camera's axial velocity, weighted by :data:`AXIAL_WEIGHT`. Without
-        the interaction matrices (no view yet) the twists' least squares."""
+        is replaced by its camera's axial velocity, weighted by :data:`AXIAL_WEIGHT`: one row
+        for the sum of the pressing arms' (``separate``: one row per arm). Without the
+        interaction matrices (no view yet) the twists' least squares."""
         if self._weights is None:
             return super().joint_rates(q, twists)
         pressing = self._pressing if pressing is None else pressing
@@ -290,12 +301,15 @@ class ArmsTouchServo(ArmsServo):
             if k in pressing:
                 rows.append(w[:5] @ jc)
                 rhs.append(w[:5] @ v)
+                if separate:
+                    rows.append(AXIAL_WEIGHT * jc[5][None, :])
+                    rhs.append([AXIAL_WEIGHT * v[5]])
                 axial += jc[5]
                 speed += v[5]
             else:
                 rows.append(w @ jc)
                 rhs.append(w @ v)
-        if pressing:
+        if pressing and not separate:
             rows.append(AXIAL_WEIGHT * axial[None, :])
             rhs.append([AXIAL_WEIGHT * speed])
         return rates_from_jacobian(np.vstack(rows), np.concatenate(rhs), self.arms[0]._cmd)
@@ -308,8 +322,22 @@ class ArmsTouchServo(ArmsServo):
         k = len(self.arms)
         return self.joint_rates(q, [_AXIAL] * k, set(range(k)))
 
+    def balance_directions(self, q) -> list:
+        """The ``k - 1`` joint displacements of the stacked mapping (:meth:`joint_rates`,
+        every arm pressing, one axial row per arm) that move arm ``j``'s camera one metre
+        forward along its axis and every camera ``-1 / k`` m (the arms' axial sum unchanged),
+        every view's other features as that motion leaves them; for two arms the one
+        direction ``b`` moving camera 0 half a metre in and camera 1 half a metre out."""
+        k = len(self.arms)
+        out = []
+        for j in range(k - 1):
+            d = [((1.0 if i == j else 0.0) - 1.0 / k) * _AXIAL for i in range(k)]
+            out.append(self.joint_rates(q, d, set(range(k)), separate=True))
+        return out
+
     def _admittance(self, q, forces, dt: float) -> None:
-        """The squeeze's force loop (module docstring), once every arm has touched."""
+        """The squeeze's force loops (module docstring), once every arm has touched: the
+        mean loop along ``a``, then the balance loop (:meth:`_balance_step`)."""
         tc = self.touch
         lead = self.arms[0]
         if not all(p in (CONTACT, HOLD) for p in self.phases):
@@ -329,6 +357,34 @@ class ArmsTouchServo(ArmsServo):
         offset = tc.force_gain * err + self._integral
         lead.q_d = lead.q_d + a * (offset - now)
         lead.qd_d = lead.qd_d - a * (float(a @ lead.qd_d) / aa)
+        if tc.balance_gain or tc.balance_damping:
+            self._balance_step(q, a, forces, dt)
+
+    def _balance_step(self, q, a, forces, dt: float) -> None:
+        """The balance loop (module docstring): along each balance direction ``b_j``
+        (:meth:`balance_directions`, made orthogonal to ``a`` so that the mean loop's offset
+        is left as it is), the correction ``g (mean_i f_i - f_j) - c b_j . qdot / |b_j|^2``
+        added to the reference the views set (``g``: ``balance_gain``, ``c``:
+        ``balance_damping``); each period replaces the last period's correction."""
+        tc = self.touch
+        lead = self.arms[0]
+        aa = float(a @ a)
+        dirs = [b - a * (float(a @ b) / aa) for b in self.balance_directions(q)]
+        qd = np.zeros(self.n) if self._qd is None else np.asarray(self._qd, float)
+        rate = np.array([float(b @ qd) / float(b @ b) for b in dirs])
+        if self._rate is None or tc.balance_filter <= 0:
+            self._rate = rate
+        else:
+            self._rate = self._rate + min(1.0, dt / tc.balance_filter) * (rate - self._rate)
+        mean = float(np.mean(forces))
+        corr = np.array([tc.balance_gain * (mean - forces[j]) for j in range(len(dirs))])
+        corr = corr - tc.balance_damping * self._rate
+        # what the reference's leak toward q (RobustServo.follow_rates) left of the last
+        # period's correction
+        keep = 1.0 - lead.config.reference_leak * dt if lead._flying else 1.0
+        prev = np.zeros(len(dirs)) if self._balance is None else keep * self._balance
+        lead.q_d = lead.q_d + np.column_stack(dirs) @ (corr - prev)
+        self._balance = corr
 
 
 def arm_contact_forces(system, contact):
