@@ -115,3 +115,47 @@ def test_recovery_failure_ends_the_world_named():
     r = build_loop(sc, 0).loop.run(0.5)
     assert res.termination == ["recovery failed"]
     assert r.termination == "recovery failed"
+
+
+@pytest.mark.parametrize("features", ["measured", "predicted"])
+def test_observing_a_period_leaves_its_run_unchanged(features):
+    """The vector env's path (the period's first half, the view, then the second half; the
+    robust servo's fusion of the frame done once, by the view, and reused by the step) gives
+    the states of the plain periods bit for bit over 0.5 s with noise, dropped frames and
+    latency, however often a period is viewed, and the view holds the features the step
+    then servoes on."""
+    from tdacm.batch import engine as E
+    from tdacm.batch import servo as S
+
+    sc = _scenario(
+        "paper-in-fov",
+        {
+            "sensors": {"pixel_noise": 1.0, "dropout": 0.1, "latency_steps": 1},
+            "ibvs": {"features": features},
+        },
+        duration=0.5,
+    )
+    seeds = [2, 7, 12]
+    plain = build_batch(sc, seeds, threads=1)
+    viewed = build_batch(sc, seeds, threads=1)
+    N = len(seeds)
+    nan = np.full((N, 6), np.nan)
+    points, error, status = np.zeros((N, 4, 2)), np.zeros((N, 6)), np.zeros(N, np.int64)
+    views = 0
+    for p in range(int(round(0.5 / sc.config.dt))):
+        plain.step()
+        d = viewed.data
+        E.sense_worlds(viewed.model, d, 0, N)
+        for _ in range(1 + p % 2):  # viewed once or twice
+            E.observe_worlds(viewed.model, d, points, error, status, 0, N)
+        active = d.active.copy()
+        E.act_worlds(viewed.model, d, nan, 0, N)
+        np.testing.assert_array_equal(viewed.data.q, plain.data.q)
+        np.testing.assert_array_equal(viewed.data.f_state, plain.data.f_state)
+        ibvs = d.sstate[:, S.S_MODE] == S.IBVS
+        seen = active & (status == S.SEEN) & np.isfinite(d.rmse) & ibvs
+        views += int(seen.sum())
+        # the step servoed on the viewed features (the image error of the same points)
+        f = np.array([S._features_kernel(points[w]) for w in range(N)])
+        np.testing.assert_array_equal(d.features[seen], f[seen])
+    assert views > 10

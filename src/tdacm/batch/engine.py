@@ -112,7 +112,12 @@ class BatchData(NamedTuple):
     ``t_pose``, ``cam_hist``: the fields of :class:`~tdacm.batch.servo.FilterData`; a window of
     zero frames when the servo works on the measured points); C_L's pose ``meas_gc`` at the
     state ``meas_q`` the frame was taken at (the period's servo reads it when the state is
-    still that one: one camera-pose recursion a period instead of two)."""
+    still that one: one camera-pose recursion a period instead of two). The robust servo's
+    perception of the current period (:func:`~tdacm.batch.servo.robust_predict`, the frame
+    fused into the filter), kept for the period ``pred_k`` (-1: none) by the first of the
+    observation (:func:`world_view`) and the step (:func:`_act`) to need it: ``pred_flags``
+    (valid, pix_ok, view), the predicted points ``pred_pv``, depths ``pred_zv`` and C_L
+    pixels ``pred_pix``."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -152,6 +157,11 @@ class BatchData(NamedTuple):
     cam_hist: np.ndarray
     meas_gc: np.ndarray
     meas_q: np.ndarray
+    pred_k: np.ndarray
+    pred_flags: np.ndarray
+    pred_pv: np.ndarray
+    pred_zv: np.ndarray
+    pred_pix: np.ndarray
 
 
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
@@ -202,6 +212,11 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         cam_hist=np.zeros((n_worlds, hist, 4, 4)),
         meas_gc=np.zeros((n_worlds, 4, 4)),
         meas_q=np.full((n_worlds, n), np.nan),
+        pred_k=np.full(n_worlds, -1, np.int64),
+        pred_flags=np.zeros((n_worlds, 3), np.bool_),
+        pred_pv=np.zeros((n_worlds, 4, 2)),
+        pred_zv=np.zeros((n_worlds, 4)),
+        pred_pix=np.zeros((n_worlds, 4, 2)),
     )
 
 
@@ -258,6 +273,7 @@ def reset_worlds(model, data, which, q0, qd0):
         data.found[w] = False
         for i in range(n):
             data.meas_q[w, i] = np.nan  # no frame taken at this state yet
+        data.pred_k[w] = -1
 
 
 @njit(cache=True)
@@ -276,6 +292,35 @@ def _sense(model, data, w):
                                    data.sstate[w], uv, data.meas_gc[w])  # fmt: skip
     for i in range(data.q.shape[1]):
         data.meas_q[w, i] = data.q[w, i]
+    data.pred_k[w] = -1  # a new frame: not fused yet
+
+
+@njit(cache=True)
+def _filter_data(data, w):
+    """World ``w``'s :class:`~tdacm.batch.servo.FilterData` (views of its rows)."""
+    return S.FilterData(data.f_state[w], data.f_pose[w], data.f_cov[w], data.f_hyp[w],
+                        data.f_rc[w], data.f_pc[w], data.f_z[w], data.t_pose[w],
+                        data.cam_hist[w])  # fmt: skip
+
+
+@njit(cache=True)
+def _predict(model, data, w, g_c):
+    """The robust servo's perception of world ``w``'s current period
+    (:func:`~tdacm.batch.servo.robust_predict`: the frame :func:`_sense` kept fused into the
+    target filter, the points predicted from its estimate), run once a period: the first
+    call keeps its results in ``data.pred_*``, the next ones of the same period read them.
+    ``g_c``: C_L's pose at the world's state (:func:`world_camera_pose`)."""
+    k = int(data.sstate[w, S.S_PERIOD])
+    if data.pred_k[w] != k:
+        valid, pix_ok, view = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
+                                               data.meas_uv[w], model.plant_model, model.servo,
+                                               w, data.sstate[w], _filter_data(data, w), g_c,
+                                               data.pred_pv[w], data.pred_zv[w],
+                                               data.pred_pix[w])  # fmt: skip
+        data.pred_flags[w, 0] = valid
+        data.pred_flags[w, 1] = pix_ok
+        data.pred_flags[w, 2] = view
+        data.pred_k[w] = k
 
 
 @njit(cache=True)
@@ -317,12 +362,12 @@ def _act(model, data, w, twist_in):
     qdd_d = np.empty(n)
     g_c = world_camera_pose(model, data, w)
     if sm.params[S.P_ROBUST] != 0.0:
-        fd = S.FilterData(data.f_state[w], data.f_pose[w], data.f_cov[w], data.f_hyp[w],
-                          data.f_rc[w], data.f_pc[w], data.f_z[w], data.t_pose[w],
-                          data.cam_hist[w])  # fmt: skip
+        _predict(model, data, w, g_c)
+        pf = data.pred_flags[w]
         mode = S.robust_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
                              data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in, out,
-                             fd, g_c)  # fmt: skip
+                             pf[0], pf[1], pf[2], data.pred_pv[w], data.pred_zv[w],
+                             data.pred_pix[w])  # fmt: skip
     else:
         mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
                             data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
@@ -420,27 +465,21 @@ def act_worlds(model, data, twist, lo, hi):
 
 @njit(cache=True, nogil=True)
 def world_view(model, data, w, pv, zv, pix):
-    """World ``w``'s view in the frame :func:`sense_worlds` kept, without changing its state:
-    the points and depths in the servo's camera into ``pv`` (4, 2), ``zv`` (4,) (``pix``
-    (4, 2): scratch for the prediction in C_L). The measured points
-    (:func:`~tdacm.batch.servo.servo_view`), or with the robust servo the points predicted
-    from the target filter after fusing the frame (:func:`~tdacm.batch.servo.robust_predict`
-    on a copy of the world's servo and filter state). Returns
+    """World ``w``'s view in the frame :func:`sense_worlds` kept: the points and depths in
+    the servo's camera into ``pv`` (4, 2), ``zv`` (4,) (``pix`` (4, 2): the prediction in
+    C_L's pixels, robust servo). The measured points (:func:`~tdacm.batch.servo.servo_view`),
+    or with the robust servo the points predicted from the target filter after fusing the
+    frame: the period's perception (:func:`_predict`), which the period's step then reuses
+    (the step's result is the one it would have without the view). Returns
     :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` (a prediction exists) or ``BEHIND``."""
     sm = model.servo
     m = model.plant_model
     if sm.params[S.P_ROBUST] != 0.0:
-        sstate = data.sstate[w].copy()
-        fd = S.FilterData(data.f_state[w].copy(), data.f_pose[w].copy(),
-                          data.f_cov[w].copy(), data.f_hyp[w].copy(), data.f_rc[w].copy(),
-                          data.f_pc[w].copy(), data.f_z[w].copy(), data.t_pose[w].copy(),
-                          data.cam_hist[w].copy())  # fmt: skip
-        k = int(sstate[S.S_PERIOD])
-        valid, _, _ = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
-                                       data.meas_uv[w], m, sm, w, sstate, fd,
-                                       world_camera_pose(model, data, w), pv, zv,
-                                       pix)  # fmt: skip
-        return S.SEEN if valid else S.NOT_SEEN
+        _predict(model, data, w, world_camera_pose(model, data, w))
+        pv[:, :] = data.pred_pv[w]
+        zv[:] = data.pred_zv[w]
+        pix[:, :] = data.pred_pix[w]
+        return S.SEEN if data.pred_flags[w, 0] else S.NOT_SEEN
     return S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
                         world_camera_pose(model, data, w), pv, zv)  # fmt: skip
 
@@ -448,25 +487,54 @@ def world_view(model, data, w, pv, zv, pix):
 @njit(cache=True, nogil=True)
 def observe_worlds(model, data, points, error, status, lo, hi):
     """What each world ``lo <= w < hi`` sees in the frame :func:`sense_worlds` kept, without
-    changing its state (the env's observation, the features the servo works on): the points
+    changing the course of its run (the env's observation, the features the servo works on): the points
     in the servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles
     wrapped) and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``.
     The measured points (:meth:`VisualServo.observe`), or with the robust servo the points
-    predicted from the target filter after fusing the frame
-    (:func:`~tdacm.batch.servo.robust_predict` on a copy of the world's servo state: the
-    period's :func:`act_worlds` fuses the same frame into the state itself); ``SEEN`` when a
+    predicted from the target filter after fusing the frame (:func:`world_view`: the
+    period's perception, which the period's :func:`act_worlds` reuses); ``SEEN`` when a
     prediction exists."""
-    sm = model.servo
     zv = np.empty(4)
     pix = np.empty((4, 2))
     for w in range(lo, hi):
-        st = world_view(model, data, w, points[w], zv, pix)
-        status[w] = st
-        if st == S.SEEN:
-            f = S._features_kernel(points[w])
-            for i in range(6):
-                e = f[i] - sm.desired_features[w, i]
-                error[w, i] = S._wrap(e) if i < 3 else e
+        _observe(model, data, w, points, error, status, zv, pix)
+
+
+@njit(cache=True)
+def _observe(model, data, w, points, error, status, zv, pix):
+    """World ``w``'s row of :func:`observe_worlds`."""
+    sm = model.servo
+    st = world_view(model, data, w, points[w], zv, pix)
+    status[w] = st
+    if st == S.SEEN:
+        f = S._features_kernel(points[w])
+        for i in range(6):
+            e = f[i] - sm.desired_features[w, i]
+            error[w, i] = S._wrap(e) if i < 3 else e
+
+
+@njit(cache=True, nogil=True)
+def act_sense_observe(model, data, twist, acting, sensing, points, error, status, lo, hi):
+    """The vector env's step of the worlds ``lo <= w < hi`` in one pass a world: the second
+    half of the period (:func:`_act`, twist ``twist[w]``) of the active worlds of ``acting``
+    (bool, N), then the tip camera's next frame (:func:`_sense`) of the worlds of ``sensing``
+    whose state is finite, whether the engine still runs them or not, then every world's
+    view into ``points``, ``error``, ``status`` as :func:`observe_worlds`. Equal to
+    :func:`act_worlds`, :func:`sense_worlds`, :func:`observe_worlds` one after the other
+    (the worlds are independent), with one meeting of the threads instead of three."""
+    zv = np.empty(4)
+    pix = np.empty((4, 2))
+    n = data.q.shape[1]
+    for w in range(lo, hi):
+        if acting[w] and data.active[w]:
+            _act(model, data, w, twist[w])
+        if sensing[w]:
+            finite = True
+            for i in range(n):
+                finite = finite and np.isfinite(data.q[w, i])
+            if finite:
+                _sense(model, data, w)
+        _observe(model, data, w, points, error, status, zv, pix)
 
 
 @njit(cache=True, nogil=True)
@@ -495,25 +563,32 @@ def run_worlds(model, data, periods, log_q, log_rmse, log_mode, log_u, lo, hi):
                     log_u[p, w, i] = data.u[w, i]
 
 
-_POOL = None
+_POOLS = {}  # a pool per thread count: never more threads than asked
+#: ranges of worlds a thread of :func:`parallel` (load balance against the cost of a call)
+CHUNKS_PER_THREAD = 4
 
 
 def parallel(kernel, args, n_worlds: int, threads: int | None = None) -> None:
-    """Call ``kernel(*args, lo, hi)`` on ``threads`` disjoint ranges of the ``n_worlds``
-    worlds at once (threads of one process: the kernels release the GIL; default: the
-    machine's cores). The worlds are independent, so the result does not depend on the
-    split."""
+    """Call ``kernel(*args, lo, hi)`` on disjoint ranges of the ``n_worlds`` worlds in
+    ``threads`` threads at once (threads of one process: the kernels release the GIL;
+    default: the machine's cores): :data:`CHUNKS_PER_THREAD` ranges a thread, taken by
+    whichever thread is free, so worlds that cost more (a recovery, an ended world that
+    costs nothing) do not leave a thread idle. The worlds are independent, so the result
+    does not depend on the split."""
     import os
     from concurrent.futures import ThreadPoolExecutor
 
-    global _POOL
     k = max(1, min(int(threads or os.cpu_count() or 1), n_worlds))
     if k == 1:
         kernel(*args, 0, n_worlds)
         return
-    if _POOL is None or _POOL._max_workers < k:
-        _POOL = ThreadPoolExecutor(max_workers=k, thread_name_prefix="tdacm-batch")
-    bounds = np.linspace(0, n_worlds, k + 1).round().astype(int)
-    futures = [_POOL.submit(kernel, *args, int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
+    pool = _POOLS.get(k)
+    if pool is None:
+        pool = _POOLS[k] = ThreadPoolExecutor(max_workers=k, thread_name_prefix="tdacm-batch")
+    chunks = min(n_worlds, k * CHUNKS_PER_THREAD)
+    bounds = np.linspace(0, n_worlds, chunks + 1).round().astype(int)
+    futures = [
+        pool.submit(kernel, *args, int(bounds[i]), int(bounds[i + 1])) for i in range(chunks)
+    ]
     for f in futures:
         f.result()

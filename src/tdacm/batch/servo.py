@@ -933,7 +933,7 @@ def robust_predict(dt, k, q, found, uv, m, sm, w, sstate, fd, g_c, pv, zv, pix):
 
 @njit(cache=True)
 def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d, twist_in, out,
-                fd, g_c):  # fmt: skip
+                valid, pix_ok, view, pv, zv, pix):  # fmt: skip
     """One period of :class:`tdacm.loop.servo.RobustServo` (``ibvs.features = "predicted"``):
     the delivered frame fused into the target filter with the C_L pose of its capture period
     (:func:`~tdacm.vision.target_filter.filter_update`), the smoothed target estimate, the
@@ -941,9 +941,15 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
     C_L (the mode switch's field-of-view test while servoing), the IBVS twist on the
     predicted points (eqs. (19)-(21), (39)), the joint rates shaped as :func:`servo_step`
     with the acceleration feed-forward and the leak of ``q_d`` toward ``q``, or the recovery
-    (which holds and retries for ``lost_timeout`` s while C_G misses the target). ``fd``: the
-    world's :class:`FilterData`, ``g_c`` C_L's pose at ``q``; ``out`` as :func:`servo_step` (no behind-camera failure: a
-    prediction behind the camera counts as not seen)."""
+    (which holds and retries for ``lost_timeout`` s while C_G misses the target). ``out`` as
+    :func:`servo_step` (no behind-camera failure: a prediction behind the camera counts as
+    not seen).
+
+    The perception part is :func:`robust_predict` of this period (``k``: the row
+    ``S_PERIOD`` before this step), run by the caller once (the engine keeps it, so an
+    observation of the period and its step share one fusion): its results ``valid``,
+    ``pix_ok``, ``view`` and the predicted points ``pv``, ``zv`` (servo camera) and ``pix``
+    (C_L pixels) are inputs here."""
     prm = sm.params
     n = q.shape[0]
     ctl = sm.ctl_camera[w]
@@ -952,11 +958,6 @@ def robust_step(t, dt, q, found, uv, m, sm, w, sstate, rstate, q_d, qd_d, qdd_d,
     offered = sstate[S_REQUEST] > 0.0 or (every > 0 and k % every == 0)
     sstate[S_PERIOD] = k + 1
     sstate[S_REQUEST] = 0.0
-    pv = np.empty((4, 2))
-    zv = np.empty(4)
-    pix = np.empty((4, 2))
-    valid, pix_ok, view = robust_predict(dt, k, q, found, uv, m, sm, w, sstate, fd, g_c, pv, zv,
-                                         pix)  # fmt: skip
     f = np.zeros(6)
     e = np.zeros(6)
     v = np.zeros(6)

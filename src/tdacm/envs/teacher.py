@@ -4,9 +4,9 @@ imitation learning on the vector env (:class:`~tdacm.envs.vector.TipServoVectorE
 :func:`teacher_twists` gives, for each world, the twist ``v = -lambda J_img^+ e``
 (eqs. (19)-(21), (39)) that the world's servo would command in the next step on the frame the
 env has just observed: the same features as the observation (the detected points, or with the
-robust servo the target filter's prediction after fusing the frame, on a copy of the world's
-filter state), the same interaction matrix and gain. The env's state is not changed, so a
-learner's action can then be applied (DAgger: the teacher labels the states the learner
+robust servo the target filter's prediction after fusing the frame: the period's fusion,
+which the step reuses), the same interaction matrix and gain. The course of the env's worlds
+is not changed, so a learner's action can then be applied (DAgger: the teacher labels the states the learner
 visits). NaN rows: no features (the servo would not servo on IBVS there).
 """
 

@@ -14,7 +14,9 @@ each world applied)
 (:func:`~tdacm.batch.engine.act_worlds`: the servo's mapping and shaping, the low-level
 controller, the plant), then each world's tip camera delivers its next frame
 (:func:`~tdacm.batch.engine.sense_worlds`) and the env reads it
-(:func:`~tdacm.batch.engine.observe_worlds`). Endings: the engine's (:data:`ENGINE_ENDINGS`)
+(:func:`~tdacm.batch.engine.observe_worlds`), in one compiled pass a world
+(:func:`~tdacm.batch.engine.act_sense_observe`). With the robust servo the observation's
+fusion of the frame into the target filter is the period's own: the next step reuses it. Endings: the engine's (:data:`ENGINE_ENDINGS`)
 and the env's own, in the single env's order: out of envelope (roll/pitch beyond
 :data:`~tdacm.envs.servo.MAX_TILT` or a non-finite state), behind camera, target lost for
 ``max_lost`` steps, success.
@@ -196,6 +198,9 @@ class TipServoVectorEnv(VectorEnv):
         self._status = np.zeros(N, np.int64)
         self._points = np.zeros((N, 4, 2))
         self._error = np.zeros((N, 6))
+        self._all = np.ones(N, np.bool_)
+        self._none = np.zeros(N, np.bool_)
+        self._nan_twist = np.full((N, 6), np.nan)
         self._started = False
 
     # ------------------------------------------------------------------ helpers
@@ -231,18 +236,15 @@ class TipServoVectorEnv(VectorEnv):
         self._left[which] = False
         self._autoreset[which] = False
 
-    def _sense_observe(self, which: np.ndarray) -> None:
-        """The next frame of the worlds ``which`` (whether the engine still runs them or not)
-        and their observation, RMSE and view status into the env's buffers."""
+    def _advance(self, acting: np.ndarray, twist: np.ndarray, which: np.ndarray) -> None:
+        """The second half of the period of the running worlds of ``acting`` with the twists
+        ``twist``, then the next frame of the worlds ``which`` (whether the engine still runs
+        them or not) and their observation, RMSE and view status into the env's buffers: one
+        compiled pass a world (:func:`~tdacm.batch.engine.act_sense_observe`)."""
         d = self.batch.data
-        running = d.active.copy()
-        d.active[:] = which & np.isfinite(d.q).all(axis=1)
-        try:
-            self._parallel(E.sense_worlds, (self.batch.model, d))
-        finally:
-            d.active[:] = running
         self._parallel(
-            E.observe_worlds, (self.batch.model, d, self._points, self._error, self._status)
+            E.act_sense_observe,
+            (self.batch.model, d, twist, acting, which, self._points, self._error, self._status),
         )
         seen = self._status == BS.SEEN
         obs = observation(
@@ -285,7 +287,7 @@ class TipServoVectorEnv(VectorEnv):
             raise ValueError("options['reset_mask']: the first reset resets every world")
         self._started = True
         self._start(which)
-        self._sense_observe(which)
+        self._advance(self._none, self._nan_twist, which)
         status = self._status
         info = {
             "rmse": self._rmse.copy(),
@@ -312,12 +314,11 @@ class TipServoVectorEnv(VectorEnv):
         d = self.batch.data
         resetting = self._autoreset.copy()
         stepping = ~resetting
-        self._parallel(E.act_worlds, (self.batch.model, d, twist))
-        engine_end = stepping & ~d.active
-        code = d.termination.copy()
-        if resetting.any():
+        if resetting.any():  # the worlds are independent: these first, then one pass
             self._start(resetting)
-        self._sense_observe(np.ones(N, np.bool_))
+        self._advance(stepping, twist, self._all)
+        engine_end = stepping & ~d.active
+        code = d.termination
         self.steps[stepping] += 1
 
         # the endings, in the single env's order (the first one names the ending)
