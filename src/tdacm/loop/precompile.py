@@ -198,6 +198,13 @@ WARM_UP_BATCH = (
     "'analytic', 'global_renderer': 'planar'}, 'ibvs': {'features': 'measured'}}, 'warm-up')\n"
     "b = build_batch(sc, [0, 1], duration=0.2, threads=2)\n"
     "b.run(); b.step(); b.reset()\n"
+    # the period in halves with a view between them (the vector env's kernels, one at a time)
+    "import numpy as np\n"
+    "from tdacm.batch import engine as E\n"
+    "E.sense_worlds(b.model, b.data, 0, 2)\n"
+    "E.observe_worlds(b.model, b.data, np.zeros((2, 4, 2)), np.zeros((2, 6)), "
+    "np.zeros(2, np.int64), 0, 2)\n"
+    "E.act_worlds(b.model, b.data, np.full((2, 6), np.nan), 0, 2)\n"
     # the vector env and the imitation teacher on the robust servo (tdacm.envs)
     "import gymnasium as gym\n"
     "import tdacm.envs\n"
