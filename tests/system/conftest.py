@@ -24,6 +24,20 @@ def random_state(system, seed=0, scale=0.5):
     return q, qd
 
 
+def random_state_and_input(system, seed, lift=True):
+    """``(q, qd, u)`` drawn from ``seed``: strains and drone angles at 0.4 (the angles halved),
+    velocities at 1, inputs ``|N(0, 2)|``; ``lift`` moves the drone to ``[0.2, -0.1, 3.0]``
+    from its draw."""
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=system.n) * 0.4
+    qd = rng.normal(size=system.n)
+    u = np.abs(rng.normal(size=system.n_u)) * 2.0
+    q[0:3] *= 0.5
+    if lift:
+        q[3:6] += [0.2, -0.1, 3.0]
+    return q, qd, u
+
+
 def horizontal_cantilever(basis, **rod_kwargs):
     """A clamped rod along inertial +x (no attachment rotation), no tip mass."""
     defaults = dict(length=1.0, diameter=2e-3, damping=0.0, n_gauss=12, magnus_order=4)

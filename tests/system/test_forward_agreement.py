@@ -16,6 +16,8 @@ import tdacm
 from tdacm.rod import StrainBasis
 from tdacm.system import kernels as K
 
+from .conftest import random_state_and_input
+
 TOL = 1e-12
 SEEDS = range(2000, 2005)
 
@@ -29,16 +31,6 @@ def system(request):
     )
 
 
-def _state(system, seed):
-    rng = np.random.default_rng(seed)
-    q = rng.normal(size=system.n) * 0.4
-    qd = rng.normal(size=system.n)
-    u = np.abs(rng.normal(size=system.n_u)) * 2.0
-    q[0:3] *= 0.5
-    q[3:6] += [0.2, -0.1, 3.0]
-    return q, qd, u
-
-
 def _close(a, b):
     scale = max(1.0, float(np.abs(b).max()))
     return float(np.abs(a - b).max()) <= TOL * scale
@@ -47,7 +39,7 @@ def _close(a, b):
 @pytest.mark.parametrize("seed", SEEDS)
 def test_the_forward_recursion_agrees_with_the_full_one(system, seed):
     m, loads, e = system.model_arrays, system.loads.packed(), np.empty(0)
-    q, qd, u = _state(system, seed)
+    q, qd, u = random_state_and_input(system, seed)
     fast = K.coupled_terms_env(q, qd, m, loads, False, u, e, e)
     full = K.coupled_terms_env(q, qd, m, loads, True, u, e, e)
     for i, name in ((0, "M"), (2, "C qdot"), (3, "tau"), (4, "tip pose"), (5, "J")):

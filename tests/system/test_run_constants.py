@@ -17,16 +17,9 @@ import tdacm
 from tdacm.rod import StrainBasis
 from tdacm.system import kernels as K
 
+from .conftest import random_state_and_input
+
 SEEDS = range(4100, 4104)
-
-
-def _state(system, seed):
-    rng = np.random.default_rng(seed)
-    q = rng.normal(size=system.n) * 0.4
-    qd = rng.normal(size=system.n)
-    u = np.abs(rng.normal(size=system.n_u)) * 2.0
-    q[0:3] *= 0.5
-    return q, qd, u
 
 
 def _dense(m):
@@ -62,7 +55,7 @@ def test_sparse_sums_give_the_dense_sums_numbers(basis, order):
     assert np.any(m.step_nzn < m.step_nzc.shape[2])  # the blocks have zeros to skip
     dense = _dense(m)
     for seed in SEEDS:
-        q, qd, u = _state(s, seed)
+        q, qd, u = random_state_and_input(s, seed, lift=False)
         assert np.array_equal(_qdd(q, qd, u, m, loads), _qdd(q, qd, u, dense, loads))
         ls = q[s.n - s.n_s :]
         a = K.tendon_lengths_and_matrix(ls, m)
@@ -80,7 +73,7 @@ def test_an_order_4_step_with_equal_samples_is_the_one_sample_step():
     rich = tdacm.paper_system(basis=StrainBasis((3, 3, 3, None, None, None)), magnus_order=4)
     assert not np.any(rich.model_arrays.step_one)  # a varying basis keeps both samples
     for seed in SEEDS:
-        q, qd, u = _state(s4, seed)
+        q, qd, u = random_state_and_input(s4, seed, lift=False)
         a = _qdd(q, qd, u, m4, loads)
         assert np.array_equal(a, _qdd(q, qd, u, two, loads))
         assert np.array_equal(a, _qdd(q, qd, u, m2, loads))
