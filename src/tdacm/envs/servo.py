@@ -144,7 +144,6 @@ class TipServoEnv(gym.Env):
         self.lost_penalty = float(o.lost_penalty)
         self.max_lost = int(o.max_lost)
         self.hold = bool(o.hold_success)
-        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3)  # one arm's twist
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
         self._renderer = None
@@ -163,7 +162,7 @@ class TipServoEnv(gym.Env):
                 np.full(4, s.base.max_thrust) if s.floating else [],
                 np.full(s.n_a, s.tendons.max_tension),
             ]
-        self.scale = np.tile(self.scale, k)
+        self.scale = np.tile([o.max_angular] * 3 + [o.max_linear] * 3, k).astype(float)  # per arm
         self.point_scales = [
             np.array([a.local_camera.cx / a.local_camera.fx, a.local_camera.cy / a.local_camera.fy])
             for a in self._arm_servos
