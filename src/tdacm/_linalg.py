@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._jit import kernel
+
 try:  # numpy's private gufuncs (numpy >= 2); np.linalg.solve is the fallback
     from numpy.linalg import _umath_linalg as _ul
 
@@ -159,7 +161,7 @@ def svd_solve(a, b, kind, param):
     return x
 
 
-@njit(cache=True)
+@kernel
 def cholesky_into(a, n, lo):
     """``a[:n, :n] = L L^T`` into the lower triangle of ``lo`` (row by row); ``False`` if ``a``
     is not positive definite (a pivot ``<= 0``). Only the lower triangle of ``a`` is read."""
@@ -177,7 +179,7 @@ def cholesky_into(a, n, lo):
     return True
 
 
-@njit(cache=True)
+@kernel
 def cholesky_substitute(lo, n, b, y, x):
     """``x = L^-T L^-1 b`` for the lower factor ``lo`` of :func:`cholesky_into`: forward
     substitution into ``y``, backward into ``x``. ``b``, ``y`` and ``x`` may be one array

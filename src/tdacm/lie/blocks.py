@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._jit import kernel
 from .se3 import _exp_coefficients, tangent_coefficients
 
 
@@ -33,7 +34,7 @@ def ad_scalars(k0, k1, k2, u0, u1, u2, a0, a1, a2, b0, b1, b2):
     )
 
 
-@njit(cache=True)
+@kernel
 def ad_apply(xi, x, out):
     """``out = ad(xi) @ x``: each column ``[a; b]`` -> ``[k x a; u x a + k x b]``."""
     k0, k1, k2, u0, u1, u2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
@@ -53,7 +54,7 @@ def ad_vec(xi, v):
     return out
 
 
-@njit(cache=True)
+@kernel
 def adinv_apply(r, p, x):
     """``Ad(g)^-1 @ x`` in place for ``g = (r, p)``: ``[a; b] -> [R^T a; R^T (b - p x a)]``."""
     for c in range(x.shape[1]):
@@ -66,7 +67,7 @@ def adinv_apply(r, p, x):
             x[3 + i, c] = r[0, i] * b0 + r[1, i] * b1 + r[2, i] * b2
 
 
-@njit(cache=True)
+@kernel
 def skew_apply_sub(mu, x, out):
     """``out -= S(mu) @ x`` with ``S(mu) = [[m~, f~], [f~, 0]]``."""
     m0, m1, m2, f0, f1, f2 = mu[0], mu[1], mu[2], mu[3], mu[4], mu[5]
@@ -81,7 +82,7 @@ def skew_apply_sub(mu, x, out):
         out[5, c] -= f0 * a1 - f1 * a0
 
 
-@njit(cache=True)
+@kernel
 def compose_rp_into(g, gr, r, p):
     """``g <- g [r p; 0 1]`` in place for a 4x4 (or 3x4) pose ``g``; ``gr`` is 3x3 scratch."""
     for i in range(3):
@@ -99,7 +100,7 @@ def compose_rp_into(g, gr, r, p):
             g[i, c] = acc
 
 
-@njit(cache=True)
+@kernel
 def expmap_rp_into(xi, r, p):
     """``exp(xi^)`` written into rotation ``r`` (3x3) and translation ``p`` (3,) (Rodrigues)."""
     k0, k1, k2 = xi[0], xi[1], xi[2]

@@ -13,11 +13,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._jit import kernel
+
 #: |cos(theta)| below this is treated as the Euler singularity.
 SINGULAR_COS = 1e-6
 
 
-@njit(cache=True)
+@kernel
 def rot_zyx_into(r, cf, sf, ct, st, cp, sp):
     """``Rz(psi) Ry(theta) Rx(phi)`` into ``r`` (3x3) from the sines and cosines of ``phi``
     (``cf, sf``), ``theta`` (``ct, st``) and ``psi`` (``cp, sp``)."""
@@ -32,7 +34,7 @@ def rot_zyx_into(r, cf, sf, ct, st, cp, sp):
     r[2, 2] = ct * cf
 
 
-@njit(cache=True)
+@kernel
 def euler_rates_into(t, td, cf, sf, ct, st, phi_dot, theta_dot):
     """``T(phi, theta)`` of paper eq. (4) into ``t`` and its time derivative into ``td`` (3x3
     each) from the sines and cosines of ``phi`` (``cf, sf``) and ``theta`` (``ct, st``)."""

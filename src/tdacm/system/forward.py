@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._jit import kernel
 from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..lie.blocks import ad_scalars, compose_rp_into, expmap_rp_into
@@ -46,7 +47,15 @@ from . import kernels as K
 _C4 = np.sqrt(3.0) / 12.0
 
 
-@njit(cache=True)
+@kernel
+def _copy_into(dst, src):
+    """``dst[:, :] = src`` (2-D) without the runtime a slice assignment needs."""
+    for i in range(dst.shape[0]):
+        for k in range(dst.shape[1]):
+            dst[i, k] = src[i, k]
+
+
+@kernel
 def tangent_coefficients_scalar(th):
     """:func:`tdacm.lie.se3.tangent_coefficients` as eight scalars (the same arithmetic)."""
     if th < SMALL_ANGLE:
@@ -72,7 +81,7 @@ def tangent_coefficients_scalar(th):
     )  # fmt: skip
 
 
-@njit(cache=True)
+@kernel
 def _tangent_cols(om, co, x, c0, c1):
     """``x[:, c] <- T(Omega) x[:, c]`` for the twists ``c0 <= c < c1`` (columns of ``x``,
     6 x k): ``x + sum a_i ad(Omega)^i x``, the recursion of
@@ -124,7 +133,7 @@ def _tangent_cols(om, co, x, c0, c1):
         o5[c] = t5 + a4 * p5
 
 
-@njit(cache=True)
+@kernel
 def _tangent_rate_col(om, co, x, out, dout):
     """``out[:, 0] = T(Omega) x[:, 0]`` and ``dout = T_dot x[:, 0]`` for the twist
     ``x[:, 0] = Omega_dot`` (the rate recursion of :func:`tdacm.lie.blocks.tangent_apply_into`:
@@ -161,7 +170,7 @@ def _tangent_rate_col(om, co, x, out, dout):
     dout[0], dout[1], dout[2], dout[3], dout[4], dout[5] = s0, s1, s2, s3, s4, s5
 
 
-@njit(cache=True)
+@kernel
 def _adinv_row(r, p, x):
     """``x <- Ad(g)^-1 x`` for one twist ``x`` (6,), ``g = (r, p)``
     (:func:`tdacm.lie.blocks.adinv_apply`)."""
@@ -174,7 +183,7 @@ def _adinv_row(r, p, x):
         x[3 + i] = r[0, i] * b0 + r[1, i] * b1 + r[2, i] * b2
 
 
-@njit(cache=True)
+@kernel
 def _cols_adinv(r, p, x, ncols):
     """``Ad(g)^-1`` applied to the first ``ncols`` columns of ``x`` (6 x n, twists as columns;
     :func:`tdacm.lie.blocks.adinv_apply`); the loop over the columns vectorizes."""
@@ -196,7 +205,7 @@ def _cols_adinv(r, p, x, ncols):
         x5[c] = r02 * b0 + r12 * b1 + r22 * b2
 
 
-@njit(cache=True)
+@kernel
 def _matvec_c(j, x, ncols, out):
     """``out = J x`` (6,) over the first ``ncols`` columns of ``J`` (the others are zero)."""
     for i in range(6):
@@ -206,7 +215,7 @@ def _matvec_c(j, x, ncols, out):
         out[i] = acc
 
 
-@njit(cache=True)
+@kernel
 def _tmatvec_add_c(j, f, weight, ncols, out):
     """``out += weight J^T f`` (:func:`tdacm.system.kernels._tmatvec_add`) over the first
     ``ncols`` columns of ``J``."""
@@ -218,7 +227,7 @@ def _tmatvec_add_c(j, f, weight, ncols, out):
         )
 
 
-@njit(cache=True)
+@kernel
 def _add_body_c(mass6, j, eta, jdq, weight, ncols, m_out, cqd_out, mj):
     """``M += w J^T Mb J`` (its upper triangle; :func:`_mirror` fills the lower one) and
     ``C qdot += w J^T (Mb J_dot qdot + coad(eta) Mb eta)`` (paper eqs. (10), (11)) over the
@@ -247,7 +256,7 @@ def _add_body_c(mass6, j, eta, jdq, weight, ncols, m_out, cqd_out, mj):
         )
 
 
-@njit(cache=True)
+@kernel
 def _mirror(m_out, n):
     """The lower triangle of ``M`` from its upper one (every entry ``(a, b)`` received the same
     sums as ``(b, a)`` would have: ``M`` is exactly symmetric)."""
@@ -256,7 +265,7 @@ def _mirror(m_out, n):
             m_out[b, a] = m_out[a, b]
 
 
-@njit(cache=True)
+@kernel
 def _zanna_cols(z, c4, xi1, xi2, b0, b1, xc, ns):
     """The order-4 Magnus ``Z`` columns (:func:`tdacm.lie.magnus.magnus_step_into`, Zanna's
     scheme): ``xc[:, 1 + c] = h/2 (b0_c + b1_c) + c4 (ad(xi1) b1_c - ad(xi2) b0_c)`` for the
@@ -341,7 +350,7 @@ def nonzero_rows(b):
     return cols, counts
 
 
-@njit(cache=True)
+@kernel
 def rod_step_rate(h, xi0s, bs, z, c4, one, nzc, nzn, qs, qsd, off, g, j, ncols, eta, jdq, ws):
     """One Magnus step of the pose / Jacobian recursion (paper eqs. (7), (9)) with ``J``
     (6 x n), the twist ``eta = J qdot`` and ``J_dot qdot`` updated in place; the arithmetic of
@@ -445,7 +454,7 @@ def rod_step_rate(h, xi0s, bs, z, c4, one, nzc, nzn, qs, qsd, off, g, j, ncols, 
     compose_rp_into(g, gr, r, p)  # g <- g exp(Omega)
 
 
-@njit(cache=True)
+@kernel
 def _add_point_force_c(j, g, fx, fy, fz, ncols, tau, f):
     """``tau += J^T [0; R^T f]`` (:func:`tdacm.system.kernels._add_point_force`); ``f`` (6,)
     scratch."""
@@ -482,7 +491,7 @@ def workspace(n, m):
     )  # fmt: skip
 
 
-@njit(cache=True)
+@kernel
 def _base_into(q, qd, floating, g_fixed, gb, jb, jbd, m33):
     """:func:`tdacm.system.kernels.base_state` written into ``gb``, ``jb`` and ``jbd`` (the same
     arithmetic); keeps ``R`` and ``T`` in ``m33[3]``, ``m33[4]``."""
@@ -492,7 +501,7 @@ def _base_into(q, qd, floating, g_fixed, gb, jb, jbd, m33):
             jb[i, c] = 0.0
             jbd[i, c] = 0.0
     if not floating:
-        gb[:, :] = g_fixed
+        _copy_into(gb, g_fixed)
         return
     # the drone's R, T and dT/dt (tdacm.lie.euler), the six sines and cosines computed once,
     # into m33[3], m33[4], m33[5]
@@ -542,7 +551,7 @@ def forward_terms(q, qd, m, loads, u, aero, contact):
     return m_out.copy(), vn[0].copy(), vn[1].copy(), g.copy(), j.copy(), jd.copy()
 
 
-@njit(cache=True)
+@kernel
 def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
     """:func:`forward_terms` into the :func:`workspace` ``ws``: ``M`` in ``ws[0]``, ``C qdot``
     and ``tau_ext`` in ``ws[1][0]``, ``ws[1][1]``, the tip pose, ``J`` and the rod base's
@@ -618,8 +627,8 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
         nact = nb
         if cont:
             K._rod_base_node(g, eta, prev)
-            g_prev[:] = g
-            j_prev[:] = j
+            _copy_into(g_prev, g)
+            _copy_into(j_prev, j)
         for k in range(m.rod_steps[rod], m.rod_steps[rod + 1]):
             c0 = off + m.step_col[k]
             c1 = c0 + m.step_nc[k]
@@ -654,12 +663,12 @@ def forward_terms_ws(q, qd, m, loads, u, aero, contact, ws):
                             f[i] = mb[i]
                             f[3 + i] = 0.0
                         _tmatvec_add_c(j, f, 1.0, nact, tau)
-                g_prev[:] = g
-                j_prev[:] = j
+                _copy_into(g_prev, g)
+                _copy_into(j_prev, j)
     _mirror(m_out, n)
 
 
-@njit(cache=True)
+@kernel
 def _input_force(q, u, m, ws, out):
     """``out = B(q) u`` (paper eqs. (14)-(16); :func:`tdacm.system.kernels.input_matrix`
     times ``u`` with the same arithmetic, the zero blocks of ``B`` skipped); uses ``R`` and
@@ -698,7 +707,7 @@ def _input_force(q, u, m, ws, out):
         out[off + c] = acc
 
 
-@njit(cache=True)
+@kernel
 def forward_dynamics_ws(q, qd, u, m, loads, aero, contact, ws, qdd):
     """``qdd = M^-1 (B u + tau_ext - C qdot - D qdot - K)`` (paper eq. (9)) into ``qdd``,
     with the :func:`workspace` ``ws``; returns ``ok`` (False when ``M`` is not positive

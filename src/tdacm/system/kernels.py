@@ -48,6 +48,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._jit import kernel
 from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..aero.drag import quadratic_drag, rod_force
@@ -755,7 +756,7 @@ def tendon_lengths_and_matrix(qs, m):
     return lengths, out
 
 
-@njit(cache=True)
+@kernel
 def tendon_accumulate(qs, m, xi, col, out, lengths, want_lengths):
     """Add ``B_s(q)`` (:func:`tendon_lengths_and_matrix`) into ``out`` (rows ``0..n_s``) and,
     when ``want_lengths``, the path lengths into ``lengths``; ``xi`` and ``col`` are (6,)
