@@ -14,8 +14,14 @@ shared arrays also bounce between the cores' caches.
 Such a function cannot allocate (numba refuses to compile ``np.empty`` or a copying slice
 assignment there: the scratch comes from the caller) and must not return an array (numba
 refuses a new one; ``tests/test_jit.py`` checks that no such kernel returns one of its
-arguments): it works in place on arrays that its caller owns, and may call any compiled
-function, with or without the runtime.
+arguments): it works in place on arrays that its caller owns, and may call compiled functions
+that return no new array.
+
+numba compiles a function called from a kernel *without* the runtime too, unless the
+function sets its own: a callee that allocates would then fail to compile, or compile, depending
+on which caller compiled it first. Every compiled function that a kernel reaches is therefore
+either a kernel itself or declares the runtime with :data:`allocating` (``tests/test_jit.py``
+walks the calls).
 """
 
 from __future__ import annotations
@@ -26,3 +32,8 @@ from numba import njit
 #: module docstring): for kernels that allocate nothing and return scalars, tuples of scalars
 #: or nothing
 kernel = njit(cache=True, _nrt=False)
+
+#: ``@allocating``: :func:`numba.njit` with ``cache=True`` and the runtime declared, for the
+#: functions that kernels call and that allocate (their scratch, their results): compiled with
+#: the runtime whoever calls them first
+allocating = njit(cache=True, _nrt=True)

@@ -23,16 +23,16 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from .._jit import kernel
 
 
-@njit(cache=True)
+@kernel
 def cylinder_cd(re):
     """Circular-cylinder cross-flow drag coefficient ``1 + 10 Re^(-2/3)`` (White 2006)."""
     return 1.0 + 10.0 * re ** (-2.0 / 3.0)
 
 
-@njit(cache=True)
+@kernel
 def rod_force(va, vy, vz, d, length, rho, mu, cd, cf):
     """Force density (N/m) on a section of diameter ``d`` from the air velocity relative to it,
     ``(va, vy, vz)`` in the section frame (x along the rod); ``cd`` / ``cf`` <= 0 select the
@@ -53,7 +53,7 @@ def rod_force(va, vy, vz, d, length, rho, mu, cd, cf):
     return fx, fy, fz
 
 
-@njit(cache=True)
+@kernel
 def quadratic_drag(v0, v1, v2, cda0, cda1, cda2, rho):
     """``1/2 rho |v| (C_D A) * v``: the force on a body from the air velocity ``v`` relative to
     it (per axis drag areas)."""

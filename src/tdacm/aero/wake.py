@@ -40,14 +40,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .layout import CORE, DECAY, RADIUS, RHO, ROTOR_STATE, ROTORS, SPREAD, WIND
 
 LN2 = math.log(2.0)
 
 
-@njit(cache=True)
+@kernel
 def induced_velocity(thrust, rho, area, v_climb):
     """Momentum-theory induced velocity (m/s) of a rotor of ``area`` at axial climb ``v_climb``
     (positive up, relative to the air); 0 for a non-positive thrust."""
@@ -62,7 +62,7 @@ def induced_velocity(thrust, rho, area, v_climb):
     return vh * (1.0 - 1.125 * x - 1.372 * x * x - 1.718 * x**3 - 0.655 * x**4)
 
 
-@njit(cache=True)
+@kernel
 def jet_speed(r, z, v_i, v_climb, radius, spread, decay, core):
     """Wake speed (m/s, along the rotor axis, relative to the far air) of one rotor at radial
     distance ``r`` from its axis and ``z`` below its disc (module docstring)."""
@@ -82,7 +82,7 @@ def jet_speed(r, z, v_i, v_climb, radius, spread, decay, core):
     return w * decay * dj / x * math.exp(-LN2 * (r * r) / (b * b))
 
 
-@njit(cache=True)
+@kernel
 def rotor_states(gb, vb, thrusts, aero, out):
     """Per rotor ``k``: ``out[k] = [cx, cy, cz, v_i, v_climb, sx, sy, sz]``, its centre
     (inertial), induced velocity, axial climb speed and the unit direction of its skewed wake
@@ -121,7 +121,7 @@ def rotor_states(gb, vb, thrusts, aero, out):
     return ax, ay, az
 
 
-@njit(cache=True)
+@kernel
 def wake_at(px, py, pz, rot, ax, ay, az, aero):
     """Merged wake speed of the rotors ``rot`` (from :func:`rotor_states`) at an inertial point,
     each jet laid along its skewed centreline; the velocity is that speed along the rotor axis

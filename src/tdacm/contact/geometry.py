@@ -18,13 +18,14 @@ import math
 
 from numba import njit
 
+from .._jit import kernel
 from . import layout as CL
 
 _GOLDEN = 0.6180339887498949
 _SEARCH_ITERS = 30  # interval 0.618^30 = 5e-7 of the segment
 
 
-@njit(cache=True)
+@kernel
 def sdf(c, base, x, y, z):
     """Signed distance of the point ``(x, y, z)`` to the obstacle whose row starts at
     ``c[base]`` and the outward unit normal ``(d, nx, ny, nz)`` (inertial frame)."""
@@ -90,7 +91,7 @@ def sdf(c, base, x, y, z):
     return d, nx, ny, nz
 
 
-@njit(cache=True)
+@kernel
 def contact_law(c, k, delta, nx, ny, nz, vx, vy, vz):
     """Contact force ``(fx, fy, fz, f_n)`` on a body point of velocity ``v`` penetrating an
     obstacle by ``delta`` (m) along the outward normal ``n``, with normal stiffness ``k``
@@ -108,7 +109,7 @@ def contact_law(c, k, delta, nx, ny, nz, vx, vy, vz):
     return fn * nx + ft * tx, fn * ny + ft * ty, fn * nz + ft * tz, fn
 
 
-@njit(cache=True)
+@kernel
 def point_contact(c, radius, x, y, z, vx, vy, vz):
     """Total contact force ``(fx, fy, fz)`` on a sphere of ``radius`` centred at ``(x, y, z)``
     moving at ``v`` (the tip body), summed over the obstacles."""
@@ -125,7 +126,7 @@ def point_contact(c, radius, x, y, z, vx, vy, vz):
     return fx, fy, fz
 
 
-@njit(cache=True)
+@kernel
 def _piece(t0, p0, t1, p1):
     """``(int max(0, p), int max(0, p) t)`` over ``[t0, t1]`` of the linear ``p`` through
     ``(t0, p0)``, ``(t1, p1)``."""
@@ -141,7 +142,7 @@ def _piece(t0, p0, t1, p1):
     return 0.5 * (p0 + p1) * w, w * (p0 * (2.0 * t0 + t1) + p1 * (t0 + 2.0 * t1)) / 6.0
 
 
-@njit(cache=True)
+@kernel
 def segment_contact(c, radius, ax, ay, az, bx, by, bz, va, vb, out):
     """Contact of the capsule of ``radius`` from node ``a`` to node ``b`` (velocities ``va``,
     ``vb``) with every obstacle; adds the forces on the two nodes to ``out[0:3]`` (on ``a``)

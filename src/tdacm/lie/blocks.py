@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from .._jit import kernel
-from .se3 import _exp_coefficients, tangent_coefficients
+from .se3 import _exp_coefficients, tangent_coefficients_scalars
 
 
 @njit(cache=True, inline="always")
@@ -139,7 +139,7 @@ def expmap_rp(xi):
     return r, p
 
 
-@njit(cache=True)
+@kernel
 def tangent_apply_into(omega, omega_dot, x, n_rate, tx, tdx, work):
     """``tx = T(Omega) X`` for all columns and ``tdx = T_dot X`` for the first ``n_rate`` columns.
 
@@ -150,7 +150,7 @@ def tangent_apply_into(omega, omega_dot, x, n_rate, tx, tdx, work):
     """
     c = x.shape[1]
     th = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
-    a, b = tangent_coefficients(th)
+    co = tangent_coefficients_scalars(th)
     prev = work[0]
     cur = work[1]
     dprev = work[2]
@@ -169,8 +169,8 @@ def tangent_apply_into(omega, omega_dot, x, n_rate, tx, tdx, work):
         if n_rate > 0:
             ad_apply(omega_dot, prev[:, :n_rate], dcur[:, :n_rate])
             ad_apply(omega, dprev[:, :n_rate], tmp[:, :n_rate])
-        ai = a[i]
-        bi = b[i] * wwd
+        ai = co[i]
+        bi = co[4 + i] * wwd
         for r in range(6):
             for k in range(c):
                 tx[r, k] += ai * cur[r, k]

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._jit import allocating, kernel
 from .blocks import ad_apply, ad_vec
 
 #: Abscissae (fraction of the step) of the sample points of each Magnus order.
@@ -24,7 +25,7 @@ MAGNUS_POINTS = {2: np.array([0.5]), 4: np.array([0.5 - np.sqrt(3) / 6, 0.5 + np
 _C4 = np.sqrt(3.0) / 12.0
 
 
-@njit(cache=True)
+@kernel
 def _strain_into(xi0, b, q, out):
     for r in range(6):
         acc = xi0[r]
@@ -33,7 +34,7 @@ def _strain_into(xi0, b, q, out):
         out[r] = acc
 
 
-@njit(cache=True)
+@allocating
 def magnus_step_into(h, xi0s, bs, q, qd, omega, z, zdq, zd, work):
     """One Magnus step written into ``omega (6,)``, ``z (6, n_s)``, ``zdq = Z_dot qdot (6,)``
     and ``zd = Z_dot (6, n_s)`` (zero for order 2); ``work`` is a (6, 6, n_s) scratch array.

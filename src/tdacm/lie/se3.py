@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._jit import kernel
+
 #: Below this rotation angle the trigonometric coefficients use their Taylor series.
 SMALL_ANGLE = 1.0
 
@@ -215,7 +217,7 @@ _C2 = (
 )
 
 
-@njit(cache=True)
+@kernel
 def _exp_coefficients(th):
     """Return ``(1-cos th)/th^2`` and ``(th-sin th)/th^3`` accurately for any ``th >= 0``."""
     if th < SMALL_ANGLE:
@@ -280,7 +282,7 @@ def expmap(xi):
     return np.eye(4) + x + c1 * x2 + c2 * (x2 @ x)
 
 
-@njit(cache=True)
+@kernel
 def _series(coefs, t2):
     acc = 0.0
     for i in range(len(coefs) - 1, -1, -1):
@@ -288,7 +290,7 @@ def _series(coefs, t2):
     return acc
 
 
-@njit(cache=True)
+@kernel
 def _dseries(coefs, t2):
     """``(d/dth f)/th`` for ``f = sum c_i th^(2i)``, i.e. ``sum 2 i c_i th^(2i-2)``."""
     acc = 0.0
@@ -297,38 +299,45 @@ def _dseries(coefs, t2):
     return acc
 
 
-@njit(cache=True)
-def tangent_coefficients(th):
-    """Coefficients ``a1..a4`` of ``T(Omega)`` and ``b_i = a_i'(th)/th`` (for ``dT/dt``)."""
-    a = np.empty(4)
-    b = np.empty(4)
+@kernel
+def tangent_coefficients_scalars(th):
+    """Coefficients ``a1..a4`` of ``T(Omega)`` and ``b_i = a_i'(th)/th`` (for ``dT/dt``) as
+    eight scalars ``(a1, a2, a3, a4, b1, b2, b3, b4)``: no allocation, for the kernels of the
+    rod's recursion (:mod:`tdacm._jit`)."""
     if th < SMALL_ANGLE:
         t2 = th * th
-        a[0] = _series(_A1, t2)
-        a[1] = _series(_A2, t2)
-        a[2] = _series(_A3, t2)
-        a[3] = _series(_A4, t2)
-        b[0] = _dseries(_A1, t2)
-        b[1] = _dseries(_A2, t2)
-        b[2] = _dseries(_A3, t2)
-        b[3] = _dseries(_A4, t2)
-        return a, b
+        return (
+            _series(_A1, t2), _series(_A2, t2), _series(_A3, t2), _series(_A4, t2),
+            _dseries(_A1, t2), _dseries(_A2, t2), _dseries(_A3, t2), _dseries(_A4, t2),
+        )  # fmt: skip
     s = np.sin(th)
     c = np.cos(th)
     t2 = th * th
     t3 = t2 * th
     t4 = t2 * t2
-    a[0] = (4.0 - 4.0 * c - th * s) / (2.0 * t2)
-    a[1] = (4.0 * th - 5.0 * s + th * c) / (2.0 * t3)
-    a[2] = (2.0 - 2.0 * c - th * s) / (2.0 * t4)
-    a[3] = (2.0 * th - 3.0 * s + th * c) / (2.0 * t4 * th)
+    a0 = (4.0 - 4.0 * c - th * s) / (2.0 * t2)
+    a1 = (4.0 * th - 5.0 * s + th * c) / (2.0 * t3)
+    a2 = (2.0 - 2.0 * c - th * s) / (2.0 * t4)
+    a3 = (2.0 * th - 3.0 * s + th * c) / (2.0 * t4 * th)
     # derivatives a_i'(th) divided by th (derived by hand, checked against sympy in the tests)
     p = 5.0 * th * s - t2 * c - 8.0 + 8.0 * c
     r = -8.0 * th - 7.0 * th * c - t2 * s + 15.0 * s
-    b[0] = p / (2.0 * t4)
-    b[1] = r / (2.0 * t4 * th)
-    b[2] = p / (2.0 * t4 * t2)
-    b[3] = r / (2.0 * t4 * t3)
+    return (
+        a0, a1, a2, a3,
+        p / (2.0 * t4), r / (2.0 * t4 * th), p / (2.0 * t4 * t2), r / (2.0 * t4 * t3),
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def tangent_coefficients(th):
+    """Coefficients ``a1..a4`` of ``T(Omega)`` and ``b_i = a_i'(th)/th`` (for ``dT/dt``) as
+    two arrays (:func:`tangent_coefficients_scalars`)."""
+    co = tangent_coefficients_scalars(th)
+    a = np.empty(4)
+    b = np.empty(4)
+    for i in range(4):
+        a[i] = co[i]
+        b[i] = co[4 + i]
     return a, b
 
 

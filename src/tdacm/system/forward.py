@@ -41,7 +41,7 @@ from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..lie.blocks import ad_scalars, compose_rp_into, expmap_rp_into
 from ..lie.euler import euler_rates_into, rot_zyx_into
-from ..lie.se3 import _A1, _A2, _A3, _A4, SMALL_ANGLE, _dseries, _series
+from ..lie.se3 import tangent_coefficients_scalars
 from . import kernels as K
 
 _C4 = np.sqrt(3.0) / 12.0
@@ -53,32 +53,6 @@ def _copy_into(dst, src):
     for i in range(dst.shape[0]):
         for k in range(dst.shape[1]):
             dst[i, k] = src[i, k]
-
-
-@kernel
-def tangent_coefficients_scalar(th):
-    """:func:`tdacm.lie.se3.tangent_coefficients` as eight scalars (the same arithmetic)."""
-    if th < SMALL_ANGLE:
-        t2 = th * th
-        return (
-            _series(_A1, t2), _series(_A2, t2), _series(_A3, t2), _series(_A4, t2),
-            _dseries(_A1, t2), _dseries(_A2, t2), _dseries(_A3, t2), _dseries(_A4, t2),
-        )  # fmt: skip
-    s = np.sin(th)
-    c = np.cos(th)
-    t2 = th * th
-    t3 = t2 * th
-    t4 = t2 * t2
-    a0 = (4.0 - 4.0 * c - th * s) / (2.0 * t2)
-    a1 = (4.0 * th - 5.0 * s + th * c) / (2.0 * t3)
-    a2 = (2.0 - 2.0 * c - th * s) / (2.0 * t4)
-    a3 = (2.0 * th - 3.0 * s + th * c) / (2.0 * t4 * th)
-    p = 5.0 * th * s - t2 * c - 8.0 + 8.0 * c
-    r = -8.0 * th - 7.0 * th * c - t2 * s + 15.0 * s
-    return (
-        a0, a1, a2, a3,
-        p / (2.0 * t4), r / (2.0 * t4 * th), p / (2.0 * t4 * t2), r / (2.0 * t4 * t3),
-    )  # fmt: skip
 
 
 @kernel
@@ -427,7 +401,7 @@ def rod_step_rate(h, xi0s, bs, z, c4, one, nzc, nzn, qs, qsd, off, g, j, ncols, 
         xc[0, 0], xc[1, 0], xc[2, 0], xc[3, 0], xc[4, 0], xc[5, 0] = d0, d1, d2, d3, d4, d5
     expmap_rp_into(omega, r, p)
     th = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
-    co = tangent_coefficients_scalar(th)
+    co = tangent_coefficients_scalars(th)
     _tangent_rate_col(omega, co, xc, tx, tdx)
     _tangent_cols(omega, co, xc, 1, ns + 1 if one else ns + 2)  # T Z, T Z_dot qdot in xc
     # increments before the change of frame; T Omega_dot is the relative twist of the step

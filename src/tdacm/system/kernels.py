@@ -48,7 +48,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._jit import kernel
+from .._jit import allocating, kernel
 from .._linalg import cholesky_into, cholesky_substitute
 from ..aero import layout as AL
 from ..aero.drag import quadratic_drag, rod_force
@@ -304,10 +304,11 @@ def make_workspace(n, ns):
         np.empty((6, 4)),  # 11 vector columns: relative twist, J_dot qdot, eta, ad product
         np.empty((6, n)),  # 12 ad(w) J
         np.empty((3, 3)),  # 13 copy of the rotation of g
+        np.empty(6),  # 14 Omega_dot
     )
 
 
-@njit(cache=True)
+@kernel
 def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
     """One Magnus step of the pose / Jacobian / Jacobian-rate recursion (module docstring).
 
@@ -315,7 +316,7 @@ def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
     ``jdq = J_dot qdot``; ``jd`` (6 x n) too when ``full_rate`` (needed for the matrix ``C``,
     not for the forward dynamics).  ``ws`` is a :func:`make_workspace` tuple.
     """
-    omega, z, zdq, zd, mwork, r, p, x, tx, tdx, twork, cols, tmpj, gr = ws
+    omega, z, zdq, zd, mwork, r, p, x, tx, tdx, twork, cols, tmpj, gr, omega_dot = ws
     ns = qs.shape[0]
     magnus_step_into(h, xi0s, bs, qs, qsd, omega, z, zdq, zd, mwork)
     expmap_rp_into(omega, r, p)
@@ -333,7 +334,8 @@ def rod_step(h, xi0s, bs, qs, qsd, off, g, j, jd, eta, jdq, full_rate, ws):
     # order 2: Z_dot = 0, so the (zero) Z_dot columns are skipped
     ncol = (2 * ns + 2 if full_rate else ns + 2) if order4 else ns + 1
     n_rate = ns + 1 if full_rate else 1
-    omega_dot = x[:, 0].copy()
+    for i in range(6):
+        omega_dot[i] = x[i, 0]
     tangent_apply_into(
         omega, omega_dot, x[:, :ncol], n_rate, tx[:, :ncol], tdx[:, :n_rate], twork[:, :, :ncol]
     )
@@ -404,7 +406,7 @@ def coupled_terms(q, qd, m, loads, want_c):
     return coupled_terms_aero(q, qd, m, loads, want_c, np.empty(0), np.empty(0))
 
 
-@njit(cache=True)
+@kernel
 def _air_on_body(g, eta, k, tip, aero, nst, rot, ax, ay, az, wake):
     """Aerodynamic force on the body after Magnus step ``k`` (a Gauss section of the rod, per
     metre, or the tip body), in its own frame: the air (wind + rotor wake at the body's
@@ -428,7 +430,7 @@ def _air_on_body(g, eta, k, tip, aero, nst, rot, ax, ay, az, wake):
     )  # fmt: skip
 
 
-@njit(cache=True)
+@kernel
 def _air_on_drone(gb, eb, aero):
     """Rotor drag and body drag of the drone (body frame) from the wind and its twist ``eb``."""
     w0, w1, w2 = aero[AL.WIND], aero[AL.WIND + 1], aero[AL.WIND + 2]
@@ -441,7 +443,7 @@ def _air_on_drone(gb, eb, aero):
     return f0 + aero[d] * v0, f1 + aero[d + 1] * v1, f2 + aero[d + 2] * v2
 
 
-@njit(cache=True)
+@allocating
 def _rotor_setup(q, qd, u, m, gb, aero, rot):
     """Rotor centres and induced velocities (:func:`tdacm.aero.wake.rotor_states`): the drone's
     own thrusts ``u[0:4]`` and velocity, or the stand's thrusts for a fixed base."""
@@ -459,7 +461,7 @@ def coupled_terms_aero(q, qd, m, loads, want_c, u, aero):
     return coupled_terms_env(q, qd, m, loads, want_c, u, aero, np.empty(0))
 
 
-@njit(cache=True)
+@allocating
 def _node_contact(contact, k, g, eta, prev, fa, fb):
     """Contact forces of the rod node after Magnus step ``k`` (a Gauss section or the tip):
     the capsule from the previous node ``prev`` (``[p, v]``, inertial) to this one, and, at the
@@ -486,13 +488,13 @@ def _node_contact(contact, k, g, eta, prev, fa, fb):
     return hit_a, hit_b
 
 
-@njit(cache=True)
+@kernel
 def _has_probe(contact):
     """True when the tip sphere sits on a rigid probe (its centre off the tip's origin)."""
     return contact[CL.PROBE] != 0.0 or contact[CL.PROBE + 1] != 0.0 or contact[CL.PROBE + 2] != 0.0
 
 
-@njit(cache=True)
+@allocating
 def probe_point(contact, g, eta):
     """Inertial position and velocity of the tip sphere's centre ``p + R o`` (``o``: the
     probe offset in the tip frame; velocity ``R (v + w x o)`` from the body twist ``eta``)."""
@@ -508,7 +510,7 @@ def probe_point(contact, g, eta):
     return x, v
 
 
-@njit(cache=True)
+@allocating
 def _tip_contact(contact, g, eta, fb, mb):
     """Adds the tip sphere's contact force (inertial) to ``fb``; True when touching.  On a
     probe (:data:`~tdacm.contact.layout.PROBE` not zero) the sphere's centre is ``p + R o``
@@ -548,7 +550,7 @@ def _tip_contact(contact, g, eta, fb, mb):
     return True
 
 
-@njit(cache=True)
+@kernel
 def _rod_base_node(g, eta, prev):
     """The rod base as the first node of the capsule chain (``prev = [p, v]``)."""
     for i in range(3):

@@ -71,6 +71,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from .._jit import kernel
 from .._linalg import solve as _solve
 from .._linalg import solve_small
 from ..lie.se3 import expmap, skew
@@ -139,7 +140,7 @@ def _target_points(rt, pt, obj):
     return xw
 
 
-@njit(cache=True)
+@kernel
 def _frame_residuals(rcf, pcf, rt, xw, obj, zf, a, h, e):
     """Residuals ``e`` (8) and Jacobian ``h`` (8 x 6) of one frame (module docstring:
     ``h = dpi/dr R_C^T R_T [-X_k^, I]``), written into preallocated arrays (``a``: 3 x 3
@@ -197,28 +198,16 @@ def _diagonal_flags(w):
     return out
 
 
-@njit(cache=True)
-def _normal_equations(rt, pt, rc, pc, z, obj, w, diagonal):
-    """Gauss-Newton normal equations of the window: information ``sum h_j^T W_j h_j`` (6x6),
-    gradient ``sum h_j^T W_j e_j`` and cost ``sum e_j^T W_j e_j`` over the frames ``j``, with
-    ``W_j = w[j]`` (8 x 8: the inverse of the frame's measurement covariance, diagonal for an
-    exact camera pose; ``diagonal[j]`` tells, :func:`_diagonal_flags`, computed once per
-    frame; ``w`` and ``diagonal`` of one entry when every frame has that weight). Allocation-free per frame (measured: 5.7x faster than the
-    matrix-product form, same sums to 1e-16); ``ok`` is False if a point is behind a
-    camera."""
-    info = np.zeros((6, 6))
-    grad = np.zeros(6)
+@kernel
+def _normal_sums(rt, xw, rc, pc, z, obj, w, diagonal, a, h, e, wh, we, info, grad):
+    """The window's sums of :func:`_normal_equations` into ``info`` (upper triangle) and
+    ``grad`` (zeroed by the caller), with its scratch arrays; returns ``(cost, ok)``. Without
+    reference counting (:mod:`tdacm._jit`): the frames' rows are views, two a frame."""
     cost = 0.0
-    xw = _target_points(rt, pt, obj)
-    a = np.empty((3, 3))
-    h = np.empty((8, 6))
-    e = np.empty(8)
-    wh = np.empty((8, 6))
-    we = np.empty(8)
     shared = w.shape[0] != rc.shape[0]  # one weight for every frame (w: 1 x 8 x 8)
     for f in range(rc.shape[0]):
         if not _frame_residuals(rc[f], pc[f], rt, xw, obj, z[f], a, h, e):
-            return info, grad, cost, False
+            return cost, False
         fw = 0 if shared else f
         wf = w[fw]
         if diagonal[fw]:  # the weight of a frame with an exact camera pose
@@ -251,6 +240,29 @@ def _normal_equations(rt, pt, rc, pc, z, obj, w, diagonal):
                 for i in range(8):
                     acc += h[i, c] * wh[i, d]
                 info[c, d] += acc
+    return cost, True
+
+
+@njit(cache=True)
+def _normal_equations(rt, pt, rc, pc, z, obj, w, diagonal):
+    """Gauss-Newton normal equations of the window: information ``sum h_j^T W_j h_j`` (6x6),
+    gradient ``sum h_j^T W_j e_j`` and cost ``sum e_j^T W_j e_j`` over the frames ``j``, with
+    ``W_j = w[j]`` (8 x 8: the inverse of the frame's measurement covariance, diagonal for an
+    exact camera pose; ``diagonal[j]`` tells, :func:`_diagonal_flags`, computed once per
+    frame; ``w`` and ``diagonal`` of one entry when every frame has that weight). Allocation-free per frame (measured: 5.7x faster than the
+    matrix-product form, same sums to 1e-16); ``ok`` is False if a point is behind a
+    camera."""
+    info = np.zeros((6, 6))
+    grad = np.zeros(6)
+    xw = _target_points(rt, pt, obj)
+    a = np.empty((3, 3))
+    h = np.empty((8, 6))
+    e = np.empty(8)
+    wh = np.empty((8, 6))
+    we = np.empty(8)
+    cost, ok = _normal_sums(rt, xw, rc, pc, z, obj, w, diagonal, a, h, e, wh, we, info, grad)
+    if not ok:
+        return info, grad, cost, False
     for c in range(6):
         for d in range(c):
             info[c, d] = info[d, c]
