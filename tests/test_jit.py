@@ -66,7 +66,7 @@ def _returned_aliases(fn) -> list[str]:
     for node in ast.walk(func):
         if isinstance(node, ast.Return) and node.value is not None:
             vals = node.value.elts if isinstance(node.value, ast.Tuple) else [node.value]
-            bad += [n.id for v in vals for n in [v] if isinstance(n, ast.Name) and n.id in aliases]
+            bad += [v.id for v in vals if isinstance(v, ast.Name) and v.id in aliases]
     return bad
 
 
