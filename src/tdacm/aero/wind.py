@@ -182,9 +182,9 @@ class Wind:
     def velocity(self, t: float, p=None) -> np.ndarray:
         """The wind at time ``t`` (:func:`wind_velocity`; the turbulence asked at
         non-decreasing times)."""
-        if getattr(self, "_state", None) is None:
+        if getattr(self, "state", None) is None:
             self.reset()
-        rec, st = self._record, self._state
+        rec, st = self.record, self.state
         due = wind_samples_due(rec, st, float(t))
         out = np.empty(3)
         wind_velocity(rec, st, float(t), self.normals(due), out)
@@ -203,13 +203,17 @@ class Wind:
 
     def reset(self) -> None:
         """Restart a random wind's sequence (same seed, same samples): its generator and its
-        filters' initial state (:func:`wind_start`)."""
-        self._record = self.params()
-        self._state = WindState.initial()
+        filters' initial state (:func:`wind_start`): :attr:`record` and :attr:`state`, the
+        record and the state :func:`wind_velocity` advances (a plant integrating this wind
+        advances the same state)."""
+        #: the wind's record (:func:`wind_params`)
+        self.record = self.params()
+        #: the wind's state (:class:`WindState`)
+        self.state = WindState.initial()
         turb = self.turbulence()
         if turb is not None:
             turb.rng = np.random.default_rng(turb.seed)
-            wind_start(self._record, self._state, turb.rng.standard_normal(N_WIND_NORMALS))
+            wind_start(self.record, self.state, turb.rng.standard_normal(N_WIND_NORMALS))
 
 
 def wind_params(parts) -> WindParams:
@@ -358,11 +362,11 @@ class DrydenTurbulence(Wind):
 
     def sample(self, n: int) -> np.ndarray:
         """The next ``n`` samples (n, 3) in the ``u, v, w`` components (not rotated)."""
-        if getattr(self, "_state", None) is None:
+        if getattr(self, "state", None) is None:
             self.reset()
         out = np.empty((n, 3))
         for k in range(n):
-            t = (int(self._state.taken[0]) + 1) * self.dt
+            t = (int(self.state.taken[0]) + 1) * self.dt
             out[k] = self.axes.T @ self.velocity(t)
         return out
 

@@ -32,7 +32,6 @@ from ..aero.wind import (
     WindState,
     wind_params,
     wind_samples_due,
-    wind_start,
     wind_velocity,
 )
 from ..contact import layout as CL
@@ -415,12 +414,9 @@ class Plant:
         self.last_substeps = self.params.substeps
         self._t0, self._k = float(t), 0  # t = t0 + k dt, without accumulated round-off
         self.data = PlantData.initial(self.params)
-        if self.wind is not None:  # a seeded wind replays from its start
-            turb = self.wind.turbulence()
-            if turb is not None:
-                turb.rng = np.random.default_rng(turb.seed)
-                wind_start(self.params.wind, self.data.wind,
-                           turb.rng.standard_normal(N_WIND_NORMALS))  # fmt: skip
+        if self.wind is not None:  # a seeded wind replays from its start; the plant advances
+            self.wind.reset()  # the wind's own state
+            self.data = self.data._replace(wind=self.wind.state)
         return self.state
 
     def advance(self, u: np.ndarray, dt: float) -> PlantState:

@@ -254,9 +254,19 @@ def _interaction_kernel(p, z):
     return _jacobian_kernel(p) @ _points_kernel(p, z)
 
 
-def _min_edge2(p) -> float:
+@njit(cache=True)
+def min_edge2(p):
+    """The smallest ``num^2 + den^2`` of the six arctangent terms of the points ``p`` (4, 2):
+    below ``1e-24`` the features are undefined (coincident corners)."""
     t = _terms(p)
-    return float(np.min(t[:, 0] ** 2 + t[:, 1] ** 2))
+    best = np.inf
+    for k in range(t.shape[0]):
+        best = min(best, t[k, 0] ** 2 + t[k, 1] ** 2)
+    return best
+
+
+def _min_edge2(p) -> float:
+    return float(min_edge2(np.ascontiguousarray(p, dtype=float)))
 
 
 # ---------------------------------------------------------------------- advanced features
