@@ -1,12 +1,12 @@
-"""The batched engine: N closed loops in lockstep as one compiled control period.
+"""The batched engine: N closed loops in lockstep, the blocks' compiled steps called for
+every world.
 
-:class:`Batch` holds a :class:`~tdacm.batch.engine.BatchModel` (the constants, packed from the
-blocks of an assembled :class:`~tdacm.loop.ClosedLoop`) and a
+:class:`Batch` holds a :class:`~tdacm.batch.engine.BatchModel` (the blocks' records stacked
+over the worlds, from the blocks of an assembled :class:`~tdacm.loop.ClosedLoop`) and a
 :class:`~tdacm.batch.engine.BatchData` (the state of every world) and steps them with
 :func:`~tdacm.batch.engine.step_worlds` / :func:`~tdacm.batch.engine.run_worlds`.
 :func:`tdacm.sim.batch.build_batch` builds one from a scenario and seeds; the engine is tested
-equal to the block loop (``tests/batch``). docs/batch.md: what runs batched, the speed, the
-GPU port.
+equal to the block loop (``tests/batch``). docs/batch.md: what runs batched, the speed.
 """
 
 from __future__ import annotations
@@ -15,8 +15,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._records import replicate, take
+from ..control.hierarchical import ControllerState, ControllerWork
+from ..loop.plant import PlantData
+from ..loop.safety import SafetyState
+from ..loop.sensors import CameraSensorState
+from ..loop.servo import ServoOut, servo_state
 from . import engine as E
-from .engine import TERMINATIONS, BatchData, BatchModel
+from .engine import TERMINATIONS, BatchData, BatchModel, Frame
 from .random import stream_state
 
 __all__ = ["Batch", "BatchModel", "BatchData", "BatchResult", "TERMINATIONS"]
@@ -65,6 +71,55 @@ class BatchResult:
         return out
 
 
+def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
+    """The state of ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs, each block's
+    state as its block makes it (then :func:`~tdacm.batch.engine.reset_worlds`)."""
+    sp = take(model.sensor, 0)
+    latency = int(np.max(model.sensor.latency))
+    servo = take(model.servo, 0)
+    ns = int(servo.strains[1] - servo.strains[0])
+    window = _window(model)
+    return BatchData(
+        q=np.zeros((n_worlds, n)),
+        qd=np.zeros((n_worlds, n)),
+        k=np.zeros(n_worlds, np.int64),
+        active=np.zeros(n_worlds, np.bool_),
+        termination=np.zeros(n_worlds, np.int64),
+        request=np.zeros(n_worlds, np.bool_),
+        rng_sensors=np.zeros((n_worlds, 2), np.uint64),
+        rng_plant=np.zeros((n_worlds, 2), np.uint64),
+        sensor=replicate(CameraSensorState.empty(sp, latency), n_worlds),
+        frame=Frame(
+            np.zeros((n_worlds, 1), np.bool_),
+            np.zeros((n_worlds, 1), np.bool_),
+            np.zeros((n_worlds, 4, 2)),
+            np.zeros((n_worlds, 4, 2)),
+            np.ones((n_worlds, 4)),
+            np.zeros((n_worlds, 1), np.int64),
+        ),  # fmt: skip
+        servo=replicate(servo_state(servo, n, ns, window), n_worlds),
+        servo_out=replicate(ServoOut.empty(n, ns), n_worlds),
+        controller=replicate(ControllerState.initial(n), n_worlds),
+        work=replicate(ControllerWork.empty(n), n_worlds),
+        safety=replicate(SafetyState.initial(), n_worlds),
+        plant=replicate(PlantData.initial(take(model.plant, 0)), n_worlds),
+        u=np.zeros((n_worlds, n_u)),
+        tau=np.zeros((n_worlds, n)),
+        q_ref=np.zeros((n_worlds, n)),
+        q_next=np.zeros((n_worlds, n)),
+        qd_next=np.zeros((n_worlds, n)),
+        qdd_next=np.zeros((n_worlds, n)),
+    )
+
+
+def _window(model: BatchModel) -> int:
+    """The robust servo's target-filter window (0 for the measured servo)."""
+    from ..vision.target_filter import FP_WINDOW
+
+    servo = take(model.servo, 0)
+    return int(servo.filter.prm[FP_WINDOW]) if servo.robust else 0
+
+
 class Batch:
     """N worlds of one scenario in lockstep (module docstring).
 
@@ -99,7 +154,7 @@ class Batch:
         self.n_worlds = n_worlds
         #: the per-world parameters the batch was built with (``None``: the scenario's)
         self.params = None
-        self.data = E.empty_data(model, n_worlds, q0.shape[1], n_u)
+        self.data = empty_data(model, n_worlds, q0.shape[1], n_u)
         self.reset()
 
     @property

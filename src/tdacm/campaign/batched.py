@@ -152,7 +152,6 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
     """Run the worlds of ``rows`` (their seeds, initial states, scenario records ``cfgs``)
     and fill their rows."""
     from ..batch import engine as E
-    from ..batch import servo as S
     from ..sim.assemble import build_loop
     from ..sim.batch import build_batch, world_params
 
@@ -189,9 +188,9 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
         E.parallel(E.step_worlds, (model, d, nan_twist), nw, threads)
         rec = active & ~(~d.active & np.isin(d.termination, unrecorded))
         recorded[p] = rec
-        rmse[p, rec] = d.rmse[rec]
-        mode[p, rec] = d.sstate[rec, S.S_MODE].astype(np.int64)
-        found[p, rec] = d.found[rec]
+        rmse[p, rec] = d.servo_out.rmse[rec, 0]
+        mode[p, rec] = d.servo_out.mode[rec, 0]
+        found[p, rec] = d.frame.detected[rec, 0]
         u_max[rec] = np.maximum(u_max[rec], d.u[rec])
         q_last[rec] = q_start[rec]
     wall = (time.perf_counter() - t_build) / nw
@@ -217,16 +216,12 @@ def _reason(code: int, a, t, rmse, d, w) -> str | None:
     """The termination in words, as the block loop says it (the safety monitor's numbers,
     the drone's tilt)."""
     from ..batch import engine as E
+    from ..loop.safety import stop_reason
 
     loop = a.loop
     if code == E.SAFETY:
         f = np.flatnonzero(np.isfinite(rmse))
-        prev, now, tt = rmse[f[-2]], rmse[f[-1]], t[f[-1]]
-        growth = loop.safety.growth_limit
-        return (
-            f"safety monitor: normalized RMSE grew from {prev:.5f} to {now:.5f} "
-            f"(+{100 * (now / prev - 1):.1f} % > {100 * growth:.0f} %) at t = {tt:.2f} s"
-        )
+        return stop_reason(loop.safety.params, rmse[f[-2]], rmse[f[-1]], t[f[-1]])
     if code == E.TUMBLED:
         q = d.q[w]
         return (

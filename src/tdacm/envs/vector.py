@@ -11,12 +11,11 @@ returned it, as :class:`gymnasium.vector.SyncVectorEnv` over single envs gives).
 A step: the scaled twists replace the IBVS twists of the running worlds (a row of NaN keeps
 the servo's own IBVS twist, a teacher for imitation; ``batch.data.twist`` holds the twist
 each world applied)
-(:func:`~tdacm.batch.engine.act_worlds`: the servo's mapping and shaping, the low-level
-controller, the plant), then each world's tip camera delivers its next frame
-(:func:`~tdacm.batch.engine.sense_worlds`) and the env reads it
-(:func:`~tdacm.batch.engine.observe_worlds`), in one compiled pass a world
-(:func:`~tdacm.batch.engine.act_sense_observe`). With the robust servo the observation's
-fusion of the frame into the target filter is the period's own: the next step reuses it. Endings: the engine's (:data:`ENGINE_ENDINGS`)
+(:func:`~tdacm.batch.engine.act`: the servo's mapping and shaping, the low-level
+controller, the plant), then each world's tip camera delivers its next frame and the servo
+perceives it (:func:`~tdacm.batch.engine.sense`: the view, the target filter, the mode
+switch), in one compiled pass a world (:func:`~tdacm.batch.engine.act_sense`); the env reads
+the servo's view (``batch.data.servo_out``). Endings: the engine's (:data:`ENGINE_ENDINGS`)
 and the env's own, in the single env's order: out of envelope (roll/pitch beyond
 :data:`~tdacm.envs.servo.MAX_TILT` or a non-finite state), behind camera, target lost for
 ``max_lost`` steps, success.
@@ -43,8 +42,8 @@ dropout and latency. Still a function of ``s + i`` only (tested).
 What differs from the single env: the twist action only; the engine's scenario support (the
 EKF, contact and the multi-arm robots are refused naming the key). The observation holds the
 features the servo works on, as the single env's: with the robust servo (the shipped
-``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame
-(:func:`~tdacm.batch.engine.observe_worlds`), else the detected points. The recovery with the global camera runs batched as in the single env's loop (its
+``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame, else
+the detected points. The recovery with the global camera runs batched as in the single env's loop (its
 failure ends a world as ``recovery failed``). No ``render``.
 """
 
@@ -57,11 +56,14 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..batch import engine as E
-from ..batch import servo as BS
 from ..loop.data import Termination
 from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
+from ..loop.servo import BEHIND as _BEHIND
 from .options import EnvOptions
 from .servo import ENV_DEFAULTS, MAX_TILT, _merge
+
+#: the view of a world's last frame in ``_status``: none, the servo's, a point behind C_V
+NOT_SEEN, SEEN, BEHIND = 0, 1, 2
 
 
 def _ending(name):
@@ -240,13 +242,15 @@ class TipServoVectorEnv(VectorEnv):
         """The second half of the period of the running worlds of ``acting`` with the twists
         ``twist``, then the next frame of the worlds ``which`` (whether the engine still runs
         them or not) and their observation, RMSE and view status into the env's buffers: one
-        compiled pass a world (:func:`~tdacm.batch.engine.act_sense_observe`)."""
+        compiled pass a world (:func:`~tdacm.batch.engine.act_sense`)."""
         d = self.batch.data
-        self._parallel(
-            E.act_sense_observe,
-            (self.batch.model, d, twist, acting, which, self._points, self._error, self._status),
-        )
-        seen = self._status == BS.SEEN
+        self._parallel(E.act_sense, (self.batch.model, d, twist, acting, which))
+        out = d.servo_out
+        seen = out.seen[:, 0].copy()
+        behind = out.failure[:, 0] == _BEHIND
+        self._status = np.where(behind, BEHIND, np.where(seen, SEEN, NOT_SEEN))
+        self._points[:] = out.points
+        self._error[:] = out.error
         obs = observation(
             self._error, self._points, seen, d.q, d.qd, self.q_star, self.q_scale,
             self.point_scale,
@@ -292,7 +296,7 @@ class TipServoVectorEnv(VectorEnv):
         info = {
             "rmse": self._rmse.copy(),
             "_rmse": which.copy(),
-            "detected": which & (status != BS.NOT_SEEN),
+            "detected": which & (status != NOT_SEEN),
             "_detected": which.copy(),
             "loop_seed": np.where(which, self.batch.seeds, 0).astype(np.int32),
             "_loop_seed": which.copy(),
@@ -328,11 +332,11 @@ class TipServoVectorEnv(VectorEnv):
             with np.errstate(invalid="ignore"):
                 out |= np.abs(q[:, :2]).max(axis=1) > MAX_TILT
         status, rmse = self._status, self._rmse
-        seen = status == BS.SEEN
+        seen = status == SEEN
         self.lost[stepping] = np.where(seen[stepping], 0, self.lost[stepping] + 1)
         envelope = stepping & ~engine_end & out
         free = stepping & ~engine_end & ~out
-        behind = free & (status == BS.BEHIND)
+        behind = free & (status == BEHIND)
         free &= ~behind
         lost = free & (self.lost >= self.max_lost)
         free &= ~lost
@@ -378,7 +382,7 @@ class TipServoVectorEnv(VectorEnv):
         info = {
             "rmse": rmse.copy(),
             "_rmse": np.ones(N, np.bool_),
-            "detected": np.where(resetting, status != BS.NOT_SEEN, seen),
+            "detected": np.where(resetting, status != NOT_SEEN, seen),
             "_detected": np.ones(N, np.bool_),
             "success": success,
             "_success": stepping.copy(),

@@ -10,6 +10,8 @@ that) is rejected: the view is "not seen" that period, as a missed frame.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -17,6 +19,15 @@ from ..vision import _checks as C
 from ..vision.camera import PinholeCamera, normalize_into
 from ..vision.ippe import DEPTHS_OK, canonical_frame, point_depths
 from .data import CameraMeasurement, DeferredMeasurement, GlobalView, LocalView
+
+
+class PerceptionParams(NamedTuple):
+    """The perception's parameters: the controller's model of C_L ``camera`` (a
+    :class:`~tdacm.vision.camera.CameraParams`) and the target's feature points in their
+    plane's canonical frame ``object_2d`` (4, 2)."""
+
+    camera: object
+    object_2d: np.ndarray
 
 
 @njit(cache=True)
@@ -41,6 +52,8 @@ class Perception:
         #: the target's feature points in their plane's canonical frame (the IPPE depths')
         self.object_2d = canonical_frame(self._object)[0]
         self._camera = local_camera.params()
+        #: the record of the compiled step (:func:`perceive`)
+        self.params = PerceptionParams(self._camera, self.object_2d)
 
     def reset(self) -> None:
         pass

@@ -66,8 +66,10 @@ class CameraSensorState(NamedTuple):
     count: np.ndarray
 
     @classmethod
-    def empty(cls, p: CameraSensorParams) -> CameraSensorState:
-        cap = int(p.latency) + 1
+    def empty(cls, p: CameraSensorParams, latency: int | None = None) -> CameraSensorState:
+        """An empty buffer for ``latency`` frames (default the record's; larger for a batch
+        whose worlds have other latencies)."""
+        cap = int(p.latency if latency is None else latency) + 1
         m = p.corners.shape[0]
         return cls(np.zeros((cap, 4, 2)), np.zeros((cap, m, 4, 2)), np.zeros(cap, np.bool_),
                    np.zeros(cap, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64))  # fmt: skip
@@ -138,11 +140,17 @@ def add_pixel_noise(p, uv, corners, normals):
 
 
 @njit(cache=True)
-def latency_slots(st):
+def global_offered(k, every, requested):
+    """C_G's frame is offered to the servo in period ``k``: every ``every`` periods (0:
+    never) and whenever the servo asked for it (``requested``)."""
+    return requested or (every > 0 and k % every == 0)
+
+
+@njit(cache=True)
+def latency_slots(st, cap):
     """The ring buffer's slots of a new frame: ``(write, read)``, the slot to store this
-    period's frame in and the slot of the frame delivered now (the oldest of ``latency + 1``;
-    the first frame until the buffer has filled), the ring advanced."""
-    cap = st.found.shape[0]
+    period's frame in and the slot of the frame delivered now (the oldest of the ``cap =
+    latency + 1`` kept; the first frame until the buffer has filled), the ring advanced."""
     head, count = st.head[0], st.count[0]
     if count < cap:
         slot = (head + count) % cap
@@ -155,10 +163,10 @@ def latency_slots(st):
 
 
 @njit(cache=True)
-def latency_push(st, found, uv, corners, capture):
+def latency_push(p, st, found, uv, corners, capture):
     """Store this period's frame and return the slot of the delivered one
-    (:func:`latency_slots`)."""
-    write, read = latency_slots(st)
+    (:func:`latency_slots`, ``latency + 1`` frames kept)."""
+    write, read = latency_slots(st, p.latency + 1)
     st.uv[write] = uv
     st.corners[write] = corners
     st.found[write] = found
@@ -358,7 +366,8 @@ class CameraSensor:
         meas = CameraMeasurement(state.t, det, image if self.keep_images else None)
         if self.model.latency_steps == 0:
             return meas
-        write, read = latency_slots(self._ring)  # the delivered frame: latency_steps old
+        # the delivered frame: latency_steps old
+        write, read = latency_slots(self._ring, self.params.latency + 1)
         self._fifo[write] = meas
         return self._fifo[read]
 
@@ -416,9 +425,7 @@ class Sensors:
         g = self.global_
         if g is not None:
             every, out_every = self.global_every, self.global_output_every
-            offered = (
-                self.always_global or request_global or (every > 0 and k % every == 0)
-            )  # fmt: skip
+            offered = self.always_global or global_offered(k, every, bool(request_global))
             if offered:
                 glob = DeferredMeasurement(state.t, partial(g.measure, state))
             if self.always_global or (out_every > 0 and k % out_every == 0):
