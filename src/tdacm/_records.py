@@ -20,7 +20,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-__all__ = ["take", "stack", "put", "replicate"]
+__all__ = ["take", "stack", "put", "replicate", "copy_into"]
 
 
 def take(records, w: int):
@@ -48,6 +48,33 @@ def _take_compiled(records, w):
     src = f"def impl(records, w):\n    return cls({args})\n"
     scope = {"cls": records.instance_class, "take": take}
     exec(src, scope)  # noqa: S102 - the source is the field list above
+    return scope["impl"]
+
+
+def copy_into(src, dst) -> None:
+    """Copy every array field of the record ``src`` into the same field of ``dst`` (in place;
+    records of one type, e.g. one world's outputs into another's)."""
+    for a, b in zip(src, dst, strict=True):
+        if _is_record(a):
+            copy_into(a, b)
+        else:
+            b[...] = a
+
+
+@overload(copy_into)
+def _copy_into_compiled(src, dst):
+    """:func:`copy_into` in compiled code: one assignment per field, generated once per record
+    type."""
+    if not isinstance(src, types.BaseNamedTuple):
+        return None
+    body = "\n".join(
+        f"    copy_into(src[{i}], dst[{i}])"
+        if isinstance(t, types.BaseNamedTuple)
+        else f"    dst[{i}][...] = src[{i}]"
+        for i, t in enumerate(src.types)
+    )
+    scope = {"copy_into": copy_into}
+    exec(f"def impl(src, dst):\n{body}\n", scope)  # noqa: S102 - the source is the field list
     return scope["impl"]
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tdacm.batch.pack import Unsupported, check_loop
 from tdacm.sim.assemble import build_loop, build_world
+from tdacm.sim.batch import Unsupported, refuse
 from tdacm.sim.scenario import ScenarioError, load_scenario
 
 #: arm 1's strains from arm 0's under the mirror x -> -x of the body frame (the arms sit at
@@ -144,7 +144,7 @@ def test_two_arms_servo_on_the_ekfs_estimates():
 def test_batched_engine_refuses_several_arms():
     a = build_loop(_mirrored({"ibvs": {"features": "measured"}}))
     with pytest.raises(Unsupported, match=r"one arm \(robot.arms\)"):
-        check_loop(a.loop)
+        refuse(a.loop)
 
 
 def test_outputs_know_the_arms(tmp_path):

@@ -93,7 +93,7 @@ def test_second_half_uses_the_loops_signatures():
     from tdacm.lie.se3 import expmap, so3_log
     from tdacm.sim import build_loop
     from tdacm.system import kernels as K
-    from tdacm.vision.ibvs import _twist_kernel
+    from tdacm.vision.ibvs import ibvs_law
     from tdacm.vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 
     sc = load_scenario("paper-in-fov").with_overrides(
@@ -105,7 +105,7 @@ def test_second_half_uses_the_loops_signatures():
     loop.close()
     kernels = (
         K.rk4_run, K.chain_poses, _gauss_newton_kernel, _diagonal_flags,
-        _twist_kernel, svd_solve, _law_kernel, _allocate_tensions_kernel, expmap, so3_log,
+        ibvs_law, svd_solve, _law_kernel, _allocate_tensions_kernel, expmap, so3_log,
     )  # fmt: skip
     before = {k.py_func.__name__: list(k.signatures) for k in kernels}
     assert all(before.values()), before

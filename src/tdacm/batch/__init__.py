@@ -17,6 +17,7 @@ import numpy as np
 
 from .._records import replicate, take
 from ..control.hierarchical import ControllerState, ControllerWork
+from ..loop.arms import ArmsMemo
 from ..loop.plant import PlantData
 from ..loop.safety import SafetyState
 from ..loop.sensors import CameraSensorState
@@ -73,12 +74,17 @@ class BatchResult:
 
 def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
     """The state of ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs, each block's
-    state as its block makes it (then :func:`~tdacm.batch.engine.reset_worlds`)."""
-    sp = take(model.sensor, 0)
+    state as its block makes it (the arms' with an arm axis; then
+    :func:`~tdacm.batch.engine.reset_worlds`)."""
+    k = int(model.n_arms)
+    sensors = take(model.sensor, 0)
     latency = int(np.max(model.sensor.latency))
-    servo = take(model.servo, 0)
+    servo = take(take(model.servo, 0), 0)
     ns = int(servo.strains[1] - servo.strains[0])
     window = _window(model)
+    per_arm = lambda record: replicate(replicate(record, k), n_worlds)  # noqa: E731
+    frame = Frame(np.zeros(1, np.bool_), np.zeros(1, np.bool_), np.zeros((4, 2)),
+                  np.zeros((4, 2)), np.ones(4), np.zeros(1, np.int64))  # fmt: skip
     return BatchData(
         q=np.zeros((n_worlds, n)),
         qd=np.zeros((n_worlds, n)),
@@ -88,17 +94,12 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         request=np.zeros(n_worlds, np.bool_),
         rng_sensors=np.zeros((n_worlds, 2), np.uint64),
         rng_plant=np.zeros((n_worlds, 2), np.uint64),
-        sensor=replicate(CameraSensorState.empty(sp, latency), n_worlds),
-        frame=Frame(
-            np.zeros((n_worlds, 1), np.bool_),
-            np.zeros((n_worlds, 1), np.bool_),
-            np.zeros((n_worlds, 4, 2)),
-            np.zeros((n_worlds, 4, 2)),
-            np.ones((n_worlds, 4)),
-            np.zeros((n_worlds, 1), np.int64),
-        ),  # fmt: skip
-        servo=replicate(servo_state(servo, n, ns, window), n_worlds),
-        servo_out=replicate(ServoOut.empty(n, ns), n_worlds),
+        sensor=per_arm(CameraSensorState.empty(take(sensors, 0), latency)),
+        frame=per_arm(frame),
+        servo=per_arm(servo_state(servo, n, ns, window)),
+        servo_out=per_arm(ServoOut.empty(n, ns)),
+        robot_out=replicate(ServoOut.empty(n, ns), n_worlds),
+        memo=replicate(ArmsMemo.initial(), n_worlds),
         controller=replicate(ControllerState.initial(n), n_worlds),
         work=replicate(ControllerWork.empty(n), n_worlds),
         safety=replicate(SafetyState.initial(), n_worlds),
@@ -116,7 +117,7 @@ def _window(model: BatchModel) -> int:
     """The robust servo's target-filter window (0 for the measured servo)."""
     from ..vision.target_filter import FP_WINDOW
 
-    servo = take(model.servo, 0)
+    servo = take(take(model.servo, 0), 0)
     return int(servo.filter.prm[FP_WINDOW]) if servo.robust else 0
 
 

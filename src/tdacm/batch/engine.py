@@ -34,9 +34,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._records import take
+from .._records import copy_into, take
 from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
+from ..loop.arms import arms_command
 from ..loop.data import Termination
 from ..loop.perception import perceive
 from ..loop.plant import plant_step
@@ -50,9 +51,11 @@ from ..loop.sensors import (
     latency_push,
 )
 from ..loop.servo import (
+    BEHIND,
     IBVS,
     IBVS_ENGAGED,
     NO_FAILURE,
+    RECOVERY,
     needs_global,
     servo_command,
     servo_perceive,
@@ -79,8 +82,8 @@ TERMINATIONS = (
 
 class BatchModel(NamedTuple):
     """The constants of a batch: every block's record stacked over the worlds (a leading
-    world axis; :func:`tdacm._records.stack`) and what the worlds share. ``sensor`` the tip
-    camera's and ``global_sensor`` C_G's
+    world axis; :func:`tdacm._records.stack`; the arms' blocks with a second axis, one row an
+    arm) and what the worlds share. ``sensor`` the tip cameras' and ``global_sensor`` C_G's
     (:class:`~tdacm.loop.sensors.CameraSensorParams`), ``perception``
     (:class:`~tdacm.loop.perception.PerceptionParams`), ``servo``
     (:class:`~tdacm.loop.servo.ServoParams`), ``controller``
@@ -91,7 +94,9 @@ class BatchModel(NamedTuple):
     the shared model arrays of the plant's system ``plant_model`` and of the controller's
     private model ``control_model``; the control period ``dt``, the periods of a run
     ``steps`` (``steps + 1`` samples, the last without a plant step, as
-    :meth:`~tdacm.loop.ClosedLoop.run`) and C_G's schedule ``global_every``."""
+    :meth:`~tdacm.loop.ClosedLoop.run`) and C_G's schedule ``global_every``; ``n_arms`` the
+    arms (one arm: :func:`~tdacm.loop.servo.servo_command`, several:
+    :func:`~tdacm.loop.arms.arms_command`)."""
 
     sensor: object
     global_sensor: object
@@ -106,6 +111,7 @@ class BatchModel(NamedTuple):
     dt: float
     steps: int
     global_every: int
+    n_arms: int
 
 
 class Frame(NamedTuple):
@@ -126,9 +132,11 @@ class BatchData(NamedTuple):
     count ``k`` (``t = k dt``), whether it runs (``active``), why it ended (``termination``),
     whether its servo asked C_G for the next period (``request``), its random streams
     (``rng_sensors``, ``rng_plant``), the blocks' states (``sensor``, ``servo``,
-    ``controller``, ``safety``, ``plant``), the period's frame (``frame``), the servo's outputs
-    (``servo_out``), the controller's scratch (``work``) and outputs (``u``, ``tau``,
-    ``q_ref``), and the plant step's scratch ``q_next``, ``qd_next``, ``qdd_next``."""
+    ``controller``, ``safety``, ``plant``; the arms' with a second axis), the period's frames
+    (``frame``, one per arm), each arm's servo outputs (``servo_out``) and the robot's
+    (``robot_out``, arm 0's for one arm; ``memo`` the servo of several arms' own,
+    :class:`~tdacm.loop.arms.ArmsMemo`), the controller's scratch (``work``) and outputs (``u``,
+    ``tau``, ``q_ref``), and the plant step's scratch ``q_next``, ``qd_next``, ``qdd_next``."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -142,6 +150,8 @@ class BatchData(NamedTuple):
     frame: Frame
     servo: object
     servo_out: object
+    robot_out: object
+    memo: object
     controller: object
     work: object
     safety: object
@@ -176,22 +186,26 @@ def reset_worlds(model, data, which, q0, qd0):
         data.k[w] = 0
         data.active[w] = True
         data.termination[w] = RUNNING
-        sp = take(model.sensor, w)
-        ss = take(data.sensor, w)
-        ss.head[0] = 0
-        ss.count[0] = 0
         mw = model_of_world(model.plant_model, take(model.robot, w))
-        # the first C_L frame, ideal (no draws): the initial mode
-        g_c = np.empty((4, 4))
-        camera_pose_into(sp, mw, data.q[w], g_c)
-        uv = np.empty((4, 2))
-        corners = np.empty((sp.corners.shape[0], 4, 2))
-        seen = np.empty(sp.corners.shape[0], np.bool_)
-        found = analytic_detect(sp, g_c, uv, corners, seen)
-        servo = take(model.servo, w)
-        servo_reset(servo, take(data.servo, w), mw, data.q[w], found, uv)
+        recovering = False
+        for a in range(model.n_arms):
+            sp = take(take(model.sensor, w), a)
+            ss = take(take(data.sensor, w), a)
+            ss.head[0] = 0
+            ss.count[0] = 0
+            # the first C_L frame, ideal (no draws): the initial mode
+            g_c = np.empty((4, 4))
+            camera_pose_into(sp, mw, data.q[w], g_c)
+            uv = np.empty((4, 2))
+            corners = np.empty((sp.corners.shape[0], 4, 2))
+            seen = np.empty(sp.corners.shape[0], np.bool_)
+            found = analytic_detect(sp, g_c, uv, corners, seen)
+            st = take(take(data.servo, w), a)
+            servo_reset(take(take(model.servo, w), a), st, mw, data.q[w], found, uv)
+            recovering = recovering or st.mode[0] != IBVS
         # a start in recovery asks C_G for its first period (ClosedLoop.reset)
-        data.request[w] = data.servo.mode[w, 0] != IBVS
+        data.request[w] = recovering
+        data.memo.lost[w, 0] = recovering
         cs = take(data.controller, w)
         for i in range(n):
             cs.delta_hat[i] = 0.0
@@ -208,7 +222,9 @@ def reset_worlds(model, data, which, q0, qd0):
             for i in range(N_WIND_NORMALS):
                 normals[i] = normal(data.rng_plant[w])
         wind_start(pp.wind, pd.wind, normals)
-        data.servo_out.rmse[w, 0] = np.nan
+        data.robot_out.rmse[w, 0] = np.nan
+        for a in range(model.n_arms):
+            data.servo_out.rmse[w, a, 0] = np.nan
 
 
 @njit(cache=True)
@@ -221,33 +237,35 @@ def sense(model, data, w):
     dt = model.dt
     q = data.q[w]
     n = q.shape[0]
-    sp = take(model.sensor, w)
     mw = model_of_world(model.plant_model, take(model.robot, w))
-    g_c = np.empty((4, 4))
-    camera_pose_into(sp, mw, q, g_c)
-    uv = np.empty((4, 2))
-    corners = np.empty((sp.corners.shape[0], 4, 2))
-    seen = np.empty(sp.corners.shape[0], np.bool_)
-    found = analytic_detect(sp, g_c, uv, corners, seen)
     rng = data.rng_sensors[w]
-    if sp.dropout > 0.0 and frame_dropped(sp, uniform(rng)):
-        found = False
-    elif found and sp.pixel_noise > 0.0:
-        normals = np.empty(8)
-        for i in range(8):
-            normals[i] = normal(rng)
-        add_pixel_noise(sp, uv, corners[:0], normals)
-    ss = take(data.sensor, w)
-    slot = latency_push(sp, ss, found, uv, corners, k)
-    f = take(data.frame, w)
-    f.uv[:, :] = ss.uv[slot]
-    f.capture[0] = ss.capture[slot]
-    pc = take(model.perception, w)
-    f.detected[0] = ss.found[slot]
-    f.found[0] = f.detected[0] and perceive(pc.camera, pc.object_2d, f.uv, f.xy, f.z)
     p_qq = np.zeros((n, n))  # the true state: an exact camera pose
-    servo_perceive(take(model.servo, w), take(data.servo, w), mw, k * dt, dt, k, q, p_qq,
-                   f.found[0], f.uv, f.xy, f.z, f.capture[0], take(data.servo_out, w))  # fmt: skip
+    g_c = np.empty((4, 4))
+    uv = np.empty((4, 2))
+    normals = np.empty(8)
+    for a in range(model.n_arms):
+        sp = take(take(model.sensor, w), a)
+        camera_pose_into(sp, mw, q, g_c)
+        corners = np.empty((sp.corners.shape[0], 4, 2))
+        seen = np.empty(sp.corners.shape[0], np.bool_)
+        found = analytic_detect(sp, g_c, uv, corners, seen)
+        if sp.dropout > 0.0 and frame_dropped(sp, uniform(rng)):
+            found = False
+        elif found and sp.pixel_noise > 0.0:
+            for i in range(8):
+                normals[i] = normal(rng)
+            add_pixel_noise(sp, uv, corners[:0], normals)
+        ss = take(take(data.sensor, w), a)
+        slot = latency_push(sp, ss, found, uv, corners, k)
+        f = take(take(data.frame, w), a)
+        f.uv[:, :] = ss.uv[slot]
+        f.capture[0] = ss.capture[slot]
+        pc = take(take(model.perception, w), a)
+        f.detected[0] = ss.found[slot]
+        f.found[0] = f.detected[0] and perceive(pc.camera, pc.object_2d, f.uv, f.xy, f.z)
+        servo_perceive(take(take(model.servo, w), a), take(take(data.servo, w), a), mw, k * dt,
+                       dt, k, q, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
+                       take(take(data.servo_out, w), a))  # fmt: skip
 
 
 @njit(cache=True)
@@ -262,43 +280,57 @@ def act(model, data, w, twist_in):
     q = data.q[w]
     qd = data.qd[w]
     n = q.shape[0]
-    servo = take(model.servo, w)
-    ss = take(data.servo, w)
-    out = take(data.servo_out, w)
     mw = model_of_world(model.plant_model, take(model.robot, w))
     offered = global_offered(k, model.global_every, data.request[w])
-    gp = take(model.global_sensor, w)
-    m_count = gp.corners.shape[0]
-    corners = np.zeros((m_count, 4, 2))
-    seen = np.zeros(m_count, np.bool_)
-    g_found = False
-    if needs_global(ss, out, offered):
-        g_c = np.empty((4, 4))
-        camera_pose_into(gp, mw, q, g_c)
-        uv = np.empty((4, 2))
-        g_found = analytic_detect(gp, g_c, uv, corners, seen)
-        if not g_found:
+    servos, states = take(model.servo, w), take(data.servo, w)
+    outs = take(data.servo_out, w)
+    robot = take(data.robot_out, w)
+    karms = model.n_arms
+    m_count = take(take(model.global_sensor, w), 0).corners.shape[0]
+    corners = np.zeros((karms, m_count, 4, 2))
+    seen = np.zeros((karms, m_count), np.bool_)
+    g_found = np.zeros(karms, np.bool_)
+    for a in range(karms):  # C_G's analytic snapshot of each arm's marker, when it is read
+        st, out = take(states, a), take(outs, a)
+        if karms == 1:
+            need = needs_global(st, out, offered)
+        else:
+            need = offered and out.mode[0] == RECOVERY and st.traj_on[0] == 0.0
+        if need:
+            gp = take(take(model.global_sensor, w), a)
+            g_c = np.empty((4, 4))
+            camera_pose_into(gp, mw, q, g_c)
+            uv = np.empty((4, 2))
+            g_found[a] = analytic_detect(gp, g_c, uv, corners[a], seen[a])
             for i in range(m_count):
-                g_found = g_found or seen[i]
-    servo_command(servo, ss, mw, t, dt, q, offered, twist_in, g_found, corners, seen, out)
-    data.request[w] = out.request[0]
-    if out.event[0] == IBVS_ENGAGED:  # the safety monitor re-arms (its grace period)
+                g_found[a] = g_found[a] or seen[a, i]
+    if karms == 1:
+        out = take(outs, 0)
+        servo_command(take(servos, 0), take(states, 0), mw, t, dt, q, offered, twist_in,
+                      g_found[0], corners[0], seen[0], out)  # fmt: skip
+        copy_into(out, robot)
+    else:
+        arms_command(servos, states, mw, t, dt, q, offered, twist_in, g_found, corners, seen,
+                     outs, take(data.memo, w), robot)  # fmt: skip
+    lead = take(states, 0)
+    data.request[w] = robot.request[0]
+    if robot.event[0] == IBVS_ENGAGED:  # the safety monitor re-arms (its grace period)
         safety_arm(take(data.safety, w), t)
-    if out.failure[0] != NO_FAILURE:
-        _end(data, w, BEHIND_CAMERA if out.failure[0] == 1 else RECOVERY_FAILED)
+    if robot.failure[0] != NO_FAILURE:
+        _end(data, w, BEHIND_CAMERA if robot.failure[0] == BEHIND else RECOVERY_FAILED)
         return
     # the low-level controller on its model of this world's robot
     mc = model_of_world(model.control_model, take(model.robot, w))
     u = data.u[w]
-    controller_step(take(model.controller, w), take(data.controller, w), mc, q, qd, ss.q_d,
-                    ss.qd_d, out.qdd_d, dt, u, data.tau[w], data.q_ref[w],
+    controller_step(take(model.controller, w), take(data.controller, w), mc, q, qd, lead.q_d,
+                    lead.qd_d, robot.qdd_d, dt, u, data.tau[w], data.q_ref[w],
                     take(data.work, w))  # fmt: skip
     for i in range(u.shape[0]):
         if not np.isfinite(u[i]):
             _end(data, w, NON_FINITE)
             return
-    if out.mode[0] == IBVS and not safety_check(take(model.safety, w), take(data.safety, w), t,
-                                                out.rmse[0]):  # fmt: skip
+    if robot.mode[0] == IBVS and not safety_check(take(model.safety, w), take(data.safety, w),
+                                                  t, robot.rmse[0]):  # fmt: skip
         _end(data, w, SAFETY)
         return
     if k >= model.steps:  # the last sample: recorded, no plant step
@@ -397,8 +429,8 @@ def run_worlds(model, data, periods, log_q, log_rmse, log_mode, log_u, lo, hi):
                     log_q[p, w, i] = data.q[w, i]
             sense(model, data, w)
             act(model, data, w, nan6)
-            log_rmse[p, w] = data.servo_out.rmse[w, 0]
-            log_mode[p, w] = data.servo_out.mode[w, 0]
+            log_rmse[p, w] = data.robot_out.rmse[w, 0]
+            log_mode[p, w] = data.robot_out.mode[w, 0]
             if log_u.shape[0] > 0:
                 for i in range(data.u.shape[1]):
                     log_u[p, w, i] = data.u[w, i]

@@ -188,16 +188,16 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
         E.parallel(E.step_worlds, (model, d, nan_twist), nw, threads)
         rec = active & ~(~d.active & np.isin(d.termination, unrecorded))
         recorded[p] = rec
-        rmse[p, rec] = d.servo_out.rmse[rec, 0]
-        mode[p, rec] = d.servo_out.mode[rec, 0]
-        found[p, rec] = d.frame.detected[rec, 0]
+        rmse[p, rec] = d.robot_out.rmse[rec, 0]
+        mode[p, rec] = d.robot_out.mode[rec, 0]
+        found[p, rec] = d.frame.detected[rec, 0, 0]
         u_max[rec] = np.maximum(u_max[rec], d.u[rec])
         q_last[rec] = q_start[rec]
     wall = (time.perf_counter() - t_build) / nw
     t = np.arange(periods) * model.dt
     for w, row in enumerate(rows):
         sel = recorded[:, w]
-        summary = _summary(a, model.servo.desired_points[w], t[sel], rmse[sel, w], mode[sel, w], found[sel, w], u_max[w],
+        summary = _summary(a, model.servo.desired_points[w, 0], t[sel], rmse[sel, w], mode[sel, w], found[sel, w], u_max[w],
                            q_last[w], d, w, wall, _truth(a, params, w))  # fmt: skip
         _fill(spec, row, summary, t[sel], rmse[sel, w])
     return rows

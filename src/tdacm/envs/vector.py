@@ -245,17 +245,17 @@ class TipServoVectorEnv(VectorEnv):
         compiled pass a world (:func:`~tdacm.batch.engine.act_sense`)."""
         d = self.batch.data
         self._parallel(E.act_sense, (self.batch.model, d, twist, acting, which))
-        out = d.servo_out
-        seen = out.seen[:, 0].copy()
-        behind = out.failure[:, 0] == _BEHIND
+        out = d.servo_out  # (N, arms, ...): the env servoes one arm
+        seen = out.seen[:, 0, 0].copy()
+        behind = out.failure[:, 0, 0] == _BEHIND
         self._status = np.where(behind, BEHIND, np.where(seen, SEEN, NOT_SEEN))
-        self._points[:] = out.points
-        self._error[:] = out.error
+        self._points[:] = out.points[:, 0]
+        self._error[:] = out.error[:, 0]
         obs = observation(
             self._error, self._points, seen, d.q, d.qd, self.q_star, self.q_scale,
             self.point_scale,
         )  # fmt: skip
-        dp = self.batch.model.servo.desired_points
+        dp = self.batch.model.servo.desired_points[:, 0]
         with np.errstate(invalid="ignore"):
             rmse = np.sqrt(np.mean(np.sum((self._points - dp) ** 2, axis=2), axis=1))
         rmse = np.where(seen, rmse, np.nan)

@@ -41,7 +41,7 @@ from numba import njit
 from scipy.special import chdtri
 
 from ..lie.se3 import skew
-from ..vision import _checks as C
+from .. import _validate as C
 from ..vision.target_filter import planar_pnp_poses
 
 

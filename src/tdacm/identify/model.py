@@ -239,7 +239,7 @@ class IdentModel:
         """Drone and tip poses (T, 4, 4) of the rows of ``q`` (``parallel``: over the cores,
         the same result)."""
         m = system.model_arrays
-        lo, hi = system._rod_steps[0], system._rod_steps[1]
+        lo, hi = m.rod_steps[0], m.rod_steps[1]
         return (IK.poses_many if parallel else IK.poses)(
             np.ascontiguousarray(q, dtype=float),
             m.floating,

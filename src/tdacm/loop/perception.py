@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..vision import _checks as C
+from .. import _validate as C
 from ..vision.camera import PinholeCamera, normalize_into
 from ..vision.ippe import DEPTHS_OK, canonical_frame, point_depths
 from .data import CameraMeasurement, DeferredMeasurement, GlobalView, LocalView

@@ -148,7 +148,7 @@ def compile_second_half() -> None:
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
     from ..system.paper import paper_system
-    from ..vision.ibvs import _twist_kernel
+    from ..vision.ibvs import ibvs_law
     from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 
     # rk4_run last: by then the main process has cached the model callees it shares with
@@ -167,7 +167,7 @@ def compile_second_half() -> None:
     _gauss_newton_kernel(pose, rc, pc, z, obj, w, diag, 2, normal, 1.0)
     # the servo's twist (mode "mean", floor solve) and joint rates
     xy, depths = np.ascontiguousarray(obj[:, :2]), np.ones(4)
-    _twist_kernel(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)
+    ibvs_law(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)
     svd_solve(np.eye(6), np.zeros(6), SVD_PINV, 1e-8)
     # the low-level controller's law and tension allocation
     v8, m8 = np.zeros(8), np.eye(8)
@@ -202,8 +202,6 @@ WARM_UP_BATCH = (
     "import numpy as np\n"
     "from tdacm.batch import engine as E\n"
     "E.sense_worlds(b.model, b.data, 0, 2)\n"
-    "E.observe_worlds(b.model, b.data, np.zeros((2, 4, 2)), np.zeros((2, 6)), "
-    "np.zeros(2, np.int64), 0, 2)\n"
     "E.act_worlds(b.model, b.data, np.full((2, 6), np.nan), 0, 2)\n"
     # the vector env and the imitation teacher on the robust servo (tdacm.envs)
     "import gymnasium as gym\n"

@@ -326,6 +326,14 @@ class CameraSensor:
     def camera(self) -> PinholeCamera:
         return self.front_end.camera
 
+    def seeing(self, target, target_pose) -> CameraSensor:
+        """A copy of this camera with the analytic front end of ``target`` at ``target_pose``
+        (the same imperfections and generator, empty buffers): the reference snapshot of a
+        world with its own target."""
+        fe = AnalyticFrontEnd(self.front_end.camera, target, target_pose)
+        return CameraSensor(self.system, self.carrier, self.mount, fe, self.model, self.rng,
+                            self.keep_images, self.rod)  # fmt: skip
+
     def reset(self) -> None:
         self.front_end.reset()
         self._ring.head[0] = 0

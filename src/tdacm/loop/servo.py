@@ -38,17 +38,17 @@ from ..control import (
     plan_rod_configuration,
 )
 from ..control.planner import (
-    _IPPE_ORDER,
+    IPPE_ORDER,
     PLAN_BOUND,
-    _square,
+    square_corners,
     plan_kernel,
     rod_columns,
     square_pose,
 )
 from ..lie.se3 import adjoint_pair, expmap, so3_log
 from ..vision.camera import CameraParams, all_in_image
-from ..vision.features import _min_edge2, advanced_features, min_edge2
-from ..vision.ibvs import MODES, IBVSController, _twist_kernel
+from ..vision.features import advanced_features, min_edge2
+from ..vision.ibvs import MODES, IBVSController, ibvs_law
 from ..vision.ippe import canonical_frame
 from ..vision.mounts import (
     base_pose_into,
@@ -224,7 +224,7 @@ class VisualServo:
             soft_start=float(cfg.soft_start), rate_filter=float(cfg.rate_filter),
             margin_px=float(rc.margin_px), confirm=int(rc.confirm), lose=int(rc.lose),
             global_camera=self.global_camera.params(), drone_mount=c(self.drone_mount),
-            square=_square(side), marker_centres=c([k.mean(axis=0) for k in corners]),
+            square=square_corners(side), marker_centres=c([k.mean(axis=0) for k in corners]),
             largest_tag=bool(ids), max_speed=float(rc.max_speed),
             z_min=float(self.local_camera.near), bound=float(PLAN_BOUND), robust=robust,
             filter=fp, smoothing=float(cfg.filter_smoothing) if robust else 0.0,
@@ -665,7 +665,7 @@ class RobustServo(VisualServo):
         xy, z = self.target_filter.points_in(servo_pose, self.target_pose)
         # behind the camera, or so far that the corners coincide (an estimate thrown off by
         # large pixel noise): no features, the target counts as not seen this period
-        if np.any(z <= 0) or _min_edge2(xy) < 1e-24:
+        if np.any(z <= 0) or min_edge2_of(xy) < 1e-24:
             return PredictedView()
         pix = None
         if camera_pose is not None:
@@ -833,8 +833,8 @@ def filter_update(fp, fs, uv, g_c, cov):
 
 #: the servo's mode codes (:class:`tdacm.control.Mode`)
 IBVS, RECOVERY = 0, 1
-#: events of a period (:class:`~.data.ServoEvent`)
-NO_EVENT, IBVS_ENGAGED, TARGET_LOST = 0, 1, 2
+#: events of a period (:class:`~.data.ServoEvent`; a recovery planned)
+NO_EVENT, IBVS_ENGAGED, TARGET_LOST, RECOVERY_PLANNED = 0, 1, 2, 3
 #: failures of a period: none, a point behind C_V (``Termination.BEHIND_CAMERA``), C_G does
 #: not see the target, no pose from C_G's corners (``Termination.RECOVERY_FAILED``)
 NO_FAILURE, BEHIND, NOT_SEEN_BY_GLOBAL, NO_POSE = 0, 1, 2, 3
@@ -845,7 +845,11 @@ FAILURE_REASONS = {
     NOT_SEEN_BY_GLOBAL: "recovery: target not seen by C_G",
     NO_POSE: "recovery planning failed: the marker's corners admit no pose",
 }
-EVENT_NAMES = {IBVS_ENGAGED: ServoEvent.IBVS_ENGAGED, TARGET_LOST: ServoEvent.TARGET_LOST}
+EVENT_NAMES = {
+    IBVS_ENGAGED: ServoEvent.IBVS_ENGAGED,
+    TARGET_LOST: ServoEvent.TARGET_LOST,
+    RECOVERY_PLANNED: "recovery planned",
+}
 #: the interaction matrix of ``ibvs.mode`` (:data:`tdacm.vision.ibvs.MODES`)
 CURRENT, DESIRED, MEAN = 0, 1, 2
 
@@ -1240,7 +1244,7 @@ def servo_perceive(p, s, m, t, dt, k, q, p_qq, found, uv, xy, z, capture, out):
         out.event[0] = TARGET_LOST
     if out.seen[0]:
         out.rmse[0] = rmse_to(pv, p.desired_points)
-        f, e, v = _twist_kernel(pv, zv, p.desired_features, p.desired_interaction,
+        f, e, v = ibvs_law(pv, zv, p.desired_features, p.desired_interaction,
                                 p.interaction, p.gain, p.floor, p.damped)  # fmt: skip
         for i in range(6):
             out.features[i] = f[i]
@@ -1337,7 +1341,7 @@ def _plan(p, s, m, t, q, corners, marker_seen, out):
         return False
     xy = np.empty((4, 2))
     for c in range(4):
-        src = _IPPE_ORDER[c]
+        src = IPPE_ORDER[c]
         xy[c, 0] = (corners[mk, src, 0] - cam.cx) / cam.fx
         xy[c, 1] = (corners[mk, src, 1] - cam.cy) / cam.fy
     g = np.empty((4, 4))
@@ -1437,6 +1441,28 @@ def _recovery(p, s, m, t, q, offered, g_found, corners, marker_seen, out):
 
 
 @njit(cache=True)
+def follow(p, s, m, q, rates, t, dt, qdd_d):
+    """IBVS mode on joint rates already mapped: shaped into ``qd_d`` and integrated into
+    ``q_d`` (:func:`shape`); the robust servo on a flying base adds the acceleration
+    feed-forward of the filtered rate into ``qdd_d`` (the low-level loop follows the
+    deceleration instead of lagging into an overshoot; the paper has ``qdd_d = 0``) and the
+    leak of ``q_d`` toward the estimate ``q`` (``q_d`` is only an integrated rate while the
+    vision loop closes on the actual pose: no wind-up while the plant lags)."""
+    n = q.shape[0]
+    qd_prev = s.qd_d.copy()
+    shape(p, s, rates, t, dt)
+    if p.robust and m.floating:
+        if p.accel_ff:
+            for i in range(n):
+                qdd_d[i] = (s.qd_d[i] - qd_prev[i]) / dt
+        if p.leak > 0.0:
+            cmd = p.commanded
+            for c in range(cmd.shape[0]):
+                j = cmd[c]
+                s.q_d[j] += p.leak * dt * (q[j] - s.q_d[j])
+
+
+@njit(cache=True)
 def servo_command(p, s, m, t, dt, q, offered, twist_in, g_found, corners, marker_seen, out):
     """The end of a period (after :func:`servo_perceive`): in IBVS mode with a view (or an
     external ``twist_in``, finite: a learning agent's action) the twist's joint rates
@@ -1453,19 +1479,9 @@ def servo_command(p, s, m, t, dt, q, offered, twist_in, g_found, corners, marker
     if mode == IBVS and (out.seen[0] or external):
         for i in range(6):
             out.twist[i] = twist_in[i] if external else out.ibvs_twist[i]
-        qd_prev = s.qd_d.copy()
         rates = np.empty(n)
         joint_rates(p, m, q, out.twist, rates)
-        shape(p, s, rates, t, dt)
-        if p.robust and m.floating:  # the feed-forward and the leak are the flying base's
-            if p.accel_ff:
-                for i in range(n):
-                    out.qdd_d[i] = (s.qd_d[i] - qd_prev[i]) / dt
-            if p.leak > 0.0:
-                cmd = p.commanded
-                for c in range(cmd.shape[0]):
-                    j = cmd[c]
-                    s.q_d[j] += p.leak * dt * (q[j] - s.q_d[j])
+        follow(p, s, m, q, rates, t, dt, out.qdd_d)
     elif mode == RECOVERY:
         _recovery(p, s, m, t, q, offered, g_found, corners, marker_seen, out)
     else:  # IBVS mode but the target is not seen (or nothing fused yet): hold

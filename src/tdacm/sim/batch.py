@@ -13,7 +13,6 @@ world the rows the block loop built on that world's scenario has (tested equal).
 
 from __future__ import annotations
 
-import copy
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -24,6 +23,7 @@ from ..batch import Batch, BatchResult
 from ..batch.engine import BatchModel
 from ..batch.params import MAX_LATENCY, ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams
 from ..control.hierarchical import TDACMController, controller_params, default_gains
+from ..loop.arms import ArmsServo
 from ..loop.estimation import TrueState
 from ..loop.lowlevel import AdaptiveLowLevel, PDGravityController
 from ..loop.sensors import AnalyticFrontEnd, perturbed_camera
@@ -110,16 +110,6 @@ def world_scene(world, params: WorldParams | None, w: int):
     return replace(world.scene, **kw)
 
 
-def _sensor_for(local, target, scene):
-    """A copy of the tip camera ``local`` seeing ``target`` at ``scene``'s pose (for the
-    reference snapshot of a world with its own target pose)."""
-    out = copy.copy(local)
-    out.front_end = AnalyticFrontEnd(local.front_end.camera, target, scene.target_pose)
-    out._ring = copy.deepcopy(local._ring)
-    out._fifo = list(local._fifo)
-    return out
-
-
 class _Robot:
     """A world's robot as :func:`~tdacm.control.hierarchical.default_gains` reads a system:
     its size and its mass matrix (of the world's model arrays ``m``)."""
@@ -133,16 +123,29 @@ class _Robot:
         return SimpleNamespace(M=coupled_terms(q, qd, self._m, self._loads, True)[0])
 
 
+def arm_blocks(loop) -> tuple[list, list, list, list]:
+    """The per-arm blocks of an assembled loop: ``(tip cameras, C_G sensors, perceptions,
+    servos)``, one of each per arm (arm 0 first; C_G detecting each arm's marker)."""
+    sensors = loop.sensors
+    locals_ = list(getattr(sensors, "locals_", None) or [sensors.local])
+    globals_ = [sensors.global_, *getattr(sensors, "globals_", [])]
+    perceptions = list(getattr(loop.perception, "arms", None) or [loop.perception])
+    servos = list(loop.servo.arms) if isinstance(loop.servo, ArmsServo) else [loop.servo]
+    return locals_, globals_, perceptions, servos
+
+
 def refuse(loop) -> None:
     """Refuse (:class:`Unsupported`, naming the scenario key) the blocks the engine does not
     run: rendered cameras, a user's controller class, and what is not batched yet."""
-    if len(loop.plant.system.arms) > 1:
-        raise Unsupported("the engine runs one arm (robot.arms)")
-    if not isinstance(loop.sensors.local.front_end, AnalyticFrontEnd):
+    locals_, globals_, _, servos = arm_blocks(loop)
+    if not all(isinstance(s.front_end, AnalyticFrontEnd) for s in locals_):
         raise Unsupported(
             "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"
         )
-    if type(loop.servo) not in (VisualServo, RobustServo):
+    several = isinstance(loop.servo, ArmsServo)
+    if (several and type(loop.servo) is not ArmsServo) or any(
+        type(s) not in (VisualServo, RobustServo) for s in servos
+    ):
         raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched (touch.enabled)")
     if not isinstance(loop.estimator, TrueState):
         raise Unsupported(
@@ -151,9 +154,9 @@ def refuse(loop) -> None:
         )
     if loop.force is not None:
         raise Unsupported("servoing into contact is not batched (touch.enabled)")
-    if loop.sensors.global_ is None:
+    if any(g is None for g in globals_):
         raise Unsupported("the engine needs the global camera C_G")
-    if not isinstance(loop.sensors.global_.front_end, AnalyticFrontEnd):
+    if not all(isinstance(g.front_end, AnalyticFrontEnd) for g in globals_):
         raise Unsupported(
             "the engine's global camera is analytic: set cameras.global_renderer = 'planar' "
             "(with the analytic C_L)"
@@ -166,7 +169,7 @@ def refuse(loop) -> None:
         )
     if type(low.controller) is not TDACMController:
         raise Unsupported("controller.class: the engine runs the shipped controllers")
-    if loop.sensors.local.model.latency_steps > MAX_LATENCY:
+    if max(s.model.latency_steps for s in locals_) > MAX_LATENCY:
         raise Unsupported(f"sensors.latency_steps: the engine buffers {MAX_LATENCY} frames")
 
 
@@ -181,9 +184,10 @@ def _reference(points, depths):
 def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
     """World ``w``'s block records (seed ``seed``, parameters row ``w`` of ``params``), each as
     the block loop built on that world's scenario has it: the controller's (its model error
-    drawn from the seed, its gains and masses for the world's robot), the tip camera's (the
-    world's target and imperfections), C_G's, the perception's and the servo's (the seed's
-    camera model and the reference snapshot taken with it), and the robot's factors."""
+    drawn from the seed, its gains and masses for the world's robot), and per arm (lists,
+    arm 0 first) the tip camera's (the world's target and imperfections), C_G's, the
+    perception's and the servo's (the seed's camera model and the reference snapshot taken
+    with it), and the robot's factors."""
     loop = a.loop
     low = loop.controller.controller
     a.model.reseed(int(seed))
@@ -206,39 +210,49 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
             min_lift_force=low.config.min_lift * float(total * np.linalg.norm(s.loads.gravity)),
         )
     world = a.world
-    scene = world_scene(world, params, w)
-    local = loop.sensors.local
-    sensor = local.params
-    glob = loop.sensors.global_.params
-    if scene is not world.scene:  # the world's own target pose
-        fe = AnalyticFrontEnd(local.front_end.camera, world.target, scene.target_pose)
-        sensor = sensor._replace(corners=fe.corners_world, features=fe.features_world)
-        glob = glob._replace(corners=fe.corners_world, features=fe.features_world)
-    if params is not None and params.given(SENSOR_FIELDS):
-        m = local.model
-        row = params.sensor_rows([m.pixel_noise, m.dropout, m.latency_steps])[w]
-        sensor = sensor._replace(pixel_noise=float(row[0]), dropout=float(row[1]),
-                                 latency=int(row[2]))  # fmt: skip
-    servo = loop.servo.params
-    perception = loop.perception.params
-    err = local.model.intrinsics_error
-    if err > 0 or scene is not world.scene:  # the seed's camera model, its reference snapshot
-        cam = loop.perception.local_camera
-        if err > 0:
-            cam = perturbed_camera(world.robot.local_camera, err, np.random.default_rng([seed, 1]))
-        snap = _sensor_for(local, world.target, scene) if scene is not world.scene else local
-        pts, z, feats, inter = _reference(
-            *reference_snapshot(snap, world.robot, world.target, scene, world.q_star, cam)
-        )
-        cp = cam.params()
-        servo = servo._replace(
-            camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
-            desired_interaction=inter,
-            filter=servo.filter._replace(cam=np.array([cam.fx, cam.fy, cam.cx, cam.cy], float)),
-        )  # fmt: skip
-        perception = perception._replace(camera=cp)
-    return {"controller": ctl, "sensor": sensor, "global_sensor": glob, "servo": servo,
-            "perception": perception, "factors": f}  # fmt: skip
+    locals_, globals_, perceptions, servos = arm_blocks(loop)
+    several = len(locals_) > 1
+    out = {"controller": ctl, "factors": f, "sensor": [], "global_sensor": [], "servo": [],
+           "perception": []}  # fmt: skip
+    for k, (local, glob, perception, servo) in enumerate(
+        zip(locals_, globals_, perceptions, servos, strict=True)
+    ):
+        sensor, g_rec = local.params, glob.params
+        base_scene = world.scenes[k] if several else world.scene
+        scene = base_scene if several else world_scene(world, params, w)
+        if scene is not base_scene:  # the world's own target pose
+            fe = AnalyticFrontEnd(local.front_end.camera, world.target, scene.target_pose)
+            sensor = sensor._replace(corners=fe.corners_world, features=fe.features_world)
+            g_rec = g_rec._replace(corners=fe.corners_world, features=fe.features_world)
+        if params is not None and params.given(SENSOR_FIELDS):
+            m = local.model
+            row = params.sensor_rows([m.pixel_noise, m.dropout, m.latency_steps])[w]
+            sensor = sensor._replace(pixel_noise=float(row[0]), dropout=float(row[1]),
+                                     latency=int(row[2]))  # fmt: skip
+        s_rec, p_rec = servo.params, perception.params
+        err = local.model.intrinsics_error
+        if err > 0 or scene is not base_scene:  # the seed's camera model, its snapshot
+            cam = perception.local_camera
+            if err > 0:
+                nominal = world.robot.arms[k].local_camera if several else world.robot.local_camera
+                rng = np.random.default_rng([seed, 1, k] if k else [seed, 1])
+                cam = perturbed_camera(nominal, err, rng)
+            snap = local if scene is base_scene else local.seeing(world.target, scene.target_pose)
+            pts, z, feats, inter = _reference(
+                *reference_snapshot(snap, world.robot, world.target, scene, world.q_star, cam)
+            )
+            cp = cam.params()
+            fcam = np.array([cam.fx, cam.fy, cam.cx, cam.cy], float)
+            s_rec = s_rec._replace(
+                camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
+                desired_interaction=inter, filter=s_rec.filter._replace(cam=fcam),
+            )  # fmt: skip
+            p_rec = p_rec._replace(camera=cp)
+        out["sensor"].append(sensor)
+        out["global_sensor"].append(g_rec)
+        out["servo"].append(s_rec)
+        out["perception"].append(p_rec)
+    return out
 
 
 def _gains_of(a, f):
@@ -304,11 +318,12 @@ def build_batch(
         raise ScenarioError(f"{sc.source}: the batched engine: {exc}") from None
     dur = float(sc.data["duration"] if duration is None else duration)
     n = seeds.size
+    arms = lambda key: stack([stack(r[key]) for r in rows])  # noqa: E731 - (worlds, arms)
     model = BatchModel(
-        sensor=stack([r["sensor"] for r in rows]),
-        global_sensor=stack([r["global_sensor"] for r in rows]),
-        perception=stack([r["perception"] for r in rows]),
-        servo=stack([r["servo"] for r in rows]),
+        sensor=arms("sensor"),
+        global_sensor=arms("global_sensor"),
+        perception=arms("perception"),
+        servo=arms("servo"),
         controller=stack([r["controller"] for r in rows]),
         safety=replicate(loop.safety.params, n),
         plant=replicate(loop.plant.params, n),
@@ -318,6 +333,7 @@ def build_batch(
         dt=float(loop.dt),
         steps=int(round(dur / loop.dt)),
         global_every=int(loop.sensors.global_every),
+        n_arms=len(loop.plant.system.arms),
     )
     q0 = a.world.q0 if q0 is None else q0
     batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads)
@@ -348,10 +364,12 @@ def reseed_world(batch: Batch, assembly, w: int, seed: int, params=None) -> None
     if row is None and getattr(batch, "params", None) is not None:
         row, rw = batch.params, w
     r = world_records(assembly, seed, row, rw)
-    cap = batch.data.sensor.found.shape[1] - 1
-    if r["sensor"].latency > cap:
-        raise ValueError(f"latency {r['sensor'].latency}: the batch buffers {cap} frames")
-    for key in ("sensor", "global_sensor", "perception", "servo", "controller"):
-        put(getattr(model, key), w, r[key])
+    cap = batch.data.sensor.found.shape[2] - 1
+    latency = max(s.latency for s in r["sensor"])
+    if latency > cap:
+        raise ValueError(f"latency {latency}: the batch buffers {cap} frames")
+    for key in ("sensor", "global_sensor", "perception", "servo"):
+        put(getattr(model, key), w, stack(r[key]))
+    put(model.controller, w, r["controller"])
     put(model.robot, w, take(robot_rows(model.plant_model, r["factors"][None, :]), 0))
     batch.seeds[w] = seed

@@ -43,7 +43,7 @@ from . import _checks as C
 from .features import (
     _features_kernel,
     _interaction_kernel,
-    _min_edge2,
+    min_edge2_of,
     _wrap,
     advanced_features,
     feature_interaction_matrix,
@@ -106,7 +106,7 @@ def ibvs_solve(jac, e, floor, damped):
 
 
 @njit(cache=True)
-def _twist_kernel(p, z, desired, interaction_desired, mode, gain, floor, damped):
+def ibvs_law(p, z, desired, interaction_desired, mode, gain, floor, damped):
     """Features, error and twist of the law (paper eqs. (19)-(21), (39)) for checked points
     ``p`` (4, 2) and positive depths ``z`` (4,) in one call: ``mode`` 0 / 1 / 2 for
     ``"current"`` / ``"desired"`` / ``"mean"``, the solve of :func:`ibvs_solve` (``floor > 0``
@@ -196,12 +196,12 @@ class IBVSController:
 
     def features_error_twist(self, points, depths):
         """``(features, error, twist)`` of checked points ``(4, 2)`` and depths ``(4,)`` (the
-        predictive servo's every period; :func:`_twist_kernel` when ``floor > 0``, angular-first
+        predictive servo's every period; :func:`ibvs_law` when ``floor > 0``, angular-first
         twist)."""
         if self.order == "angular_first":
-            if _min_edge2(points) < 1e-24:
+            if min_edge2_of(points) < 1e-24:
                 raise ValueError("points must be four distinct corners (an edge has zero length)")
-            return _twist_kernel(
+            return ibvs_law(
                 points, depths, self.desired, self.interaction_desired, self._mode_code,
                 self.gain, self.floor, self.solver == "damped",
             )  # fmt: skip
