@@ -4,10 +4,10 @@ bit for bit, as the full recursion :func:`tdacm.system.kernels.chain_jacobian` i
 
 import numpy as np
 
-from tdacm.vision.mounts import camera_chain
 from tdacm.sim.batch import build_batch
 from tdacm.sim.scenario import load_scenario
 from tdacm.system.kernels import chain_jacobian
+from tdacm.vision.mounts import camera_chain
 
 ENGINE = {
     "cameras": {"local_renderer": "analytic", "global_renderer": "planar"},

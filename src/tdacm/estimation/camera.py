@@ -40,8 +40,8 @@ import numpy as np
 from numba import njit
 from scipy.special import chdtri
 
-from ..lie.se3 import skew
 from .. import _validate as C
+from ..lie.se3 import skew
 from ..vision.target_filter import planar_pnp_poses
 
 

@@ -40,14 +40,14 @@ from ..control import (
 from ..control.planner import (
     IPPE_ORDER,
     PLAN_BOUND,
-    square_corners,
     plan_kernel,
     rod_columns,
+    square_corners,
     square_pose,
 )
 from ..lie.se3 import adjoint_pair, expmap, so3_log
 from ..vision.camera import CameraParams, all_in_image
-from ..vision.features import advanced_features, min_edge2
+from ..vision.features import advanced_features, min_edge2, min_edge2_of
 from ..vision.ibvs import MODES, IBVSController, ibvs_law
 from ..vision.ippe import canonical_frame
 from ..vision.mounts import (

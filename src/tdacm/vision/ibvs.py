@@ -43,10 +43,10 @@ from . import _checks as C
 from .features import (
     _features_kernel,
     _interaction_kernel,
-    min_edge2_of,
     _wrap,
     advanced_features,
     feature_interaction_matrix,
+    min_edge2_of,
     wrap_angle,
 )
 
