@@ -64,7 +64,6 @@ from .servo import (
     _recovery,
     follow,
     normalized_rmse,
-    servo_perceive,
 )
 
 #: Per-arm series of :class:`ArmsLog` (one column per arm).
@@ -227,6 +226,8 @@ class ArmsServo:
             a.state = take(self.state, k)
         n, ns = self.n, self.arms[0]._n_s
         self._outs = stack([ServoOut.empty(n, ns) for _ in self.arms])
+        for k, a in enumerate(self.arms):
+            a._out = take(self._outs, k)
         self._robot = ServoOut.empty(n, ns)
         self.memo = ArmsMemo.initial()
 
@@ -284,26 +285,12 @@ class ArmsServo:
         :func:`arms_command` with each arm's C_G snapshot read when its recovery needs one."""
         c = np.ascontiguousarray
         q = c(est.q, dtype=float)
-        n, k = q.shape[0], len(self.arms)
+        k = len(self.arms)
         m = self.arms[0]._m
-        step_k = int(round(t / dt))
-        est_p = getattr(est, "P", None)
-        p_qq = np.zeros((n, n)) if est_p is None else c(np.asarray(est_p)[:n, :n])
         outs = self._outs
-        for a, (arm, v) in enumerate(zip(self.arms, view.arms, strict=True)):
-            found = bool(v.found)
-            if found:
-                uv, xy, z = (
-                    c(v.pixels, dtype=float),
-                    c(v.points, dtype=float),
-                    c(v.depths, dtype=float),
-                )
-                capture = int(round(v.t_capture / dt))
-            else:
-                uv, xy, z, capture = np.zeros((4, 2)), np.zeros((4, 2)), np.ones(4), -1
-            pq = p_qq if arm.params.robust else np.zeros((n, n))
-            servo_perceive(arm.params, arm.state, m, float(t), float(dt), step_k, q, pq, found,
-                           uv, xy, z, capture, take(outs, a))  # fmt: skip
+        for arm, v in zip(self.arms, view.arms, strict=True):
+            arm.perceive_period(t, dt, v, est)  # into its row of outs
+            arm._memo = None
         offered = gview is not None
         views = gview if isinstance(gview, tuple) else (gview,) * k
         m_count = self.params.marker_centres.shape[1]
