@@ -57,7 +57,6 @@ import numpy as np
 from gymnasium import spaces
 
 from ..loop.data import Termination
-from ..loop.servo import BEHIND
 from ..loop.policy import (
     ANGLE_SCALE,
     FEATURE_SCALE,
@@ -69,6 +68,7 @@ from ..loop.policy import (
     observation_size,
     state_scales,
 )
+from ..loop.servo import BEHIND
 from ..vision.virtual import BehindVirtualCamera
 from .options import EnvOptions
 
