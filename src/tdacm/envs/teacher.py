@@ -17,8 +17,9 @@ import numpy as np
 
 
 def teacher_twists(venv) -> np.ndarray:
-    """The IBVS twist (N, 6), in rad/s and m/s, each world of the vector env ``venv`` (or its
-    ``unwrapped``) would command on its current observation (module docstring); divide by
-    ``venv.unwrapped.scale`` for the action."""
-    out = venv.unwrapped.batch.data.servo_out  # (N, arms, ...): the env servoes one arm
-    return np.where(out.seen[:, 0, :1], out.ibvs_twist[:, 0], np.nan)
+    """The IBVS twists (N, 6 k) of the ``k`` arms, in rad/s and m/s, each world of the vector
+    env ``venv`` (or its ``unwrapped``) would command on its current observation (module
+    docstring); divide by ``venv.unwrapped.scale`` for the action."""
+    out = venv.unwrapped.batch.data.servo_out  # (N, arms, ...)
+    twists = np.where(out.seen[:, :, :1], out.ibvs_twist, np.nan)
+    return twists.reshape(twists.shape[0], -1)

@@ -139,7 +139,7 @@ class TipServoVectorEnv(VectorEnv):
         self.success_bonus = float(o.success_bonus)
         self.lost_penalty = float(o.lost_penalty)
         self.max_lost = int(o.max_lost)
-        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3, float)
+        self.scale = None  # per arm, once the robot is known
         self.render_mode = None
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
 
@@ -174,14 +174,22 @@ class TipServoVectorEnv(VectorEnv):
         self.q0 = np.asarray(a.world.q0, float)
         self.qd0 = np.asarray(a.world.qd0, float)
         self.q_star = np.asarray(a.world.q_star, float)
-        cam = loop.perception.local_camera
-        self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
+        # a robot of k arms: 6 k actions, one 15-entry observation block per arm and the
+        # state once, as the single env (tdacm.envs.servo)
+        self.n_arms = k = int(self.batch.model.n_arms)
+        self.scale = np.tile([o.max_angular] * 3 + [o.max_linear] * 3, k).astype(float)
+        perceptions = list(getattr(loop.perception, "arms", None) or [loop.perception])
+        self.point_scales = np.array([
+            [p.local_camera.cx / p.local_camera.fx, p.local_camera.cy / p.local_camera.fy]
+            for p in perceptions
+        ])  # fmt: skip
+        self.point_scale = self.point_scales[0]
         self.q_scale = state_scales(n, s.floating)
 
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
-        high = np.full(observation_size(n), OBS_CLIP, np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6 * k,), dtype=np.float32)
+        high = np.full(observation_size(n) + 15 * (k - 1), OBS_CLIP, np.float32)
         low = -high
-        high[14], low[14] = 1.0, 0.0
+        high[14 : 15 * k : 15], low[14 : 15 * k : 15] = 1.0, 0.0  # each arm's detection flag
         self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, N)
         self.observation_space = batch_space(self.single_observation_space, N)
@@ -195,14 +203,14 @@ class TipServoVectorEnv(VectorEnv):
         self._reached = np.zeros(N, np.bool_)
         self._left = np.zeros(N, np.bool_)
         self._autoreset = np.zeros(N, np.bool_)
-        self._obs = np.zeros((N, observation_size(n)), np.float32)
+        self._obs = np.zeros((N, observation_size(n) + 15 * (k - 1)), np.float32)
         self._rmse = np.full(N, np.nan)
         self._status = np.zeros(N, np.int64)
         self._points = np.zeros((N, 4, 2))
         self._error = np.zeros((N, 6))
         self._all = np.ones(N, np.bool_)
         self._none = np.zeros(N, np.bool_)
-        self._nan_twist = np.full((N, 6), np.nan)
+        self._nan_twist = np.full((N, 6 * k), np.nan)
         self._started = False
 
     # ------------------------------------------------------------------ helpers
@@ -245,20 +253,23 @@ class TipServoVectorEnv(VectorEnv):
         compiled pass a world (:func:`~tdacm.batch.engine.act_sense`)."""
         d = self.batch.data
         self._parallel(E.act_sense, (self.batch.model, d, twist, acting, which))
-        out = d.servo_out  # (N, arms, ...): the env servoes one arm
-        seen = out.seen[:, 0, 0].copy()
-        behind = out.failure[:, 0, 0] == _BEHIND
+        out = d.servo_out  # (N, arms, ...): each arm's view
+        seen_arm = out.seen[:, :, 0] & (out.failure[:, :, 0] != _BEHIND)
+        behind = (out.failure[:, :, 0] == _BEHIND).any(axis=1)
+        seen = seen_arm.all(axis=1)
         self._status = np.where(behind, BEHIND, np.where(seen, SEEN, NOT_SEEN))
         self._points[:] = out.points[:, 0]
         self._error[:] = out.error[:, 0]
-        obs = observation(
-            self._error, self._points, seen, d.q, d.qd, self.q_star, self.q_scale,
-            self.point_scale,
-        )  # fmt: skip
-        dp = self.batch.model.servo.desired_points[:, 0]
-        with np.errstate(invalid="ignore"):
-            rmse = np.sqrt(np.mean(np.sum((self._points - dp) ** 2, axis=2), axis=1))
-        rmse = np.where(seen, rmse, np.nan)
+        blocks = []
+        for a in range(self.n_arms):
+            obs_a = observation(
+                out.error[:, a], out.points[:, a], seen_arm[:, a], d.q, d.qd, self.q_star,
+                self.q_scale, self.point_scales[a],
+            )  # fmt: skip
+            blocks.append(obs_a[:, :15])
+        obs = np.concatenate([*blocks, obs_a[:, 15:]], axis=1)
+        with np.errstate(invalid="ignore"):  # the worst arm's, NaN if an arm sees nothing
+            rmse = np.where(seen_arm, out.rmse[:, :, 0], np.nan).max(axis=1)
         self._obs[which] = obs[which]
         self._rmse[which] = rmse[which]
 
@@ -308,11 +319,12 @@ class TipServoVectorEnv(VectorEnv):
             raise RuntimeError("call reset before step")
         N = self.num_envs
         a = np.asarray(actions, dtype=float)
-        finite = np.isfinite(a).all(axis=1) if a.shape == (N, 6) else None
+        width = 6 * self.n_arms
+        finite = np.isfinite(a).all(axis=1) if a.shape == (N, width) else None
         if finite is None or not np.all(finite | np.isnan(a).all(axis=1)):
             raise ValueError(
-                f"actions must be an array of shape ({N}, 6), each row finite or all NaN (the "
-                f"servo's own twist), got shape {a.shape}"
+                f"actions must be an array of shape ({N}, {width}), each row finite or all NaN "
+                f"(the servo's own twist), got shape {a.shape}"
             )
         twist = np.clip(a, -1.0, 1.0) * self.scale
         d = self.batch.data
