@@ -107,6 +107,8 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         u=np.zeros((n_worlds, n_u)),
         tau=np.zeros((n_worlds, n)),
         q_ref=np.zeros((n_worlds, n)),
+        saturated=np.zeros((n_worlds, 2), np.bool_),
+        force=np.zeros(n_worlds),
         q_next=np.zeros((n_worlds, n)),
         qd_next=np.zeros((n_worlds, n)),
         qdd_next=np.zeros((n_worlds, n)),

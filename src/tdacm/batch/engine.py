@@ -159,6 +159,8 @@ class BatchData(NamedTuple):
     u: np.ndarray
     tau: np.ndarray
     q_ref: np.ndarray
+    saturated: np.ndarray
+    force: np.ndarray
     q_next: np.ndarray
     qd_next: np.ndarray
     qdd_next: np.ndarray
@@ -322,9 +324,12 @@ def act(model, data, w, twist_in):
     # the low-level controller on its model of this world's robot
     mc = model_of_world(model.control_model, take(model.robot, w))
     u = data.u[w]
-    controller_step(take(model.controller, w), take(data.controller, w), mc, q, qd, lead.q_d,
-                    lead.qd_d, robot.qdd_d, dt, u, data.tau[w], data.q_ref[w],
-                    take(data.work, w))  # fmt: skip
+    _, thrust_sat, tension_sat, _, _ = controller_step(
+        take(model.controller, w), take(data.controller, w), mc, q, qd, lead.q_d, lead.qd_d,
+        robot.qdd_d, dt, u, data.tau[w], data.q_ref[w], take(data.work, w),
+    )  # fmt: skip
+    data.saturated[w, 0] = thrust_sat
+    data.saturated[w, 1] = tension_sat
     for i in range(u.shape[0]):
         if not np.isfinite(u[i]):
             _end(data, w, NON_FINITE)
@@ -350,6 +355,7 @@ def act(model, data, w, twist_in):
             wn[r, i] = normal(data.rng_plant[w])
     ok, tumbled, _, force = plant_step(pp, pd, mw, q, qd, u, dt, 0.0, k, dn, wn, data.q_next[w],
                                        data.qd_next[w], data.qdd_next[w])  # fmt: skip
+    data.force[w] = force
     for i in range(n):
         q[i] = data.q_next[w, i]
         qd[i] = data.qd_next[w, i]

@@ -438,7 +438,10 @@ class Plant:
         t = self._t0 + self._k * dt
         self.state = PlantState(t, q, qd, qdd if (p.accelerations and self.ok) else None)
         if self.ok and force > p.force_limit:
-            self.over_limit = (
-                f"contact force {force:.3f} N above the limit {p.force_limit:g} N at t = {t:.2f} s"
-            )
+            self.over_limit = force_limit_reason(force, p.force_limit, t)
         return self.state
+
+
+def force_limit_reason(force: float, limit: float, t: float) -> str:
+    """Why a run ends with a contact force above its limit (``Termination.FORCE_LIMIT``)."""
+    return f"contact force {force:.3f} N above the limit {limit:g} N at t = {t:.2f} s"

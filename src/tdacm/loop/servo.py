@@ -60,6 +60,7 @@ from ..vision.mounts import (
     tip_jacobian_into,
 )
 from ..vision.target_filter import (
+    F_REJECTED,
     N_FPARAMS,
     N_FSTATE,
     TargetFilter,
@@ -817,6 +818,26 @@ def filter_state(window: int) -> FilterState:
     return FilterState(np.zeros(N_FSTATE), np.eye(4), np.zeros((6, 6)), np.zeros((2, 4, 4)),
                        np.zeros((window, 3, 3)), np.zeros((window, 3)),
                        np.zeros((window, 4, 2)))  # fmt: skip
+
+
+def filter_estimate(fs) -> tuple | None:
+    """``(pose (4, 4), covariance (6, 6), rejected frames)`` of a target filter's state
+    ``fs`` (copies), ``None`` before its first estimate."""
+    if fs.st[0] == 0.0:
+        return None
+    return fs.pose.copy(), fs.cov.copy(), int(fs.st[F_REJECTED])
+
+
+def target_estimate(servo) -> tuple | None:
+    """The robust servo's estimate of the target (:func:`filter_estimate`; arm 0's with
+    several arms), ``None`` for a servo without one or before its first estimate."""
+    servo = getattr(servo, "arms", [servo])[0]
+    if getattr(servo, "_compiled", False):
+        return filter_estimate(servo.state.filter) if servo.params.robust else None
+    filt = getattr(servo, "target_filter", None)
+    if filt is None or not filt.initialized:
+        return None
+    return filt.pose.copy(), filt.P.copy(), int(filt.rejected)
 
 
 @njit(cache=True)
