@@ -119,7 +119,7 @@ def tip_camera_pose(system, q, mount, rod: int = 0) -> np.ndarray:
 @njit(cache=True)
 def camera_chain(q, m, rod, want_j, g_out, j_out):
     """The pose ``g_L(q)`` (4, 4) of the end of a camera's rod (its Magnus steps ``rod[0] <= k <
-    rod[1]`` of the model arrays ``m``) into ``g_out`` and, when ``want_j``, its Jacobian
+    rod[1]`` of the model arrays ``m``, from that rod's attachment) into ``g_out`` and, when ``want_j``, its Jacobian
     ``J_L^L(q)`` (6 x n) into ``j_out``: the recursion of
     :func:`~tdacm.system.kernels.chain_jacobian` at zero rates without what a camera does not
     read. The Jacobian comes from :func:`~tdacm.system.kernels.rod_step` without the
@@ -130,7 +130,11 @@ def camera_chain(q, m, rod, want_j, g_out, j_out):
     n = q.shape[0]
     zero = np.zeros(n)
     off = 6 if m.floating else 0
-    _, _, _, g, j, jd, jdq = chain_start(q, zero, m.floating, m.g_fixed, m.g_att[0])
+    att = 0  # the rod whose steps start at lo: its attachment
+    for r in range(m.rod_steps.shape[0] - 1):
+        if m.rod_steps[r] == lo:
+            att = r
+    _, _, _, g, j, jd, jdq = chain_start(q, zero, m.floating, m.g_fixed, m.g_att[att])
     ws = make_workspace(n, m.bs.shape[3])
     if want_j:
         eta = np.zeros(6)
