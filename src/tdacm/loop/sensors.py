@@ -24,7 +24,7 @@ from numba import njit
 from ..vision import TargetDetector
 from ..vision.camera import CameraParams, PinholeCamera, in_image, project_world
 from ..vision.detect import NOT_DETECTED, Detection
-from ..vision.mounts import base_pose_into, mul4, rod_steps, tip_camera_pose, tip_camera_pose_into
+from ..vision.mounts import base_pose_into, mul4, rod_steps, tip_camera_pose_into
 from .config import SensorModel
 from .data import CameraMeasurement, DeferredMeasurement, PlantState, SensorReadings
 
@@ -340,10 +340,11 @@ class CameraSensor:
         self._ring.count[0] = 0
 
     def pose(self, q) -> np.ndarray:
-        """Inertial pose of the camera at configuration ``q``."""
-        if self.carrier == "tip":
-            return tip_camera_pose(self.system, q, self.mount, self.rod)
-        return self.system.base_pose(q) @ self.mount
+        """Inertial pose of the camera at configuration ``q`` (:func:`camera_pose_into`)."""
+        out = np.empty((4, 4))
+        camera_pose_into(self.params, self.system.model_arrays,
+                         np.ascontiguousarray(q, dtype=float), out)  # fmt: skip
+        return out
 
     def ideal(self, q) -> tuple[Detection, np.ndarray | None]:
         """Detection (no imperfections) and image (``None`` for the analytic front end)."""
