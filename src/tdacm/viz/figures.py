@@ -594,7 +594,7 @@ def fig_estimation(rd: RunData, out, formats):
 def fig_contact(rd: RunData, out, formats):
     """Servoing into contact: the true and estimated normal force (with the estimate's
     2 sigma band and the desired force), the image error, the tendon tensions and the drone's
-    position from the first phase in contact to the end, the hold shaded."""
+    position over the whole run (from t = 0, as every figure), the hold shaded."""
     if not rd.has("touch_phase", "force_true", "force_hat", "rmse", "u", "q"):
         return []
     phase = np.asarray(rd.arrays["touch_phase"])
@@ -604,8 +604,7 @@ def fig_contact(rd: RunData, out, formats):
     import matplotlib.pyplot as plt
 
     t = rd.t
-    k0 = max(0, int(np.argmax(phase >= contact)) - 25)
-    sl = slice(k0, None)
+    sl = slice(0, None)
     tt = t[sl]
     hold = phase[sl] == PHASES.index("hold")
     ft = np.asarray(rd.arrays["force_true"], float)[sl]
@@ -690,8 +689,9 @@ def fig_arms(rd: RunData, out, formats):
             axes[1].plot(t, qs[:, j], color=c, ls=("-", "--", ":", "-.")[j % 4],
                          label=f"arm {i} $q_{{s{j + 1}}}$")  # fmt: skip
         us = u[:, u.shape[1] - (k - i) * na : u.shape[1] - (k - i - 1) * na]
-        axes[2].plot(t, us, color=c, lw=0.9)
-        axes[2].plot([], [], color=c, label=f"arm {i}")
+        for j in range(na):  # the arm's colour, one line style per tendon
+            axes[2].plot(t, us[:, j], color=c, lw=0.9, ls=("-", "--", ":", "-.")[j % 4],
+                         label=f"arm {i} $T_{{{j + 1}}}$")  # fmt: skip
     axes[0].axhline(0.01, color="k", lw=0.8, ls=":")
     axes[0].set_ylabel("normalized RMSE")
     axes[1].set_ylabel("strains (1/m)")
