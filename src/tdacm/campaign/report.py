@@ -338,8 +338,9 @@ def _plot(df, spec, out: Path):
         axes[1].set_xticks([])
         axes[1].set_yticks([])
     axes[1].set_xlabel("time to RMSE 0.01 (s)")
-    for ax in axes[:2]:  # counts of runs: whole numbers
-        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    for ax, counts in ((axes[0], final.size), (axes[1], t.size)):
+        if counts:  # counts of runs: whole numbers
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     init = df["initial_rmse"].astype(float).to_numpy() if "initial_rmse" in df else np.array([])
     fin = df["final_rmse"].astype(float).to_numpy() if "final_rmse" in df else np.array([])
     colors = np.where(df["success"].to_numpy(bool), "C2", "C3")
@@ -365,10 +366,10 @@ def _log_ticks(ax, lo: float, hi: float, *also) -> None:
     it): matplotlib labels the minor ticks of a range under a decade, and they overlap; here
     the minor ticks stay unlabelled and, under two decades, three major ticks are labelled
     in plain numbers."""
-    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     ax.xaxis.set_minor_formatter(NullFormatter())
     lo, hi = min(lo, *also), max(hi, *also)
-    if hi / lo < 100:
-        ax.xaxis.set_major_locator(FixedLocator(np.geomspace(lo, hi, 3)))
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.2g}"))
+    if hi / lo < 100:  # 1, 2, 5 times the powers of ten
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))

@@ -593,8 +593,9 @@ def fig_estimation(rd: RunData, out, formats):
 
 def fig_contact(rd: RunData, out, formats):
     """Servoing into contact: the true and estimated normal force (with the estimate's
-    2 sigma band and the desired force), the image error, the tendon tensions and the drone's
-    position over the whole run (from t = 0, as every figure), the hold shaded."""
+    2 sigma band and the desired force; drawn from its tare as the contact phase starts), the
+    image error, the tendon tensions and the drone's position over the whole run (from t = 0,
+    as every figure), the hold shaded."""
     if not rd.has("touch_phase", "force_true", "force_hat", "rmse", "u", "q"):
         return []
     phase = np.asarray(rd.arrays["touch_phase"])
@@ -608,8 +609,11 @@ def fig_contact(rd: RunData, out, formats):
     tt = t[sl]
     hold = phase[sl] == PHASES.index("hold")
     ft = np.asarray(rd.arrays["force_true"], float)[sl]
-    fh = np.asarray(rd.arrays["force_hat"], float)[sl]
-    sg = np.asarray(rd.arrays["force_sigma"], float)[sl]
+    fh = np.asarray(rd.arrays["force_hat"], float)[sl].copy()
+    sg = np.asarray(rd.arrays["force_sigma"], float)[sl].copy()
+    tared = phase[sl] >= contact  # the estimate is tared as the contact phase starts
+    fh[~tared] = np.nan
+    sg[~tared] = np.nan
     fig, axes = plt.subplots(4, 1, figsize=(6.4, 8.0), sharex=True)
 
     def shade(ax):
@@ -621,7 +625,7 @@ def fig_contact(rd: RunData, out, formats):
     ax.fill_between(tt, fh - 2 * sg, fh + 2 * sg, color="C1", alpha=0.25, lw=0,
                     label=r"estimate $\pm 2\sigma$")  # fmt: skip
     ax.plot(tt, ft, "k", lw=1.1, label="true (simulator)")
-    ax.plot(tt, fh, "C1--", lw=1.0, label="estimated (tendons, thrusts)")
+    ax.plot(tt, fh, "C1--", lw=1.0, label="estimated (tendons, thrusts; from the tare)")
     fd = rd.summary.get("touch_force")
     if fd is not None:
         ax.axhline(fd, color="C3", ls=":", lw=1.0, label="desired")
