@@ -399,3 +399,33 @@ def test_a_resumed_campaign_says_what_it_holds(tmp_path, capsys):
     assert code == 0 and "Traceback" not in err
     md = (out / "report.md").read_text()
     assert "| 0 | 1 | ok | 0.5 |" in md  # RMSEs in a few digits, not 17
+
+
+def test_identify_marks_a_parameter_at_its_search_bound():
+    from tdacm.identify.fit import SEARCH_FACTOR, Identification
+
+    res = Identification(
+        ["E", "damping"], {"E": 1.5e11, "damping": 90.0}, {"E": 0.0, "damping": 3.0},
+        {"E": 0.0, "damping": 0.033}, np.eye(2), {"E": 5e10, "damping": 100.0},
+        {"E": 5e10, "damping": 100.0}, 1.0, 1.0, 10, 3, 0.1, True, "ok", at_bound=["E"],
+    )  # fmt: skip
+    table = res.table()
+    e_row = next(ln for ln in table.splitlines() if ln.startswith("E "))
+    assert "at bound" in e_row and "0.00%" not in e_row
+    assert "3.30%" in next(ln for ln in table.splitlines() if ln.startswith("damping"))
+    assert f"a factor {SEARCH_FACTOR:g} from the start" in table
+    assert res.to_dict()["parameters"]["E"]["at_search_bound"] is True
+
+
+def test_sensitivity_only_for_keys_that_vary():
+    import pandas as pd
+
+    from tdacm.campaign.report import sampled_values
+
+    rows = [{"ibvs": {"mode": "mean", "gain": g, "v": [1.0, g]}} for g in (0.5, 0.5, 0.7)]
+    df = pd.DataFrame({"overrides": [json.dumps(r) for r in rows]})
+    assert sampled_values(df, "ibvs.mode") == {}  # one category for every run
+    assert list(sampled_values(df, "ibvs.gain")) == ["ibvs.gain"]
+    assert list(sampled_values(df, "ibvs.v")) == ["ibvs.v[1]"]  # the component that varies
+    one = pd.DataFrame({"overrides": [json.dumps(rows[0])]})
+    assert sampled_values(one, "ibvs.gain") == {}  # a single run: nothing varies
