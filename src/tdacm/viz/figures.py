@@ -630,7 +630,9 @@ def fig_contact(rd: RunData, out, formats):
     if fd is not None:
         ax.axhline(fd, color="C3", ls=":", lw=1.0, label="desired")
     ax.set_ylabel("normal force (N)")
-    ax.legend(loc="best", ncol=2)
+    top = np.nanmax(np.r_[ft, fh + 2 * sg, fd if fd is not None else 0.0, 1e-3])
+    ax.set_ylim(top=1.7 * top)  # room above the curves for the legend
+    ax.legend(loc="upper left", ncol=2, fontsize=7)
     ax = axes[1]
     shade(ax)
     r = np.asarray(rd.arrays["rmse"], float)[sl]
