@@ -102,9 +102,10 @@ class Progress:
         bar = self.bar
         if not self._timed and done > self.initial:
             self._timed = True
-            if done < self.total:  # restart the clock after the first step
+            if done < self.total:  # restart the clock after the first step, counting from it
                 bar.reset(total=self.total)
-                bar.update(done)
+                bar.initial = bar.n = bar.last_print_n = done
+                bar.refresh()
                 return
         bar.update(done - bar.n)
 

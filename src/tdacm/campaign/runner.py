@@ -227,14 +227,20 @@ def run_campaign(
             done_before, spec.runs, store,
             f"running the other {len(todo)}" if todo else "nothing to run, the report is rewritten",
         )  # fmt: skip
-    batched = bool(todo) and use_batched(spec)
+    batched = False
     if todo:
         cluster = None
         n = workers or max(1, (os.cpu_count() or 1))
         if scheduler:
             client = _connect(Client, scheduler)
             n = max(1, len(client.scheduler_info().get("workers", {})))
+            try:  # after the scheduler answered: a refused --scheduler is the one line
+                batched = use_batched(spec)
+            except CampaignSpecError:
+                client.close()
+                raise
         else:
+            batched = use_batched(spec)
             if int(n) < 1:
                 raise CampaignSpecError(f"--workers must be >= 1, got {n}")
             # the worker processes ignore SIGINT (inherited across exec): Ctrl-C reaches the
