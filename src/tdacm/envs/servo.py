@@ -69,7 +69,7 @@ from ..loop.policy import (
     state_scales,
 )
 from ..vision.virtual import BehindVirtualCamera
-from .options import EnvOptions
+from .options import EnvOptions, clip_action
 
 #: Observation scaling (module docstring), one definition with the policy block's
 #: (:mod:`tdacm.loop.policy`).
@@ -262,12 +262,14 @@ class TipServoEnv(gym.Env):
         self._seed = seed
 
     def step(self, action):
+        if self._sensed is None:
+            raise gym.error.ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = np.asarray(action, dtype=float)
         if a.shape != self.action_space.shape or not np.all(np.isfinite(a)):
             raise ValueError(
                 f"action must be a finite array of shape {self.action_space.shape}, got {action!r}"
             )
-        a = np.clip(a, self.action_space.low, self.action_space.high)
+        a = clip_action(a, self.action_space.low, self.action_space.high)
         if self.action_type == "twist":
             st = self.loop.act(self._sensed, twist=a * self.scale)
         else:

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -60,7 +61,7 @@ from ..batch import engine as E
 from ..batch import servo as BS
 from ..loop.data import Termination
 from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
-from .options import EnvOptions
+from .options import EnvOptions, clip_action
 from .servo import ENV_DEFAULTS, MAX_TILT, _merge
 
 
@@ -301,7 +302,7 @@ class TipServoVectorEnv(VectorEnv):
 
     def step(self, actions):
         if not self._started:
-            raise RuntimeError("call reset before step")
+            raise ResetNeeded("Cannot call step() before calling reset()")
         N = self.num_envs
         a = np.asarray(actions, dtype=float)
         finite = np.isfinite(a).all(axis=1) if a.shape == (N, 6) else None
@@ -310,7 +311,7 @@ class TipServoVectorEnv(VectorEnv):
                 f"actions must be an array of shape ({N}, 6), each row finite or all NaN (the "
                 f"servo's own twist), got shape {a.shape}"
             )
-        twist = np.clip(a, -1.0, 1.0) * self.scale
+        twist = clip_action(a, -1.0, 1.0) * self.scale
         d = self.batch.data
         resetting = self._autoreset.copy()
         stepping = ~resetting

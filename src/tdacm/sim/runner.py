@@ -54,6 +54,7 @@ class Simulation:
         frame_composer=None,
     ):
         self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
+        check_run(self.scenario, duration, seed, flags=False)  # ScenarioError naming the keyword
         cfg = self.scenario.config
         self.duration = float(cfg.duration if duration is None else duration)
         self.seed = int(cfg.seed if seed is None else seed)
