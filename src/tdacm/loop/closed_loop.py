@@ -286,10 +286,16 @@ class ClosedLoop:
         """One control period: :meth:`sense` then :meth:`act`."""
         return self.act(self.sense(), twist, u, last)
 
-    def run(self, duration: float, progress: bool = False) -> RunResult:
+    def run(self, duration: float, progress: bool = False, on_step=None) -> RunResult:
         """Reset, then step until ``duration`` (``round(duration / dt) + 1`` samples) or a
         termination. Ctrl-C ends the run early with what was simulated so far
-        (``interrupted``); the caller writes it and re-raises."""
+        (``interrupted``); the caller writes it and re-raises.
+
+        ``on_step``: an observer called with each period's :class:`LoopStep` after the period
+        (the last one too), e.g. :class:`tdacm.live.LiveRun` (publish the run as it goes) or
+        :class:`tdacm.live.RealTime` (pace it to the wall clock). It may read the loop (its
+        log, the plant's state) and take time; it must not change them, so the run is the same
+        with or without it. Its time counts in ``wall_time_s``."""
         nsteps = int(round(duration / self.dt))
         self.reset()
         steps = range(nsteps + 1)
@@ -307,6 +313,8 @@ class ClosedLoop:
         try:
             for k in steps:
                 st = self.step(last=k == nsteps)
+                if on_step is not None:
+                    on_step(st)
                 if st.done:
                     terminated, reason = st.reason is not None, st.reason
                     termination = st.termination
