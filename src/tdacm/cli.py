@@ -74,16 +74,17 @@ def _address(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _start_live(address):
-    """``(server, None)``: the live server of ``--live`` listening (:class:`tdacm.live.LiveServer`),
-    or ``(None, the one-line error)``; ``(None, None)`` without ``--live``."""
+def _start_live(address, realtime: bool = False):
+    """``(server, None)``: the live server of ``--live`` listening (:class:`tdacm.live.LiveServer`;
+    with ``realtime``, the run's idle time lent to it), or ``(None, the one-line error)``;
+    ``(None, None)`` without ``--live``."""
     if address is None:
         return None, None
-    from .live import LiveError, LiveServer, is_loopback
+    from .live import PUBLISH_SHARE, PUBLISH_SHARE_REALTIME, LiveError, LiveServer, is_loopback
 
     host, port = address
     try:
-        server = LiveServer(host, port)
+        server = LiveServer(host, port, share=PUBLISH_SHARE_REALTIME if realtime else PUBLISH_SHARE)
     except LiveError as exc:
         return None, f"--live {exc}"
     _note(f"tdacm: live at {server.url} (Foxglove: Open connection, Foxglove WebSocket; "
@@ -292,7 +293,7 @@ def _cmd_run(args) -> int:
         check_run(sc, args.duration, args.seed, flags=True)
     except ScenarioError as exc:
         return _err(str(exc))
-    server, problem = _start_live(args.live)  # a port in use: said before anything runs
+    server, problem = _start_live(args.live, args.realtime)  # a port in use: said first
     if problem is not None:
         return _err(problem)
     # before the checks that build the robot: building it is the first compilation
@@ -533,7 +534,7 @@ def _replay_live(args, run_dir: Path) -> int:
         return _err(f"{flag}: --live streams the run, it writes no file; give one or the other")
     if not (run_dir / "timeseries.npz").is_file():
         return _err(f"RUN_DIR {run_dir} has no timeseries.npz")
-    server, problem = _start_live(args.live)
+    server, problem = _start_live(args.live, realtime=True)  # paced: it sleeps between steps
     if problem is not None:
         return _err(problem)
     try:

@@ -26,12 +26,11 @@ from tdacm.live import (
     RobotMessages,
     parse_address,
 )
+from tdacm.live.client import FoxgloveClient, free_port
 from tdacm.live.messages import feature_marker
 from tdacm.live.msgdefs import DEFINITIONS
 from tdacm.recording import export_run, load_run_folder
 from tdacm.sim import Simulation, load_scenario
-
-from .client import FoxgloveClient, free_port
 
 pytest.importorskip("foxglove")
 typesys = pytest.importorskip("rosbags.typesys")
@@ -283,6 +282,63 @@ def _fast(tmp_path) -> Path:
 
 
 # ------------------------------------------------------------------ messages and layout
+def test_quaternions_are_those_of_the_rotations():
+    from scipy.spatial.transform import Rotation
+
+    from tdacm.live.messages import _quat
+
+    mats = [*Rotation.random(2000, random_state=1).as_matrix(), np.eye(3),
+            np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])]  # fmt: skip
+    for m in mats:  # the half turns: each branch of Shepperd's method
+        q = _quat(m)
+        assert q[3] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-15
+        assert np.abs(Rotation.from_quat(q).as_matrix() - m).max() < 2e-15
+
+
+def test_publishing_keeps_to_its_share_of_the_wall_clock():
+    """After a publish that took ``c`` seconds the next one waits ``c / share``: a client
+    costs a run at most ``share / (1 - share)`` of its time."""
+    with LiveServer(port=0, share=0.1) as server:
+        server.messages = _SlowMessages(0.005)
+        server._channels = {"/tf": _Sink()}
+        server.messages.topics = {"/tf": "tf2_msgs/msg/TFMessage"}
+        server._encoders = {"tf2_msgs/msg/TFMessage": lambda m: b"x"}
+        t0 = time.perf_counter()
+        busy = last = 0.0
+        while time.perf_counter() - t0 < 1.0:
+            a = time.thread_time()  # this thread's CPU: not the time another process took
+            if server.publish(0.0, {"q": np.zeros(2)}):
+                last = time.thread_time() - a
+                busy += last
+        wall = time.perf_counter() - t0
+    assert server.published >= 2
+    # the share, plus the last publish: its wait falls after the second
+    assert busy / wall <= 0.1 + last / wall
+
+
+class _Sink:
+    def has_sinks(self):
+        return True
+
+    def log(self, data, log_time=None):
+        pass
+
+
+class _SlowMessages:
+    """Message builders that take ``cost`` seconds of CPU a step."""
+
+    cameras = ()
+
+    def __init__(self, cost):
+        self.cost = cost
+
+    def step(self, ns, row, topics):
+        end = time.thread_time() + self.cost
+        while time.thread_time() < end:
+            pass
+        return [("/tf", {})]
+
+
 def test_feature_marker_draws_the_points_in_pixels():
     from tdacm.vision import PinholeCamera
 
@@ -331,3 +387,67 @@ def test_the_shipped_layout_shows_the_published_topics_and_fields():
         else:
             stack += [node["first"], node["second"]]
     assert placed == set(cfg)
+
+
+# ------------------------------------------------------------------ the Gymnasium env
+def test_the_env_publishes_a_policy_acting_and_acts_the_same(monkeypatch):
+    """``render_mode="foxglove"``: each step goes to a subscribed client (the steps the rate
+    lets through, and the last one of the episode); the episode is the one without it."""
+    gym = pytest.importorskip("gymnasium")
+    import tdacm.envs  # noqa: F401  (registers the env)
+
+    actions = np.random.default_rng(3).uniform(-0.3, 0.3, size=(8, 6))
+
+    def episode(env, between=None):
+        obs = [env.reset(seed=5)[0]]
+        rewards = []
+        for a in actions:
+            o, r, term, trunc, _ = env.step(a)
+            obs.append(o)
+            rewards.append(r)
+            if between is not None:
+                between()
+            if term or trunc:
+                break
+        return np.array(obs), np.array(rewards)
+
+    watched = gym.make("tdacm/TipServo-v0", max_steps=8, render_mode="foxglove", live="0")
+    env = watched.unwrapped
+    assert env.live.host == "127.0.0.1" and env.render() is None
+    client = FoxgloveClient(env.live.port)
+    topics = ["/tf", "/tdacm/servo/feature_error", PROGRESS_TOPIC]
+    env.reset(seed=5)  # the channels are advertised at the first reset
+    assert client.wait_for(lambda: all(t in client.channels for t in topics), 30)
+    client.subscribe(topics)
+    client.wait_for(lambda: env.live.subscribed() >= set(topics[:2]), 5)
+
+    def pause():  # a policy slower than the publishing: every step goes out
+        while not env.live.due():
+            client.poll(0.005)
+
+    obs_w, rew_w = episode(env, pause)
+
+    def ended():
+        last = client.messages.get(PROGRESS_TOPIC, [])[-1:]
+        return last and json.loads(last[0][1])["state"] == "done"
+
+    assert client.wait_for(ended, 5)  # the episode's last progress message, after its last step
+    watched.close()
+    plain = gym.make("tdacm/TipServo-v0", max_steps=8)
+    obs_p, rew_p = episode(plain.unwrapped)
+    plain.close()
+    np.testing.assert_array_equal(obs_w, obs_p)
+    np.testing.assert_array_equal(rew_w, rew_p)
+    stamps = [lt for lt, _, _ in client.messages["/tf"]]
+    dt = env.loop.dt
+    assert stamps == [round(k * dt * 1e9) for k in range(len(rew_w))]  # one per step, in order
+    err = TS.deserialize_cdr(client.messages["/tdacm/servo/feature_error"][0][1],
+                             "std_msgs/msg/Float64MultiArray")  # fmt: skip
+    assert err.layout.dim[0].label == "e_p_phi,e_p_theta,e_p_psi,e_p_x,e_p_y,e_p_z"
+
+
+def test_the_env_refuses_an_address_without_foxglove():
+    from tdacm.envs.servo import TipServoEnv
+
+    with pytest.raises(ValueError, match="live: a server address needs render_mode='foxglove'"):
+        TipServoEnv(live="8765")

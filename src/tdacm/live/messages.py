@@ -37,6 +37,7 @@ comma-separated (``"p_phi,p_theta,p_psi,p_x,p_y,p_z"``); the names are those of
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,10 +159,29 @@ def header(ns: int, frame: str) -> dict:
 
 
 def _quat(r: np.ndarray) -> list[float]:
-    """``[x, y, z, w]`` of a rotation matrix (ROS order)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(r).as_quat().tolist()
+    """``[x, y, z, w]`` (ROS order, ``w >= 0``) of a rotation matrix, by Shepperd's method:
+    from the largest of ``1 + trace`` and ``1 + 2 r_ii - trace`` (four times the square of a
+    component), so no division by a small number. Scalar arithmetic: a publish builds a few
+    dozen of these, where scipy's ``Rotation`` costs a millisecond each."""
+    r00, r01, r02 = float(r[0, 0]), float(r[0, 1]), float(r[0, 2])
+    r10, r11, r12 = float(r[1, 0]), float(r[1, 1]), float(r[1, 2])
+    r20, r21, r22 = float(r[2, 0]), float(r[2, 1]), float(r[2, 2])
+    tr = r00 + r11 + r22
+    k = max(range(4), key=(tr, r00, r11, r22).__getitem__)
+    if k == 0:
+        f = 2.0 * math.sqrt(1.0 + tr)
+        x, y, z, w = (r21 - r12) / f, (r02 - r20) / f, (r10 - r01) / f, f / 4
+    elif k == 1:
+        f = 2.0 * math.sqrt(1.0 + 2.0 * r00 - tr)
+        x, y, z, w = f / 4, (r01 + r10) / f, (r02 + r20) / f, (r21 - r12) / f
+    elif k == 2:
+        f = 2.0 * math.sqrt(1.0 + 2.0 * r11 - tr)
+        x, y, z, w = (r01 + r10) / f, f / 4, (r12 + r21) / f, (r02 - r20) / f
+    else:
+        f = 2.0 * math.sqrt(1.0 + 2.0 * r22 - tr)
+        x, y, z, w = (r02 + r20) / f, (r12 + r21) / f, f / 4, (r10 - r01) / f
+    n = math.sqrt(x * x + y * y + z * z + w * w) * (1.0 if w >= 0 else -1.0)
+    return [x / n, y / n, z / n, w / n]
 
 
 def transform(ns: int, parent: str, child: str, g: np.ndarray) -> dict:

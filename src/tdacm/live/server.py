@@ -6,10 +6,10 @@ extra) and advertises one channel per topic of :class:`~.messages.RobotMessages`
 ``/tdacm/progress`` (JSON: simulated time, fraction done, speed against the wall clock).
 :meth:`LiveServer.publish` sends one control step; it does nothing unless a client subscribes
 (a server nobody watches costs one clock read per step), sends at most :data:`PUBLISH_RATE_HZ`
-steps a second of wall clock (each published step whole; the steps between are skipped, not
-averaged) and re-renders the camera images (:class:`~tdacm.vision.PlanarRenderer`, as
-``tdacm export --images``) at most :data:`IMAGE_RATE_HZ` times a second, only for a client
-subscribed to them. The topics sent once (``/tf_static``, the targets, the goal camera pose)
+steps a second of wall clock and spends at most :data:`PUBLISH_SHARE` of the wall clock on it
+(each published step whole; the steps between are skipped, not averaged), and re-renders the
+camera images (:class:`~tdacm.vision.PlanarRenderer`, as ``tdacm export --images``) at most
+:data:`IMAGE_RATE_HZ` times a second, only for a client subscribed to them. The topics sent once (``/tf_static``, the targets, the goal camera pose)
 are sent again when a client subscribes to them later.
 
 The server reads the run and never writes to it: a run with a server gives the same results
@@ -43,6 +43,14 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 #: At most this many control steps a second of wall clock are published.
 PUBLISH_RATE_HZ = 30.0
+#: At most this share of the wall clock goes into publishing (building, encoding, rendering
+#: the images): after a publish that took ``c`` seconds the next one waits ``c / share``, so a
+#: client watching costs a run at most ``share / (1 - share)`` of its time (11 %), on a busy
+#: machine by publishing less often.
+PUBLISH_SHARE = 0.1
+#: The share under ``--realtime``: the run sleeps most of the time there, so it lends that time
+#: to the publishing as long as it keeps up.
+PUBLISH_SHARE_REALTIME = 0.5
 #: Camera images are rendered and published at most this many times a second.
 IMAGE_RATE_HZ = 10.0
 #: How long (s) :meth:`LiveServer.close` waits for the last messages to reach a subscribed
@@ -122,7 +130,8 @@ class LiveServer:
     :class:`~tdacm._extras.MissingExtraError` without the ``live`` extra.
 
     ``rate_hz`` and ``image_rate_hz``: the most steps and camera images a second of wall
-    clock that :meth:`publish` sends. Use as a context manager, or call :meth:`close`.
+    clock that :meth:`publish` sends; ``share``: the most of the wall clock it spends
+    (:data:`PUBLISH_SHARE`). Use as a context manager, or call :meth:`close`.
 
     For a loop of one's own (docs/live.md)::
 
@@ -140,6 +149,7 @@ class LiveServer:
         name: str = "tdacm",
         rate_hz: float = PUBLISH_RATE_HZ,
         image_rate_hz: float = IMAGE_RATE_HZ,
+        share: float = PUBLISH_SHARE,
     ):
         foxglove = require("foxglove", "live")
         self._serialize = require("mcap_ros2._dynamic", "live").serialize_dynamic
@@ -148,6 +158,8 @@ class LiveServer:
         for what, v in (("rate_hz", rate_hz), ("image_rate_hz", image_rate_hz)):
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{what} must be a finite positive number, got {v!r}")
+        if not (isinstance(share, int | float) and 0 < share <= 1):
+            raise ValueError(f"share must be in (0, 1], got {share!r}")
         self.host = str(host)
         self._foxglove = foxglove
         self._context = foxglove.Context()
@@ -169,11 +181,12 @@ class LiveServer:
         #: the port the server listens on
         self.port = int(self._server.port)
         self.rate_hz, self.image_rate_hz = float(rate_hz), float(image_rate_hz)
+        self.share = float(share)
         self.messages: RobotMessages | None = None
         self._channels: dict = {}
         self._encoders: dict = {}
         self._progress = None
-        self._last = -math.inf
+        self._next = -math.inf  # when the next step may go out (perf_counter)
         self._last_image = -math.inf
         self._renderers: dict = {}
         self._static_ns = 0
@@ -227,9 +240,8 @@ class LiveServer:
             self._channels[topic].log(bytes(data), log_time=int(ns))
 
     def due(self, now: float | None = None) -> bool:
-        """True if a step published now would be sent (the rate allows it)."""
-        now = time.perf_counter() if now is None else now
-        return now - self._last >= 1.0 / self.rate_hz
+        """True if a step published now would be sent (the rate and the share allow it)."""
+        return (time.perf_counter() if now is None else now) >= self._next
 
     def publish(self, t: float, row: dict, *, force: bool = False) -> bool:
         """Send the control step at simulated time ``t`` (s) whose logged values are ``row``
@@ -238,7 +250,7 @@ class LiveServer:
         now = time.perf_counter()
         if self.messages is None or not (force or self.due(now)):
             return False
-        self._last = now
+        self._next = now + 1.0 / self.rate_hz
         topics = self.subscribed()
         if not topics:
             return False
@@ -257,6 +269,8 @@ class LiveServer:
                 self._send([self.messages.image(cam, ns, self._render(cam, q))], ns)
         self._server.broadcast_time(ns)
         self.published += 1
+        cost = time.perf_counter() - now
+        self._next = now + max(1.0 / self.rate_hz, cost / self.share)
         return True
 
     def _render(self, cam: str, q) -> np.ndarray:

@@ -1,7 +1,10 @@
-"""A small client of Foxglove's WebSocket protocol (the published spec of
-``foxglove.websocket.v1``, named ``foxglove.sdk.v1`` by foxglove-sdk 0.30): the server's JSON
-``serverInfo`` and ``advertise`` messages, the client's ``subscribe``, the binary message data
-(opcode 1: subscription id u32, log time u64, payload; little-endian)."""
+"""A small client of Foxglove's WebSocket protocol, to check a live server without the app
+(the tests, benchmarks/bench_live.py, a headless machine): the published spec of
+``foxglove.websocket.v1`` (named ``foxglove.sdk.v1`` by foxglove-sdk 0.30; the client offers
+both names): the server's JSON ``serverInfo`` and ``advertise`` messages, the client's
+``subscribe``, the binary message data (opcode 1: subscription id u32, log time u64, payload;
+little-endian). Over the PyPI package ``websockets`` (the ``live`` extra). Decode a payload with
+the ROS 2 definitions of its channel's schema (e.g. ``rosbags``' ``deserialize_cdr``)."""
 
 from __future__ import annotations
 
@@ -11,8 +14,7 @@ import struct
 import time
 from contextlib import ExitStack
 
-from websockets.exceptions import ConnectionClosed
-from websockets.sync.client import connect
+from .._extras import require
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
@@ -30,6 +32,8 @@ class FoxgloveClient:
     ``messages[topic] = [(log_time, payload, receive wall time), ...]``."""
 
     def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 120.0):
+        connect = require("websockets.sync.client", "live").connect
+        self._closed_error = require("websockets.exceptions", "live").ConnectionClosed
         deadline = time.monotonic() + timeout
         while True:
             try:
@@ -54,7 +58,7 @@ class FoxgloveClient:
             m = self.ws.recv(timeout=timeout)
         except TimeoutError:
             return False
-        except ConnectionClosed:
+        except self._closed_error:
             self.closed = True
             return False
         if isinstance(m, str):
