@@ -361,7 +361,7 @@ class TipServoEnv(gym.Env):
         progress (``ended``: how the episode ended, ``None`` while it runs)."""
         from ..live import row_of_step
 
-        if self.live.publish(state.t, row_of_step(state, st), force=ended is not None) or ended:
+        if self.live.publish(state.t, row_of_step(state, st), final=ended is not None) or ended:
             wall = time.perf_counter() - self._wall0
             self.live.progress(
                 scenario=self.scenario.name,

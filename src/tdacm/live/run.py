@@ -147,7 +147,7 @@ class LiveRun:
         n = len(rows["t"])
         if n > self._n:  # the period was logged (a period that ended the run early is not)
             self._n = n
-            server.publish(rows["t"][-1], row_of_log(rows), force=step.done)
+            server.publish(rows["t"][-1], row_of_log(rows), final=step.done)
         self._progress(step.t, "running" if not step.done else self._state(step))
 
     @staticmethod

@@ -243,12 +243,13 @@ class LiveServer:
         """True if a step published now would be sent (the rate and the share allow it)."""
         return (time.perf_counter() if now is None else now) >= self._next
 
-    def publish(self, t: float, row: dict, *, force: bool = False) -> bool:
+    def publish(self, t: float, row: dict, *, final: bool = False) -> bool:
         """Send the control step at simulated time ``t`` (s) whose logged values are ``row``
         (:data:`~.messages.ROW_SERIES`: ``q`` and what else the run has) to the subscribed
-        clients; ``force``: whatever the rate. Returns True if it was sent."""
+        clients; ``final``: the last step, sent whatever the rate and share. Returns True if it
+        was sent."""
         now = time.perf_counter()
-        if self.messages is None or not (force or self.due(now)):
+        if self.messages is None or not (final or self.due(now)):
             return False
         self._next = now + 1.0 / self.rate_hz
         topics = self.subscribed()
@@ -262,7 +263,7 @@ class LiveServer:
             self._send(self.messages.static(self._static_ns, again), self._static_ns)
         self._send(self.messages.step(ns, row, topics), ns)
         cams = [c for c in self.messages.cameras if image_topic(c) in topics]
-        if cams and (force or now - self._last_image >= 1.0 / self.image_rate_hz):
+        if cams and (final or now - self._last_image >= 1.0 / self.image_rate_hz):
             self._last_image = now
             q = np.asarray(row["q"], float)
             for cam in cams:

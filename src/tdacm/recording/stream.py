@@ -50,7 +50,7 @@ def stream_run(
     for k in range(len(t)):
         pace.wait(t[k])
         last = k == len(t) - 1
-        if server.publish(t[k], step_row(arrays, k), force=last) or last:
+        if server.publish(t[k], step_row(arrays, k), final=last) or last:
             wall = time.perf_counter() - wall0
             server.progress(
                 scenario=str(run.summary.get("scenario", "")),
