@@ -74,17 +74,16 @@ def _address(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _start_live(address, realtime: bool = False):
-    """``(server, None)``: the live server of ``--live`` listening (:class:`tdacm.live.LiveServer`;
-    with ``realtime``, the run's idle time lent to it), or ``(None, the one-line error)``;
-    ``(None, None)`` without ``--live``."""
+def _start_live(address):
+    """``(server, None)``: the live server of ``--live`` listening (:class:`tdacm.live.LiveServer`),
+    or ``(None, the one-line error)``; ``(None, None)`` without ``--live``."""
     if address is None:
         return None, None
-    from .live import PUBLISH_SHARE, PUBLISH_SHARE_REALTIME, LiveError, LiveServer, is_loopback
+    from .live import LiveError, LiveServer, is_loopback
 
     host, port = address
     try:
-        server = LiveServer(host, port, share=PUBLISH_SHARE_REALTIME if realtime else PUBLISH_SHARE)
+        server = LiveServer(host, port)
     except LiveError as exc:
         return None, f"--live {exc}"
     _note(f"tdacm: live at {server.url} (Foxglove: Open connection, Foxglove WebSocket; "
@@ -293,7 +292,7 @@ def _cmd_run(args) -> int:
         check_run(sc, args.duration, args.seed, flags=True)
     except ScenarioError as exc:
         return _err(str(exc))
-    server, problem = _start_live(args.live, args.realtime)  # a port in use: said first
+    server, problem = _start_live(args.live)  # a port in use: said before anything runs
     if problem is not None:
         return _err(problem)
     # before the checks that build the robot: building it is the first compilation
@@ -336,10 +335,11 @@ def _run_checked(args, sc, out: Path, server=None) -> int:
     if server is not None or args.realtime:
         from .live import LiveRun, RealTime, RobotMessages, chain
 
-        if server is not None:
+        pace = RealTime(sc.config.dt) if args.realtime else None
+        if server is not None:  # publishing in the time the pace leaves, then the pace
             server.attach(RobotMessages.of_world(sim.assembly.world))
-            live = LiveRun(server, sim.loop, sim.duration, sc.name)
-        on_step = chain(live, RealTime(sc.config.dt) if args.realtime else None)
+            live = LiveRun(server, sim.loop, sim.duration, sc.name, pace=pace)
+        on_step = chain(live, pace)
     try:
         _, summary = sim.run(out, on_step=on_step)
     except ScenarioError as exc:
@@ -534,7 +534,7 @@ def _replay_live(args, run_dir: Path) -> int:
         return _err(f"{flag}: --live streams the run, it writes no file; give one or the other")
     if not (run_dir / "timeseries.npz").is_file():
         return _err(f"RUN_DIR {run_dir} has no timeseries.npz")
-    server, problem = _start_live(args.live, realtime=True)  # paced: it sleeps between steps
+    server, problem = _start_live(args.live)
     if problem is not None:
         return _err(problem)
     try:

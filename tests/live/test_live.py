@@ -451,3 +451,20 @@ def test_the_env_refuses_an_address_without_foxglove():
 
     with pytest.raises(ValueError, match="live: a server address needs render_mode='foxglove'"):
         TipServoEnv(live="8765")
+
+
+def test_a_paced_run_publishes_in_its_spare_time():
+    """Past its share, a step still goes out when the run has more time to spare before its
+    next period than the last publish took, and not when it has less."""
+    with LiveServer(port=0, share=0.1) as server:
+        server.messages = _SlowMessages(0.01)
+        server._channels = {"/tf": _Sink()}
+        server.messages.topics = {"/tf": "tf2_msgs/msg/TFMessage"}
+        server._encoders = {"tf2_msgs/msg/TFMessage": lambda m: b"x"}
+        assert server.publish(0.0, {"q": np.zeros(2)})
+        time.sleep(1.5 / server.rate_hz)  # the rate allows the next one, the share does not
+        assert not server.due()
+        assert not server.due(slack=0.5 * server.last_cost)
+        assert server.due(slack=2 * server.last_cost)
+        assert server.publish(0.02, {"q": np.zeros(2)}, slack=2 * server.last_cost)
+        assert not server.due(slack=1.0)  # the rate still holds

@@ -60,6 +60,13 @@ class RealTime:
         self.max_lag = 0.0
         self.lagging = False
 
+    def slack(self, t_next: float) -> float | None:
+        """How long (s) until simulated time ``t_next`` is due on the wall clock (negative:
+        behind); ``None`` before the clock starts."""
+        if self._wall0 is None:
+            return None
+        return self._wall0 + (float(t_next) - self._t0) / self.speed - time.perf_counter()
+
     def start(self, t: float) -> None:
         """Start the clock: simulated time ``t`` is now."""
         self._wall0, self._t0 = time.perf_counter(), float(t)
@@ -126,11 +133,13 @@ def row_of_step(state, step) -> dict:
 
 class LiveRun:
     """Publishes a :class:`~tdacm.loop.ClosedLoop`'s run to ``server`` as it goes (an
-    ``on_step`` observer): each period's row of the loop's log, at the server's rate, the
-    last one always; and the progress (``duration``: the run's, for the fraction done)."""
+    ``on_step`` observer): each period's row of the loop's log, at the server's rate and
+    share, the last one always; and the progress (``duration``: the run's, for the fraction
+    done). With ``pace`` (the run's :class:`RealTime`, chained after this observer), steps also
+    go out in the time the pace would sleep (:meth:`~.server.LiveServer.due`'s ``slack``)."""
 
-    def __init__(self, server, loop, duration: float, scenario: str = ""):
-        self.server, self.loop = server, loop
+    def __init__(self, server, loop, duration: float, scenario: str = "", pace=None):
+        self.server, self.loop, self.pace = server, loop, pace
         self.duration, self.scenario = float(duration), str(scenario)
         self._n = 0
         self._steps = 0
@@ -141,13 +150,15 @@ class LiveRun:
             self._wall0 = time.perf_counter()
         self._steps += 1
         server = self.server
-        if not (step.done or server.due()):
+        pace = self.pace
+        slack = None if pace is None else pace.slack(step.t + pace.dt)
+        if not (step.done or server.due(slack=slack)):
             return
         rows = self.loop.log.rows
         n = len(rows["t"])
         if n > self._n:  # the period was logged (a period that ended the run early is not)
             self._n = n
-            server.publish(rows["t"][-1], row_of_log(rows), final=step.done)
+            server.publish(rows["t"][-1], row_of_log(rows), final=step.done, slack=slack)
         self._progress(step.t, "running" if not step.done else self._state(step))
 
     @staticmethod

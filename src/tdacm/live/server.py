@@ -7,18 +7,20 @@ extra) and advertises one channel per topic of :class:`~.messages.RobotMessages`
 :meth:`LiveServer.publish` sends one control step; it does nothing unless a client subscribes
 (a server nobody watches costs one clock read per step), sends at most :data:`PUBLISH_RATE_HZ`
 steps a second of wall clock and spends at most :data:`PUBLISH_SHARE` of the wall clock on it
-(each published step whole; the steps between are skipped, not averaged), and re-renders the
+(each published step whole; the steps between are skipped, not averaged), more when the run
+has time to spare (a paced run: ``slack``), and re-renders the
 camera images (:class:`~tdacm.vision.PlanarRenderer`, as ``tdacm export --images``) at most
-:data:`IMAGE_RATE_HZ` times a second, only for a client subscribed to them. The topics sent once (``/tf_static``, the targets, the goal camera pose)
-are sent again when a client subscribes to them later.
+:data:`IMAGE_RATE_HZ` times a second, only for a client subscribed to them. The topics sent
+once (``/tf_static``, the targets, the goal camera pose) are sent again when a client
+subscribes to them later.
 
 The server reads the run and never writes to it: a run with a server gives the same results
 as without, bit for bit.
 
 Clients speak Foxglove's WebSocket protocol; ``foxglove-sdk`` 0.30 names its subprotocol
 ``foxglove.sdk.v1`` (the protocol of ``foxglove.websocket.v1`` under a new name): the Foxglove
-app and Lichtblick from its releases of 2026 connect (Open connection, Foxglove WebSocket,
-``ws://localhost:8765``).
+app connects (Open connection, Foxglove WebSocket, ``ws://localhost:8765``), and Lichtblick
+from the releases that offer ``foxglove.sdk.v1`` (its sources of 1.28 do).
 """
 
 from __future__ import annotations
@@ -48,9 +50,6 @@ PUBLISH_RATE_HZ = 30.0
 #: client watching costs a run at most ``share / (1 - share)`` of its time (11 %), on a busy
 #: machine by publishing less often.
 PUBLISH_SHARE = 0.1
-#: The share under ``--realtime``: the run sleeps most of the time there, so it lends that time
-#: to the publishing as long as it keeps up.
-PUBLISH_SHARE_REALTIME = 0.5
 #: Camera images are rendered and published at most this many times a second.
 IMAGE_RATE_HZ = 10.0
 #: How long (s) :meth:`LiveServer.close` waits for the last messages to reach a subscribed
@@ -186,7 +185,10 @@ class LiveServer:
         self._channels: dict = {}
         self._encoders: dict = {}
         self._progress = None
-        self._next = -math.inf  # when the next step may go out (perf_counter)
+        self._next_rate = -math.inf  # when the rate lets the next step out (perf_counter)
+        self._next_share = -math.inf  # when the share does
+        #: how long the last publish took (s)
+        self.last_cost = 0.0
         self._last_image = -math.inf
         self._renderers: dict = {}
         self._static_ns = 0
@@ -239,19 +241,26 @@ class LiveServer:
             data = self._encoders[kinds[topic]](msg)
             self._channels[topic].log(bytes(data), log_time=int(ns))
 
-    def due(self, now: float | None = None) -> bool:
-        """True if a step published now would be sent (the rate and the share allow it)."""
-        return (time.perf_counter() if now is None else now) >= self._next
+    def due(self, now: float | None = None, slack: float | None = None) -> bool:
+        """True if a step published now would be sent: the rate allows it, and the share does
+        or the run has ``slack`` seconds to spare (a paced run's time until its next period is
+        due, :meth:`tdacm.live.RealTime.slack`) that the last publish's cost fits in."""
+        now = time.perf_counter() if now is None else now
+        if now < self._next_rate:
+            return False
+        return now >= self._next_share or (slack is not None and slack >= self.last_cost)
 
-    def publish(self, t: float, row: dict, *, final: bool = False) -> bool:
+    def publish(
+        self, t: float, row: dict, *, final: bool = False, slack: float | None = None
+    ) -> bool:
         """Send the control step at simulated time ``t`` (s) whose logged values are ``row``
         (:data:`~.messages.ROW_SERIES`: ``q`` and what else the run has) to the subscribed
-        clients; ``final``: the last step, sent whatever the rate and share. Returns True if it
-        was sent."""
+        clients when :meth:`due` (``slack``: the time the run has to spare, s); ``final``: the
+        last step, sent whatever the rate and share. Returns True if it was sent."""
         now = time.perf_counter()
-        if self.messages is None or not (final or self.due(now)):
+        if self.messages is None or not (final or self.due(now, slack)):
             return False
-        self._next = now + 1.0 / self.rate_hz
+        self._next_rate = now + 1.0 / self.rate_hz
         topics = self.subscribed()
         if not topics:
             return False
@@ -270,8 +279,8 @@ class LiveServer:
                 self._send([self.messages.image(cam, ns, self._render(cam, q))], ns)
         self._server.broadcast_time(ns)
         self.published += 1
-        cost = time.perf_counter() - now
-        self._next = now + max(1.0 / self.rate_hz, cost / self.share)
+        cost = self.last_cost = time.perf_counter() - now
+        self._next_share = now + cost / self.share
         return True
 
     def _render(self, cam: str, q) -> np.ndarray:

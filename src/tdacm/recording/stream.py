@@ -50,7 +50,8 @@ def stream_run(
     for k in range(len(t)):
         pace.wait(t[k])
         last = k == len(t) - 1
-        if server.publish(t[k], step_row(arrays, k), final=last) or last:
+        slack = None if last else pace.slack(t[k + 1])  # until the next step is due
+        if server.publish(t[k], step_row(arrays, k), final=last, slack=slack) or last:
             wall = time.perf_counter() - wall0
             server.progress(
                 scenario=str(run.summary.get("scenario", "")),
