@@ -6,7 +6,8 @@ Overhead: the same command with and without ``--live PORT``, alternated ``--repe
 with a client (:class:`tdacm.live.client.FoxgloveClient`, in this process) subscribed to every
 topic the server advertises (the images too: the most a client can ask for); the figure is the
 median of the closed loop's wall time (the summary's ``wall_time_s``) with the server over the
-median without, minus one. Real time: ``--realtime`` runs of ``--duration`` s (alone, and with
+median without, minus one; the commands' CPU time (the run process and its threads) is
+recorded too, a measure of the work added that the other processes' load disturbs less. Real time: ``--realtime`` runs of ``--duration`` s (alone, and with
 ``--live`` and the client), their loop's wall time against the duration. Each command runs in a
 new process (``python -m tdacm.cli``); the load average is recorded before and after.
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -33,14 +35,17 @@ def _run(scenario: str, duration: float, out: Path, *flags) -> dict:
     """``tdacm -q run SCENARIO --duration D --out OUT FLAGS``; its summary and the command's
     own wall time."""
     t0 = time.perf_counter()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cmd = [sys.executable, "-m", "tdacm.cli", "-q", "run", scenario, "--duration",
            str(duration), "--out", str(out), *flags]  # fmt: skip
     p = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     if p.returncode not in (0, 1):
         raise RuntimeError(f"{' '.join(cmd)} exited {p.returncode}: {p.stderr}")
     summary = json.loads((out / "summary.json").read_text())
-    return {"loop_wall_s": summary["wall_time_s"], "command_wall_s": wall}
+    return {"loop_wall_s": summary["wall_time_s"], "command_wall_s": wall, "command_cpu_s": cpu}
 
 
 def _watched(scenario: str, duration: float, out: Path, *flags) -> dict:
@@ -99,6 +104,11 @@ def main() -> None:
         "median_plain_s": med(plain),
         "median_live_s": med(live),
         "live_overhead": med(live) / med(plain) - 1.0,
+        # the whole command's CPU (the run, its figures, the server's threads): the work added,
+        # less sensitive to the load of other processes than the wall time
+        "command_cpu_s_plain": [r["command_cpu_s"] for r in plain],
+        "command_cpu_s_live": [r["command_cpu_s"] for r in live],
+        "cpu_overhead_s": med(live, "command_cpu_s") - med(plain, "command_cpu_s"),
         "messages_received_last_live_run": live[-1]["messages"],
         "realtime_loop_wall_s": [r["loop_wall_s"] for r in realtime],
         "realtime_error": med(realtime) / a.duration - 1.0,
