@@ -71,7 +71,12 @@ def live_run(tmp_path_factory):
         client.subscribe(wanted)
         msgs = client.messages
         client.wait_for(
-            lambda: len(msgs.get("/tf", [])) >= 3 and "/tdacm/C_L/image_raw" in msgs, 120
+            lambda: (
+                len(msgs.get("/tf", [])) >= 3
+                and "/tdacm/C_L/image_raw" in msgs
+                and PROGRESS_TOPIC in msgs
+            ),
+            120,
         )
         running = proc.poll() is None  # received while the command goes on
         client.close()
