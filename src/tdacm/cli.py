@@ -64,6 +64,42 @@ _positive_float = _number_type(
 )
 
 
+def _address(text: str):
+    """An argparse type: ``[HOST:]PORT`` of ``--live`` (:func:`tdacm.live.parse_address`)."""
+    from .live.server import LiveError, parse_address
+
+    try:
+        return parse_address(text)
+    except LiveError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _start_live(address):
+    """``(server, None)``: the live server of ``--live`` listening (:class:`tdacm.live.LiveServer`),
+    or ``(None, the one-line error)``; ``(None, None)`` without ``--live``."""
+    if address is None:
+        return None, None
+    from .live import LiveError, LiveServer, is_loopback
+
+    host, port = address
+    try:
+        server = LiveServer(host, port)
+    except LiveError as exc:
+        return None, f"--live {exc}"
+    _note(f"tdacm: live at {server.url} (Foxglove: Open connection, Foxglove WebSocket; "
+          f"layout: {_layout_path()})")  # fmt: skip
+    if not is_loopback(host):
+        _note(f"tdacm: --live listens on {host}: other machines that reach it can watch")
+    return server, None
+
+
+def _layout_path() -> Path:
+    """The shipped Foxglove layout (docs/live.md)."""
+    from .live import LAYOUT
+
+    return LAYOUT
+
+
 # ------------------------------------------------------------------ helpers
 def _out_error(flag: str, path, folder: bool = True) -> str | None:
     """Why ``path`` cannot be written (a file where a folder is needed, on the path or at its
@@ -256,7 +292,9 @@ def _cmd_run(args) -> int:
 
     Run a scenario; prints the summary JSON on stdout and writes the run folder (summary.json,
     scenario.toml, timeseries.npz/.csv/.json, figures as PNG and PDF, scene.png, video.mp4 with
-    --video). Rerunning into a folder first removes the previous run's files.
+    --video). Rerunning into a folder first removes the previous run's files. --live publishes
+    the run as it goes to a Foxglove client (docs/live.md); --realtime paces it to the wall
+    clock.
     """
     from .sim import ScenarioError
     from .sim.scenario import check_run, load_scenario
@@ -277,19 +315,25 @@ def _cmd_run(args) -> int:
         check_run(sc, args.duration, args.seed, flags=True)
     except ScenarioError as exc:
         return _err(str(exc))
+    server, problem = _start_live(args.live)  # a port in use: said before anything runs
+    if problem is not None:
+        return _err(problem)
     # before the checks that build the robot: building it is the first compilation
     _compile_notice(parallel=True)
     from .loop.precompile import stop
 
     try:
-        return _run_checked(args, sc, out)
+        return _run_checked(args, sc, out, server)
     finally:
         stop()  # a second compiling process left running: the run failed before warm_up
+        if server is not None:
+            server.close()
 
 
-def _run_checked(args, sc, out: Path) -> int:
+def _run_checked(args, sc, out: Path, server=None) -> int:
     """The rest of ``tdacm run`` once the scenario passed its schema checks: the run's data
-    (:class:`tdacm.sim.Simulation`), then its figures and video (:mod:`tdacm.viz`)."""
+    (:class:`tdacm.sim.Simulation`; published to the live ``server`` as it goes, paced with
+    ``--realtime``), then its figures and video (:mod:`tdacm.viz`)."""
     from .sim import ScenarioError, Simulation
     from .sim.outputs import clear_run_outputs
     from .viz import plot_run_dir, write_video
@@ -310,8 +354,17 @@ def _run_checked(args, sc, out: Path) -> int:
     removed = clear_run_outputs(out, keep=())
     if removed:
         _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
+    on_step = live = None
+    if server is not None or args.realtime:
+        from .live import LiveRun, RealTime, RobotMessages, chain
+
+        pace = RealTime(sc.config.dt) if args.realtime else None
+        if server is not None:  # publishing in the time the pace leaves, then the pace
+            server.attach(RobotMessages.of_world(sim.assembly.world))
+            live = LiveRun(server, sim.loop, sim.duration, sc.name, pace=pace)
+        on_step = chain(live, pace)
     try:
-        _, summary = sim.run(out)
+        _, summary = sim.run(out, on_step=on_step)
     except ScenarioError as exc:
         return _err(str(exc))
     except KeyboardInterrupt:
@@ -327,6 +380,8 @@ def _run_checked(args, sc, out: Path) -> int:
             )
         )
         return 130
+    if live is not None:
+        live.finish(sim.result)
     try:
         _write_pictures(out, sim, plot_run_dir, write_video)
     except KeyboardInterrupt:  # the run's data is written: the summary says it was cut short
@@ -472,13 +527,15 @@ def _cmd_replay(args) -> int:
     """3-D animation (GIF or MP4) or Rerun recording of a `tdacm run` folder
 
     Animate a run folder in 3-D (real time by default), or with --rerun convert it to a Rerun
-    recording (.rrd).
+    recording (.rrd), or with --live stream it to a Foxglove client (docs/live.md).
     """
     from .sim.outputs import RunDirError
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         return _err(f"RUN_DIR {run_dir} does not exist or is not a folder")
+    if args.live is not None:
+        return _replay_live(args, run_dir)
     if args.rerun is not None:
         from .viz import record_run
 
@@ -512,6 +569,31 @@ def _cmd_replay(args) -> int:
     except RunDirError as exc:
         return _err(str(exc))
     _note(f"3-D replay written to {path.resolve()}")
+    return 0
+
+
+def _replay_live(args, run_dir: Path) -> int:
+    """``tdacm replay RUN --live [HOST:]PORT``: stream the run folder to a Foxglove client at
+    ``--speed`` times real time, once a client subscribes."""
+    from .recording import ExportError
+    from .recording.stream import stream_run
+
+    if args.rerun is not None or args.out is not None:
+        flag = "--rerun" if args.rerun is not None else "--out"
+        return _err(f"{flag}: --live streams the run, it writes no file; give one or the other")
+    if not (run_dir / "timeseries.npz").is_file():
+        return _err(f"RUN_DIR {run_dir} has no timeseries.npz")
+    server, problem = _start_live(args.live)
+    if problem is not None:
+        return _err(problem)
+    try:
+        n = stream_run(run_dir, server, speed=args.speed,
+                       on_wait=lambda: _note("tdacm: waiting for a client (Ctrl-C to stop)"))  # fmt: skip
+    except ExportError as exc:
+        return _err(str(exc))
+    finally:
+        server.close()
+    _note(f"tdacm: {n} steps of {run_dir} streamed")
     return 0
 
 
@@ -797,6 +879,19 @@ def _add_topic_map(s) -> None:
     )
 
 
+def _add_live(s, what: str) -> None:
+    """``--live [HOST:]PORT`` of ``run`` and ``replay`` (docs/live.md)."""
+    from .live.server import DEFAULT_HOST, DEFAULT_PORT
+
+    s.add_argument(
+        "--live",
+        type=_address,
+        metavar="[HOST:]PORT",
+        help=f"{what}: a Foxglove WebSocket server on PORT (e.g. {DEFAULT_PORT}; 0: any free "
+        f"port), on {DEFAULT_HOST} unless HOST is given",
+    )
+
+
 def _add_relative(s) -> None:
     """``--relative`` of the commands that read an MCAP recording."""
     s.add_argument(
@@ -840,6 +935,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=_nonneg_int, help="seed of the model perturbation and noise")
     s.add_argument("--video", action="store_true", help="write video.mp4 (C_L | C_G, captioned)")
     s.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording at the end")
+    _add_live(s, "publish the run as it goes to Foxglove")
+    s.add_argument(
+        "--realtime",
+        action="store_true",
+        help="pace the simulation to the wall clock (at most real time)",
+    )
     s = _command(sub, "plot", _cmd_plot)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--out", help="folder for the figures (default: RUN_DIR)")
@@ -880,6 +981,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.rrd",
         help="write a Rerun recording instead (default RUN_DIR/run.rrd)",
     )
+    _add_live(s, "stream the run to Foxglove instead (at --speed, once a client connects)")
     s = _command(sub, "export", _cmd_export)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--mcap", required=True, metavar="FILE", help="output .mcap file")

@@ -288,10 +288,16 @@ class ClosedLoop:
         """One control period: :meth:`sense` then :meth:`act`."""
         return self.act(self.sense(), twist, u, last)
 
-    def run(self, duration: float, progress: bool = False) -> RunResult:
+    def run(self, duration: float, progress: bool = False, on_step=None) -> RunResult:
         """Reset, then step until ``duration`` (``round(duration / dt) + 1`` samples) or a
         termination. Ctrl-C ends the run early with what was simulated so far
-        (``interrupted``); the caller writes it and re-raises."""
+        (``interrupted``); the caller writes it and re-raises.
+
+        ``on_step``: an observer called with each period's :class:`LoopStep` after the period
+        (the last one too), e.g. :class:`tdacm.live.LiveRun` (publish the run as it goes) or
+        :class:`tdacm.live.RealTime` (pace it to the wall clock). It may read the loop (its
+        log, the plant's state) and take time; it must not change them, so the run is the same
+        with or without it. Its time counts in ``wall_time_s``."""
         if (
             isinstance(duration, bool)
             or not isinstance(duration, int | float | np.integer | np.floating)
@@ -315,6 +321,8 @@ class ClosedLoop:
                 st = self.step(last=k == nsteps)
                 if bar is not None:
                     bar.to(k + 1)
+                if on_step is not None:
+                    on_step(st)
                 if st.done:
                     terminated, reason = st.reason is not None, st.reason
                     termination = st.termination

@@ -4,6 +4,7 @@ and MCAP recordings imported through a topic map into time-stamped signals (:mod
 estimation and servo-feature blocks (:mod:`.replay`).
 See docs/recordings.md."""
 
+from ..live.msgdefs import schema_text
 from .export import DEFAULT_SECTIONS, DEFAULT_TOPICS, ExportError, export_run, load_run_folder
 from .ingest import (
     DEFAULT_TOPIC_MAP,
@@ -16,7 +17,6 @@ from .ingest import (
     read_mcap,
     save_signals,
 )
-from .msgdefs import schema_text
 from .replay import ReplayResult, replay
 
 __all__ = [
