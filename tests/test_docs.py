@@ -55,3 +55,28 @@ def test_docs_check_fails_on_a_broken_link_or_reference(tmp_path, page, needle):
     res = _build(config, tmp_path / "site")
     assert res.returncode != 0
     assert needle in res.stderr
+
+
+def test_every_scenario_list_names_every_shipped_scenario():
+    """The docs' lists of the shipped scenarios (getting started, the README's `tdacm
+    scenarios` line, scenarios.md's table and its results) name all of them."""
+    from tdacm.sim import list_scenarios
+
+    root = Path(__file__).resolve().parents[1]
+    lines = (root / "README.md").read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("tdacm scenarios"))
+    readme = lines[k]
+    for ln in lines[k + 1 :]:  # the comment's continuation lines
+        if not ln.lstrip().startswith("#") or not ln.startswith(" "):
+            break
+        readme += ln
+    started = (root / "docs" / "getting-started.md").read_text()
+    started = started[started.index("The shipped scenarios") :].split("\n\n")[0]
+    page = (root / "docs" / "scenarios.md").read_text()
+    shipped = page[page.index("## The shipped scenarios") :].split("**Results**")[0]
+    results = page[page.index("**Results**") :].split("\n\n## ")[0]
+    for name in list_scenarios():
+        assert name in readme, ("README", name)
+        assert f"`{name}`" in started, ("getting-started.md", name)
+        assert f"| `{name}` |" in shipped, ("scenarios.md, shipped", name)
+        assert f"| `{name}` (" in results, ("scenarios.md, results", name)

@@ -37,3 +37,12 @@ def test_cli_reports_a_missing_extra_in_one_error_line(monkeypatch, tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1
     assert err[-1].startswith("error: tdacm Rerun recordings need the 'rerun' extra")
+
+
+def test_live_without_its_extra_names_it_before_the_run(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "foxglove", None)
+    code = cli.main(["run", "paper-in-fov", "--out", str(tmp_path / "o"), "--live", "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert err[-1].startswith("error: tdacm live views (Foxglove) need the 'live' extra")
+    assert not (tmp_path / "o").exists()

@@ -1,6 +1,7 @@
 """Optional dependencies: the modules that only one application needs (campaigns, the
-Gymnasium env, Rerun recordings) are installed with an extra of the package, and importing
-them through :func:`require` turns a missing module into an error that names the extra."""
+Gymnasium env, Rerun recordings, the live server) are installed with an extra of the package,
+and importing them through :func:`require` turns a missing module into an error that names the
+extra."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ EXTRAS = {
     "env": "the tdacm Gymnasium env",
     "rerun": "tdacm Rerun recordings",
     "recording": "tdacm MCAP recordings",
+    "live": "tdacm live views (Foxglove)",
 }
 
 

@@ -76,3 +76,41 @@ def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
     handler.setFormatter(PlainFormatter("%(message)s"))
     logger.addHandler(handler)
     logger.setLevel(level)
+
+
+class Progress:
+    """A progress line on stderr (tqdm, drawn as :func:`progress_enabled` says) that ends at
+    100 % when the work is complete, and whose rate and ETA leave out its first step: a first
+    step compiles numba kernels on a cold cache (seconds to minutes, against milliseconds for
+    the others), so an ETA extrapolated from it would be off by orders of magnitude.
+    ``initial`` steps were done before (a resumed campaign)."""
+
+    def __init__(self, total: int, desc: str, unit: str = "step", initial: int = 0):
+        from tqdm import tqdm
+
+        self.total = int(total)
+        self.initial = int(initial)
+        self.bar = tqdm(
+            total=self.total, initial=self.initial, desc=desc, unit=unit, file=sys.stderr,
+            disable=not progress_enabled(),
+        )  # fmt: skip
+        self._timed = False  # the clock restarted after the first step
+
+    def to(self, done: int) -> None:
+        """Set the count to ``done`` steps (of ``total``)."""
+        done = min(int(done), self.total)
+        bar = self.bar
+        if not self._timed and done > self.initial:
+            self._timed = True
+            if done < self.total:  # restart the clock after the first step, counting from it
+                bar.reset(total=self.total)
+                bar.initial = bar.n = bar.last_print_n = done
+                bar.refresh()
+                return
+        bar.update(done - bar.n)
+
+    def close(self, complete: bool = False) -> None:
+        """End the line; ``complete``: the work is done (the line shows 100 %)."""
+        if complete:
+            self.to(self.total)
+        self.bar.close()

@@ -130,3 +130,19 @@ def transform(name: str, value) -> np.ndarray:
     if not _proper_rotation(r):
         raise ValueError(f"{name} must have a proper rotation block, got {r!r}")
     return g
+
+
+def npz_problem(exc: BaseException) -> str:
+    """Why ``numpy.load`` of an ``.npz`` failed, in a user's words (not numpy's: a pickled
+    object array's "allow_pickle" advice would tell a user to load an untrusted file
+    unsafely)."""
+    text = str(exc)
+    if isinstance(exc, KeyError):
+        # numpy's NpzFile: "NAME is not a file in the archive"
+        name = str(exc.args[0]).removesuffix(" is not a file in the archive") if exc.args else ""
+        return f"no {name!r} array" if name else "an array is missing"
+    if "allow_pickle" in text or "pickle" in text.lower():
+        return "it holds Python objects (pickled), not plain arrays; such files are not loaded"
+    if isinstance(exc, EOFError) or "zip" in text.lower() or "truncated" in text.lower():
+        return "not an .npz archive, or a truncated one"
+    return text.splitlines()[0] if text else type(exc).__name__

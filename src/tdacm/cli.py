@@ -64,20 +64,84 @@ _positive_float = _number_type(
 )
 
 
+def _address(text: str):
+    """An argparse type: ``[HOST:]PORT`` of ``--live`` (:func:`tdacm.live.parse_address`)."""
+    from .live.server import LiveError, parse_address
+
+    try:
+        return parse_address(text)
+    except LiveError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _start_live(address):
+    """``(server, None)``: the live server of ``--live`` listening (:class:`tdacm.live.LiveServer`),
+    or ``(None, the one-line error)``; ``(None, None)`` without ``--live``."""
+    if address is None:
+        return None, None
+    from .live import LiveError, LiveServer, is_loopback
+
+    host, port = address
+    try:
+        server = LiveServer(host, port)
+    except LiveError as exc:
+        return None, f"--live {exc}"
+    _note(f"tdacm: live at {server.url} (Foxglove: Open connection, Foxglove WebSocket; "
+          f"layout: {_layout_path()})")  # fmt: skip
+    if not is_loopback(host):
+        _note(f"tdacm: --live listens on {host}: other machines that reach it can watch")
+    return server, None
+
+
+def _layout_path() -> Path:
+    """The shipped Foxglove layout (docs/live.md)."""
+    from .live import LAYOUT
+
+    return LAYOUT
+
+
 # ------------------------------------------------------------------ helpers
 def _out_error(flag: str, path, folder: bool = True) -> str | None:
     """Why ``path`` cannot be written (a file where a folder is needed, on the path or at its
-    end), or ``None``: the one-line message of an ``--out`` flag."""
+    end; a folder where nothing can be created), or ``None``: the one-line message of an
+    ``--out`` flag. Nothing is left behind: the check creates a file in the nearest existing
+    folder and removes it."""
     p = Path(path)
     if folder and p.exists() and not p.is_dir():
         return f"{flag} {p} is a file, not a folder"
     if not folder and p.is_dir():
         return f"{flag} {p} is a folder, not a file"
+    near = p if folder and p.is_dir() else None
     for parent in p.parents:
+        if near is not None:
+            break
         if parent.exists():
             if not parent.is_dir():
                 return f"{flag} {p}: {parent} is a file, not a folder"
-            break
+            near = parent
+    if near is None:
+        near = Path.cwd()
+    return _writable_error(flag, p, near, None if folder else p)
+
+
+def _writable_error(flag: str, p: Path, folder: Path, file: Path | None) -> str | None:
+    """Why nothing can be written in ``folder`` (the nearest existing folder of ``p``), or in
+    the existing ``file``: a probe file created and removed (the permission bits alone do not
+    tell, e.g. for root on a read-only or virtual file system); ``None`` when writable."""
+    import os
+    import tempfile
+
+    try:
+        if file is not None and file.is_file():
+            with open(file, "ab"):
+                pass
+            return None
+        fd, probe = tempfile.mkstemp(prefix=".tdacm-probe-", dir=folder)
+    except OSError as exc:
+        where = file if file is not None and file.is_file() else folder
+        return f"{flag} {p} cannot be written: {where} refuses it ({exc.strerror})"
+    os.close(fd)
+    os.unlink(probe)
     return None
 
 
@@ -105,22 +169,17 @@ def _compile_notice(parallel: bool = False) -> None:
 
 def _progress(desc: str, unit: str = "frame"):
     """A ``progress(done, total)`` callback drawing one tqdm line on stderr (not with ``-q``)."""
-    from tqdm import tqdm
-
-    from ._log import progress_enabled
+    from ._log import Progress
 
     state = {}
 
     def cb(done, total):
         bar = state.get("bar")
         if bar is None:
-            bar = state["bar"] = tqdm(
-                total=total, desc=desc, unit=unit, file=sys.stderr, disable=not progress_enabled()
-            )
-        bar.n = done
-        bar.refresh()
+            bar = state["bar"] = Progress(total, desc, unit)
+        bar.to(done)
         if done >= total:
-            bar.close()
+            bar.close(complete=True)
 
     return cb
 
@@ -233,7 +292,9 @@ def _cmd_run(args) -> int:
 
     Run a scenario; prints the summary JSON on stdout and writes the run folder (summary.json,
     scenario.toml, timeseries.npz/.csv/.json, figures as PNG and PDF, scene.png, video.mp4 with
-    --video). Rerunning into a folder first removes the previous run's files.
+    --video). Rerunning into a folder first removes the previous run's files. --live publishes
+    the run as it goes to a Foxglove client (docs/live.md); --realtime paces it to the wall
+    clock.
     """
     from .sim import ScenarioError
     from .sim.scenario import check_run, load_scenario
@@ -254,19 +315,25 @@ def _cmd_run(args) -> int:
         check_run(sc, args.duration, args.seed, flags=True)
     except ScenarioError as exc:
         return _err(str(exc))
+    server, problem = _start_live(args.live)  # a port in use: said before anything runs
+    if problem is not None:
+        return _err(problem)
     # before the checks that build the robot: building it is the first compilation
     _compile_notice(parallel=True)
     from .loop.precompile import stop
 
     try:
-        return _run_checked(args, sc, out)
+        return _run_checked(args, sc, out, server)
     finally:
         stop()  # a second compiling process left running: the run failed before warm_up
+        if server is not None:
+            server.close()
 
 
-def _run_checked(args, sc, out: Path) -> int:
+def _run_checked(args, sc, out: Path, server=None) -> int:
     """The rest of ``tdacm run`` once the scenario passed its schema checks: the run's data
-    (:class:`tdacm.sim.Simulation`), then its figures and video (:mod:`tdacm.viz`)."""
+    (:class:`tdacm.sim.Simulation`; published to the live ``server`` as it goes, paced with
+    ``--realtime``), then its figures and video (:mod:`tdacm.viz`)."""
     from .sim import ScenarioError, Simulation
     from .sim.outputs import clear_run_outputs
     from .viz import plot_run_dir, write_video
@@ -287,8 +354,17 @@ def _run_checked(args, sc, out: Path) -> int:
     removed = clear_run_outputs(out, keep=())
     if removed:
         _note(f"tdacm: removed {len(removed)} files of a previous run in {out}/")
+    on_step = live = None
+    if server is not None or args.realtime:
+        from .live import LiveRun, RealTime, RobotMessages, chain
+
+        pace = RealTime(sc.config.dt) if args.realtime else None
+        if server is not None:  # publishing in the time the pace leaves, then the pace
+            server.attach(RobotMessages.of_world(sim.assembly.world))
+            live = LiveRun(server, sim.loop, sim.duration, sc.name, pace=pace)
+        on_step = chain(live, pace)
     try:
-        _, summary = sim.run(out)
+        _, summary = sim.run(out, on_step=on_step)
     except ScenarioError as exc:
         return _err(str(exc))
     except KeyboardInterrupt:
@@ -304,6 +380,8 @@ def _run_checked(args, sc, out: Path) -> int:
             )
         )
         return 130
+    if live is not None:
+        live.finish(sim.result)
     try:
         _write_pictures(out, sim, plot_run_dir, write_video)
     except KeyboardInterrupt:  # the run's data is written: the summary says it was cut short
@@ -314,10 +392,13 @@ def _run_checked(args, sc, out: Path) -> int:
         return 130
     print(json.dumps(summary, indent=2))
     _note(f"Run written to {out.resolve()}/")
-    if (failure := summary.get("controller_failure")) is not None:
-        # a user's controller broke: its error and its own line, also with -q
-        print(f"controller failed: {failure['error']}", file=sys.stderr)
-        if failure["code"]:
+    if summary["terminated"]:
+        # the run's result: one line naming the termination and its reason, also with -q
+        # (a user's controller that broke: its error, then its own line of code)
+        failure = summary.get("controller_failure")
+        reason = failure["error"] if failure is not None else summary.get("termination_reason")
+        print(f"{summary.get('termination') or 'ended early'}: {reason}", file=sys.stderr)
+        if failure is not None and failure["code"]:
             print(f"    {failure['code']}", file=sys.stderr)
     if args.rerun is not None:
         from .viz import record_run
@@ -347,15 +428,30 @@ def _cmd_plot(args) -> int:
     formats = tuple(f.strip() for f in args.formats.split(","))
     if any(f not in ("png", "pdf", "svg") for f in formats):
         return _err(f"--formats must list png, pdf or svg, got {args.formats!r}")
-    if (problem := _opening(args.out)[1]) is not None:
-        return _err(problem)
+    out, flag = (args.out, "--out") if args.out else (args.run_dir, "RUN_DIR")
+    if Path(args.run_dir).is_dir() or args.out:
+        if (problem := _opening(out, flag)[1]) is not None:
+            return _err(problem + ("" if args.out else " (give --out)"))
     try:
         paths = plot_run_dir(args.run_dir, args.out, formats=formats, kinds=kinds)
     except RunDirError as exc:
         return _err(str(exc))
+    if args.kinds:  # asked for by name: a figure the run has no data for is said so
+        drawn = {Path(f).stem for f in paths}
+        missing = [k for k in kinds if k not in drawn]
+        if missing and not paths:
+            return _err(f"--kinds {','.join(missing)}: the run in {args.run_dir} has no data for "
+                        f"{'it' if len(missing) == 1 else 'them'} ({_KIND_NEEDS})")  # fmt: skip
+        if missing:
+            _note(f"not drawn (no data in this run): {', '.join(missing)}")
     _note(f"{len(paths)} figure file{'s' if len(paths) != 1 else ''} written to {Path(paths[0]).parent.resolve()}/"
           if paths else "no figures written (empty run)")  # fmt: skip
     return 0
+
+
+#: what the figures drawn only for some runs need (``tdacm plot --kinds``)
+_KIND_NEEDS = ("arms: several arms, [[robot.arms]]; contact: a [touch] run; estimation: "
+               "estimation.source = 'estimated'; snapshots: the run's scenario.toml")  # fmt: skip
 
 
 def _cmd_scenarios(args) -> int:
@@ -387,6 +483,10 @@ def _cmd_schema(args) -> int:
     if args.markdown is None:
         print(json.dumps(json_schema(), indent=2))
         return 0
+    if args.markdown != "-":
+        md = _opening(args.markdown, "--markdown", False)[1]
+        if md is not None:
+            return _err(md)
     text = reference_markdown()
     if args.markdown == "-":
         sys.stdout.write(text)
@@ -427,19 +527,23 @@ def _cmd_replay(args) -> int:
     """3-D animation (GIF or MP4) or Rerun recording of a `tdacm run` folder
 
     Animate a run folder in 3-D (real time by default), or with --rerun convert it to a Rerun
-    recording (.rrd).
+    recording (.rrd), or with --live stream it to a Foxglove client (docs/live.md).
     """
     from .sim.outputs import RunDirError
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         return _err(f"RUN_DIR {run_dir} does not exist or is not a folder")
+    if args.live is not None:
+        return _replay_live(args, run_dir)
     if args.rerun is not None:
         from .viz import record_run
 
         rrd = None if args.rerun == "" else args.rerun
-        if (problem := _opening(rrd, "--rerun", False, (".rrd",))[1]) is not None:
-            return _err(problem)
+        flag = "--rerun" if rrd is not None else "RUN_DIR"
+        target = rrd if rrd is not None else run_dir / "run.rrd"
+        if (problem := _opening(target, flag, False, (".rrd",))[1]) is not None:
+            return _err(problem + ("" if rrd is not None else " (give --rerun FILE.rrd)"))
         try:
             path = record_run(run_dir, rrd, progress=_progress("rerun", "step"))
         except RunDirError as exc:
@@ -448,8 +552,10 @@ def _cmd_replay(args) -> int:
         return 0
     from .viz import replay_run
 
-    if (problem := _opening(args.out, folder=False, suffixes=(".gif", ".mp4"))[1]) is not None:
-        return _err(problem)
+    target = args.out if args.out is not None else run_dir / "replay.gif"
+    problem = _opening(target, "--out" if args.out else "RUN_DIR", False, (".gif", ".mp4"))[1]
+    if problem is not None:
+        return _err(problem + ("" if args.out else " (give --out FILE.gif)"))
     try:
         path = replay_run(
             run_dir,
@@ -463,6 +569,31 @@ def _cmd_replay(args) -> int:
     except RunDirError as exc:
         return _err(str(exc))
     _note(f"3-D replay written to {path.resolve()}")
+    return 0
+
+
+def _replay_live(args, run_dir: Path) -> int:
+    """``tdacm replay RUN --live [HOST:]PORT``: stream the run folder to a Foxglove client at
+    ``--speed`` times real time, once a client subscribes."""
+    from .recording import ExportError
+    from .recording.stream import stream_run
+
+    if args.rerun is not None or args.out is not None:
+        flag = "--rerun" if args.rerun is not None else "--out"
+        return _err(f"{flag}: --live streams the run, it writes no file; give one or the other")
+    if not (run_dir / "timeseries.npz").is_file():
+        return _err(f"RUN_DIR {run_dir} has no timeseries.npz")
+    server, problem = _start_live(args.live)
+    if problem is not None:
+        return _err(problem)
+    try:
+        n = stream_run(run_dir, server, speed=args.speed,
+                       on_wait=lambda: _note("tdacm: waiting for a client (Ctrl-C to stop)"))  # fmt: skip
+    except ExportError as exc:
+        return _err(str(exc))
+    finally:
+        server.close()
+    _note(f"tdacm: {n} steps of {run_dir} streamed")
     return 0
 
 
@@ -586,7 +717,10 @@ def _parse_start(text: str) -> dict:
         key, eq, val = item.partition("=")
         if not eq:
             raise ValueError(f"write NAME=VALUE, got {item!r}")
-        v = float(val)
+        try:
+            v = float(val)
+        except ValueError:
+            raise ValueError(f"{key.strip()} must be a number, got {val!r}") from None
         if not math.isfinite(v):
             raise ValueError(f"{key.strip()} must be finite, got {val!r}")
         out[key.strip()] = v
@@ -615,9 +749,13 @@ def _cmd_identify(args) -> int:
         start = _parse_start(args.start) if args.start else {}
     except ValueError as exc:
         return _err(f"--start: {exc}")
-    for k in start:
+    for k, v in start.items():
         if k not in names:
             return _err(f"--start: {k!r} is not among --params ({', '.join(names)})")
+        par = PARAMETERS[k]
+        if (par.log and v <= 0) or (par.nonnegative and v < 0):
+            need = "positive" if par.log else "non-negative"
+            return _err(f"--start: {k} must be {need} ({par.doc}, {par.unit}), got {v:g}")
     bases = None
     if args.bases is not None:
         from .sim.robot import parse_basis
@@ -700,14 +838,36 @@ def _cmd_identify(args) -> int:
     return 0
 
 
+def _levels(p: argparse.ArgumentParser, default) -> None:
+    """``-v``/``--verbose`` and ``-q``/``--quiet`` on ``p``: the top-level parser's (defaults
+    0 and False) and each command's (``argparse.SUPPRESS``: unset unless given, so that
+    ``tdacm -q run ...`` and ``tdacm run ... -q`` are the same)."""
+    level = p.add_mutually_exclusive_group()
+    level.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0 if default is None else default,
+        help="also log debug messages (stderr)",
+    )
+    level.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=False if default is None else default,
+        help="log warnings and errors only; no progress bars",
+    )
+
+
 def _command(sub, name: str, func):
     """The parser of command ``name``, run by ``func``: its help (in ``tdacm --help``) is the
     first paragraph of ``func``'s docstring, its description (``tdacm NAME --help``) the
-    rest, if any."""
+    rest, if any. ``-q``/``-v`` are accepted after the command too."""
     first, _, rest = inspect.cleandoc(func.__doc__ or "").partition("\n\n")
     s = sub.add_parser(
         name, help=" ".join(first.split()), description=" ".join(rest.split()) or None
     )
+    _levels(s, argparse.SUPPRESS)
     s.set_defaults(func=func)
     return s
 
@@ -716,6 +876,19 @@ def _add_topic_map(s) -> None:
     """``--topic-map`` of the commands that read an MCAP recording."""
     s.add_argument(
         "--topic-map", metavar="MAP.toml", help="topic map (default: the topics of tdacm export)"
+    )
+
+
+def _add_live(s, what: str) -> None:
+    """``--live [HOST:]PORT`` of ``run`` and ``replay`` (docs/live.md)."""
+    from .live.server import DEFAULT_HOST, DEFAULT_PORT
+
+    s.add_argument(
+        "--live",
+        type=_address,
+        metavar="[HOST:]PORT",
+        help=f"{what}: a Foxglove WebSocket server on PORT (e.g. {DEFAULT_PORT}; 0: any free "
+        f"port), on {DEFAULT_HOST} unless HOST is given",
     )
 
 
@@ -736,20 +909,16 @@ def build_parser() -> argparse.ArgumentParser:
         "dynamics, dual-camera visual servoing, adaptive control.",
     )
     p.add_argument("--version", action="version", version=f"tdacm {__version__}")
-    level = p.add_mutually_exclusive_group()
-    level.add_argument(
-        "-v", "--verbose", action="count", default=0, help="also log debug messages (stderr)"
-    )
-    level.add_argument(
-        "-q", "--quiet", action="store_true", help="log warnings and errors only; no progress bars"
-    )
+    _levels(p, None)
     sub = p.add_subparsers(dest="command", required=True)
     _command(sub, "info", _cmd_info)
     s = _command(sub, "demo", _cmd_demo)
     s.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     s.add_argument("--duration", type=_positive_float, default=4.0, help="simulated seconds")
     s = _command(sub, "bench", _cmd_bench)
-    s.add_argument("--out", default="out/bench", help="output folder for bench.json")
+    s.add_argument(
+        "--out", default="out/bench", help="output folder for bench.json (default: out/bench)"
+    )
     s.add_argument("--repeats", type=_positive_int, default=7, help="timing repeats (median)")
     s.add_argument(
         "--full",
@@ -766,6 +935,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=_nonneg_int, help="seed of the model perturbation and noise")
     s.add_argument("--video", action="store_true", help="write video.mp4 (C_L | C_G, captioned)")
     s.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording at the end")
+    _add_live(s, "publish the run as it goes to Foxglove")
+    s.add_argument(
+        "--realtime",
+        action="store_true",
+        help="pace the simulation to the wall clock (at most real time)",
+    )
     s = _command(sub, "plot", _cmd_plot)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--out", help="folder for the figures (default: RUN_DIR)")
@@ -806,6 +981,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.rrd",
         help="write a Rerun recording instead (default RUN_DIR/run.rrd)",
     )
+    _add_live(s, "stream the run to Foxglove instead (at --speed, once a client connects)")
     s = _command(sub, "export", _cmd_export)
     s.add_argument("run_dir", help="a folder written by `tdacm run`")
     s.add_argument("--mcap", required=True, metavar="FILE", help="output .mcap file")
@@ -931,7 +1107,10 @@ def main(argv=None) -> int:
     input (one ``error:`` line), 130 Ctrl-C."""
     import signal
 
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.verbose and args.quiet:  # one before the command, the other after it
+        parser.error("argument -q/--quiet: not allowed with argument -v/--verbose")
     configure_logging(args.verbose, args.quiet)
     from ._extras import MissingExtraError
 
@@ -953,6 +1132,18 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         _note("interrupted (Ctrl-C)")
         return 130
+    except BrokenPipeError:  # stdout closed early (``tdacm info | head``): not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as exc:
+        # the system refused a file after the checks passed (a disk full, a file removed or
+        # made read-only meanwhile): one line naming the file
+        if exc.filename is None or _interrupted:
+            raise
+        print(f"error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
     except Exception as exc:  # e.g. numba's RuntimeError after a Ctrl-C during a compilation
         from .loop.closed_loop import caused_by_interrupt
 

@@ -170,7 +170,7 @@ def test_an_mcap_with_a_labs_topic_names_gives_the_same_recording(tmp_path):
     from mcap_ros2.writer import Writer
 
     from tdacm.identify.data import matrix_to_pose7
-    from tdacm.recording.msgdefs import schema_text
+    from tdacm.live.msgdefs import schema_text
 
     folder = tmp_path / "rec"
     synthesize("tendon-chirp", seed=6, duration=1.0, out=folder)

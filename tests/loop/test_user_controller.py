@@ -60,6 +60,10 @@ class Faulty:
             return act.u
         if f == "list u":  # well-formed numbers in a list: accepted
             return ActuatorCommand(list(act.u), list(act.tau), act.q_ref)
+        if f == "negative thrust":  # well-formed, but a rotor cannot pull
+            return ActuatorCommand(np.r_[-5.0, act.u[1:]], act.tau, act.q_ref)
+        if f == "tension over":  # well-formed, but beyond the tendon's max_tension (20 N)
+            return ActuatorCommand(np.r_[act.u[:4], 1e3, act.u[5:]], act.tau, act.q_ref)
         if f == "slow":
             time.sleep(0.002)
             return act
@@ -67,7 +71,12 @@ class Faulty:
 
 
 FAILING = ["raise", "raise in reset", "short u", "long u", "2-D u", "text u", "None u",
-           "short tau", "None", "array"]  # fmt: skip
+           "short tau", "None", "array", "negative thrust", "tension over"]  # fmt: skip
+#: the reason of a command outside the actuator ranges names the input and its range
+OUT_OF_RANGE = {
+    "negative thrust": "u[0] = -5 N (thrust of rotor 1), outside its range [0, 15] N",
+    "tension over": "u[4] = 1000 N (tension of tendon 1), outside its range [0, 20] N",
+}
 
 
 def _scenario(fault):
@@ -86,6 +95,7 @@ def test_every_user_controller_fault_ends_as_an_outcome_with_its_data(tmp_path, 
     if fault in FAILING:
         assert summary["termination"] == str(Termination.CONTROLLER_FAILED)
         assert f"{__name__}:Faulty" in summary["termination_reason"]
+        assert OUT_OF_RANGE.get(fault, "") in summary["termination_reason"]
         assert len(arrays["t"]) == steps  # the periods before the fault, all logged
         assert arrays["u"].shape[1:] == ((8,) if steps else ())  # 4 thrusts, 4 tensions
     elif fault == "nan":

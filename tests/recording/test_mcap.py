@@ -101,7 +101,9 @@ def test_every_message_decodes_with_the_ros2_decoder(exported, run):
 
 def test_round_trip_gives_the_stored_signals(exported, run):
     a, s = run.arrays, run.robot.system
-    assert set(DEFAULT_TOPIC_MAP) == set(DEFAULT_TOPICS) - {"/tf", "/tf_static"}
+    # the features' image marker draws /tdacm/servo/points_local in pixels: imported from there
+    assert set(DEFAULT_TOPIC_MAP) == set(DEFAULT_TOPICS) - {"/tf", "/tf_static",
+                                                            "/tdacm/C_L/features"}  # fmt: skip
     sig = read_mcap(exported)
     t = a["t"]
     for name in ("strains", "strain_rates", "tensions", "features", "rmse", "tip_pose"):
@@ -228,7 +230,7 @@ def test_floating_base_run_folder_exports_the_drone_and_rotors(tmp_path):
 
 # ------------------------------------------------------------------ a lab's own recording
 # ROS 2 definitions as a lab's bag stores them (with comments), written here independently of
-# tdacm.recording.msgdefs
+# tdacm.live.msgdefs
 _TIME = "int32 sec\nuint32 nanosec\n"
 _HEADER = "# Standard metadata\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
 SEP = "=" * 80 + "\n"
@@ -379,17 +381,18 @@ def test_messages_are_the_official_ros2_layout(exported):
 
 def test_embedded_definitions_name_the_official_fields():
     """Field names and types of every embedded definition are those of ROS 2 Humble."""
-    from tdacm.recording.msgdefs import DEFINITIONS, schema_text
+    from tdacm.live.msgdefs import DEFINITIONS, schema_text
 
     typesys = pytest.importorskip("rosbags.typesys")
     ts = typesys.get_typestore(typesys.Stores.ROS2_HUMBLE)
 
-    def fields(text):  # the first message's (type without package, name)
+    def fields(text):  # the first message's (type without package, name); no constants
         out = []
         for line in text.split("=" * 80)[0].splitlines():
             if line.strip() and not line.startswith("#"):
                 ftype, name = line.split()[:2]
-                out.append((ftype.rpartition("/")[2], name))
+                if "=" not in name:  # a constant (int32 CIRCLE=0): not a field, no CDR bytes
+                    out.append((ftype.rpartition("/")[2], name))
         return out
 
     for name in DEFINITIONS:
@@ -399,7 +402,7 @@ def test_embedded_definitions_name_the_official_fields():
         used = {ln.split()[0].split("[")[0].rpartition("/")[2] for ln in text.splitlines()
                 if ln.strip() and not ln.startswith(("=", "MSG:"))}  # fmt: skip
         defined = {ln.split("/")[-1] for ln in text.splitlines() if ln.startswith("MSG: ")}
-        prim = {"float64", "int32", "uint32", "uint8", "string", "bool"}
+        prim = {"float64", "float32", "int32", "uint32", "uint8", "string", "bool"}
         assert used - prim <= defined, name
         assert len(defined) == text.count("MSG: ")
 
@@ -459,7 +462,7 @@ def test_export_rejects_bad_images_and_topics(run_dir, tmp_path):
 
 def test_frames_of_several_rods_are_prefixed():
     from tdacm import dual_paper_system
-    from tdacm.recording.export import _section_frames
+    from tdacm.live.messages import _section_frames
 
     (b1, f1), (b2, f2) = _section_frames(dual_paper_system(), 3)
     assert (b1, b2) == ("rod1_base", "rod2_base")

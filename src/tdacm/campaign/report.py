@@ -156,18 +156,23 @@ def sampled_values(df, key: str) -> dict:
     if not present:
         return {}
     if isinstance(present[0], bool | str):
+        if len({str(v) for v in present}) < 2:  # one category for every run: no sensitivity
+            return {}
         return {key: [None if v is None else str(v) for v in raw]}
     if isinstance(present[0], list):
         width = len(present[0])
         rows = np.array([v if isinstance(v, list) and len(v) == width else [np.nan] * width
                          for v in raw], float)  # fmt: skip
-        return {
-            f"{key}[{i}]": rows[:, i]
-            for i in range(width)
-            if np.nanmax(rows[:, i]) > np.nanmin(rows[:, i])
-        }
+        return {f"{key}[{i}]": rows[:, i] for i in range(width) if _varies(rows[:, i])}
     x = np.array([np.nan if v is None else v for v in raw], float)
-    return {key: x} if np.nanmax(x) > np.nanmin(x) else {}
+    return {key: x} if _varies(x) else {}
+
+
+def _varies(x) -> bool:
+    """Whether the finite values of ``x`` take more than one value."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return x.size > 1 and x.max() > x.min()
 
 
 def write_sensitivity(df, spec, out: Path, bins: int = 6) -> list[Path]:
@@ -295,7 +300,9 @@ def _write_markdown(report, out: Path):
     ]
     for w in report["worst_runs"]:
         lines.append(
-            f"| {w['run']} | {w['seed']} | {w['status']} | {w['final_rmse']} | `{w['replay']}` |"
+            f"| {w['run']} | {w['seed']} | {w['status']} | "
+            f"{'-' if w['final_rmse'] is None else format(w['final_rmse'], '.4g')} | "
+            f"`{w['replay']}` |"
         )
     if report.get("sensitivity"):
         lines += ["", "## Sensitivity to the sampled parameters", ""]
@@ -308,6 +315,7 @@ def _plot(df, spec, out: Path):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     final = df["final_rmse"].astype(float).to_numpy() if "final_rmse" in df else np.array([])
@@ -316,6 +324,7 @@ def _plot(df, spec, out: Path):
         bins = np.logspace(np.log10(final.min()), np.log10(final.max()) + 1e-9, 25)
         axes[0].hist(final, bins=bins, color="C0")
         axes[0].set_xscale("log")
+        _log_ticks(axes[0], final.min(), final.max(), spec.success_rmse)
     axes[0].axvline(spec.success_rmse, color="k", ls="--", lw=0.8)
     axes[0].set_xlabel("final normalized RMSE")
     axes[0].set_ylabel("runs")
@@ -323,7 +332,15 @@ def _plot(df, spec, out: Path):
     t = t[np.isfinite(t)]
     if t.size:
         axes[1].hist(t, bins=20, color="C1")
+    else:
+        axes[1].text(0.5, 0.5, "no run reached RMSE 0.01", ha="center", va="center",
+                     transform=axes[1].transAxes, color="0.4")  # fmt: skip
+        axes[1].set_xticks([])
+        axes[1].set_yticks([])
     axes[1].set_xlabel("time to RMSE 0.01 (s)")
+    for ax, counts in ((axes[0], final.size), (axes[1], t.size)):
+        if counts:  # counts of runs: whole numbers
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     init = df["initial_rmse"].astype(float).to_numpy() if "initial_rmse" in df else np.array([])
     fin = df["final_rmse"].astype(float).to_numpy() if "final_rmse" in df else np.array([])
     colors = np.where(df["success"].to_numpy(bool), "C2", "C3")
@@ -342,3 +359,17 @@ def _plot(df, spec, out: Path):
     fig.tight_layout()
     fig.savefig(out / "report.png", dpi=120)
     plt.close(fig)
+
+
+def _log_ticks(ax, lo: float, hi: float, *also) -> None:
+    """Readable ticks on a log axis spanning ``[lo, hi]`` (and the values ``also`` marked on
+    it): matplotlib labels the minor ticks of a range under a decade, and they overlap; here
+    the minor ticks stay unlabelled and, under two decades, three major ticks are labelled
+    in plain numbers."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    lo, hi = min(lo, *also), max(hi, *also)
+    if hi / lo < 100:  # 1, 2, 5 times the powers of ten
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))

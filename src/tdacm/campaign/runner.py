@@ -220,14 +220,27 @@ def run_campaign(
         cfg = sample_overrides(spec, base.data, int(seeds[i]))
         (out / "configs" / f"run-{i:06d}.toml").write_text(to_toml(cfg))
     done_before = spec.runs - len([i for i in range(spec.runs) if i not in completed_runs(store)])
-    batched = bool(todo) and use_batched(spec)
+    stored = 0
+    if done_before:  # a resumed campaign: what the folder holds and what runs now
+        logging.getLogger("tdacm.campaign").info(
+            "campaign: %d of %d runs already stored in %s; %s",
+            done_before, spec.runs, store,
+            f"running the other {len(todo)}" if todo else "nothing to run, the report is rewritten",
+        )  # fmt: skip
+    batched = False
     if todo:
         cluster = None
         n = workers or max(1, (os.cpu_count() or 1))
         if scheduler:
             client = _connect(Client, scheduler)
             n = max(1, len(client.scheduler_info().get("workers", {})))
+            try:  # after the scheduler answered: a refused --scheduler is the one line
+                batched = use_batched(spec)
+            except CampaignSpecError:
+                client.close()
+                raise
         else:
+            batched = use_batched(spec)
             if int(n) < 1:
                 raise CampaignSpecError(f"--workers must be >= 1, got {n}")
             # the worker processes ignore SIGINT (inherited across exec): Ctrl-C reaches the
@@ -243,17 +256,9 @@ def run_campaign(
             client = Client(cluster)
         bar = None
         if progress:
-            from tqdm import tqdm
+            from .._log import Progress
 
-            from .._log import progress_enabled
-
-            bar = tqdm(
-                total=spec.runs,
-                initial=done_before,
-                desc=f"campaign {spec.scenario}",
-                unit="run",
-                disable=not progress_enabled(),
-            )
+            bar = Progress(spec.runs, f"campaign {spec.scenario}", "run", initial=done_before)
         try:
             spec_dict = {k: v for k, v in spec.__dict__.items()}
             if batched:
@@ -291,8 +296,9 @@ def run_campaign(
                     ]
                 for row in rows:
                     write_row(store, row)
+                stored += len(rows)
                 if bar is not None:
-                    bar.update(len(rows))
+                    bar.to(done_before + stored)
         except KeyboardInterrupt:
             # shutting the cluster down mid-task makes distributed log warnings and heartbeat
             # tracebacks (driver and workers): not for users, whose rows are safe on disk
@@ -305,7 +311,7 @@ def run_campaign(
             raise
         finally:
             if bar is not None:
-                bar.close()
+                bar.close(complete=done_before + stored >= spec.runs)
             client.close()
             if cluster is not None:
                 cluster.close()

@@ -110,13 +110,17 @@ def completed_runs(store: Path) -> set[int]:
 
 def read_results(out):
     """All stored rows of campaign folder ``out`` as one pandas DataFrame sorted by run index
-    (columns :data:`COLUMNS`, see ``docs/campaigns.md``); an empty DataFrame if none.
-    Equivalent to ``pandas.read_parquet(out / "results")`` plus the sort, and it also reads
-    rows written with the schema of older versions (cast to :func:`row_schema`)."""
+    (columns :data:`COLUMNS`, see ``docs/campaigns.md``); an empty DataFrame if the campaign
+    stored none yet. Equivalent to ``pandas.read_parquet(out / "results")`` plus the sort, and
+    it also reads rows written with the schema of older versions (cast to
+    :func:`row_schema`). A missing folder raises ``FileNotFoundError`` naming ``out`` (a typo
+    is not an empty campaign)."""
     pd = require("pandas", "campaign")
     pa = require("pyarrow", "campaign")
     pq = require("pyarrow.parquet", "campaign")
 
+    if not Path(out).is_dir():
+        raise FileNotFoundError(f"out: campaign folder {out} does not exist or is not a folder")
     store = Path(out) / "results"
     files = sorted(store.glob("run-*.parquet"))
     if not files:

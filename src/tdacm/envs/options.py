@@ -23,7 +23,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass, field
+
+import numpy as np
 
 #: The upper bounds of the randomization ranges (module docstring).
 RANDOMIZATION_LIMITS = {
@@ -189,3 +192,19 @@ class EnvOptions:
                 )
             return np.asarray(self.init_noise, float)
         return np.full(n, float(self.init_noise))
+
+
+def clip_action(a: np.ndarray, low, high) -> np.ndarray:
+    """``a`` clipped to the action space ``[low, high]``, with one ``UserWarning`` (Python
+    shows it once per place) when an entry lay outside: an agent's out-of-range action is a
+    bug to know of, not an error that ends its training. NaN entries stay NaN (the vector
+    env's row of NaN: the servo's own twist)."""
+    with np.errstate(invalid="ignore"):
+        outside = bool(np.any((a < low) | (a > high)))
+    if outside:
+        warnings.warn(
+            "action outside the action space: clipped to its bounds (docs/env.md, Actions)",
+            UserWarning,
+            stacklevel=3,
+        )
+    return np.clip(a, low, high)

@@ -12,8 +12,14 @@ snapshot), so no renderer runs inside ``step`` and none is initialized in the pr
 after its parent loaded EGL renders with PyBullet's TinyRenderer instead. The servo is the
 scenario's (as shipped, the robust servo on the features its target filter predicts,
 ``ibvs.features = "predicted"``; ``"measured"``: the detected points): the observation holds
-the features it works on, the twist action replaces its IBVS twist. ``render()`` draws C_L's view with the planar renderer, created on the
-first call in the calling process.
+the features it works on, the twist action replaces its IBVS twist. ``render()`` draws C_L's
+view with the planar renderer, created on the first call in the calling process.
+
+Watching a policy act: ``render_mode="foxglove"`` starts a Foxglove WebSocket server
+(:class:`tdacm.live.LiveServer`, the ``live`` extra; ``live="[HOST:]PORT"``, default
+``127.0.0.1:8765``) and publishes each step as it happens, in the topics of ``tdacm run --live``
+(docs/live.md); ``render()`` then returns ``None``. The server reads the env and never writes
+to it: the episodes are the same with or without it.
 
 Actions (``action_type``):
 
@@ -51,6 +57,7 @@ scenarios with an intrinsics error or the estimator are rebuilt instead).
 from __future__ import annotations
 
 import math
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -70,7 +77,7 @@ from ..loop.policy import (
 )
 from ..loop.servo import BEHIND
 from ..vision.virtual import BehindVirtualCamera
-from .options import EnvOptions
+from .options import EnvOptions, clip_action
 
 #: Observation scaling (module docstring), one definition with the policy block's
 #: (:mod:`tdacm.loop.policy`).
@@ -114,18 +121,31 @@ def _perceive_once(perceive):
 
 
 class TipServoEnv(gym.Env):
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": ["rgb_array", "foxglove"], "render_fps": 50}
 
-    def __init__(self, options: EnvOptions | None = None, render_mode: str | None = None, **kwargs):
+    def __init__(
+        self,
+        options: EnvOptions | None = None,
+        render_mode: str | None = None,
+        live: str | int | None = None,
+        **kwargs,
+    ):
         """The task of ``options`` (an :class:`~tdacm.envs.options.EnvOptions`) with the
-        keywords ``kwargs`` replacing some of its fields (its defaults otherwise)."""
+        keywords ``kwargs`` replacing some of its fields (its defaults otherwise).
+        ``render_mode="foxglove"``: publish each step to a Foxglove client on ``live``
+        (``"[HOST:]PORT"`` or a port; default ``127.0.0.1:8765``; module docstring)."""
         from ..sim.assemble import build_loop
         from ..sim.scenario import load_scenario
 
         o = self.options = EnvOptions.of(options, kwargs)
         o.randomize.refuse("the env")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(
+                f"render_mode must be None, 'rgb_array' or 'foxglove', got {render_mode!r}"
+            )
+        if live is not None and render_mode != "foxglove":
+            raise ValueError(f"live: a server address needs render_mode='foxglove', got {live!r}")
+        self.live = None  # the Foxglove server (render_mode="foxglove")
         action_type = o.action_type
         sc = load_scenario(o.scenario)
         ov = _merge(ENV_DEFAULTS, o.overrides or {})
@@ -176,6 +196,15 @@ class TipServoEnv(gym.Env):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._seed = int(sc.config.seed)
         self._sensed = None
+        if render_mode == "foxglove":
+            self._start_live(live)
+
+    def _start_live(self, live) -> None:
+        """The Foxglove server of ``render_mode="foxglove"`` on ``live`` (module docstring)."""
+        from ..live import DEFAULT_PORT, LiveServer, parse_address
+
+        host, port = parse_address(str(DEFAULT_PORT if live is None else live))
+        self.live = LiveServer(host, port, name="tdacm env")
 
     def _quiet_log(self) -> None:
         """No logging in the env, and each arm's servo's ``perceive`` (the mode switch, the
@@ -255,6 +284,11 @@ class TipServoEnv(gym.Env):
         self.steps = 0
         self.lost = 0
         self._reached = self._left = False
+        self._wall0 = time.perf_counter()
+        if self.live is not None:  # the static topics again: a reseed may move the target
+            from ..live import RobotMessages
+
+            self.live.attach(RobotMessages.of_world(self.assembly.world))
         obs, seen, _, rmse, _ = self._observe()
         return obs, {"rmse": rmse, "detected": seen, "loop_seed": self._seed}
 
@@ -271,12 +305,15 @@ class TipServoEnv(gym.Env):
         self._seed = seed
 
     def step(self, action):
+        if self._sensed is None:
+            raise gym.error.ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = np.asarray(action, dtype=float)
         if a.shape != self.action_space.shape or not np.all(np.isfinite(a)):
             raise ValueError(
                 f"action must be a finite array of shape {self.action_space.shape}, got {action!r}"
             )
-        a = np.clip(a, self.action_space.low, self.action_space.high)
+        a = clip_action(a, self.action_space.low, self.action_space.high)
+        state = self.loop.plant.state  # where the period starts (what a live client sees)
         if self.action_type == "twist":
             st = self.loop.act(self._sensed, twist=a * self.scale)
         else:
@@ -318,6 +355,9 @@ class TipServoEnv(gym.Env):
                 Termination.BEHIND_CAMERA: "a detected point maps behind the virtual camera",
             }.get(termination, str(termination))
         truncated = (not terminated) and self.steps >= self.max_steps
+        if self.live is not None:
+            ended = "ended early" if terminated and not success else "done"
+            self._publish(state, st, ended if terminated or truncated else None, reason)
         info = {
             "rmse": rmse,
             "detected": seen,
@@ -327,9 +367,29 @@ class TipServoEnv(gym.Env):
         }
         return obs, float(reward), terminated, bool(truncated), info
 
+    def _publish(self, state, st, ended: str | None, reason) -> None:
+        """This step to the live server (``render_mode="foxglove"``), with the episode's
+        progress (``ended``: how the episode ended, ``None`` while it runs)."""
+        from ..live import row_of_step
+
+        if self.live.publish(state.t, row_of_step(state, st), final=ended is not None) or ended:
+            wall = time.perf_counter() - self._wall0
+            self.live.progress(
+                scenario=self.scenario.name,
+                t=float(state.t),
+                duration=self.max_steps * self.loop.dt,
+                fraction=self.steps / self.max_steps,
+                step=self.steps,
+                wall_time=wall,
+                speed=float(state.t) / wall if wall > 0 else 0.0,
+                state=ended or "running",
+                reason=reason if ended else None,
+            )
+
     def render(self):
         """C_L's view at the current state, an RGB array ``(H, W, 3)`` (``render_mode =
-        "rgb_array"``; the planar renderer, created on the first call)."""
+        "rgb_array"``; the planar renderer, created on the first call); ``None`` for
+        ``render_mode="foxglove"``, which publishes every step as it happens."""
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
@@ -345,5 +405,8 @@ class TipServoEnv(gym.Env):
         return np.ascontiguousarray(np.concatenate(views, axis=1))
 
     def close(self):
+        if self.live is not None:
+            self.live.close()
+            self.live = None
         if self.loop is not None:
             self.loop.close()

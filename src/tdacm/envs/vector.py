@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -59,7 +60,7 @@ from ..batch import engine as E
 from ..loop.data import Termination
 from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
 from ..loop.servo import BEHIND as _BEHIND
-from .options import EnvOptions
+from .options import EnvOptions, clip_action
 from .servo import ENV_DEFAULTS, MAX_TILT, _merge
 
 #: the view of a world's last frame in ``_status``: none, the servo's, a point behind C_V
@@ -316,7 +317,7 @@ class TipServoVectorEnv(VectorEnv):
 
     def step(self, actions):
         if not self._started:
-            raise RuntimeError("call reset before step")
+            raise ResetNeeded("Cannot call step() before calling reset()")
         N = self.num_envs
         a = np.asarray(actions, dtype=float)
         width = 6 * self.n_arms
@@ -326,7 +327,7 @@ class TipServoVectorEnv(VectorEnv):
                 f"actions must be an array of shape ({N}, {width}), each row finite or all NaN "
                 f"(the servo's own twist), got shape {a.shape}"
             )
-        twist = np.clip(a, -1.0, 1.0) * self.scale
+        twist = clip_action(a, -1.0, 1.0) * self.scale
         d = self.batch.data
         resetting = self._autoreset.copy()
         stepping = ~resetting

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._validate import npz_problem
 from .model import IdentModel
 
 log = logging.getLogger(__name__)
@@ -159,6 +160,12 @@ def load_recording(path, scenario=None, topic_map=None) -> Recording:
     if path.is_dir():
         return _load_folder(path, scenario)
     if path.suffix == ".mcap" and path.is_file():
+        from ..recording import RecordingError, check_mcap
+
+        try:
+            check_mcap(path)  # before the scenario is looked for: the file itself first
+        except RecordingError as exc:
+            raise RecordingInputError(str(exc).replace("FILE", "RECORDING", 1)) from None
         return _load_mcap(path, scenario, topic_map)
     raise RecordingInputError(f"RECORDING {path} is neither a run folder nor an .mcap file")
 
@@ -226,7 +233,7 @@ def _read_npz(npz: Path, path: Path) -> dict:
             return {k: d[k] for k in d.files}
     except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:
         raise RecordingInputError(
-            f"RECORDING {path}: {npz.name} cannot be read (truncated or not an .npz): {exc}"
+            f"RECORDING {path}: {npz.name} cannot be read ({npz_problem(exc)})"
         ) from None
 
 

@@ -533,13 +533,22 @@ class Identification:
     rod_basis: str = ""  # the rod's strain basis fitted
     misfit: dict = field(default_factory=dict)  # see tdacm.identify.misfit
     selection: list = field(default_factory=list)  # the bases compared (select_basis)
+    #: parameters stopped at their search bound (a factor SEARCH_FACTOR from the start): their
+    #: standard deviation is not an uncertainty (the bound, not the data, holds them)
+    at_bound: list = field(default_factory=list)
 
     def table(self) -> str:
         lines = [f"{'parameter':<14}{'estimate':>14}{'std':>12}{'rel std':>10}{'start':>14}"]
         for n in self.names:
+            if n in self.at_bound:  # the bound holds it: no standard deviation to give
+                spread = f"{'-':>12}{'at bound':>10}"
+            else:
+                spread = f"{self.std[n]:>12.3g}{100 * self.rel_std[n]:>9.2f}%"
+            lines.append(f"{n:<14}{self.values[n]:>14.6g}{spread}{self.start[n]:>14.6g}")
+        if self.at_bound:
             lines.append(
-                f"{n:<14}{self.values[n]:>14.6g}{self.std[n]:>12.3g}"
-                f"{100 * self.rel_std[n]:>9.2f}%{self.start[n]:>14.6g}"
+                f"at bound: {', '.join(self.at_bound)} stopped at the search bound (a factor "
+                f"{SEARCH_FACTOR:g} from the start): give a --start nearer the value"
             )
         return "\n".join(lines)
 
@@ -555,6 +564,7 @@ class Identification:
                     "std_noise_model": self.std_noise.get(n),
                     "start": self.start[n],
                     "unit": PARAMETERS[n].unit,
+                    "at_search_bound": n in self.at_bound,
                 }
                 for n in self.names
             },
@@ -693,7 +703,7 @@ def identify(
         names, values, std, rel, corr, start, nominal, cost, s2, m, int(sol.nfev),
         time.perf_counter() - t0, bool(sol.success), str(sol.message), {}, prob, sol.x,
         std_iid=std_iid, n_free=nz, lags=lags, rod_basis=recs[0].model.basis,
-        std_sandwich=std_sw, std_noise=std_noise,
+        std_sandwich=std_sw, std_noise=std_noise, at_bound=at_bound,
     )  # fmt: skip
     for rec, pred in res.predictions():
         key = rec.name
@@ -742,5 +752,5 @@ def identify_staged(recordings, params, start=None, **kw) -> Identification:
         f"rod: {a.message}; drone: {b.message}", {**a.rms, **b.rms}, None, None,
         stages=[a, b], std_iid={**a.std_iid, **b.std_iid}, n_free=a.n_free + b.n_free,
         std_sandwich={**a.std_sandwich, **b.std_sandwich}, std_noise={**a.std_noise, **b.std_noise},
-        lags=max(a.lags, b.lags), rod_basis=a.rod_basis,
+        lags=max(a.lags, b.lags), rod_basis=a.rod_basis, at_bound=a.at_bound + b.at_bound,
     )  # fmt: skip

@@ -274,6 +274,8 @@ class ClosedLoop:
             self.controller_failure = _raised(exc, self.controller, "step")
             return None
         act, problem = checked_actuation(act, self.plant.system.n_u, len(est.q))
+        if problem is None and _finite(act.u):  # non-finite: its own outcome (NON_FINITE)
+            problem = out_of_range(act.u, self.plant.system)
         if problem is not None:
             self.controller_failure = ControllerFailure(
                 f"controller {controller_name(self.controller)} {problem}"
@@ -284,27 +286,41 @@ class ClosedLoop:
         """One control period: :meth:`sense` then :meth:`act`."""
         return self.act(self.sense(), twist, u, last)
 
-    def run(self, duration: float, progress: bool = False) -> RunResult:
+    def run(self, duration: float, progress: bool = False, on_step=None) -> RunResult:
         """Reset, then step until ``duration`` (``round(duration / dt) + 1`` samples) or a
         termination. Ctrl-C ends the run early with what was simulated so far
-        (``interrupted``); the caller writes it and re-raises."""
+        (``interrupted``); the caller writes it and re-raises.
+
+        ``on_step``: an observer called with each period's :class:`LoopStep` after the period
+        (the last one too), e.g. :class:`tdacm.live.LiveRun` (publish the run as it goes) or
+        :class:`tdacm.live.RealTime` (pace it to the wall clock). It may read the loop (its
+        log, the plant's state) and take time; it must not change them, so the run is the same
+        with or without it. Its time counts in ``wall_time_s``."""
+        if (
+            isinstance(duration, bool)
+            or not isinstance(duration, int | float | np.integer | np.floating)
+            or not np.isfinite(duration)
+            or duration <= 0
+        ):
+            raise ValueError(
+                f"duration must be a finite positive number of seconds, got {duration!r}"
+            )
         nsteps = int(round(duration / self.dt))
         self.reset()
-        steps = range(nsteps + 1)
         bar = None
         if progress:
-            from tqdm import tqdm
+            from .._log import Progress
 
-            from .._log import progress_enabled
-
-            steps = bar = tqdm(
-                steps, desc=self.name or "run", unit="step", disable=not progress_enabled()
-            )
+            bar = Progress(nsteps + 1, self.name or "run", "step")
         terminated, reason, interrupted, termination = False, None, False, None
         wall0 = time.perf_counter()
         try:
-            for k in steps:
+            for k in range(nsteps + 1):
                 st = self.step(last=k == nsteps)
+                if bar is not None:
+                    bar.to(k + 1)
+                if on_step is not None:
+                    on_step(st)
                 if st.done:
                     terminated, reason = st.reason is not None, st.reason
                     termination = st.termination
@@ -428,6 +444,44 @@ def checked_actuation(act, n_u: int, n: int):
         return act, None
     uu, tt, qq = (fixed.get(k, v) for k, v in (("u", u), ("tau", tau), ("q_ref", q_ref)))
     return ActuatorCommand(uu, tt, qq, V, fixed.get("delta_hat", dh), *flags), None
+
+
+#: slack of the actuator range check (relative to the range): rounding in a controller's own
+#: clipping or allocation is not a violation
+RANGE_SLACK = 1e-6
+
+
+def actuator_ranges(system) -> tuple[np.ndarray, list[str]]:
+    """The upper bound of each input of ``system`` (``u = [thrusts, tensions]``, the lower
+    bound 0: rotors push and tendons pull, never the other way; the docs' ``[0, max_thrust]``
+    and ``[0, max_tension]``) and each input's name."""
+    hi, names = [], []
+    if system.floating:
+        hi += [float(system.base.max_thrust)] * 4
+        names += [f"thrust of rotor {i + 1}" for i in range(4)]
+    several = len(system.arms) > 1
+    for k, arm in enumerate(system.arms):
+        t = arm.tendons
+        hi += [float(t.max_tension)] * t.n
+        names += [f"tension of {'arm ' + str(k) + ' ' if several else ''}tendon {i + 1}"
+                  for i in range(t.n)]  # fmt: skip
+    return np.asarray(hi), names
+
+
+def out_of_range(u, system) -> str | None:
+    """What of the command ``u`` lies outside the actuator ranges of ``system``
+    (:func:`actuator_ranges`, with :data:`RANGE_SLACK`), or ``None``."""
+    hi, names = actuator_ranges(system)
+    if len(hi) != len(u):
+        return None
+    slack = RANGE_SLACK * hi
+    bad = np.flatnonzero((u < -slack) | (u > hi + slack))
+    if bad.size == 0:
+        return None
+    i = int(bad[0])
+    return f"commanded u[{i}] = {u[i]:.4g} N ({names[i]}), outside its range [0, {hi[i]:g}] N" + (
+        f" ({bad.size} inputs out of range)" if bad.size > 1 else ""
+    )
 
 
 def _finite(*arrays) -> bool:

@@ -45,10 +45,13 @@ in place of the IBVS twist (``[servo] policy``).
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .._validate import npz_problem
 
 #: Observation scaling (module docstring).
 FEATURE_SCALE = 0.5
@@ -198,8 +201,8 @@ def load_policy(path) -> Policy:
             linear = (z["L"].astype(float), z["c"].astype(float)) if "L" in z.files else None
     except FileNotFoundError:
         raise PolicyError(f"no such file {str(path)!r}") from None
-    except (OSError, ValueError, KeyError) as exc:
-        raise PolicyError(f"{str(path)!r} is not a policy file ({exc})") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise PolicyError(f"{str(path)!r} is not a policy file ({npz_problem(exc)})") from None
     fmt = meta.get("format")
     if fmt not in POLICY_FORMATS or (linear is not None) != (fmt == 2):
         raise PolicyError(

@@ -4,18 +4,19 @@ and MCAP recordings imported through a topic map into time-stamped signals (:mod
 estimation and servo-feature blocks (:mod:`.replay`).
 See docs/recordings.md."""
 
+from ..live.msgdefs import schema_text
 from .export import DEFAULT_SECTIONS, DEFAULT_TOPICS, ExportError, export_run, load_run_folder
 from .ingest import (
     DEFAULT_TOPIC_MAP,
     RecordingError,
     Signal,
+    check_mcap,
     load_signals,
     load_topic_map,
     pose_matrices,
     read_mcap,
     save_signals,
 )
-from .msgdefs import schema_text
 from .replay import ReplayResult, replay
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "RecordingError",
     "ReplayResult",
     "Signal",
+    "check_mcap",
     "export_run",
     "load_run_folder",
     "load_signals",

@@ -41,6 +41,7 @@ Times: the header stamp when the message has one, else the MCAP log time (second
 from __future__ import annotations
 
 import logging
+import struct
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -242,6 +243,22 @@ class _Acc:
         return Signal(self.name, t, vals, self.names or (), self.topic, self.kind)
 
 
+#: The first bytes of every MCAP file (the format's magic: 0x89, "MCAP", the major version 0,
+#: CR, LF).
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def check_mcap(path) -> None:
+    """Raise :class:`RecordingError` naming ``path`` unless the file starts as an MCAP file
+    does (:data:`MCAP_MAGIC`): a text file, an image or a ZIP is refused in one line before the
+    MCAP reader meets its bytes."""
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+    if head != MCAP_MAGIC:
+        what = "it is empty" if not head else "it does not start with the MCAP magic bytes"
+        raise RecordingError(f"FILE {path} is not an MCAP recording ({what})")
+
+
 def read_mcap(path, topic_map=None, *, t0: float | str | None = None) -> dict[str, Signal]:
     """Signals of the MCAP file ``path`` through ``topic_map`` (dict or TOML path; default
     :data:`DEFAULT_TOPIC_MAP`, the topics of a tdacm export that the file has). ``t0``: seconds
@@ -258,6 +275,7 @@ def read_mcap(path, topic_map=None, *, t0: float | str | None = None) -> dict[st
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"FILE {path} not found")
+    check_mcap(path)
     if not (t0 is None or t0 == "first" or isinstance(t0, int | float)):
         raise RecordingError(f"t0 must be seconds, 'first' or None, got {t0!r}")
     explicit = topic_map is not None
@@ -284,7 +302,8 @@ def read_mcap(path, topic_map=None, *, t0: float | str | None = None) -> dict[st
     except DecoderNotFoundError as exc:
         raise RecordingError(f"FILE {path}: a mapped topic is not ROS 2 (ros2msg schema, CDR "
                              f"messages): {exc}") from None  # fmt: skip
-    except McapError as exc:
+    except (McapError, struct.error, EOFError, UnicodeDecodeError) as exc:
+        # a damaged MCAP: the reader's own error, or a record cut short inside its parser
         raise RecordingError(f"FILE {path}: not a readable MCAP file ({exc})") from None
     signals = {}
     if t0 == "first":

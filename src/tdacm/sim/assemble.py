@@ -51,7 +51,7 @@ from .blocks import (
     warm_up,
 )
 from .robot import Robot, build_robot
-from .scenario import Scenario, ScenarioError, check_with_world
+from .scenario import Scenario, ScenarioError, check_run, check_with_world
 
 __all__ = [
     "PAPER_PROFILE",
@@ -214,6 +214,7 @@ def build_loop(
     """The closed loop of ``scenario`` (module docstring). ``controller``, ``servo`` and
     ``estimator`` replace the scenario's blocks (objects implementing the protocols of
     :mod:`tdacm.loop.protocols`)."""
+    check_run(scenario, seed=seed, flags=False)  # the seed named, before any work
     scenario = apply_profile(scenario)
     cfg, src = scenario.config, scenario.source
     seed = int(cfg.seed if seed is None else seed)

@@ -257,12 +257,61 @@ def _dotted(loc) -> str:
     return out
 
 
+#: a part of a pydantic error location that names a member of a union type (``bool``,
+#: ``list[float]``, ``literal['auto']``, ``function-after[...]``), not a key
+_UNION_TAG = re.compile(
+    r"(bool|int|float|str|bytes|none|list|dict|constrained-[\w-]+|[\w-]+\[.*\])"
+)
+#: what a union member's tag accepts, in words
+_TAG_WORDS = {"bool": "true or false", "int": "an integer", "float": "a number",
+              "str": "a string", "list[float]": "a list of numbers", "list[int]":
+              "a list of integers", "list": "a list", "dict": "a table"}  # fmt: skip
+
+
+def _is_tag(part) -> bool:
+    return isinstance(part, str) and _UNION_TAG.fullmatch(part) is not None
+
+
+def _union_line(errors, loc) -> str | None:
+    """One line for the errors of a value that matched no member of its union type (their
+    locations carry the members' tags): what each member accepts, or ``None`` if ``loc`` is
+    not in a union."""
+    if not any(_is_tag(p) for p in loc):
+        return None
+    base = tuple(p for p in loc[: next(i for i, p in enumerate(loc) if _is_tag(p))])
+    words, value = [], None
+    for e in errors:
+        eloc = e["loc"]
+        if (
+            tuple(eloc[: len(base)]) != base
+            or len(eloc) <= len(base)
+            or not _is_tag(eloc[len(base)])
+        ):
+            continue
+        tag = eloc[len(base)]
+        if value is None and len(eloc) == len(base) + 1:
+            value = e.get("input")
+        if tag == "none":
+            continue
+        if tag.startswith("literal["):
+            w = " or ".join(tag[len("literal[") : -1].split(", "))
+        else:
+            w = _TAG_WORDS.get(tag, "a list" if tag.startswith("list[") else tag)
+        if w not in words:
+            words.append(w)
+    text = ", ".join(words[:-1]) + (", or " if len(words) > 1 else "") + words[-1]
+    return f"{_dotted(base)} must be {text}, got {value!r}"
+
+
 def error_line(exc: ValidationError, root=None) -> str:
     """The first error of ``exc`` (a validation of ``root``, default :class:`ScenarioConfig`)
     as one line naming the dotted key and what it must be (the allowed range or values, the
-    known keys)."""
-    err = exc.errors()[0]
+    known keys; for a value of a union type, what each of its members accepts)."""
+    errors = exc.errors()
+    err = errors[0]
     loc, kind, value = err["loc"], err["type"], err.get("input")
+    if (union := _union_line(errors, loc)) is not None:
+        return union
     key = _dotted(loc)
     if kind == "missing":
         return f"{key} is required"
@@ -290,7 +339,8 @@ def error_line(exc: ValidationError, root=None) -> str:
         if lo and lo == hi:
             return f"{key} must have {lo.pop()} entries, got {n}"
         if lo and not hi:
-            return f"{key} must have at least {lo.pop()} entries, got {n}"
+            k = lo.pop()
+            return f"{key} must have at least {k} entr{'y' if k == 1 else 'ies'}, got {n}"
         return f"{key}: {err['msg']}"
     simple = {
         "float_type": "a finite number",

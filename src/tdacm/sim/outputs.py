@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import npz_problem
 from ..loop.logger import LOG_KEYS, SCALAR_SERIES, SERIES_INFO, VECTOR_SERIES  # noqa: F401
 from .scenario import ScenarioError, load_scenario, scenario_to_toml
 
@@ -238,7 +239,7 @@ def load_run(run_dir):
             arrays = {k: data[k] for k in data.files}
     except (OSError, EOFError, ValueError, zipfile.BadZipFile) as exc:
         raise RunDirError(
-            f"{npz} cannot be read (truncated or not written by `tdacm run`): {exc}"
+            f"{npz} cannot be read, not written by `tdacm run` ({npz_problem(exc)})"
         ) from None
     missing = [k for k in ("t", "q") if k not in arrays]
     if missing:

@@ -379,9 +379,13 @@ def _tendons(t: TendonsConfig, where: str) -> Tendons:
     """The :class:`~tdacm.rod.Tendons` of a tendons record (at least three)."""
     try:
         if t.offsets is not None:
+            lengths = sorted({len(o) for o in t.offsets})
+            if lengths not in ([2], [3]):
+                raise ValueError(
+                    "offsets must be a list of [y, z] (or [0, y, z]) offsets, all of one "
+                    f"length; got entries of {' and '.join(map(str, lengths))} numbers"
+                )
             off = np.asarray(t.offsets, float)
-            if off.ndim != 2 or off.shape[1] not in (2, 3):
-                raise ValueError("offsets must be a list of [y, z] (or [0, y, z]) pairs")
             if off.shape[1] == 2:
                 off = np.column_stack([np.zeros(len(off)), off])
             tendons = Tendons(offsets=off, max_tension=t.max_tension)
@@ -394,7 +398,36 @@ def _tendons(t: TendonsConfig, where: str) -> Tendons:
             f"{where}: {tendons.n} tendon(s) cannot bend the rod both ways (tendons only "
             "pull); give at least 3"
         )
+    if tendons.offsets is not None:
+        problem = moment_arm_problem(tendons.offsets[:, 1:3])
+        if problem is not None:
+            key = f"{where}.offsets" if t.offsets is not None else f"{where}.radius"
+            raise RobotError(f"{key}: {problem}")
     return tendons
+
+
+def moment_arm_problem(yz) -> str | None:
+    """Why tendons at the section offsets ``yz`` (``(n, 2)``, m) cannot steer the rod, or
+    ``None``. A tendon's bending moment is its tension times its offset from the backbone
+    (paper, eq. (6): the moment arm ``d_i``): offsets all at the backbone give no moment at
+    all, and offsets all on one side of a line through it (an angular gap wider than pi between
+    neighbours) bend the rod one way only, tendons pulling and never pushing."""
+    yz = np.asarray(yz, float)
+    r = np.hypot(yz[:, 0], yz[:, 1])
+    scale = max(float(r.max()), 0.0)
+    if scale <= 1e-9:
+        return (
+            f"every tendon lies on the backbone ({yz.tolist()} m): no moment arm, the tendons "
+            "cannot bend the rod; give offsets around it, e.g. radius 0.01 m"
+        )
+    ang = np.sort(np.arctan2(yz[r > 1e-9 * scale, 1], yz[r > 1e-9 * scale, 0]))
+    gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
+    if gaps.max() > np.pi + 1e-9:
+        return (
+            f"the tendons {np.round(yz, 6).tolist()} m all lie on one side of the backbone: "
+            "tendons only pull, so the rod bends one way only; place them around it"
+        )
+    return None
 
 
 def build_robot(robot: RobotConfig, held_base_q=None) -> Robot:

@@ -55,6 +55,7 @@ class Simulation:
         frame_composer=None,
     ):
         self.scenario = load_scenario(scenario) if isinstance(scenario, str) else scenario
+        check_run(self.scenario, duration, seed, flags=False)  # ScenarioError naming the keyword
         cfg = self.scenario.config
         self.duration = float(cfg.duration if duration is None else duration)
         self.seed = int(cfg.seed if seed is None else seed)
@@ -80,16 +81,17 @@ class Simulation:
             composer.bind(self.assembly)
         return self.assembly
 
-    def run(self, out_dir=None):
+    def run(self, out_dir=None, on_step=None):
         """Run; write the data of the run folder ``out_dir`` if given
         (:func:`~tdacm.sim.outputs.write_run`). Ctrl-C writes what was simulated so far, then
-        re-raises ``KeyboardInterrupt``."""
+        re-raises ``KeyboardInterrupt``. ``on_step``: the loop's per-period observer
+        (:meth:`tdacm.loop.ClosedLoop.run`; e.g. the live server's, :mod:`tdacm.live`)."""
         assembly = self.assembly if self.assembly is not None else self.build()
         loop = assembly.loop
         try:
             if out_dir is not None:
                 write_scene_picture(Path(out_dir) / "scene.png", assembly)
-            result = self.result = loop.run(self.duration, progress=self.progress)
+            result = self.result = loop.run(self.duration, progress=self.progress, on_step=on_step)
             summary = self.summary(assembly, result)
             summary["interrupted"] = bool(result.interrupted)
             if out_dir is not None:

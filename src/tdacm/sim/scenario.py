@@ -26,6 +26,7 @@ import tomli_w
 from pydantic import ValidationError
 
 from ..loop.ablation import parse_controller_truth
+from ..vision.camera import world_to_camera
 from ..vision.mounts import tip_camera_pose
 from .config import SECTIONS, TOP_KEYS, ScenarioConfig, error_line
 from .robot import RobotError, strain_count
@@ -233,6 +234,63 @@ def check_with_world(scenario: Scenario, world) -> None:
             f"{src}: desired.q puts the target behind the tip camera C_L (depths "
             f"{np.round(depth, 3).tolist()} m); the reference view needs the target in front"
         )
+    for key, q in (("initial.q", world.q0), ("desired.q", world.q_star)):
+        if (problem := below_ground(system, q)) is not None:
+            raise ScenarioError(f"{src}: {key} {problem}")
+    if (problem := target_unseen(world)) is not None:
+        raise ScenarioError(f"{src}: initial.q {problem}")
+
+
+def below_ground(system, q) -> str | None:
+    """What of the robot lies below the ground (z < 0, the plane the target's box stands on)
+    at configuration ``q``: the drone (its centre), or a rod's backbone (21 points each); else
+    ``None``."""
+    z_b = float(system.base_pose(q)[2, 3])
+    if z_b < 0:
+        return f"puts the drone {-z_b:.3g} m below the ground (z = {z_b:.3g} m)"
+    for rod in range(system.n_rods):
+        z = system.backbone(q, 21, rod)[:, 2, 3]
+        if z.min() < 0:
+            which = "the rod" if system.n_rods == 1 else f"rod {rod}"
+            return (
+                f"puts {which} {-z.min():.3g} m below the ground (lowest backbone point at "
+                f"z = {z.min():.3g} m, drone at z = {z_b:.3g} m)"
+            )
+    return None
+
+
+def target_unseen(world) -> str | None:
+    """Why the run cannot start: a target (each arm's marker) whose four corners are in
+    neither the tip camera C_L's view nor the drone camera C_G's at the initial configuration
+    (the servo starts in IBVS on a C_L view, else it recovers from a C_G view; with the target
+    in neither, the recovery fails at once), or ``None``. A pinhole check without rendering
+    (the corners in front, between the clipping planes and inside the image)."""
+    robot, q0 = world.robot, world.q0
+    system = robot.system
+    g_g = system.base_pose(q0) @ robot.drone_mount
+    arms = robot.arms or (None,)
+    for k, arm in enumerate(arms):
+        cam, mount, rod = (
+            (robot.local_camera, robot.tip_mount, 0)
+            if arm is None
+            else (arm.local_camera, arm.tip_mount, arm.rod)
+        )
+        pts = (
+            world.arm(k).scene.target_points_world()
+            if arm is not None
+            else (world.scene.target_points_world())
+        )
+        g_l = tip_camera_pose(system, q0, mount, rod)
+        in_local = cam.all_in_fov(world_to_camera(pts, g_l))
+        in_global = robot.global_camera.all_in_fov(world_to_camera(pts, g_g))
+        if not (in_local or in_global):
+            what = "the target" if arm is None else f"arm {k}'s marker"
+            return (
+                f"starts with {what} in neither camera's view (C_L at the tip nor C_G on the "
+                "drone): the servo needs it in C_L, or in C_G to recover; move the start "
+                "(initial.q) or the target (scene.box_xy)"
+            )
+    return None
 
 
 def _read_text(path: Path, what: str) -> str:
@@ -313,7 +371,8 @@ def list_scenarios() -> list[str]:
 
 def load_scenario(name_or_path, config=None) -> Scenario:
     """Load a shipped scenario by name, a TOML file by path, or pass a :class:`Scenario`
-    through; ``config`` (a path) overrides it. Errors (unknown name, a directory, a missing or
+    through; ``config`` (a path) overrides it. A shipped name (``tdacm scenarios``) is the
+    shipped scenario even where a file or folder of that name exists (name it ``./NAME``). Errors (unknown name, a directory, a missing or
     non-UTF-8 file, invalid TOML or values, an ``extends`` cycle, an ``extends`` in ``config``,
     which would replace the scenario it overrides) raise :class:`ScenarioError` naming the
     file."""
@@ -321,9 +380,16 @@ def load_scenario(name_or_path, config=None) -> Scenario:
         sc = name_or_path
     else:
         p = Path(str(name_or_path))
-        if p.is_dir():
-            raise ScenarioError(f"scenario {p} is a directory, not a scenario name or TOML file")
-        if p.suffix == ".toml" or p.exists() or len(p.parts) > 1:
+        shipped = str(name_or_path) in list_scenarios()
+        if p.is_dir() and not shipped:
+            inside = p / "scenario.toml"
+            raise ScenarioError(
+                f"scenario {p} is a directory, not a scenario name or TOML file"
+                + (f" (the scenario of the run in it: {inside})" if inside.is_file() else "")
+            )
+        # a shipped name wins over a folder or file of that name in the current folder (e.g.
+        # a run folder written with --out NAME); ./NAME or NAME.toml names the file
+        if not shipped and (p.suffix == ".toml" or p.exists() or len(p.parts) > 1):
             if not p.exists() and p.suffix != ".toml":
                 raise ScenarioError(
                     f"unknown scenario {str(name_or_path)!r}; available: {', '.join(list_scenarios())}"

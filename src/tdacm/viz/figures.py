@@ -593,8 +593,9 @@ def fig_estimation(rd: RunData, out, formats):
 
 def fig_contact(rd: RunData, out, formats):
     """Servoing into contact: the true and estimated normal force (with the estimate's
-    2 sigma band and the desired force), the image error, the tendon tensions and the drone's
-    position from the first phase in contact to the end, the hold shaded."""
+    2 sigma band and the desired force; drawn from its tare as the contact phase starts), the
+    image error, the tendon tensions and the drone's position over the whole run (from t = 0,
+    as every figure), the hold shaded."""
     if not rd.has("touch_phase", "force_true", "force_hat", "rmse", "u", "q"):
         return []
     phase = np.asarray(rd.arrays["touch_phase"])
@@ -604,13 +605,15 @@ def fig_contact(rd: RunData, out, formats):
     import matplotlib.pyplot as plt
 
     t = rd.t
-    k0 = max(0, int(np.argmax(phase >= contact)) - 25)
-    sl = slice(k0, None)
+    sl = slice(0, None)
     tt = t[sl]
     hold = phase[sl] == PHASES.index("hold")
     ft = np.asarray(rd.arrays["force_true"], float)[sl]
-    fh = np.asarray(rd.arrays["force_hat"], float)[sl]
-    sg = np.asarray(rd.arrays["force_sigma"], float)[sl]
+    fh = np.asarray(rd.arrays["force_hat"], float)[sl].copy()
+    sg = np.asarray(rd.arrays["force_sigma"], float)[sl].copy()
+    tared = phase[sl] >= contact  # the estimate is tared as the contact phase starts
+    fh[~tared] = np.nan
+    sg[~tared] = np.nan
     fig, axes = plt.subplots(4, 1, figsize=(6.4, 8.0), sharex=True)
 
     def shade(ax):
@@ -622,12 +625,14 @@ def fig_contact(rd: RunData, out, formats):
     ax.fill_between(tt, fh - 2 * sg, fh + 2 * sg, color="C1", alpha=0.25, lw=0,
                     label=r"estimate $\pm 2\sigma$")  # fmt: skip
     ax.plot(tt, ft, "k", lw=1.1, label="true (simulator)")
-    ax.plot(tt, fh, "C1--", lw=1.0, label="estimated (tendons, thrusts)")
+    ax.plot(tt, fh, "C1--", lw=1.0, label="estimated (tendons, thrusts; from the tare)")
     fd = rd.summary.get("touch_force")
     if fd is not None:
         ax.axhline(fd, color="C3", ls=":", lw=1.0, label="desired")
     ax.set_ylabel("normal force (N)")
-    ax.legend(loc="best", ncol=2)
+    top = np.nanmax(np.r_[ft, fh + 2 * sg, fd if fd is not None else 0.0, 1e-3])
+    ax.set_ylim(top=1.7 * top)  # room above the curves for the legend
+    ax.legend(loc="upper left", ncol=2, fontsize=7)
     ax = axes[1]
     shade(ax)
     r = np.asarray(rd.arrays["rmse"], float)[sl]
@@ -690,8 +695,9 @@ def fig_arms(rd: RunData, out, formats):
             axes[1].plot(t, qs[:, j], color=c, ls=("-", "--", ":", "-.")[j % 4],
                          label=f"arm {i} $q_{{s{j + 1}}}$")  # fmt: skip
         us = u[:, u.shape[1] - (k - i) * na : u.shape[1] - (k - i - 1) * na]
-        axes[2].plot(t, us, color=c, lw=0.9)
-        axes[2].plot([], [], color=c, label=f"arm {i}")
+        for j in range(na):  # the arm's colour, one line style per tendon
+            axes[2].plot(t, us[:, j], color=c, lw=0.9, ls=("-", "--", ":", "-.")[j % 4],
+                         label=f"arm {i} $T_{{{j + 1}}}$")  # fmt: skip
     axes[0].axhline(0.01, color="k", lw=0.8, ls=":")
     axes[0].set_ylabel("normalized RMSE")
     axes[1].set_ylabel("strains (1/m)")

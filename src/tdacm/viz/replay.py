@@ -83,6 +83,7 @@ def replay_frames(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     if view not in VIEWS:
@@ -137,6 +138,8 @@ def replay_frames(
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_zlabel("z (m)")
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):  # few ticks: labels apart on a small frame
+            axis.set_major_locator(MaxNLocator(4))
         if any(v[4] is not None for v in views):
             gx = (c[0] - h, c[0] + h)
             gy = (c[1] - h, c[1] + h)

@@ -43,6 +43,14 @@ DEFINITIONS = {
         "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\n"
         "uint8 is_bigendian\nuint32 step\nuint8[] data\n"
     ),
+    "builtin_interfaces/msg/Duration": "int32 sec\nuint32 nanosec\n",
+    "std_msgs/msg/ColorRGBA": "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n",
+    "visualization_msgs/msg/ImageMarker": (
+        "std_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\n"
+        "geometry_msgs/Point position\nfloat32 scale\nstd_msgs/ColorRGBA outline_color\n"
+        "uint8 filled\nstd_msgs/ColorRGBA fill_color\nbuiltin_interfaces/Duration lifetime\n"
+        "geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] outline_colors\n"
+    ),
 }
 
 _PRIMITIVES = {
