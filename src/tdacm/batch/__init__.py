@@ -28,8 +28,9 @@ from .random import stream_state
 
 __all__ = ["Batch", "BatchModel", "BatchData", "BatchResult", "TERMINATIONS"]
 
-#: random streams of a world's seed: the sensors', the plant's
-SENSOR_STREAM, PLANT_STREAM = 1, 2
+#: random streams of a world's seed: the cameras', the plant's, the estimation's (the
+#: proprioceptive sensors and their start-up reading)
+SENSOR_STREAM, PLANT_STREAM, ESTIMATION_STREAM = 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -72,9 +73,10 @@ class BatchResult:
         return out
 
 
-def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
+def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int, estimation) -> BatchData:
     """The state of ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs, each block's
-    state as its block makes it (the arms' with an arm axis; then
+    state as its block makes it (the arms' with an arm axis; ``estimation`` one world's
+    :class:`~tdacm.batch.engine.EstimationData`; then
     :func:`~tdacm.batch.engine.reset_worlds`)."""
     k = int(model.n_arms)
     sensors = take(model.sensor, 0)
@@ -94,12 +96,14 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
         request=np.zeros(n_worlds, np.bool_),
         rng_sensors=np.zeros((n_worlds, 2), np.uint64),
         rng_plant=np.zeros((n_worlds, 2), np.uint64),
+        rng_estimation=np.zeros((n_worlds, 2), np.uint64),
         sensor=per_arm(CameraSensorState.empty(take(sensors, 0), latency)),
         frame=per_arm(frame),
         servo=per_arm(servo_state(servo, n, ns, window)),
         servo_out=per_arm(ServoOut.empty(n, ns)),
         robot_out=replicate(ServoOut.empty(n, ns), n_worlds),
         memo=replicate(ArmsMemo.initial(), n_worlds),
+        estimation=replicate(estimation, n_worlds),
         controller=replicate(ControllerState.initial(n), n_worlds),
         work=replicate(ControllerWork.empty(n), n_worlds),
         safety=replicate(SafetyState.initial(), n_worlds),
@@ -140,9 +144,14 @@ class Batch:
     threads:
         Threads stepping disjoint ranges of worlds (default: the machine's cores); the
         results do not depend on it.
+    estimation:
+        One world's :class:`~tdacm.batch.engine.EstimationData` (the filter's and the
+        sensors' state records, replicated over the worlds).
     """
 
-    def __init__(self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None):
+    def __init__(
+        self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None, estimation=None
+    ):
         self.model = model
         self.threads = threads
         self.seeds = np.asarray(seeds, np.int64).ravel()
@@ -157,7 +166,7 @@ class Batch:
         self.n_worlds = n_worlds
         #: the per-world parameters the batch was built with (``None``: the scenario's)
         self.params = None
-        self.data = empty_data(model, n_worlds, q0.shape[1], n_u)
+        self.data = empty_data(model, n_worlds, q0.shape[1], n_u, estimation)
         self.reset()
 
     @property
@@ -177,6 +186,7 @@ class Batch:
         d = self.data
         d.rng_sensors[which] = stream_state(self.seeds[which], SENSOR_STREAM)
         d.rng_plant[which] = stream_state(self.seeds[which], PLANT_STREAM)
+        d.rng_estimation[which] = stream_state(self.seeds[which], ESTIMATION_STREAM)
         E.reset_worlds(self.model, d, which, q0s, qd0s)
 
     def step(self, twist=None) -> None:

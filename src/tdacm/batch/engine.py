@@ -37,6 +37,9 @@ from numba import njit
 from .._records import copy_into, take
 from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
+from ..estimation import ekf_step as EK
+from ..estimation import sensor_steps as SS
+from ..vision.camera import normalize_into
 from ..loop.arms import arms_command
 from ..loop.data import Termination
 from ..loop.perception import perceive
@@ -67,7 +70,7 @@ from .random import normal, uniform
 #: the termination codes of :attr:`BatchData.termination` (0: running or ran to its end),
 #: each the :class:`~tdacm.loop.data.Termination` of :data:`TERMINATIONS`
 RUNNING, SAFETY, RECOVERY_FAILED, PLANT_FAILED, BEHIND_CAMERA, TUMBLED, NON_FINITE = range(7)
-FORCE_LIMIT = 7
+FORCE_LIMIT, ESTIMATOR_FAILED = 7, 8
 TERMINATIONS = (
     None,
     Termination.SAFETY,
@@ -77,6 +80,7 @@ TERMINATIONS = (
     Termination.TUMBLED,
     Termination.NON_FINITE,
     Termination.FORCE_LIMIT,
+    Termination.ESTIMATOR_FAILED,
 )
 
 
@@ -112,6 +116,58 @@ class BatchModel(NamedTuple):
     steps: int
     global_every: int
     n_arms: int
+    estimation: object
+
+
+class Estimation(NamedTuple):
+    """The estimation of a batch's worlds (records stacked over the worlds): whether the
+    worlds run on the EKF's estimates (``on``; else on the true state, the records below
+    unused), the filter's :class:`~tdacm.estimation.ekf_step.EkfParams` ``ekf``, the
+    proprioceptive sensors' (``pose``, ``imu``, ``encoders``,
+    :mod:`tdacm.estimation.sensor_steps`; disabled where the robot has none) and the start-up
+    reading's (``start_pose``, ``start_encoders``: no latency, no dropout), whether the start
+    is measured (``measured``: else the nominal configuration) from ``nominal`` (n,) with the
+    encoders' zero ``q_ref`` (n_s,), the configured start errors ``strain_error``,
+    ``position_error`` and whether the filter fuses C_L's view of the target (``fuse_view``)."""
+
+    on: bool
+    ekf: object
+    pose: object
+    imu: object
+    encoders: object
+    start_pose: object
+    start_encoders: object
+    measured: bool
+    nominal: np.ndarray
+    q_ref: np.ndarray
+    strain_error: float
+    position_error: float
+    fuse_view: bool
+
+
+class EstimationData(NamedTuple):
+    """The estimation's state of a batch's worlds (stacked): the filter's
+    :class:`~tdacm.estimation.ekf_step.EkfState` ``ekf`` and its period's measurements
+    ``meas``, the sensors' states (``pose``, ``imu``, ``encoders``, ``start_pose``,
+    ``start_encoders``), the estimate ``q_hat``, ``qd_hat`` (n,) and its ``p_qq`` (n, n), the
+    filter's status of the period ``status`` (1,), the plant's accelerations at the period's
+    start ``qdd`` (n,) with ``has_qdd`` (1,) (what the IMU senses) and a sensor's reading
+    ``out`` (scratch)."""
+
+    ekf: object
+    meas: object
+    pose: object
+    imu: object
+    encoders: object
+    start_pose: object
+    start_encoders: object
+    q_hat: np.ndarray
+    qd_hat: np.ndarray
+    p_qq: np.ndarray
+    status: np.ndarray
+    qdd: np.ndarray
+    has_qdd: np.ndarray
+    out: np.ndarray
 
 
 class Frame(NamedTuple):
@@ -146,12 +202,14 @@ class BatchData(NamedTuple):
     request: np.ndarray
     rng_sensors: np.ndarray
     rng_plant: np.ndarray
+    rng_estimation: np.ndarray
     sensor: object
     frame: Frame
     servo: object
     servo_out: object
     robot_out: object
     memo: object
+    estimation: object
     controller: object
     work: object
     safety: object
@@ -173,6 +231,138 @@ def _end(data, w, code):
 
 
 @njit(cache=True)
+def _draws(base, due, count, rng):
+    """A proprioceptive sensor's draws when it captures (``due``): ``count`` standard normals,
+    then a uniform when it drops readings (the order its Python block draws them in)."""
+    if not due:
+        return np.empty(0), 0.0
+    normals = np.empty(count)
+    for i in range(count):
+        normals[i] = normal(rng)
+    return normals, (uniform(rng) if base.dropout > 0.0 else 0.0)
+
+
+@njit(cache=True)
+def _poll_pose(p, st, t, q, rng, out, meas):
+    """Poll the pose sensor at ``t`` on the true ``q``; a delivered reading into ``meas``."""
+    due = SS.sensor_due(p.base, st, t)
+    normals, u01 = _draws(p.base, due, SS.pose_normals(p), rng)
+    tc = SS.pose_sample(p, st, t, q, normals, u01, out)
+    if tc == tc:
+        EK.measurement_put(meas, EK.POSE, tc, out[:12])
+
+
+@njit(cache=True)
+def _poll_imu(p, st, t, q, qd, qdd, has_qdd, rng, out, meas):
+    """Poll the IMU at ``t`` on the true state and accelerations; a reading into ``meas``."""
+    due = SS.sensor_due(p.base, st.base, t)
+    normals, u01 = _draws(p.base, due, SS.imu_normals(p, st, has_qdd) if due else 0, rng)
+    tc = SS.imu_sample(p, st, t, q, qd, qdd, has_qdd, normals, u01, out)
+    if tc == tc:
+        EK.measurement_put(meas, EK.IMU, tc, out[:6])
+
+
+@njit(cache=True)
+def _poll_encoders(p, st, m, t, q, rng, out, meas):
+    """Poll the tendon encoders at ``t`` on the true ``q``; a reading into ``meas``."""
+    due = SS.sensor_due(p.base, st.base, t)
+    normals, u01 = _draws(p.base, due, SS.encoder_normals(p), rng)
+    tc = SS.encoder_sample(p, st, m, t, q, normals, u01, out)
+    if tc == tc:
+        EK.measurement_put(meas, EK.ENCODERS, tc, out[: st.bias.shape[0]])
+
+
+@njit(cache=True)
+def _estimate_of(e, d, n):
+    """The estimate of the filter's latest tick into ``d.q_hat``, ``d.qd_hat``, ``d.p_qq``."""
+    s = EK.ekf_latest(d.ekf)
+    for i in range(n):
+        d.q_hat[i] = d.ekf.x[s, i]
+        d.qd_hat[i] = d.ekf.x[s, n + i]
+        for j in range(n):
+            d.p_qq[i, j] = d.ekf.p[s, i, j]
+
+
+@njit(cache=True)
+def _start_estimation(model, data, w, mw, mc):
+    """The estimator's start at time 0 (:meth:`~tdacm.estimation.block.FilterBlock.reset`):
+    the sensors' schedules and turn-on biases (the world's estimation stream), the start-up
+    reading, the initial configuration (:func:`~tdacm.estimation.ekf_step.initial_estimate`),
+    the filter's reset and, with a start-up reading, its first update."""
+    e = model.estimation
+    ep, pp, ip, cp = take(e.ekf, w), take(e.pose, w), take(e.imu, w), take(e.encoders, w)
+    d = take(data.estimation, w)
+    rng = data.rng_estimation[w]
+    n = data.q.shape[1]
+    for st in (d.pose, d.start_pose):
+        SS.sensor_reset(st, 0.0)
+    for st in (d.imu.base, d.encoders.base, d.start_encoders.base):
+        SS.sensor_reset(st, 0.0)
+    d.imu.t_last[0] = np.nan
+    z = np.empty(6)
+    for i in range(6):
+        z[i] = normal(rng)
+    SS.imu_turn_on(ip, d.imu, z)
+    z = np.empty(d.encoders.bias.shape[0])
+    for i in range(z.shape[0]):
+        z[i] = normal(rng)
+    SS.encoder_turn_on(cp, d.encoders, z)
+    for i in range(z.shape[0]):
+        z[i] = normal(rng)
+    SS.encoder_turn_on(take(e.start_encoders, w), d.start_encoders, z)
+    meas = d.meas
+    meas.rows[0] = 0
+    q = data.q[w]
+    if e.measured:
+        if take(e.start_pose, w).base.enabled:
+            _poll_pose(take(e.start_pose, w), d.start_pose, 0.0, q, rng, d.out, meas)
+        _poll_encoders(take(e.start_encoders, w), d.start_encoders, mw, 0.0, q, rng, d.out, meas)
+    q0 = np.empty(n)
+    EK.initial_estimate(ep, mc, meas, e.nominal[w], e.q_ref[w], e.strain_error, e.position_error,
+                        q0)  # fmt: skip
+    x0 = np.zeros(ep.nx)
+    for i in range(n):
+        x0[i] = q0[i]
+    EK.ekf_reset(ep, d.ekf, 0.0, x0, ep.p0)
+    d.status[0] = EK.OK
+    if e.measured:
+        d.status[0] = EK.ekf_step(ep, d.ekf, mc, 0.0, data.u[w], False, meas)
+    _estimate_of(e, d, n)
+    d.has_qdd[0] = False
+
+
+@njit(cache=True)
+def _estimate(model, data, w, mw, mc, k, dt):
+    """The estimator's period (:meth:`~tdacm.estimation.block.FilterBlock.step`): the
+    proprioceptive sensors polled on the true state (the pose, the IMU, the encoders), C_L's
+    new detection of the target when the filter fuses it (the first arm's, normalized by the
+    controller's camera model), then the filter's step with the input applied over the last
+    period (:func:`~tdacm.estimation.ekf_step.ekf_step`)."""
+    e = model.estimation
+    ep = take(e.ekf, w)
+    d = take(data.estimation, w)
+    rng = data.rng_estimation[w]
+    n = data.q.shape[1]
+    t = k * dt
+    q, qd = data.q[w], data.qd[w]
+    meas = d.meas
+    meas.rows[0] = 0
+    _poll_pose(take(e.pose, w), d.pose, t, q, rng, d.out, meas)
+    _poll_imu(take(e.imu, w), d.imu, t, q, qd, d.qdd, d.has_qdd[0], rng, d.out, meas)
+    _poll_encoders(take(e.encoders, w), d.encoders, mw, t, q, rng, d.out, meas)
+    f = take(take(data.frame, w), 0)
+    if e.fuse_view and f.detected[0]:
+        t_capture = f.capture[0] * dt
+        if EK.view_is_new(d.ekf, t_capture):
+            xy = np.empty((4, 2))
+            normalize_into(take(take(model.perception, w), 0).camera, f.uv, xy)
+            EK.measurement_put(meas, EK.VIEW, t_capture, xy.ravel())
+    d.status[0] = EK.ekf_step(ep, d.ekf, mc, t, data.u[w], k > 0, meas)
+    if d.status[0] == EK.OK:
+        _estimate_of(e, d, n)
+
+
+@njit(cache=True)
 def reset_worlds(model, data, which, q0, qd0):
     """Start the worlds ``which`` (bool, N) at ``(q0, qd0)`` (N, n), as
     :meth:`~tdacm.loop.ClosedLoop.reset`: time 0, the blocks' states cleared, the initial mode
@@ -189,6 +379,13 @@ def reset_worlds(model, data, which, q0, qd0):
         data.active[w] = True
         data.termination[w] = RUNNING
         mw = model_of_world(model.plant_model, take(model.robot, w))
+        mc = model_of_world(model.control_model, take(model.robot, w))
+        for i in range(data.u.shape[1]):
+            data.u[w, i] = 0.0
+        q_est = data.q[w]
+        if model.estimation.on:  # the estimate the blocks start from
+            _start_estimation(model, data, w, mw, mc)
+            q_est = data.estimation.q_hat[w]
         recovering = False
         for a in range(model.n_arms):
             sp = take(take(model.sensor, w), a)
@@ -203,7 +400,7 @@ def reset_worlds(model, data, which, q0, qd0):
             seen = np.empty(sp.corners.shape[0], np.bool_)
             found = analytic_detect(sp, g_c, uv, corners, seen)
             st = take(take(data.servo, w), a)
-            servo_reset(take(take(model.servo, w), a), st, mw, data.q[w], found, uv)
+            servo_reset(take(take(model.servo, w), a), st, mw, q_est, found, uv)
             recovering = recovering or st.mode[0] != IBVS
         # a start in recovery asks C_G for its first period (ClosedLoop.reset)
         data.request[w] = recovering
@@ -265,8 +462,18 @@ def sense(model, data, w):
         pc = take(take(model.perception, w), a)
         f.detected[0] = ss.found[slot]
         f.found[0] = f.detected[0] and perceive(pc.camera, pc.object_2d, f.uv, f.xy, f.z)
+    q_est = q
+    if model.estimation.on:  # the estimator's period; a failure ends the world in act
+        _estimate(model, data, w, mw, model_of_world(model.control_model, take(model.robot, w)),
+                  k, dt)  # fmt: skip
+        if data.estimation.status[w, 0] != EK.OK:
+            return
+        q_est = data.estimation.q_hat[w]
+        p_qq = data.estimation.p_qq[w]
+    for a in range(model.n_arms):
+        f = take(take(data.frame, w), a)
         servo_perceive(take(take(model.servo, w), a), take(take(data.servo, w), a), mw, k * dt,
-                       dt, k, q, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
+                       dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
                        take(take(data.servo_out, w), a))  # fmt: skip
 
 
@@ -283,6 +490,12 @@ def act(model, data, w, twist_in):
     qd = data.qd[w]
     n = q.shape[0]
     mw = model_of_world(model.plant_model, take(model.robot, w))
+    q_est, qd_est = q, qd
+    if model.estimation.on:  # the blocks read the estimate (the estimator's failure ends)
+        if data.estimation.status[w, 0] != EK.OK:
+            _end(data, w, ESTIMATOR_FAILED)
+            return
+        q_est, qd_est = data.estimation.q_hat[w], data.estimation.qd_hat[w]
     offered = global_offered(k, model.global_every, data.request[w])
     servos, states = take(model.servo, w), take(data.servo, w)
     outs = take(data.servo_out, w)
@@ -308,11 +521,11 @@ def act(model, data, w, twist_in):
                 g_found[a] = g_found[a] or seen[a, i]
     if karms == 1:
         out = take(outs, 0)
-        servo_command(take(servos, 0), take(states, 0), mw, t, dt, q, offered, twist_in,
+        servo_command(take(servos, 0), take(states, 0), mw, t, dt, q_est, offered, twist_in,
                       g_found[0], corners[0], seen[0], out)  # fmt: skip
         copy_into(out, robot)
     else:
-        arms_command(servos, states, mw, t, dt, q, offered, twist_in, g_found, corners, seen,
+        arms_command(servos, states, mw, t, dt, q_est, offered, twist_in, g_found, corners, seen,
                      outs, take(data.memo, w), robot)  # fmt: skip
     lead = take(states, 0)
     data.request[w] = robot.request[0]
@@ -325,7 +538,7 @@ def act(model, data, w, twist_in):
     mc = model_of_world(model.control_model, take(model.robot, w))
     u = data.u[w]
     _, thrust_sat, tension_sat, _, _ = controller_step(
-        take(model.controller, w), take(data.controller, w), mc, q, qd, lead.q_d, lead.qd_d,
+        take(model.controller, w), take(data.controller, w), mc, q_est, qd_est, lead.q_d, lead.qd_d,
         robot.qdd_d, dt, u, data.tau[w], data.q_ref[w], take(data.work, w),
     )  # fmt: skip
     data.saturated[w, 0] = thrust_sat
@@ -359,6 +572,11 @@ def act(model, data, w, twist_in):
     for i in range(n):
         q[i] = data.q_next[w, i]
         qd[i] = data.qd_next[w, i]
+    if model.estimation.on:  # what the IMU senses next period
+        e = take(data.estimation, w)
+        e.has_qdd[0] = ok
+        for i in range(n):
+            e.qdd[i] = data.qdd_next[w, i]
     data.k[w] = k + 1
     if not ok:
         _end(data, w, PLANT_FAILED)

@@ -16,7 +16,7 @@ import numpy as np
 
 from .camera import TargetViewMeasurement
 from .ekf import EstimatorDiverged, ExtendedKalmanFilter
-from .ekf_step import view_is_new
+from .ekf_step import initial_estimate, view_is_new
 from .estimate import StateEstimate
 from .proprioception import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
@@ -85,10 +85,10 @@ class FilterBlock:
         if self.initial_measurements is None:
             return f.reset(self.initial_guess(t), t0=t)
         meas = self.initial_measurements(t)
-        q = f.initial_guess(meas, self.nominal_q)
-        q[f.n - f.n_s :] += self.strain_error
-        if f.floating:
-            q[3:6] += self.position_error
+        f.renew()
+        q = np.empty(f.n)
+        initial_estimate(f.params, f.model_arrays, f.pack(meas), self.nominal_q, f.q_ref,
+                         self.strain_error, self.position_error, q)  # fmt: skip
         self.prior = f.reset(q, t0=t)
         return f.step(t, None, meas)
 

@@ -248,7 +248,8 @@ class ExtendedKalmanFilter:
         self.config = EstimatorConfig() if config is None else config
         sysm = model.system  # private, gravity-only copy (no disturbances)
         self.system = sysm
-        self._m = sysm.model_arrays
+        #: the model arrays of the controller's private model, which the filter propagates
+        self.model_arrays = sysm.model_arrays
         self.n, self.n_s, self.n_a = sysm.n, sysm.n_s, sysm.n_a
         self.floating = sysm.floating
         self.camera = camera
@@ -256,6 +257,7 @@ class ExtendedKalmanFilter:
         if self.q_ref.shape != (self.n_s,):
             raise ValueError(f"q_ref must hold the {self.n_s} strains, got {self.q_ref.shape}")
         self.params = ekf_params(model, self.sensors, self.config, self.q_ref, camera)
+        self._revision = model.revision
         self.nx = self.params.nx
         self.i_target = self.params.i_target  # index of [p_T, theta] (with a camera)
         if period is None:
@@ -268,6 +270,13 @@ class ExtendedKalmanFilter:
         self.timings: list[float] = []  # wall time of each step (s)
 
     # ------------------------------------------------------------------ set-up
+    def renew(self) -> None:
+        """Take the model's current parameter errors (after ``model.reseed``) into the
+        filter's record."""
+        if self._revision != self.model.revision:
+            self.params = ekf_params(self.model, self.sensors, self.config, self.q_ref, self.camera)
+            self._revision = self.model.revision
+
     def default_covariance(self) -> np.ndarray:
         """``P0`` from the config's initial standard deviations and the IMU's bias specs."""
         return self.params.p0.copy()
@@ -290,6 +299,7 @@ class ExtendedKalmanFilter:
         """Start at ``(q0, qd0)`` (``qd0`` default zeros, disturbances and biases zero) with
         covariance ``P0`` (full ``nx x nx``, or ``2n x 2n`` for ``[q, qd]`` only; default
         :meth:`default_covariance`)."""
+        self.renew()
         n = self.n
         q0 = np.asarray(q0, float)
         qd0 = np.zeros(n) if qd0 is None else np.asarray(qd0, float)
@@ -392,7 +402,10 @@ class ExtendedKalmanFilter:
     def _qdd(self, x, u) -> np.ndarray:
         """The process model's ``f_hat(q, qd, u) + a_d`` at the state ``x``."""
         a, ok = ES.model_acceleration(
-            self.params, self._m, np.ascontiguousarray(x, float), np.ascontiguousarray(u, float)
+            self.params,
+            self.model_arrays,
+            np.ascontiguousarray(x, float),
+            np.ascontiguousarray(u, float),
         )
         if not ok:
             raise EstimatorDiverged(ES.DIVERGENCE[ES.MASS_NOT_PD])
@@ -406,7 +419,7 @@ class ExtendedKalmanFilter:
     def camera_pose(self, q) -> np.ndarray:
         """World pose of C_L at ``q`` in the filter's model: ``g_L(q) g_{C_L}^L``."""
         self._need_camera()
-        return ES.camera_pose(self.params, self._m, np.ascontiguousarray(q, float))[0]
+        return ES.camera_pose(self.params, self.model_arrays, np.ascontiguousarray(q, float))[0]
 
     def target_pose(self, x=None) -> np.ndarray | None:
         """The filter's target pose (4x4, world) from state ``x`` (default: the latest);
@@ -425,7 +438,7 @@ class ExtendedKalmanFilter:
         (2k x nx) of :mod:`~tdacm.estimation.camera`; ``None`` if a point is behind C_L."""
         self._need_camera()
         z, h, ok = ES.view_prediction(
-            self.params, self.state, self._m, np.ascontiguousarray(x, float)
+            self.params, self.state, self.model_arrays, np.ascontiguousarray(x, float)
         )
         return (z, h) if ok else None
 
@@ -494,6 +507,7 @@ class ExtendedKalmanFilter:
         w0 = time.perf_counter()
         if self.state.kept[0] == 0:
             raise RuntimeError("call reset() before step()")
+        self.renew()
         t = float(t)
         if u_applied is None:
             u = np.zeros(self.system.n_u)
@@ -503,7 +517,7 @@ class ExtendedKalmanFilter:
                 raise ValueError(f"u_applied must have {self.system.n_u} entries, got {u.shape}")
         meas = self.pack(list(measurements))
         while True:
-            status = ES.ekf_step(self.params, self.state, self._m, t, u, u_applied is not None,
+            status = ES.ekf_step(self.params, self.state, self.model_arrays, t, u, u_applied is not None,
                                  meas)  # fmt: skip
             if status == ES.WINDOW_FULL:
                 self._grow(2 * self.state.window, self.state.slots)

@@ -39,11 +39,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lie.euler import euler_rate_matrix, rot_zyx
+from ..lie.euler import euler_rate_matrix, euler_zyx, rot_zyx
 from ..lie.se3 import so3_exp_and_left_jacobian, so3_log
 from ..system.kernels import chain_jacobian
 from . import kernels as EK
 from .camera import pose_from_view, view_model
+from .inversion import strains_gauss_newton
 
 #: measurement kinds, in the order a tick fuses them
 ENCODERS, POSE, IMU, VIEW = 0, 1, 2, 3
@@ -540,6 +541,38 @@ def _update_tick(p, st, m, s, first):
 
 
 # ----------------------------------------------------------------------------- the step
+@njit(cache=True)
+def initial_estimate(p, m, meas, nominal, q_ref, strain_error, position_error, q_out):
+    """The start-up configuration (``initial_guess = "measured"``) into ``q_out`` from one
+    reading of the sensors ``meas`` (:class:`EkfMeasurements`): the drone's pose from a pose
+    measurement (ZYX angles of its rotation), the strains from the encoders by least squares
+    from ``q_ref`` (:func:`~tdacm.estimation.inversion.strains_gauss_newton`), the other
+    coordinates ``nominal``; plus the configured errors ``strain_error`` on the strains and
+    ``position_error`` on the drone's position (convergence studies)."""
+    n, ns = p.n, p.n_s
+    for i in range(n):
+        q_out[i] = nominal[i]
+    for r in range(meas.rows[0]):
+        d = meas.data[r]
+        if meas.kind[r] == POSE and p.floating:
+            rot = np.empty((3, 3))
+            for a in range(3):
+                for c in range(3):
+                    rot[a, c] = d[3 + 3 * a + c]
+            q_out[0], q_out[1], q_out[2] = euler_zyx(rot)
+            for i in range(3):
+                q_out[3 + i] = d[i]
+        elif meas.kind[r] == ENCODERS:
+            qs, _, _ = strains_gauss_newton(m, p.l_ref, d[: p.n_a].copy(), q_ref.copy(), 1e-12, 30)
+            for i in range(ns):
+                q_out[n - ns + i] = qs[i]
+    for i in range(n - ns, n):
+        q_out[i] += strain_error
+    if p.floating:
+        for i in range(3):
+            q_out[3 + i] += position_error
+
+
 @njit(cache=True)
 def ekf_reset(p, st, t0, x0, p0):
     """Start the filter at ``t0`` with the state ``x0`` (nx,) and covariance ``p0`` (nx, nx):

@@ -150,13 +150,13 @@ class Imu(_Sensor):
         self.params = SS.ImuParams(
             SS.SensorParams.from_config(c), float(c.gyro_noise), float(c.accel_noise),
             float(c.gyro_bias_walk), float(c.accel_bias_walk), _f(gravity).copy(),
+            float(c.gyro_bias), float(c.accel_bias),
         )  # fmt: skip
-        gyro_bias = c.gyro_bias * rng.standard_normal(3)
-        accel_bias = c.accel_bias * rng.standard_normal(3)
         self.state = SS.ImuState(
-            SS.SensorState.empty(6, SS.queue_capacity(c), t0), gyro_bias, accel_bias,
+            SS.SensorState.empty(6, SS.queue_capacity(c), t0), np.zeros(3), np.zeros(3),
             np.full(1, np.nan),
         )  # fmt: skip
+        SS.imu_turn_on(self.params, self.state, rng.standard_normal(6))
         self._out = np.empty(6)
         super().__init__(config, rng, t0)
 
@@ -205,12 +205,12 @@ class TendonEncoders(_Sensor):
         l_ref = tendon_lengths_and_jacobian(qs_ref, self.model)[0]
         self.params = SS.EncoderParams(
             SS.SensorParams.from_config(c), float(c.noise), float(c.resolution), l_ref,
-            int(system.n_s),
+            int(system.n_s), float(c.bias),
         )  # fmt: skip
-        bias = c.bias * rng.standard_normal(system.n_a)
         self.state = SS.EncoderState(
-            SS.SensorState.empty(system.n_a, SS.queue_capacity(c), t0), bias
+            SS.SensorState.empty(system.n_a, SS.queue_capacity(c), t0), np.zeros(system.n_a)
         )
+        SS.encoder_turn_on(self.params, self.state, rng.standard_normal(system.n_a))
         self._out = np.empty(system.n_a)
         super().__init__(config, rng, t0)
 

@@ -80,8 +80,9 @@ class PoseParams(NamedTuple):
 
 class ImuParams(NamedTuple):
     """The IMU: its schedule ``base``, ``gyro_noise``, ``accel_noise`` per sample, the bias
-    random walks ``gyro_bias_walk``, ``accel_bias_walk`` (per sqrt(s)) and the model's
-    ``gravity`` (3,)."""
+    random walks ``gyro_bias_walk``, ``accel_bias_walk`` (per sqrt(s)), the model's
+    ``gravity`` (3,) and the turn-on biases' standard deviations ``gyro_bias``,
+    ``accel_bias`` (:func:`imu_turn_on`)."""
 
     base: SensorParams
     gyro_noise: float
@@ -89,6 +90,8 @@ class ImuParams(NamedTuple):
     gyro_bias_walk: float
     accel_bias_walk: float
     gravity: np.ndarray
+    gyro_bias: float = 0.0
+    accel_bias: float = 0.0
 
 
 class ImuState(NamedTuple):
@@ -104,13 +107,15 @@ class ImuState(NamedTuple):
 
 class EncoderParams(NamedTuple):
     """The tendon encoders: their schedule ``base``, ``noise`` (m), ``resolution`` (m per
-    count, 0: none), the lengths ``l_ref`` (n_a,) at their zero and the strains ``n_s``."""
+    count, 0: none), the lengths ``l_ref`` (n_a,) at their zero, the strains ``n_s`` and the
+    standard deviation ``bias`` of their constant offsets (:func:`encoder_turn_on`)."""
 
     base: SensorParams
     noise: float
     resolution: float
     l_ref: np.ndarray
     n_s: int
+    bias: float = 0.0
 
 
 class EncoderState(NamedTuple):
@@ -125,6 +130,22 @@ def queue_capacity(c) -> int:
     time, so at most those within ``latency`` plus the one being queued and one for
     rounding."""
     return int(math.ceil(float(c.latency) * float(c.rate_hz) - 1e-9)) + 3
+
+
+@njit(cache=True)
+def imu_turn_on(p, st, normals):
+    """The IMU's turn-on biases (a run's) from 6 standard ``normals``: the gyro's 3, then the
+    accelerometer's 3."""
+    for i in range(3):
+        st.gyro_bias[i] = p.gyro_bias * normals[i]
+        st.accel_bias[i] = p.accel_bias * normals[3 + i]
+
+
+@njit(cache=True)
+def encoder_turn_on(p, st, normals):
+    """The encoders' constant offsets (a run's) from ``n_a`` standard ``normals``."""
+    for i in range(st.bias.shape[0]):
+        st.bias[i] = p.bias * normals[i]
 
 
 # ----------------------------------------------------------------------------- schedule

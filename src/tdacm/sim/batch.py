@@ -20,9 +20,14 @@ import numpy as np
 
 from .._records import put, replicate, stack, take
 from ..batch import Batch, BatchResult
-from ..batch.engine import BatchModel
+from ..batch.engine import BatchModel, Estimation, EstimationData
 from ..batch.params import MAX_LATENCY, ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams
 from ..control.hierarchical import TDACMController, controller_params, default_gains
+from ..estimation import ekf_step as EK
+from ..estimation.block import FilterBlock
+from ..estimation.config import EstimatorConfig, SensorSuiteConfig
+from ..estimation.ekf import ExtendedKalmanFilter, ekf_params
+from ..estimation.proprioception import SensorSuite
 from ..loop.arms import ArmsServo
 from ..loop.estimation import TrueState
 from ..loop.lowlevel import AdaptiveLowLevel, PDGravityController
@@ -32,6 +37,7 @@ from ..system.kernels import coupled_terms
 from ..system.worlds import robot_rows
 from ..vision.features import advanced_features, feature_interaction_matrix
 from .assemble import build_loop, reference_snapshot
+from .blocks import startup_sensors
 from .scenario import Scenario, ScenarioError, load_scenario
 
 #: the model arrays a world's robot replaces (:class:`~tdacm.system.worlds.RobotRows`)
@@ -147,10 +153,10 @@ def refuse(loop) -> None:
         type(s) not in (VisualServo, RobustServo) for s in servos
     ):
         raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched (touch.enabled)")
-    if not isinstance(loop.estimator, TrueState):
+    if not isinstance(loop.estimator, TrueState | FilterBlock):
         raise Unsupported(
-            "the engine runs on the true state: set estimation.source = 'true' "
-            "(the EKF is not batched)"
+            f"estimation: the engine runs the true state or the shipped EKF, got "
+            f"{type(loop.estimator).__name__}"
         )
     if loop.force is not None:
         raise Unsupported("servoing into contact is not batched (touch.enabled)")
@@ -213,7 +219,7 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
     locals_, globals_, perceptions, servos = arm_blocks(loop)
     several = len(locals_) > 1
     out = {"controller": ctl, "factors": f, "sensor": [], "global_sensor": [], "servo": [],
-           "perception": []}  # fmt: skip
+           "perception": [], "ekf": _ekf_params(a)}  # fmt: skip
     for k, (local, glob, perception, servo) in enumerate(
         zip(locals_, globals_, perceptions, servos, strict=True)
     ):
@@ -253,6 +259,94 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
         out["servo"].append(s_rec)
         out["perception"].append(p_rec)
     return out
+
+
+def _ekf_params(a):
+    """The filter's record for the assembly's model as now seeded: the loop's EKF, or for a
+    loop on the true state a filter of the default sensors (unused: the engine's records
+    have one type for either)."""
+    est = a.loop.estimator
+    if isinstance(est, FilterBlock):
+        f = est.filter
+        return ekf_params(a.model, f.sensors, f.config, f.q_ref, f.camera)
+    s = a.model.system
+    return ekf_params(a.model, SensorSuiteConfig(), EstimatorConfig(), np.zeros(s.n_s), None)
+
+
+def estimation_records(a, seeds, rows, dt: float) -> tuple[Estimation, EstimationData]:
+    """The engine's estimation records of the worlds ``seeds`` (their filters' ``rows``): the
+    loop's EKF and sensors when it runs on estimates, else records of the default sensors that
+    the engine does not read (``on`` false)."""
+    loop = a.loop
+    est = loop.estimator
+    s = loop.plant.system
+    n = len(seeds)
+    on = isinstance(est, FilterBlock)
+    if on:
+        other = loop.sensors.other
+        suite_cfg = est.filter.sensors
+        filt = est.filter
+    else:
+        other, suite_cfg, filt = {}, SensorSuiteConfig(), None
+    # the sensors' records; a robot without a drone has no pose sensor and no IMU: disabled
+    off = suite_cfg.model_copy(update=dict(
+        pose=suite_cfg.pose.model_copy(update=dict(enabled=False)),
+        imu=suite_cfg.imu.model_copy(update=dict(enabled=False)),
+    ))  # fmt: skip
+    drone = SensorSuite(_Floating(s), off, 0)
+    pose = other.get("pose", drone.pose)
+    imu = other.get("imu", drone.imu)
+    encoders = other.get("encoders") or SensorSuite(s, suite_cfg, 0).encoders
+    start = startup_sensors(suite_cfg, s, 0)
+    start_pose = start.pose if start.pose is not None else drone.pose
+    ekf = stack([r["ekf"] for r in rows])
+    p0 = take(ekf, 0)
+    nominal = est.nominal_q if on else np.zeros(s.n)
+    q_ref = filt.q_ref if on else np.zeros(s.n_s)
+    model = Estimation(
+        on=on,
+        ekf=ekf,
+        pose=replicate(pose.params, n),
+        imu=replicate(imu.params, n),
+        encoders=replicate(encoders.params, n),
+        start_pose=replicate(start_pose.params, n),
+        start_encoders=replicate(start.encoders.params, n),
+        measured=bool(on and est.initial_measurements is not None),
+        nominal=replicate(np.asarray(nominal, float), n),
+        q_ref=replicate(np.asarray(q_ref, float), n),
+        strain_error=float(est.strain_error) if on else 0.0,
+        position_error=float(est.position_error) if on else 0.0,
+        fuse_view=bool(on and est.normalize is not None),
+    )
+    window = EK.window_ticks(filt.config.max_delay, dt) if on else 2
+    slots = 2 * ExtendedKalmanFilter.SLOTS
+    data = EstimationData(
+        ekf=EK.EkfState.empty(p0, window, slots),
+        meas=EK.EkfMeasurements.empty(p0, slots),
+        pose=pose.state,
+        imu=imu.state,
+        encoders=encoders.state,
+        start_pose=start_pose.state,
+        start_encoders=start.encoders.state,
+        q_hat=np.zeros(s.n),
+        qd_hat=np.zeros(s.n),
+        p_qq=np.zeros((s.n, s.n)),
+        status=np.zeros(1, np.int64),
+        qdd=np.zeros(s.n),
+        has_qdd=np.zeros(1, np.bool_),
+        out=np.zeros(max(12, s.n_a)),
+    )
+    return model, data
+
+
+class _Floating:
+    """A system as a sensor suite reads it, with a drone (for disabled drone sensors)."""
+
+    def __init__(self, system):
+        self.floating = True
+        self.loads = system.loads
+        self.model_arrays = system.model_arrays
+        self.n_s, self.n_a = system.n_s, system.n_a
 
 
 def _gains_of(a, f):
@@ -314,6 +408,7 @@ def build_batch(
             raise Unsupported("the controller's model describes another robot than the plant")
         rows = [world_records(a, int(s), params, w) for w, s in enumerate(seeds)]
         a.model.reseed(int(seeds[0]))
+        estimation, estimation_data = estimation_records(a, seeds, rows, float(loop.dt))
     except (Unsupported, ValueError) as exc:
         raise ScenarioError(f"{sc.source}: the batched engine: {exc}") from None
     dur = float(sc.data["duration"] if duration is None else duration)
@@ -334,9 +429,10 @@ def build_batch(
         steps=int(round(dur / loop.dt)),
         global_every=int(loop.sensors.global_every),
         n_arms=len(loop.plant.system.arms),
+        estimation=estimation,
     )
     q0 = a.world.q0 if q0 is None else q0
-    batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads)
+    batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads, estimation_data)
     batch.params = params
     return batch
 
@@ -371,5 +467,6 @@ def reseed_world(batch: Batch, assembly, w: int, seed: int, params=None) -> None
     for key in ("sensor", "global_sensor", "perception", "servo"):
         put(getattr(model, key), w, stack(r[key]))
     put(model.controller, w, r["controller"])
+    put(model.estimation.ekf, w, r["ekf"])
     put(model.robot, w, take(robot_rows(model.plant_model, r["factors"][None, :]), 0))
     batch.seeds[w] = seed

@@ -466,6 +466,27 @@ def truth_of(world, local: CameraSensor):
 
 
 # ----------------------------------------------------------------------------- estimation
+#: the start-up reading's random streams: an independent copy of the sensors
+#: (:func:`startup_sensors`)
+STARTUP_STREAM_OFFSET = 100
+
+
+def startup_sensors(config, system, seed: int) -> SensorSuite:
+    """The start-up reading's sensors (``estimation.initial_guess = "measured"``): a copy of
+    the suite of ``config`` (a :class:`~tdacm.estimation.SensorSuiteConfig`) with the pose and
+    the encoders enabled, no latency and no dropout (read before the run starts), on their own
+    streams."""
+    start = config.model_copy(
+        update=dict(
+            pose=config.pose.model_copy(update=dict(latency=0.0, dropout=0.0, enabled=True)),
+            encoders=config.encoders.model_copy(
+                update=dict(latency=0.0, dropout=0.0, enabled=True)
+            ),
+        )
+    )
+    return SensorSuite(system, start, seed, stream_offset=STARTUP_STREAM_OFFSET)
+
+
 def proprioceptive_sensors(sensors, system, seed: int) -> SensorSuite:
     """The drone pose, IMU and tendon-encoder sensors of a ``[sensors]`` record (a
     :class:`~tdacm.estimation.SensorSuite` seeded by ``[seed, 11..13]``): the sensors block
@@ -498,15 +519,7 @@ def estimation_block(
     cfg = suite.config
     init = None
     if est.initial_guess == "measured":
-        start = cfg.model_copy(
-            update=dict(
-                pose=cfg.pose.model_copy(update=dict(latency=0.0, dropout=0.0, enabled=True)),
-                encoders=cfg.encoders.model_copy(
-                    update=dict(latency=0.0, dropout=0.0, enabled=True)
-                ),
-            )
-        )
-        first = SensorSuite(system, start, seed, stream_offset=100)
+        first = startup_sensors(cfg, system, seed)
 
         def init(t):
             first.reset(t)
