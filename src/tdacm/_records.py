@@ -85,6 +85,8 @@ def stack(records: list):
     if not records:
         raise ValueError("stack: at least one record")
     first = records[0]
+    if not _is_record(first):  # a plain array or scalar: one row a world
+        return np.ascontiguousarray(np.stack([np.asarray(r) for r in records]))
     out = []
     for i, f in enumerate(first):
         column = [r[i] for r in records]
