@@ -39,7 +39,6 @@ from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
 from ..estimation import ekf_step as EK
 from ..estimation import sensor_steps as SS
-from ..vision.camera import normalize_into
 from ..loop.arms import arms_command
 from ..loop.data import Termination
 from ..loop.perception import perceive
@@ -65,6 +64,7 @@ from ..loop.servo import (
     servo_reset,
 )
 from ..system.worlds import model_of_world
+from ..vision.camera import normalize_into
 from .random import normal, uniform
 
 #: the termination codes of :attr:`BatchData.termination` (0: running or ran to its end),
@@ -290,7 +290,7 @@ def _start_estimation(model, data, w, mw, mc):
     reading, the initial configuration (:func:`~tdacm.estimation.ekf_step.initial_estimate`),
     the filter's reset and, with a start-up reading, its first update."""
     e = model.estimation
-    ep, pp, ip, cp = take(e.ekf, w), take(e.pose, w), take(e.imu, w), take(e.encoders, w)
+    ep, ip, cp = take(e.ekf, w), take(e.imu, w), take(e.encoders, w)
     d = take(data.estimation, w)
     rng = data.rng_estimation[w]
     n = data.q.shape[1]

@@ -57,6 +57,7 @@ import numpy as np
 from pydantic import ValidationError, model_validator
 
 from .._config import ConfigModel, Field
+from ..sim.runner import SUCCESS_RMSE
 
 
 class CampaignSpecError(ValueError):
@@ -131,7 +132,7 @@ class CampaignSpecConfig(ConfigModel):
         None, gt=0, description="s, overrides the scenario's duration (unset: the scenario's)"
     )
     success_rmse: float = Field(
-        0.01, gt=0, description="a run succeeds if it ends at or below this normalized RMSE"
+        SUCCESS_RMSE, gt=0, description="a run succeeds if it ends at or below this normalized RMSE"
     )
     success_window: float | None = Field(
         None,
@@ -193,7 +194,7 @@ class CampaignSpec:
     #: the engine: ``True`` the batched engine (:mod:`tdacm.campaign.batched`), ``False`` the
     #: block loop, ``"auto"`` batched where supported; how the runs execute, not what they
     #: are, so not in :meth:`fingerprint` (a stored campaign resumes on either)
-    batched: bool | str = "auto"
+    batched: bool | str = CampaignSpecConfig.model_fields["batched"].default
 
     def as_dict(self) -> dict:
         out = {
@@ -322,7 +323,7 @@ def _check_range(source, where, key, d: dict, base) -> None:
 
 
 def parse_spec(
-    text: str, source: str = "<spec>", scenario_defaults: dict | None = None
+    text: str, source: str = CampaignSpec.source, scenario_defaults: dict | None = None
 ) -> CampaignSpec:
     """Parse and validate a campaign spec (TOML text).  ``scenario_defaults`` (the scenario's
     resolved data) lets the validation check every distribution key and vector length."""

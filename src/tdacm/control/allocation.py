@@ -21,6 +21,7 @@ from numba import njit
 
 from .._linalg import cholesky_substitute
 from .._linalg import solve as _solve
+from .config import LAW_DEFAULTS
 
 
 @njit(cache=True)
@@ -129,7 +130,12 @@ class TendonAllocation:
 
 
 def allocate_tensions(
-    b_s, tau_s, max_tension: float, pretension: float = 0.5, weight: float = 1e-3, tol: float = 1e-6
+    b_s,
+    tau_s,
+    max_tension: float,
+    pretension: float = LAW_DEFAULTS.pretension,
+    weight: float = 1e-3,
+    tol: float = 1e-6,
 ) -> TendonAllocation:
     """Tendon tensions ``0 <= T <= max_tension`` with ``B_s T ~= tau_s`` (see module doc).
 

@@ -38,6 +38,7 @@ from numba import njit
 from ..lie.euler import rot_zyx
 from ..system.kernels import coupled_terms
 from ..system.tdacm import TDACM, Loads
+from .config import ModelConfig
 
 
 @dataclass(frozen=True)
@@ -71,9 +72,9 @@ class EstimatedModel:
     def __init__(
         self,
         system: TDACM,
-        level: float = 0.1,
+        level: float = ModelConfig().perturbation,
         seed: int = 0,
-        gravity_feedforward: bool = True,
+        gravity_feedforward: bool = ModelConfig().gravity_feedforward,
         rotor_drag=None,
     ):
         if not isinstance(system, TDACM):

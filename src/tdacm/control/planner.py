@@ -319,14 +319,16 @@ class Mode(StrEnum):
 
 
 class ModeSwitch:
-    """IBVS / recovery switching with a margin and hysteresis (module docstring)."""
+    """IBVS / recovery switching with a margin and hysteresis (module docstring); ``margin_px``,
+    ``confirm`` and ``lose`` are the scenario's ``[recovery]`` keys (their defaults are those of
+    :class:`tdacm.loop.config.RecoveryConfig`)."""
 
     def __init__(
         self,
         camera,
-        margin_px: float = 20.0,
-        confirm: int = 2,
-        lose: int = 5,
+        margin_px: float,
+        confirm: int,
+        lose: int,
         initial: Mode | str = Mode.RECOVERY,
     ):
         self.camera = camera

@@ -45,6 +45,7 @@ from .. import _validate as C
 from ..lie.se3 import skew
 from ..vision.ippe import canonical_frame
 from ..vision.target_filter import pnp_kernel
+from .config import EstimationConfig
 
 
 @dataclass(frozen=True)
@@ -72,8 +73,8 @@ class TargetCamera:
     object_points: np.ndarray
     sigma: np.ndarray
     level_normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))
-    target_initial_position_std: float = 0.05
-    target_initial_attitude_std: float = 0.05
+    target_initial_position_std: float = EstimationConfig().target_initial_position_std
+    target_initial_attitude_std: float = EstimationConfig().target_initial_attitude_std
     reinit_after: float = 0.5
 
     def __post_init__(self):

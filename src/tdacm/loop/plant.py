@@ -35,6 +35,7 @@ from ..aero.wind import (
     wind_velocity,
 )
 from ..contact import layout as CL
+from ..contact.config import ContactConfig
 from ..contact.geometry import clearance
 from ..system.aero import check_aero
 from ..system.contact import check_contact
@@ -46,7 +47,7 @@ from ..system.kernels import (
     rk4_run_env,
 )
 from ..system.tdacm import TDACM, Loads
-from .config import DisturbancesConfig
+from .config import PLANT_SUBSTEPS, DisturbancesConfig
 from .data import PlantState
 
 #: Roll or pitch (rad) beyond which the drone counts as tumbled and the run ends
@@ -66,9 +67,9 @@ class Disturbances:
     """
 
     base_wrench_amplitude: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    base_wrench_frequency: float = 0.0
+    base_wrench_frequency: float = DisturbancesConfig().base_wrench_frequency
     downwash: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    downwash_noise: float = 0.0
+    downwash_noise: float = DisturbancesConfig().downwash_noise
 
     @classmethod
     def from_config(cls, c: DisturbancesConfig) -> Disturbances:
@@ -174,9 +175,11 @@ class PlantData(NamedTuple):
         return cls(WindState.initial(), p.aero.copy(), p.loads.copy())
 
 
-def plant_params(system, disturbances: Disturbances | None = None, substeps: int = 4, aero=None,
-                 wind: Wind | None = None, contact=None, contact_substeps: int = 32,
-                 contact_margin: float = 0.01, force_limit: float | None = None,
+def plant_params(system, disturbances: Disturbances | None = None,
+                 substeps: int = PLANT_SUBSTEPS, aero=None, wind: Wind | None = None,
+                 contact=None, contact_substeps: int = ContactConfig().contact_substeps,
+                 contact_margin: float = ContactConfig().contact_margin,
+                 force_limit: float | None = None,
                  accelerations: bool = False, reach: float = 0.0, node_rod=None) -> PlantParams:  # fmt: skip
     """The :class:`PlantParams` of a plant of ``system`` (module docstring)."""
     d = disturbances or Disturbances()
@@ -315,15 +318,15 @@ class Plant:
         system: TDACM,
         q0,
         qd0,
-        substeps: int = 4,
+        substeps: int = PLANT_SUBSTEPS,
         disturbances: Disturbances | None = None,
         rng: np.random.Generator | None = None,
         aero: np.ndarray | None = None,
         wind: Wind | None = None,
         accelerations: bool = False,
         contact: np.ndarray | None = None,
-        contact_substeps: int = 32,
-        contact_margin: float = 0.01,
+        contact_substeps: int = ContactConfig().contact_substeps,
+        contact_margin: float = ContactConfig().contact_margin,
         force_limit: float | None = None,
     ):
         if wind is not None and aero is None:

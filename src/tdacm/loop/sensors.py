@@ -25,7 +25,7 @@ from ..vision import TargetDetector
 from ..vision.camera import CameraParams, PinholeCamera, in_image, project_world
 from ..vision.detect import NOT_DETECTED, Detection
 from ..vision.mounts import base_pose_into, mul4, rod_steps, tip_camera_pose_into
-from .config import SensorModel
+from .config import CamerasConfig, SensorModel
 from .data import CameraMeasurement, DeferredMeasurement, PlantState, SensorReadings
 
 # ----------------------------------------------------------------------------- compiled step
@@ -397,10 +397,10 @@ class Sensors:
         self,
         local: CameraSensor,
         global_: CameraSensor | None = None,
-        global_every: int = 1,
+        global_every: int = CamerasConfig().global_every,
         always_global: bool = False,
         other: dict | None = None,
-        global_output_every: int = 0,
+        global_output_every: int = CamerasConfig().global_output_every,
     ):
         self.local = local
         self.global_ = global_

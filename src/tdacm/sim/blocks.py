@@ -23,6 +23,7 @@ from .._linalg import solve as _solve
 from ..aero.config import AerodynamicsConfig
 from ..control import EstimatedModel
 from ..control.allocation import box_least_squares
+from ..control.config import ModelConfig
 from ..estimation import (
     EstimatorConfig,
     ExtendedKalmanFilter,
@@ -39,7 +40,6 @@ from ..loop.config import (
     CamerasConfig,
     ControllerConfig,
     IbvsConfig,
-    ModelConfig,
     RecoveryConfig,
     SensorModel,
     ServoConfig,
@@ -68,6 +68,7 @@ from ..vision.features import estimate_depths
 from ..vision.target_filter import reference_from_pose
 from ..vision.virtual import virtual_camera_points, virtual_camera_transform, virtual_pose
 from .config import ScenarioConfig, SceneSection
+from .robot import TipConfig
 from .scenario import ScenarioError
 
 #: The paper profile's command shaping: no rate limits, no ramp, no filter (docs/control.md,
@@ -391,7 +392,9 @@ def air_of(cfg: ScenarioConfig, world, seed: int, source: str = "scenario"):
     return aero_array(s, record), wind
 
 
-def contact_plant_options(scene: SceneSection, system, tip_mount=None, probe_length=0.0) -> dict:
+def contact_plant_options(
+    scene: SceneSection, system, tip_mount=None, probe_length: float = TipConfig().probe_length
+) -> dict:
     """The :class:`~tdacm.loop.plant.Plant` keywords of ``[scene]``'s obstacles and
     ``[scene.contact]`` (none without obstacles: the contact-free plant); the tip sphere on
     a probe of ``probe_length`` along the optical axis of C_L mounted at ``tip_mount``."""

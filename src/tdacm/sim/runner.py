@@ -29,7 +29,19 @@ from .assemble import Assembly, World, build_loop, camera_pose_error
 from .outputs import write_run
 from .scenario import Scenario, check_run, load_scenario
 
-__all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
+__all__ = [
+    "MODE_CODES",
+    "SUCCESS_RMSE",
+    "SafetyMonitor",
+    "Simulation",
+    "normalized_rmse",
+    "run_scenario",
+]
+
+#: The normalized RMSE at or below which a run counts as a success by default: a campaign's
+#: ``success_rmse`` (:class:`~tdacm.campaign.spec.CampaignSpecConfig`) and the servoing task's
+#: (:class:`~tdacm.envs.options.EnvOptions`).
+SUCCESS_RMSE = 0.01
 
 
 class Simulation:

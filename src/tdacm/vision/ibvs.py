@@ -52,9 +52,11 @@ from .features import (
 
 MODES = ("current", "desired", "mean")
 SOLVERS = ("floor", "damped")
+#: the default interaction matrix and solve (also the scenario's ``[ibvs]`` mode and solver)
+DEFAULT_MODE, DEFAULT_SOLVER = "current", "floor"
 
 
-def robust_solve(interaction, error, floor: float, solver: str = "floor") -> np.ndarray:
+def robust_solve(interaction, error, floor: float, solver: str = DEFAULT_SOLVER) -> np.ndarray:
     """``J^+ e`` with the small singular values of ``J`` floored (``solver="floor"``) or
     damped (``"damped"``) at ``floor`` (module docstring). ``floor = 0``: the plain solve."""
     jac = C.array("interaction", interaction, (6, 6))
@@ -130,7 +132,7 @@ def ibvs_law(p, z, desired, interaction_desired, mode, gain, floor, damped):
 
 
 def ibvs_twist(
-    error, interaction, *, gain: float, floor: float, solver: str = "floor"
+    error, interaction, *, gain: float, floor: float, solver: str = DEFAULT_SOLVER
 ) -> np.ndarray:
     """``v = -gain J_img^-1 e`` (paper eq. (39)); with ``floor > 0`` the well-conditioned
     solve of :func:`robust_solve`.
@@ -171,9 +173,9 @@ class IBVSController:
         *,
         gain: float,
         floor: float,
-        mode: str = "current",
+        mode: str = DEFAULT_MODE,
         order: str = "angular_first",
-        solver: str = "floor",
+        solver: str = DEFAULT_SOLVER,
     ):
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
