@@ -234,7 +234,7 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
         servo = servo._replace(
             camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
             desired_interaction=inter,
-            filter=servo.filter._replace(cam=np.array([cam.fx, cam.fy, cam.cx, cam.cy], float)),
+            filter=servo.filter._replace(record=servo.filter.record.with_camera(cam)),
         )  # fmt: skip
         perception = perception._replace(camera=cp)
     return {"controller": ctl, "sensor": sensor, "global_sensor": glob, "servo": servo,
