@@ -94,7 +94,6 @@ def test_second_half_uses_the_loops_signatures():
     from tdacm.sim import build_loop
     from tdacm.system import kernels as K
     from tdacm.vision.ibvs import ibvs_law
-    from tdacm.vision.target_filter import _diagonal_flags, _gauss_newton_kernel
 
     sc = load_scenario("paper-in-fov").with_overrides(
         {"cameras": {"local_renderer": "analytic", "global_every": 0}}
@@ -104,7 +103,7 @@ def test_second_half_uses_the_loops_signatures():
     loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
     loop.close()
     kernels = (
-        K.rk4_run, K.chain_poses, _gauss_newton_kernel, _diagonal_flags,
+        K.rk4_run, K.chain_poses,
         ibvs_law, svd_solve, _law_kernel, _allocate_tensions_kernel, expmap, so3_log,
     )  # fmt: skip
     before = {k.py_func.__name__: list(k.signatures) for k in kernels}

@@ -121,10 +121,8 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int, estimation) -
 
 def _window(model: BatchModel) -> int:
     """The robust servo's target-filter window (0 for the measured servo)."""
-    from ..vision.target_filter import FP_WINDOW
-
     servo = take(take(model.servo, 0), 0)
-    return int(servo.filter.prm[FP_WINDOW]) if servo.robust else 0
+    return int(servo.filter.record.window) if servo.robust else 0
 
 
 class Batch:

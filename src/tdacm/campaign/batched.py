@@ -300,6 +300,6 @@ def _summary(a, arrays, d, w, wall, spec, row) -> dict:
         termination=TERMINATIONS[code],
         switch_time=float(t[switch[0] + 1]) if switch.size else None,
         plan=None,
-        target_estimate=filter_estimate(servo.filter) if servo.filter.st.size else None,
+        target_estimate=filter_estimate(servo.filter),
     )
     return run_summary(a, arrays, outcome)

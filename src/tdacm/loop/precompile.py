@@ -148,23 +148,23 @@ def compile_second_half() -> None:
     from ..lie.se3 import expmap, so3_log
     from ..system.kernels import rk4_run
     from ..system.paper import paper_system
+    from ..vision.camera import PinholeCamera
     from ..vision.ibvs import ibvs_law
-    from ..vision.target_filter import _diagonal_flags, _gauss_newton_kernel
+    from ..vision.target_filter import TargetFilter
 
     # rk4_run last: by then the main process has cached the model callees it shares with
     # coupled_terms (tdacm.system.forward, the Lie-group blocks), which load instead of
     # compiling twice
-    rc = np.tile(np.eye(3), (2, 1, 1))  # the target filter's window: C-contiguous frames
-    pc = np.zeros((2, 3))
+    # the target filter's step with the argument types of the servo's step (which then loads
+    # it from the cache), one frame of a target 1 m ahead
     obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
-    z = np.tile(obj[:, :2], (2, 1, 1))
-    w = np.tile(np.eye(8), (2, 1, 1))
-    diag = _diagonal_flags(w)
-    _diagonal_flags(w[:1])  # the filter's per-frame call
-    normal = np.array([0.0, 0.0, -1.0])
-    pose = np.eye(4)
-    pose[2, 3] = 1.0
-    _gauss_newton_kernel(pose, rc, pc, z, obj, w, diag, 2, normal, 1.0)
+    cam = PinholeCamera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    filt = TargetFilter(cam, obj, level_prior=0.01, window=2)
+    target = np.eye(4)
+    target[2, 3] = 1.0
+    xy, _ = filt.points_in(np.eye(4), target)
+    filt.update_checked(np.column_stack((500.0 * xy[:, 0] + 320.0, 500.0 * xy[:, 1] + 240.0)),
+                        np.eye(4))  # fmt: skip
     # the servo's twist (mode "mean", floor solve) and joint rates
     xy, depths = np.ascontiguousarray(obj[:, :2]), np.ones(4)
     ibvs_law(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)

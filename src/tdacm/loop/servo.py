@@ -60,11 +60,10 @@ from ..vision.mounts import (
     tip_jacobian_into,
 )
 from ..vision.target_filter import (
-    F_REJECTED,
-    N_FPARAMS,
-    N_FSTATE,
     TargetFilter,
-    filter_params,
+    TargetFilterParams,
+    TargetFilterState,
+    filter_reset,
     points_in_kernel,
 )
 from ..vision.target_filter import filter_update as _filter_update
@@ -206,8 +205,9 @@ class VisualServo:
         if robust:
             fp = filter_record(self.target_filter, object_2d, FILTER_HISTORY)
         else:
-            fp = FilterParams(np.zeros(N_FPARAMS), np.zeros(4), np.zeros((4, 3)), object_2d,
-                              np.eye(4), np.zeros(3), 1)  # fmt: skip
+            unused = TargetFilter(self.local_camera, target.feature_points, level_prior=0.0,
+                                  window=1)  # fmt: skip
+            fp = FilterParams(unused.params, object_2d, 1)
         ib = self.ibvs
         base = s.n - s.n_s
         cols = slice(0, s.n_s) if s.n_rods == 1 else rod_columns(s, self.rod)
@@ -775,57 +775,31 @@ class RobustServo(VisualServo):
 
 # ----------------------------------------------------------------------------- target filter
 class FilterParams(NamedTuple):
-    """The target filter's constants for the servo's step: ``prm`` (its packed constants,
-    :func:`~tdacm.vision.target_filter.filter_params`), ``cam`` ``[fx, fy, cx, cy]``,
-    ``object_points`` (4, 3), ``object_2d`` (4, 2) and ``canon_inv`` (4, 4) their canonical
-    frame, ``level_normal`` (3,), ``history`` the C_L poses kept (latency + 1)."""
+    """The target filter's constants for the servo's step: ``record`` the filter's
+    (:class:`~tdacm.vision.target_filter.TargetFilterParams`), ``object_2d`` (4, 2) the
+    target's points in their canonical frame (the perception's), ``history`` the C_L poses
+    kept (latency + 1)."""
 
-    prm: np.ndarray
-    cam: np.ndarray
-    object_points: np.ndarray
+    record: TargetFilterParams
     object_2d: np.ndarray
-    canon_inv: np.ndarray
-    level_normal: np.ndarray
     history: int
-
-
-class FilterState(NamedTuple):
-    """The target filter's state: scalars ``st``, estimate ``pose``, covariance ``cov``, PnP
-    hypotheses ``hyp``, window ``rc``, ``pc``, ``z``."""
-
-    st: np.ndarray
-    pose: np.ndarray
-    cov: np.ndarray
-    hyp: np.ndarray
-    rc: np.ndarray
-    pc: np.ndarray
-    z: np.ndarray
 
 
 def filter_record(tf, object_2d, history: int) -> FilterParams:
     """The :class:`FilterParams` of a :class:`~tdacm.vision.TargetFilter` ``tf``."""
-    c = tf.camera
-    _, canon = canonical_frame(tf.object_points)
-    return FilterParams(
-        filter_params(tf), np.array([c.fx, c.fy, c.cx, c.cy], float),
-        np.ascontiguousarray(tf.object_points, float), np.ascontiguousarray(object_2d, float),
-        np.ascontiguousarray(np.linalg.inv(canon)), np.ascontiguousarray(tf.level_normal, float),
-        int(history),
-    )  # fmt: skip
+    return FilterParams(tf.params, np.ascontiguousarray(object_2d, float), int(history))
 
 
-def filter_state(window: int) -> FilterState:
-    return FilterState(np.zeros(N_FSTATE), np.eye(4), np.zeros((6, 6)), np.zeros((2, 4, 4)),
-                       np.zeros((window, 3, 3)), np.zeros((window, 3)),
-                       np.zeros((window, 4, 2)))  # fmt: skip
+def filter_state(window: int) -> TargetFilterState:
+    return TargetFilterState.initial(window)
 
 
 def filter_estimate(fs) -> tuple | None:
     """``(pose (4, 4), covariance (6, 6), rejected frames)`` of a target filter's state
     ``fs`` (copies), ``None`` before its first estimate."""
-    if fs.st[0] == 0.0:
+    if not fs.initialized[0]:
         return None
-    return fs.pose.copy(), fs.cov.copy(), int(fs.st[F_REJECTED])
+    return fs.pose.copy(), fs.cov.copy(), int(fs.rejected[0])
 
 
 def target_estimate(servo) -> tuple | None:
@@ -841,21 +815,13 @@ def target_estimate(servo) -> tuple | None:
 
 
 @njit(cache=True)
-def filter_reset(fs):
-    for i in range(fs.st.shape[0]):
-        fs.st[i] = 0.0
-
-
-@njit(cache=True)
 def filter_initialized(fs):
-    return fs.st[0] != 0.0
+    return fs.initialized[0]
 
 
 @njit(cache=True)
 def filter_update(fp, fs, uv, g_c, cov):
-    return _filter_update(fp.prm, fp.cam, fs.st, fs.pose, fs.cov, fs.hyp, fs.rc, fs.pc, fs.z,
-                          fp.object_points, fp.object_2d, fp.canon_inv, fp.level_normal, uv,
-                          g_c)  # fmt: skip
+    return _filter_update(fp.record, fs, uv, g_c, cov)
 
 
 # ============================================================================ compiled step
@@ -973,7 +939,7 @@ class ServoState(NamedTuple):
     traj_tf: np.ndarray
     traj_q0: np.ndarray
     traj_dq: np.ndarray
-    filter: FilterState
+    filter: TargetFilterState
     target_pose: np.ndarray
     tp_set: np.ndarray
     last_fused: np.ndarray
@@ -1223,7 +1189,7 @@ def servo_perceive(p, s, m, t, dt, k, q, p_qq, found, uv, xy, z, capture, out):
         if s.tp_set[0] != 0.0:
             g_s = np.empty((4, 4))
             _servo_camera_pose(p, m, q, g_c, g_s)
-            points_in_kernel(p.filter.object_points, g_s, s.target_pose, pv, zv)
+            points_in_kernel(p.filter.record.object_points, g_s, s.target_pose, pv, zv)
             valid = min_edge2(pv) >= 1e-24
             for i in range(4):
                 if not zv[i] > 0.0:
@@ -1231,7 +1197,7 @@ def servo_perceive(p, s, m, t, dt, k, q, p_qq, found, uv, xy, z, capture, out):
             if valid:
                 xl = np.empty((4, 2))
                 zl = np.empty(4)
-                points_in_kernel(p.filter.object_points, g_c, s.target_pose, xl, zl)
+                points_in_kernel(p.filter.record.object_points, g_c, s.target_pose, xl, zl)
                 ok = True
                 for i in range(4):
                     if not zl[i] > 0.0:
