@@ -248,7 +248,6 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
                 *reference_snapshot(snap, world.robot, world.target, scene, world.q_star, cam)
             )
             cp = cam.params()
-            fcam = np.array([cam.fx, cam.fy, cam.cx, cam.cy], float)
             s_rec = s_rec._replace(
                 camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
                 desired_interaction=inter, filter=s_rec.filter._replace(record=s_rec.filter.record.with_camera(cam)),
