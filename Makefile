@@ -3,32 +3,45 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+WARM := $(VENV)/.kernels
 
-.PHONY: demo test docs lint bench clean
+.PHONY: demo test docs lint bench wheel clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[all,dev]"
-	$(PY) -m tdacm.loop.precompile --install   # numba's cache: the first run loads, not compiles
 	touch $(STAMP)
 
+# numba's cache of the checkout for the test suite: the kernels of `tdacm run`, the engine, the
+# vector env and identification, compiled in two processes (tdacm.bench.compile.fill)
+$(WARM): $(STAMP)
+	$(PY) -m tdacm.bench.compile fill
+	touch $(WARM)
+
+# the demo compiles only the kernels it runs, at their first use (a notice and a progress bar
+# on stderr; half of them in a second process), then loads them from numba's cache
 demo: $(STAMP)
 	$(VENV)/bin/tdacm run paper-in-fov --out out/paper-in-fov
 
-test: $(STAMP)
+test: $(WARM)
 	$(VENV)/bin/lint-imports --no-cache   # the layers of [tool.importlinter] in pyproject.toml
 	$(PY) -m pytest -q --durations=15   # includes the strict docs build (tests/test_docs.py) and the layers; lists the slowest tests (the 10-minute budget)
+
+# the wheel with its kernels compiled for a portable CPU (buildsys/tdacm_build.py): installing
+# it needs no compiling on an x86-64 machine with the same Python and numba (docs/index.md)
+wheel: $(STAMP)
+	$(PY) -m build --wheel --outdir dist
 
 docs: $(STAMP)
 	$(PY) -m mkdocs build --strict -d site
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks examples
-	$(VENV)/bin/ruff format --check src tests benchmarks examples
+	$(VENV)/bin/ruff check src tests benchmarks examples buildsys
+	$(VENV)/bin/ruff format --check src tests benchmarks examples buildsys
 
 bench: $(STAMP)
 	$(VENV)/bin/tdacm bench
 
 clean:
-	rm -rf $(VENV) out build site *.egg-info
+	rm -rf $(VENV) out build dist site *.egg-info

@@ -190,19 +190,6 @@ def test_replay_zero_flags(capsys, tmp_path, flag):
     _rejected(capsys, ["replay", str(tmp_path), flag, "0"], flag)
 
 
-def test_compile_notice_is_one_stderr_line_when_cold(monkeypatch, capsys, tmp_path):
-    from tdacm import cli
-
-    monkeypatch.setattr(cli, "numba_cache_is_cold", lambda: True)
-    cli._compile_notice()
-    cap = capsys.readouterr()
-    assert cap.out == "" and len(cap.err.strip().splitlines()) == 1
-    assert "compiling the numba kernels" in cap.err
-    monkeypatch.setattr(cli, "numba_cache_is_cold", lambda: False)
-    cli._compile_notice()
-    assert capsys.readouterr().err == ""
-
-
 def test_bench_progress_line_on_stderr(monkeypatch, capsys, tmp_path):
     import tdacm.bench.loop as loop_bench
     import tdacm.bench.model as bench

@@ -6,9 +6,19 @@ Janabi-Sharifi, "Strain-Parameterized Coupled Dynamics and Dual-Camera Visual Se
 Aerial Continuum Manipulators".
 """
 
-from .base import FixedBase, Quadrotor
-from .rod import Rod, SectionedRod, StrainBasis, Tendons
-from .system import (
+# Before any kernel is defined: where numba caches the package's kernels and for which CPU (a
+# wheel's shipped kernels, tdacm._jitcache), and the notice of what compiles (tdacm._compiling).
+from . import _jitcache
+
+_jitcache.activate()
+
+from . import _compiling  # noqa: E402
+
+_compiling.install()
+
+from .base import FixedBase, Quadrotor  # noqa: E402
+from .rod import Rod, SectionedRod, StrainBasis, Tendons  # noqa: E402
+from .system import (  # noqa: E402
     TDACM,
     Loads,
     SimulationResult,

@@ -154,17 +154,15 @@ def numba_cache_is_cold() -> bool:
 
 
 def _compile_notice(parallel: bool = False) -> None:
-    """One line when the kernels will compile; with ``parallel``, half of them compile in a
-    second process meanwhile (:mod:`tdacm.loop.precompile`)."""
-    if numba_cache_is_cold():
+    """With ``parallel``, when the kernels will compile: half of them compile in a second
+    process meanwhile (:mod:`tdacm.loop.precompile`), which the compile notice says. The
+    notice itself comes with the first compile (:mod:`tdacm._compiling`)."""
+    if parallel and numba_cache_is_cold():
+        from ._compiling import add_note
         from .loop.precompile import start
 
-        two = parallel and start()
-        _note(
-            "tdacm: compiling the numba kernels on first use (about a minute on 2 free cores, "
-            + ("in two processes, " if two else "")
-            + "longer on a busy machine; cached afterwards)"
-        )
+        if start():
+            add_note("in two processes")
 
 
 def _progress(desc: str, unit: str = "frame"):
@@ -275,7 +273,16 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    """time the model (terms, forward dynamics, passive simulation, stiff integrators)"""
+    """time the model (terms, forward dynamics, passive simulation, stiff integrators)
+
+    With --compile JOB: where the compile time of a job's first use goes (each kernel numba
+    compiles on an empty cache, in a fresh process, with its seconds; the total and the
+    count); JOB is run (tdacm run paper-in-fov --duration 1), engine, vector-env, identify or
+    all. Writes compile.json into --out; --write-estimates also stores the jobs' kernels and
+    seconds as the estimates of the compile notice (tdacm/data/compile_times.json).
+    """
+    if args.compile is not None:
+        return _bench_compile(args)
     from .bench import run_full_bench, run_model_bench
 
     if (problem := _opening(args.out, compile_notice=True)[1]) is not None:
@@ -284,6 +291,32 @@ def _cmd_bench(args) -> int:
         run_full_bench(out=args.out, repeats=args.repeats)
     else:
         run_model_bench(out=args.out, repeats=args.repeats)
+    return 0
+
+
+def _bench_compile(args) -> int:
+    """``tdacm bench --compile JOB``: :func:`tdacm.bench.compile.profile` of each job, its
+    table on stdout, the records in ``OUT/compile.json``."""
+    from .bench.compile import JOBS, profile, summary, table, write_estimates
+
+    if (problem := _out_error("--out", args.out)) is not None:
+        return _err(problem)
+    jobs = list(JOBS) if args.compile == "all" else [args.compile]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for job in jobs:
+        _note(f"tdacm: compiling `{JOBS[job][0]}` on an empty cache in a fresh process ...")
+        results[job] = res = profile(job)
+        print(table(res) + "\n", flush=True)
+        (out / "compile.json").write_text(json.dumps(results, indent=1))
+    if len(jobs) > 1:
+        for job in jobs:
+            s = summary(results[job])
+            print(f"{job}: {s['kernels']} kernels, {s['compile_cpu_s']:.1f} s of compile CPU")
+    _note(f"Compile records written to {(out / 'compile.json').resolve()}")
+    if args.write_estimates:
+        _note(f"Compile estimates written to {write_estimates(results)}")
     return 0
 
 
@@ -899,6 +932,13 @@ def _add_relative(s) -> None:
     )
 
 
+def _compile_jobs() -> list[str]:
+    """The jobs of ``tdacm bench --compile`` (:data:`tdacm._compiling.JOBS`)."""
+    from ._compiling import JOBS
+
+    return list(JOBS)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .recording.export import DEFAULT_SECTIONS
@@ -924,6 +964,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--full",
         action="store_true",
         help="add the CC Lagrangian baseline comparison, DoF scaling and accuracy study (minutes)",
+    )
+    s.add_argument(
+        "--compile",
+        nargs="?",
+        const="run",
+        choices=[*_compile_jobs(), "all"],
+        metavar="JOB",
+        help="instead: each kernel a job compiles on an empty cache, with its seconds "
+        f"(JOB: {', '.join(_compile_jobs())} or all; default run)",
+    )
+    s.add_argument(
+        "--write-estimates",
+        action="store_true",
+        help="with --compile: store the jobs' compile times as the compile notice's estimates",
     )
     s = _command(sub, "run", _cmd_run)
     s.add_argument("scenario", help="scenario name or path to a scenario TOML file")

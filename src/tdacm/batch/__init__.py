@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._compiling import compiling
 from .._records import replicate, take
 from ..control.hierarchical import ControllerState, ControllerWork
 from ..loop.arms import ArmsMemo
@@ -171,6 +172,7 @@ class Batch:
     def dt(self) -> float:
         return self.model.dt
 
+    @compiling("engine")
     def reset(self, which=None, q0=None, qd0=None) -> None:
         """Restart the worlds ``which`` (bool mask, default all) from ``q0``/``qd0`` (rows
         for those worlds; default the batch's initial states), their random streams rewound
@@ -187,6 +189,7 @@ class Batch:
         d.rng_estimation[which] = stream_state(self.seeds[which], ESTIMATION_STREAM)
         E.reset_worlds(self.model, d, which, q0s, qd0s)
 
+    @compiling("engine")
     def step(self, twist=None) -> None:
         """One control period of every running world; ``twist`` (N, 6) replaces the IBVS
         twist (NaN rows: the IBVS twist)."""
@@ -195,6 +198,7 @@ class Batch:
         args = (self.model, self.data, np.ascontiguousarray(twist, float))
         E.parallel(E.step_worlds, args, self.n_worlds, self.threads)
 
+    @compiling("engine")
     def run(self, log_states: bool = False, log_inputs: bool = False) -> BatchResult:
         """Reset, then run every world to its end (``model.steps + 1`` samples or a
         termination)."""

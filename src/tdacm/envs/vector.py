@@ -56,6 +56,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from .._compiling import compiling
 from ..batch import engine as E
 from ..loop.data import Termination
 from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
@@ -100,6 +101,7 @@ class TipServoVectorEnv(VectorEnv):
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
+    @compiling("vector-env")
     def __init__(
         self,
         num_envs: int = 1,
@@ -275,6 +277,7 @@ class TipServoVectorEnv(VectorEnv):
         self._rmse[which] = rmse[which]
 
     # ------------------------------------------------------------------ the API
+    @compiling("vector-env")
     def reset(self, *, seed=None, options=None):
         """Reset every world (or those of ``options["reset_mask"]``, a bool array (N,)).
         ``seed``: an int (world ``i`` gets ``seed + i``) or a list of N ints; ``None``
@@ -315,6 +318,7 @@ class TipServoVectorEnv(VectorEnv):
         }
         return self._obs.copy(), info
 
+    @compiling("vector-env")
     def step(self, actions):
         if not self._started:
             raise ResetNeeded("Cannot call step() before calling reset()")

@@ -61,6 +61,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from .._compiling import compiling
 from .data import Recording
 from .experiments import NOISE, project_points
 from .params import PARAMETERS, parse_params
@@ -592,6 +593,7 @@ class Identification:
         return [(s.rec, p.predict(self.z, s)) for s in p.setups]
 
 
+@compiling("identify")
 def identify(
     recordings,
     params,

@@ -25,9 +25,9 @@ Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache):
 process, 42-43 s with the second one; 88.5 s against 60.1 s in a bench run at a slower moment
 of the machine (docs/benchmarks.md, "Cold start").
 
-At install time (``make``'s install step) ``python -m tdacm.loop.precompile --install``
-(:func:`fill_cache`) runs ``tdacm run paper-in-fov --duration 1`` once, so that numba's on-disk
-cache already holds the kernels at the user's first run (docs/benchmarks.md, "Cold start").
+Before a first run the kernels can instead be in the cache already: a wheel carries them
+compiled (:mod:`tdacm._jitcache`), and ``make test`` fills the checkout's cache with the jobs
+of :mod:`tdacm.bench.compile` (``python -m tdacm.bench.compile fill``).
 
 The second process is started only when the cache is cold (:func:`numba_cache_is_cold`), the
 machine has at least two cores and ``TDACM_PARALLEL_COMPILE`` is not ``0``. On one core both halves would share it, and the rod
@@ -185,83 +185,5 @@ def compile_second_half() -> None:
     rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 
-#: What :func:`fill_cache` runs: the README's first command, on one simulated second.
-WARM_UP_RUN = ("run", "paper-in-fov", "--duration", "1")
-#: ... and, in a second process at the same time, a batch of the engine's configuration
-#: (:mod:`tdacm.batch`, whose kernels compile apart from the block loop's), the vector env with
-#: the imitation teacher and a one-step identification (explicit and stiff shooting), so that
-#: their first use loads rather than compiles too
-WARM_UP_BATCH = (
-    "from tdacm.sim.batch import build_batch\n"
-    "from tdacm.sim.scenario import load_scenario\n"
-    "sc = load_scenario('paper-out-of-fov').with_overrides({'cameras': {'local_renderer': "
-    "'analytic', 'global_renderer': 'planar'}, 'ibvs': {'features': 'measured'}}, 'warm-up')\n"
-    "b = build_batch(sc, [0, 1], duration=0.2, threads=2)\n"
-    "b.run(); b.step(); b.reset()\n"
-    # the period in halves with a view between them (the vector env's kernels, one at a time)
-    "import numpy as np\n"
-    "from tdacm.batch import engine as E\n"
-    "E.sense_worlds(b.model, b.data, 0, 2)\n"
-    "E.act_worlds(b.model, b.data, np.full((2, 6), np.nan), 0, 2)\n"
-    # the vector env and the imitation teacher on the robust servo (tdacm.envs)
-    "import gymnasium as gym\n"
-    "import tdacm.envs\n"
-    "from tdacm.envs.teacher import teacher_twists\n"
-    "v = gym.make_vec('tdacm/TipServo-v0', num_envs=2, vectorization_mode='vector_entry_point')\n"
-    "v.reset(seed=0); teacher_twists(v); v.step(v.action_space.sample()); v.close()\n"
-    # identification's shooting on the explicit (RK4) and the stiff path (tdacm.identify)
-    "from tdacm.identify import identify, synthesize\n"
-    "for basis in ('bending:0', 'bending:2'):\n"
-    "    rec = synthesize('tendon-steps-loaded', seed=3, duration=3.0).decimated(2)\n"
-    "    identify(rec.with_basis(basis), ['E'], segment=1.0, max_nfev=1)\n"
-)
-
-
-def fill_cache(timeout: float = 1800.0) -> int:
-    """Fill numba's on-disk cache at install time (the Makefile's install step runs
-    ``python -m tdacm.loop.precompile --install``): one ``tdacm run paper-in-fov --duration 1``
-    into a temporary folder, which compiles every kernel the scenario runs (in two processes,
-    as any cold run) and caches them, so that the user's first run loads them; meanwhile a
-    third process runs a small batch of the batched engine, the vector env and a one-step
-    identification (:data:`WARM_UP_BATCH`).  Returns the
-    run's exit code; a failure only costs the user that compile at the first run."""
-    import tempfile
-
-    t0 = time.perf_counter()
-    print(
-        "tdacm: compiling the numba kernels of `tdacm run paper-in-fov` into numba's cache "
-        "(once; a minute or more on two cores)...",
-        flush=True,
-    )
-    batch = subprocess.Popen(
-        [sys.executable, "-c", WARM_UP_BATCH],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    with tempfile.TemporaryDirectory() as out:
-        cmd = [sys.executable, "-m", "tdacm.cli", "-q", *WARM_UP_RUN, "--out", out]
-        try:
-            proc = subprocess.run(
-                cmd, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout
-            )
-        except subprocess.TimeoutExpired:
-            batch.kill()
-            print(f"tdacm: the warm-up run took over {timeout:.0f} s; stopped", flush=True)
-            return 1
-    try:  # the batched engine's kernels (a failure only costs their compile at first use)
-        batch.wait(timeout=max(1.0, timeout - (time.perf_counter() - t0)))
-    except subprocess.TimeoutExpired:
-        batch.kill()
-    if proc.returncode != 0:
-        print(f"tdacm: the warm-up run failed:\n{proc.stderr[-2000:]}", flush=True)
-    else:
-        print(f"tdacm: kernels cached in {time.perf_counter() - t0:.0f} s", flush=True)
-    return proc.returncode
-
-
-if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start() and make
-    if sys.argv[1:] == ["--install"]:
-        fill_cache()  # never fails the install: the kernels then compile at the first run
-    else:
-        compile_second_half()
+if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start()
+    compile_second_half()

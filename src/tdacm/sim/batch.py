@@ -18,6 +18,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from .._compiling import compiling
 from .._records import put, replicate, stack, take
 from ..batch import Batch, BatchResult
 from ..batch.engine import BatchModel, Estimation, EstimationData
@@ -366,6 +367,7 @@ def _gains_of(a, f):
     return default_gains(_Robot(s, m), q_star, c.config)
 
 
+@compiling("engine")
 def build_batch(
     scenario, seeds, duration=None, q0=None, threads=None, assembly=None, params=None
 ) -> Batch:

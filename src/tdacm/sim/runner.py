@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._compiling import compiling
 from ..lie.se3 import rotation_angle
 from ..loop.ablation import TruthAblation
 from ..loop.closed_loop import ClosedLoop, controller_name
@@ -82,6 +83,7 @@ class Simulation:
     def loop(self) -> ClosedLoop | None:
         return None if self.assembly is None else self.assembly.loop
 
+    @compiling("run")
     def build(self) -> Assembly:
         """Assemble the loop (:func:`~tdacm.sim.assemble.build_loop`; its checks raise
         :class:`~tdacm.sim.ScenarioError`). :meth:`run` builds it if this was not called."""
@@ -93,6 +95,7 @@ class Simulation:
             composer.bind(self.assembly)
         return self.assembly
 
+    @compiling("run")
     def run(self, out_dir=None, on_step=None):
         """Run; write the data of the run folder ``out_dir`` if given
         (:func:`~tdacm.sim.outputs.write_run`). Ctrl-C writes what was simulated so far, then
