@@ -140,3 +140,28 @@ def test_the_jobs_of_the_notice_are_those_the_bench_measures():
     from tdacm.bench.compile import JOBS
 
     assert list(JOBS) == list(_compiling.JOBS)
+
+
+def _job_of(fn) -> str | None:
+    """The job of the :class:`~tdacm._compiling.compiling` scope ``fn`` is wrapped in."""
+    cells = dict(zip(fn.__code__.co_freevars, fn.__closure__ or (), strict=True))
+    return cells["job"].cell_contents if "job" in cells and "fn" in cells else None
+
+
+def test_the_entry_points_of_the_jobs_open_their_scope():
+    from tdacm.batch import Batch
+    from tdacm.envs.vector import TipServoVectorEnv
+    from tdacm.identify import identify
+    from tdacm.sim import Simulation
+    from tdacm.sim.batch import build_batch
+
+    jobs = {
+        "run": (Simulation.build, Simulation.run),
+        "engine": (build_batch, Batch.reset, Batch.step, Batch.run),
+        "vector-env": (TipServoVectorEnv.__init__, TipServoVectorEnv.reset, TipServoVectorEnv.step),
+        "identify": (identify,),
+    }
+    assert {job: [_job_of(f) for f in fns] for job, fns in jobs.items()} == {
+        job: [job] * len(fns) for job, fns in jobs.items()
+    }
+    assert set(jobs) == set(_compiling.JOBS)

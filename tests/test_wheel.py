@@ -87,27 +87,40 @@ def _clone(dest: Path) -> Path:
     return dest
 
 
-def build_and_install(work: Path, log=print) -> tuple[Path, Path, dict]:
-    """Build the wheel from a copy of the tree, install it into a new virtual environment;
-    ``(the venv's python, the wheel, wall seconds of each step)``."""
-    times = {}
+def build(work: Path, log=print) -> tuple[Path, float]:
+    """Build the wheel from a copy of the tree; ``(the wheel, wall seconds)``."""
     clone = _clone(work / "clone")
     t0 = time.perf_counter()
     env = {k: v for k, v in os.environ.items() if not k.startswith(("TDACM_", "NUMBA_"))}
     env.pop("PYTHONPATH", None)
     subprocess.run([sys.executable, "-m", "build", "--wheel", "--outdir", str(work / "dist"),
                     str(clone)], check=True, env=env)  # fmt: skip
-    times["build_s"] = time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
     (wheel,) = (work / "dist").glob("tdacm-*.whl")
-    log(f"built {wheel.name} ({wheel.stat().st_size / 1e6:.0f} MB) in {times['build_s']:.0f} s")
+    log(f"built {wheel.name} ({wheel.stat().st_size / 1e6:.0f} MB) in {seconds:.0f} s")
+    return wheel, seconds
+
+
+def install(wheel: Path, work: Path) -> tuple[Path, float]:
+    """Install ``wheel`` (and the ``env`` extra, from PyPI) into a new virtual environment in
+    ``work/elsewhere``; ``(its python, wall seconds)``."""
     t0 = time.perf_counter()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("TDACM_", "NUMBA_"))}
+    env.pop("PYTHONPATH", None)
     venv = work / "elsewhere" / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, env=env)
     py = venv / "bin" / "python"
     subprocess.run([str(py), "-m", "pip", "install", "--quiet", f"tdacm[env] @ {wheel.as_uri()}"],
                    check=True, env=env)  # fmt: skip
-    times["install_s"] = time.perf_counter() - t0
-    return py, wheel, times
+    return py, time.perf_counter() - t0
+
+
+def build_and_install(work: Path, log=print) -> tuple[Path, Path, dict]:
+    """Build the wheel from a copy of the tree, install it into a new virtual environment;
+    ``(the venv's python, the wheel, wall seconds of each step)``."""
+    wheel, build_s = build(work, log)
+    py, install_s = install(wheel, work)
+    return py, wheel, {"build_s": build_s, "install_s": install_s}
 
 
 def first_uses(py: Path, where: Path) -> dict:
@@ -162,30 +175,48 @@ def test_the_installed_wheel_compiles_nothing_even_after_touching_the_sources(tm
     assert "-cp3" in wheel.name and "none-any" not in wheel.name
     first = first_uses(py, tmp_path / "elsewhere")
     assert not check(first, os.getloadavg()[0]), first
-    for f in _package_dir(py).rglob("*.py"):  # a day later: content, not mtime, keys them
-        os.utime(f, (f.stat().st_atime + 86400, f.stat().st_mtime + 86400))
+    _touch(py)  # a day later: content, not mtime, keys them
     shutil.rmtree(tmp_path / "elsewhere" / "numba-cache", ignore_errors=True)
     again = first_uses(py, tmp_path / "elsewhere")
     assert not check(again, os.getloadavg()[0]), again
 
 
+def _touch(py: Path) -> None:
+    """Every source file of the installed package a day later."""
+    for f in _package_dir(py).rglob("*.py"):
+        os.utime(f, (f.stat().st_atime + 86400, f.stat().st_mtime + 86400))
+
+
 if __name__ == "__main__":  # the figures of docs/benchmarks.md, by hand
+    import argparse
     import tempfile
 
+    ap = argparse.ArgumentParser(prog="python tests/test_wheel.py")
+    ap.add_argument("--wheel", type=Path, help="install this wheel instead of building one")
+    ap.add_argument("--work", type=Path, help="the folder of the venv (default: a temporary one)")
+    a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="tdacm-wheel-test-") as tmp:
-        tmp = Path(tmp)
-        py, wheel, times = build_and_install(tmp)
+        tmp = a.work or Path(tmp)
+        if a.wheel:
+            wheel = a.wheel.resolve()
+            py, install_s = install(wheel, tmp)
+            times = {"install_s": install_s}
+        else:
+            py, wheel, times = build_and_install(tmp)
         report = {"wheel": wheel.name, "wheel_mb": wheel.stat().st_size / 1e6, **times}
+        print(json.dumps(report), flush=True)
         for label in ("first", "touched"):
             if label == "touched":
-                for f in _package_dir(py).rglob("*.py"):
-                    os.utime(f, (f.stat().st_atime + 86400, f.stat().st_mtime + 86400))
+                _touch(py)
                 shutil.rmtree(tmp / "elsewhere" / "numba-cache", ignore_errors=True)
             load0 = os.getloadavg()[0]
             uses = first_uses(py, tmp / "elsewhere")
             report[label] = {
                 "load": [load0, os.getloadavg()[0]],
-                **{k: {x: v[x] for x in ("wall_s", "compiled", "mode")} for k, v in uses.items()},
+                **{
+                    k: {x: v[x] for x in ("wall_s", "inside_s", "compiled", "mode")}
+                    for k, v in uses.items()
+                },  # fmt: skip
                 "failures": check(uses, load0),
             }
             print(json.dumps(report[label], indent=1), flush=True)

@@ -135,9 +135,17 @@ class Recorder:
                 "exclusive_s": wall - inner_wall,
                 "inclusive_cpu_s": cpu,
                 "exclusive_cpu_s": cpu - inner_cpu,
-                "failed": ev.is_failed,
+                "failed": _failed(ev),
             }
         )
+
+
+def _failed(ev) -> bool:
+    """Whether the compile ended by an exception (numba retries some, e.g. to fold literal
+    arguments). Read from the end event's exception details: numba 0.68's ``is_failed`` is
+    true when they are missing, which most compile events' are."""
+    exc = getattr(ev, "_exc_details", None)
+    return bool(exc) and exc[0] is not None
 
 
 def _mode(ev) -> bool | None:
@@ -294,8 +302,8 @@ def estimates_of(results: dict) -> dict:
             "seconds": round(summary(res)["compile_cpu_s"], 1),
             "kernels": [
                 [r["module"], r["qualname"], r["types"], round(r["exclusive_cpu_s"], 3)]
-                for r in res["records"]
-                if r["module"].startswith("tdacm") and not r["failed"]
+                for r in res["records"]  # a failed attempt costs its time at every first use too
+                if r["module"].startswith("tdacm")
             ],
         }
     return {
@@ -323,7 +331,7 @@ def write_estimates(results: dict, path: Path | None = None) -> Path:
         "jobs": {**old.get("jobs", {}), **new["jobs"]},
     }
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(merged, indent=1) + "\n")
+    path.write_text(json.dumps(merged) + "\n")
     return path
 
 
