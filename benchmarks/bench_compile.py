@@ -34,12 +34,12 @@ from pathlib import Path
 
 from tdacm.bench.compile import (
     JOBS,
-    estimates_of,
     portable_env,
     profile,
     speed_ab,
     summary,
     table,
+    write_estimates,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,10 +62,22 @@ if __name__ == "__main__":
         if a.portable:
             variants = {
                 "host": {
+                    "PYTHONPATH": str(ROOT / "src"),
                     "NUMBA_CACHE_DIR": str(out / "targets" / "host"),
                     "TDACM_KERNEL_CACHE": "local",
                 },  # fmt: skip
-                "portable": portable_env(out / "targets" / "portable"),
+                "portable": (
+                    {
+                        "PYTHONPATH": str(ROOT / "src"),
+                        **portable_env(out / "targets" / "portable"),
+                    }  # fmt: skip
+                    if a.wheel is None
+                    else {  # the unpacked wheel's package with its shipped kernels
+                        "PYTHONPATH": str(Path(a.wheel).resolve()),
+                        "NUMBA_CACHE_DIR": str(out / "targets" / "wheel-others"),
+                        "TDACM_KERNEL_CACHE": "shipped",
+                    }
+                ),
             }
         else:
             variants = {
@@ -90,6 +102,4 @@ if __name__ == "__main__":
             s = summary(res)
             print(f"{job}: {s['kernels']} kernels, {s['compile_cpu_s']:.1f} s of compile CPU")
         if a.write_estimates:
-            ESTIMATES.parent.mkdir(parents=True, exist_ok=True)
-            ESTIMATES.write_text(json.dumps(estimates_of(results), indent=1) + "\n")
-            print(f"estimates written to {ESTIMATES}")
+            print(f"estimates written to {write_estimates(results, ESTIMATES)}")
