@@ -214,11 +214,11 @@ def test_a_randomized_world_does_not_depend_on_the_number_of_worlds():
         o1, _ = e1.reset(seed=13)
         np.testing.assert_array_equal(o5[3], o1[0])
         m5, m1 = e5.unwrapped.batch.model, e1.unwrapped.batch.model
-        k = m5.stiffness[:, -1, -1] / m5.stiffness[0, -1, -1]
+        k = m5.robot.stiffness[:, -1, -1] / m5.robot.stiffness[0, -1, -1]
         assert len(set(k)) == 5 and np.all(np.abs(k - 1) <= 0.2)
-        lat = m5.servo.sensor[:, 2]
-        assert set(lat) <= {0.0, 1.0, 2.0}
-        assert np.all((m5.servo.sensor[:, 0] >= 0) & (m5.servo.sensor[:, 0] <= 2.0))
+        cam5, cam1 = m5.sensor, m1.sensor  # the tip cameras' records (world, arm)
+        assert set(cam5.latency[:, 0]) <= {0, 1, 2}
+        assert np.all((cam5.pixel_noise[:, 0] >= 0) & (cam5.pixel_noise[:, 0] <= 2.0))
         rng = np.random.default_rng(1)
         dones = 0
         for _ in range(12):
@@ -227,8 +227,9 @@ def test_a_randomized_world_does_not_depend_on_the_number_of_worlds():
             o1, r1, te1, tr1, _ = e1.step(a[3:4])
             np.testing.assert_array_equal(o5[3], o1[0])
             assert r5[3] == r1[0] and te5[3] == te1[0] and tr5[3] == tr1[0]
-            np.testing.assert_array_equal(m5.stiffness[3], m1.stiffness[0])
-            np.testing.assert_array_equal(m5.servo.sensor[3], m1.servo.sensor[0])
+            np.testing.assert_array_equal(m5.robot.stiffness[3], m1.robot.stiffness[0])
+            np.testing.assert_array_equal(cam5.pixel_noise[3], cam1.pixel_noise[0])
+            np.testing.assert_array_equal(cam5.latency[3], cam1.latency[0])
             dones += bool(te1[0] or tr1[0])
         assert dones >= 2  # autoresets drew again
     finally:

@@ -219,7 +219,7 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
 
 
 def _fill(spec, row, summary, t, rmse) -> None:
-    from .runner import succeeded
+    from .spec import succeeded
     from .store import ROW_FIELDS
 
     for k in ROW_FIELDS:
