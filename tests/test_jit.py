@@ -132,9 +132,9 @@ def test_what_kernels_call_declares_its_runtime():
     # checks
     assert direct <= {
         "tdacm.lie.magnus.magnus_step_into",
-        "tdacm.system.kernels._rotor_setup",
-        "tdacm.system.kernels._node_contact",
-        "tdacm.system.kernels._tip_contact",
+        "tdacm.system.bodies._rotor_setup",
+        "tdacm.system.bodies._node_contact",
+        "tdacm.system.bodies._tip_contact",
     }, direct
 
 

@@ -1,9 +1,10 @@
-"""The batched engine against the block loop it is the twin of, and its determinism.
+"""The batched engine against the block loop whose compiled steps it calls, and its
+determinism.
 
 With every random element off, each batched world equals :class:`tdacm.loop.ClosedLoop` with
-analytic cameras on the same scenario (states and image error to 1e-9 over the run; measured
-1e-14). With noise, a world's run depends only on its seed: not on the batch size, its index
-in the batch or the number of threads stepping the batch.
+analytic cameras on the same scenario bit for bit over the run (both call the same compiled
+steps on the same records). With noise, a world's run depends only on its seed: not on the
+batch size, its index in the batch or the number of threads stepping the batch.
 """
 
 import numpy as np
@@ -53,8 +54,8 @@ def _scenario(name, extra=None, duration=None):
 )
 def test_each_world_equals_the_block_loop(name, extra, duration):
     """Two worlds of different seeds (their own model errors, rotor-drag estimates) against
-    the block loop built with each seed: the plant states and the image error agree to 1e-9
-    at every sample."""
+    the block loop built with each seed: the plant states and the image error are the same
+    numbers at every sample."""
     sc = _scenario(name, extra, duration)
     seeds = [0, 5]
     res = build_batch(sc, seeds).run(log_states=True)
@@ -63,8 +64,8 @@ def test_each_world_equals_the_block_loop(name, extra, duration):
         q = r.arrays["q"]
         assert res.termination[w] is None and r.termination is None
         assert res.samples[w] == q.shape[0]
-        np.testing.assert_allclose(res.q[:, w], q, rtol=0, atol=1e-9)
-        np.testing.assert_allclose(res.rmse[:, w], r.arrays["rmse"], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(res.q[:, w], q)
+        np.testing.assert_array_equal(res.rmse[:, w], r.arrays["rmse"])
     assert not np.allclose(res.q[-1, 0], res.q[-1, 1])  # the seeds' model errors differ
 
 
@@ -91,14 +92,63 @@ def test_a_world_does_not_depend_on_the_batch_size_its_index_or_threads(features
     assert not np.array_equal(runs[0].q[:, 0], runs[0].q[:, 4])  # other seeds, other noise
 
 
+#: the proprioceptive sensors and the tip camera without noise or bias (the EKF's equality)
+QUIET_SENSORS = {
+    "pixel_noise": 0.0, "accel_bias": 0.0, "accel_noise": 0.0, "gyro_bias": 0.0,
+    "gyro_noise": 0.0, "encoder_noise": 0.0, "encoder_resolution": 0.0,
+    "pose_attitude_noise": 0.0, "pose_position_noise": 0.0,
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "name, extra, duration",
+    [
+        # on the EKF's estimates: each world's filter, its sensors and start-up reading
+        ("paper-in-fov", {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS}, 1.0),
+        ("dual-in-fov", None, 0.6),  # two arms on one drone, the arms' stacked step
+    ],
+)
+def test_each_world_equals_the_block_loop_on_estimates_and_two_arms(name, extra, duration):
+    """The scenarios the engine runs beyond one arm on the true state: the same numbers as
+    the block loop of each seed at every sample (both call the same compiled steps)."""
+    sc = _scenario(name, extra, duration)
+    seeds = [0, 5]
+    res = build_batch(sc, seeds, threads=1).run(log_states=True)
+    for w, seed in enumerate(seeds):
+        r = build_loop(sc, seed).loop.run(duration)
+        assert res.termination[w] is None and r.termination is None
+        np.testing.assert_array_equal(res.q[:, w], r.arrays["q"])
+        np.testing.assert_array_equal(res.rmse[:, w], r.arrays["rmse"])
+
+
 def test_unsupported_scenarios_are_refused_naming_the_key():
     with pytest.raises(ScenarioError, match="cameras.local_renderer"):
         build_batch(load_scenario("paper-in-fov"), [0])
-    sc = load_scenario("paper-in-fov").with_overrides(
-        {"cameras": ENGINE["cameras"], "estimation": {"source": "estimated"}}, "t"
+    touch = load_scenario("touch-target").with_overrides({"cameras": ENGINE["cameras"]}, "t")
+    with pytest.raises(ScenarioError, match="touch.enabled"):
+        build_batch(touch, [0])
+    user = load_scenario("paper-in-fov").with_overrides(
+        {"cameras": ENGINE["cameras"], "controller": {"class": f"{__name__}:UserController"}},
+        "t",
     )
-    with pytest.raises(ScenarioError, match="estimation.source|ibvs.features"):
-        build_batch(sc, [0])
+    with pytest.raises(ScenarioError, match=r"controller\.class: the engine runs the shipped"):
+        build_batch(user, [0])
+
+
+class UserController:
+    """A user's controller class (the engine runs the shipped ones only): holds still."""
+
+    def __init__(self, context):
+        self.n = context.system.n
+        self.n_u = context.system.n_u
+
+    def reset(self, estimate):
+        pass
+
+    def step(self, estimate, command, dt):
+        from tdacm.loop.data import ActuatorCommand
+
+        return ActuatorCommand(np.zeros(self.n_u), np.zeros(self.n), command.q_d)
 
 
 def test_recovery_failure_ends_the_world_named():
@@ -118,14 +168,13 @@ def test_recovery_failure_ends_the_world_named():
 
 
 @pytest.mark.parametrize("features", ["measured", "predicted"])
-def test_observing_a_period_leaves_its_run_unchanged(features):
-    """The vector env's path (the period's first half, the view, then the second half; the
-    robust servo's fusion of the frame done once, by the view, and reused by the step) gives
-    the states of the plain periods bit for bit over 0.5 s with noise, dropped frames and
-    latency, however often a period is viewed, and the view holds the features the step
-    then servoes on."""
+def test_a_period_in_halves_is_the_period(features):
+    """The vector env's path (the period's sense, an observation of the servo's view, then
+    its act) gives the states of the plain periods bit for bit over 0.5 s with noise, dropped
+    frames and latency, and the view observed holds the features the period's step servoed
+    on."""
     from tdacm.batch import engine as E
-    from tdacm.batch import servo as S
+    from tdacm.vision.features import advanced_features
 
     sc = _scenario(
         "paper-in-fov",
@@ -137,25 +186,23 @@ def test_observing_a_period_leaves_its_run_unchanged(features):
     )
     seeds = [2, 7, 12]
     plain = build_batch(sc, seeds, threads=1)
-    viewed = build_batch(sc, seeds, threads=1)
+    halves = build_batch(sc, seeds, threads=1)
     N = len(seeds)
     nan = np.full((N, 6), np.nan)
-    points, error, status = np.zeros((N, 4, 2)), np.zeros((N, 6)), np.zeros(N, np.int64)
     views = 0
-    for p in range(int(round(0.5 / sc.config.dt))):
+    for _ in range(int(round(0.5 / sc.config.dt))):
         plain.step()
-        d = viewed.data
-        E.sense_worlds(viewed.model, d, 0, N)
-        for _ in range(1 + p % 2):  # viewed once or twice
-            E.observe_worlds(viewed.model, d, points, error, status, 0, N)
+        d = halves.data
         active = d.active.copy()
-        E.act_worlds(viewed.model, d, nan, 0, N)
-        np.testing.assert_array_equal(viewed.data.q, plain.data.q)
-        np.testing.assert_array_equal(viewed.data.f_state, plain.data.f_state)
-        ibvs = d.sstate[:, S.S_MODE] == S.IBVS
-        seen = active & (status == S.SEEN) & np.isfinite(d.rmse) & ibvs
+        E.sense_worlds(halves.model, d, 0, N)
+        out = d.servo_out
+        seen = active & out.seen[:, 0, 0] & (out.mode[:, 0, 0] == 0)  # arm 0, IBVS
+        points = out.points[:, 0].copy()  # arm 0's
+        E.act_worlds(halves.model, d, nan, 0, N)
+        np.testing.assert_array_equal(halves.data.q, plain.data.q)
+        for a, b in zip(halves.data.servo.filter, plain.data.servo.filter, strict=True):
+            np.testing.assert_array_equal(a, b)  # the filter's state
         views += int(seen.sum())
-        # the step servoed on the viewed features (the image error of the same points)
-        f = np.array([S._features_kernel(points[w]) for w in range(N)])
-        np.testing.assert_array_equal(d.features[seen], f[seen])
+        for w in np.flatnonzero(seen):  # the step servoed on the observed points
+            np.testing.assert_array_equal(out.features[w, 0], advanced_features(points[w]))
     assert views > 10

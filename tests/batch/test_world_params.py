@@ -2,17 +2,19 @@
 
 A world with its own robot (stiffness, damping, masses, tendon moment arms), target pose and C_L
 imperfections equals the block loop built on a scenario with those parameters (noise off,
-states and image error to 1e-9); worlds without parameters are the engine's worlds as before;
+states and image error to 1e-9: the scaled rows and the scaled scenario's arrays differ by
+rounding); worlds without parameters are the engine's worlds as before;
 with noise and per-world parameters, a world's run depends only on its own seed and parameters.
 """
 
 import numpy as np
 import pytest
 
-from tdacm.batch.params import WorldParams, robot_rows
+from tdacm.batch.params import WorldParams
 from tdacm.sim.assemble import build_loop
 from tdacm.sim.batch import build_batch
 from tdacm.sim.scenario import ScenarioError, load_scenario
+from tdacm.system.worlds import robot_rows
 
 ENGINE = {
     "cameras": {"local_renderer": "analytic", "global_renderer": "planar"},
@@ -75,9 +77,7 @@ def test_robot_rows_are_the_model_of_the_scaled_scenario():
     m2 = build_loop(_as_scenario(sc), 0).world.robot.system.model_arrays
     f = np.array([[1.0] * 5, [FACTORS[k] for k in FACTORS]])
     rows = robot_rows(m, f)
-    names = {"rod_damping": "damping"}
-    for key, stack in rows.items():
-        field = names.get(key, key)
+    for field, stack in zip(rows._fields, rows, strict=True):
         np.testing.assert_array_equal(stack[0], getattr(m, field))
         ref = getattr(m2, field)
         np.testing.assert_allclose(stack[1], ref, rtol=1e-14, atol=1e-14 * np.abs(ref).max())

@@ -164,8 +164,7 @@ def test_force_limit_ends_the_touch():
 
 
 def test_campaign_hold_rule():
-    from tdacm.campaign.runner import succeeded
-    from tdacm.campaign.spec import CampaignSpecError, parse_spec
+    from tdacm.campaign.spec import CampaignSpecError, parse_spec, succeeded
 
     text = 'scenario = "touch-target"\nruns = 2\nsuccess_hold_force_rms = 0.2\n'
     spec = parse_spec(text)

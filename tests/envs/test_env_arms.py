@@ -24,7 +24,7 @@ def _ibvs_action(env) -> np.ndarray:
     """Each arm's own IBVS twist (its servo's perception of this period), as an action."""
     loop, sensed = env.loop, env._sensed
     twists = [
-        np.asarray(servo.perceive(loop.plant.state.t, loop.dt, view, sensed.estimate)[3]())
+        servo.perceive_period(loop.plant.state.t, loop.dt, view, sensed.estimate).ibvs_twist
         for servo, view in zip(env._arm_servos, sensed.view.arms, strict=True)
     ]
     return np.clip(np.concatenate(twists) / env.scale, -1, 1).astype(np.float32)
@@ -77,9 +77,33 @@ def test_render_shows_each_arms_view_side_by_side(env):
     assert img[:, : cam.width].std() > 10 and img[:, cam.width :].std() > 10
 
 
-def test_the_vector_env_refuses_several_arms_naming_the_key():
-    with pytest.raises(ValueError, match=r"robot\.arms"):
-        gym.make_vec(
-            "tdacm/TipServo-v0", num_envs=2, vectorization_mode="vector_entry_point",
-            scenario="dual-in-fov",
-        )  # fmt: skip
+def test_the_vector_env_steps_two_arms_as_the_single_env():
+    """``gym.make_vec`` on ``dual-in-fov``: the same spaces as the single env (12 actions,
+    one block per arm), and world 1 of ``reset(seed=3)`` follows ``TipServoEnv.reset(seed=4)``
+    under a fixed twist per arm: observations, plant states and rewards over 10 steps."""
+    from tdacm.envs.servo import TipServoEnv
+
+    vec = gym.make_vec(
+        "tdacm/TipServo-v0", num_envs=2, vectorization_mode="vector_entry_point",
+        scenario="dual-in-fov", max_steps=20,
+    )  # fmt: skip
+    single = TipServoEnv(scenario="dual-in-fov", max_steps=20)
+    try:
+        assert vec.single_action_space.shape == single.action_space.shape == (12,)
+        assert vec.single_observation_space.shape == single.observation_space.shape
+        obs, _ = vec.reset(seed=3)
+        o1, _ = single.reset(seed=4)
+        np.testing.assert_allclose(obs[1], o1, rtol=0, atol=1e-9)
+        a = np.tile(np.linspace(-0.3, 0.3, 12, dtype=np.float32), (2, 1))
+        for _ in range(10):
+            obs, r, te, tr, _ = vec.step(a)
+            o1, r1, te1, tr1, _ = single.step(a[1])
+            np.testing.assert_allclose(obs[1], o1, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(
+                vec.unwrapped.batch.data.q[1], single.loop.plant.state.q, rtol=0, atol=1e-9
+            )
+            assert r[1] == pytest.approx(r1, abs=1e-9)
+            assert (te[1], tr[1]) == (te1, tr1)
+    finally:
+        vec.close()
+        single.close()

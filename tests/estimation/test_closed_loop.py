@@ -135,9 +135,10 @@ def test_plant_accelerations_for_the_imu():
     s = loop.plant.system
     dist = Disturbances(np.array([0.01, 0.0, 0.0, 0.2, 0.0, 0.0]), 8.0)
     q0 = np.array([0.0, 0.0, 0.2, 0.25, -0.25, 3.0, 0.2, 0.2])
-    p = Plant(s, q0, np.zeros(8), 4, dist)
-    assert p.advance(np.full(8, 1.5), 0.02).qdd is None
-    p.accelerations = True
+    off = Plant(s, q0, np.zeros(8), 4, dist)
+    assert off.advance(np.full(8, 1.5), 0.02).qdd is None
+    p = Plant(s, q0, np.zeros(8), 4, dist, accelerations=True)
+    p.advance(np.full(8, 1.5), 0.02)
     u = np.concatenate([np.full(4, 2.0), np.full(4, 0.5)])
     st = p.advance(u, 0.02)
     loads = Loads(base_wrench=dist.loads_at(0.02, None, True)["base_wrench"])

@@ -106,52 +106,128 @@ def test_gauss_newton_kernel_recovers_the_target_pose():
     assert not _gauss_newton_kernel(far, rc, pc, z, obj, w, diag, 2, normal, 0.0)[-1]
 
 
-def test_compiled_update_equals_the_filter():
-    """:func:`filter_update` (the batched engine's) against :meth:`TargetFilter.update_checked`
-    on a moving camera with 1 px of corner noise and outliers (gated out, then a restart):
-    the same decisions (fused / rejected, hypotheses) and the same estimate to 1e-12."""
-    from tdacm.vision.camera import PinholeCamera
-    from tdacm.vision.ippe import canonical_frame
-    from tdacm.vision.target_filter import (
-        F_NHYP,
-        F_REJECTED,
-        F_UPDATES,
-        N_FSTATE,
-        TargetFilter,
-        filter_params,
-        filter_update,
-        target_in_camera,
-    )
+CAM = dict(fx=600.0, fy=610.0, cx=320.0, cy=240.0, width=640, height=480)
+OBJ = np.array([[-0.1, -0.1, 0], [-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0.0]])
+POSE_COV = np.diag([0.004**2] * 3 + [0.003**2] * 3)  # 4 mrad, 3 mm
 
-    cam = PinholeCamera(fx=600.0, fy=600.0, cx=320.0, cy=240.0, width=640, height=480)
-    obj = np.array([[-0.1, -0.1, 0], [-0.1, 0.1, 0], [0.1, 0.1, 0], [0.1, -0.1, 0.0]])
-    f = TargetFilter(cam, obj, 1.0, level_prior=np.radians(0.5), window=60)
-    obj2d, canon = canonical_frame(obj)
-    prm, row = filter_params(f), np.array([cam.fx, cam.fy, cam.cx, cam.cy])
-    st, pose, cov, hyp = np.zeros(N_FSTATE), np.zeros((4, 4)), np.zeros((6, 6)), np.zeros((2, 4, 4))
-    rc, pc, z = np.zeros((60, 3, 3)), np.zeros((60, 3)), np.zeros((60, 4, 2))
-    rng = np.random.default_rng(1)
+
+def _frames(count, outliers=(), seed=1, pose_error=()):
+    """``(pixels, camera pose)`` of a camera moving over a static target 2.5 m below (1 px of
+    corner noise; 40 px on the frames ``outliers``; on the frames ``pose_error`` the pose is
+    off by :data:`POSE_COV`)."""
+    from tdacm.vision.target_filter import target_in_camera
+
+    rng = np.random.default_rng(seed)
     g_t = np.eye(4)
     g_t[:3, :3] = expmap(np.array([0.01, -0.008, 0.3, 0, 0, 0]))[:3, :3]
     g_0 = np.eye(4)
     g_0[:3, :3] = np.diag([1.0, -1.0, -1.0])
     g_0[:3, 3] = [0.1, -0.05, 2.5]
-    rejected = 0
-    for i in range(150):
+    for i in range(count):
         a = np.array([0.02 * np.sin(i / 30), 0.03 * np.cos(i / 40), 0.001 * i,
                       0.3 * np.sin(i / 50), 0.2 * np.cos(i / 60), 0.1 * np.sin(i / 70)])  # fmt: skip
         g_c = g_0 @ expmap(a)
-        r = target_in_camera(obj, g_c, g_t)
+        r = target_in_camera(OBJ, g_c, g_t)
         uv = np.column_stack(
-            (cam.fx * r[:, 0] / r[:, 2] + cam.cx, cam.fy * r[:, 1] / r[:, 2] + cam.cy)
+            (CAM["fx"] * r[:, 0] / r[:, 2] + CAM["cx"], CAM["fy"] * r[:, 1] / r[:, 2] + CAM["cy"])
         )
-        uv += rng.standard_normal(uv.shape) * (40.0 if 60 <= i < 66 else 1.0)  # outliers
-        fused = f.update_checked(uv, g_c)
-        assert filter_update(prm, row, st, pose, cov, hyp, rc, pc, z, obj, obj2d,
-                             np.linalg.inv(canon), f.level_normal, uv, g_c) == fused  # fmt: skip
-        assert (st[F_UPDATES], st[F_REJECTED], st[F_NHYP]) == (f.updates, f.rejected, len(f._hyp))
-        if f.pose is not None:
-            np.testing.assert_allclose(pose, f.pose, rtol=0, atol=1e-12)
-            np.testing.assert_allclose(cov, f.P, rtol=1e-9, atol=0)
-        rejected = f.rejected
-    assert rejected >= 5  # the outliers were gated out and the filter restarted
+        uv += rng.standard_normal(uv.shape) * (40.0 if i in outliers else 1.0)
+        if i in pose_error:
+            eps = np.concatenate((rng.normal(0, 0.004, 3), rng.normal(0, 0.003, 3)))
+            g_c = g_c @ expmap(eps)
+        yield uv, g_c
+
+
+def test_zero_camera_covariance_is_the_exact_pose_and_a_world_row_is_the_block():
+    """:func:`filter_update` with a camera-pose covariance of zeros, called on world 1's row
+    of two worlds' stacked records (the batched engine's call), equals
+    :meth:`TargetFilter.update` without a covariance (the block loop's) bit for bit: every
+    field of the state after every frame, through gated outliers and the restart they cause."""
+    from tdacm._records import replicate, stack, take
+    from tdacm.vision.camera import PinholeCamera
+    from tdacm.vision.target_filter import TargetFilter, TargetFilterState, filter_update
+
+    f = TargetFilter(PinholeCamera(**CAM), OBJ, 1.0, level_prior=np.radians(0.5), window=60)
+    params = stack([f.params, f.params])
+    states = replicate(TargetFilterState.initial(60), 2)
+    outliers = set(range(60, 66))  # gated out, then (reset_after = 5) a restart
+    restarted = False
+    for i, (uv, g_c) in enumerate(_frames(150, outliers)):
+        updates = f.updates
+        fused = f.update(uv, g_c)
+        restarted |= i in outliers and f.updates <= updates
+        assert filter_update(take(params, 1), take(states, 1), uv, g_c, np.zeros((6, 6))) == fused
+        for name, a, b in zip(f.state._fields, f.state, take(states, 1), strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        assert not take(states, 0).count[0]  # the other world untouched
+    assert f.rejected >= 5 and restarted
+    assert f.state.diagonal[: f.state.count[0]].all()  # exact poses: the diagonal weights
+
+
+def test_camera_covariance_weights_frames_by_their_pose_noise():
+    """A frame with a camera-pose covariance ``Sigma_c`` is stored with the weight
+    ``(R + G Sigma_c G^T)^-1`` (:func:`pose_noise` at the estimate before the frame; at the
+    better PnP pose for the first), a frame without one with ``R^-1`` (diagonal)."""
+    from tdacm.vision.camera import PinholeCamera
+    from tdacm.vision.target_filter import TargetFilter, planar_pnp_poses, target_in_camera
+
+    cam = PinholeCamera(**CAM)
+    f = TargetFilter(cam, OBJ, 1.0, level_prior=np.radians(0.5), window=30)
+    r_pixel = np.diag(np.tile([(1.0 / cam.fx) ** 2, (1.0 / cam.fy) ** 2], 4))
+    uncertain = 0
+    uncertain_frames = {i for i in range(80) if i % 3}
+    for i, (uv, g_c) in enumerate(_frames(80, pose_error=uncertain_frames)):
+        cov = POSE_COV if i in uncertain_frames else None
+        at = f.pose if f.initialized else planar_pnp_poses(OBJ, cam.normalize(uv), g_c)[0]
+        slot = int(f.state.slot[0])
+        assert f.update(uv, g_c, cov)  # every frame fused (none gated)
+        w = f.state.w[slot]
+        if cov is None:
+            np.testing.assert_array_equal(w, np.diag(np.tile([cam.fx**2, cam.fy**2], 4)))
+            assert f.state.diagonal[slot]
+            continue
+        extra = f.pose_noise(target_in_camera(OBJ, g_c, at), cov)
+        assert np.abs(extra).max() > 0.1 * r_pixel.max()  # the pose noise matters here
+        expected = np.linalg.inv(r_pixel + extra)
+        np.testing.assert_allclose(w, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+        np.testing.assert_array_equal(w, w.T)
+        assert not f.state.diagonal[slot]
+        uncertain += 1
+    assert uncertain > 40 and f.rejected == 0
+
+
+def test_rescue_adopts_the_other_branch_of_the_ambiguity():
+    """The periodic rescue (module docstring): from the estimate on the wrong branch of the
+    planar ambiguity, refining the latest frame's PnP poses on the window adopts the right
+    one (lower cost by more than 1) and counts a switch; from the right estimate it keeps it."""
+    from tdacm.lie.se3 import rotation_angle
+    from tdacm.vision.camera import PinholeCamera
+    from tdacm.vision.target_filter import (
+        TargetFilter,
+        _rescue,
+        _solve_window,
+        planar_pnp_poses,
+    )
+
+    cam = PinholeCamera(**CAM)
+    f = TargetFilter(cam, OBJ, 1.0, level_prior=0.0, window=100, recheck=0)
+    frames = list(_frames(100))
+    for uv, g_c in frames:
+        assert f.update(uv, g_c)
+    right = f.pose
+    uv, g_c = frames[-1]
+    xy = np.ascontiguousarray(cam.normalize(uv))
+    # the wrong branch: the latest frame's PnP pose farther from the estimate (its tilt
+    # mirrored about the line of sight)
+    angles = [rotation_angle(right[:3, :3].T @ h[:3, :3]) for h in planar_pnp_poses(OBJ, xy, g_c)]
+    wrong = planar_pnp_poses(OBJ, xy, g_c)[int(np.argmax(angles))]
+    assert len(angles) == 2 and max(angles) > np.radians(10)
+    for start, switches in ((right, 0), (wrong, 1)):
+        f.state.pose[:, :] = start
+        f.state.switches[0] = 0
+        cost = _solve_window(f.params, f.state, f.state.pose, 0)[2]
+        _rescue(f.params, f.state, xy, g_c, cost)
+        assert f.switches == switches
+        # the same minimum of the window: the rescue's 4 Gauss-Newton steps and the filter's
+        # 2 a frame stop 2e-5 apart (measured), the other branch is more than 10 deg away
+        np.testing.assert_allclose(f.pose, right, atol=1e-4)

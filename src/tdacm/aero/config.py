@@ -3,7 +3,8 @@
 The rotor geometry is in ``[robot.drone]`` (``rotor_radius``, ``layout``, ``arm_length``:
 :class:`tdacm.sim.robot.DroneConfig`). Every default here is the default of the physical record
 it builds (:class:`~tdacm.aero.params.Air`, :class:`~tdacm.aero.params.Drag`,
-:class:`~tdacm.aero.params.Aerodynamics`), read from that record, so each value is written once.
+:class:`~tdacm.aero.params.Aerodynamics`, the steady wind's :class:`~tdacm.aero.wind.SteadyWind`),
+read from that record, so each value is written once.
 
 Both sections are off by default (``aerodynamics.enabled = false``, no wind): the plant is then
 exactly the aerodynamically empty model of the paper.
@@ -130,7 +131,9 @@ class WindConfig(ConfigModel):
     The turbulence is drawn from its own stream of the run's seed (the other random draws of
     the run are unchanged)."""
 
-    velocity: Vec3 = Field([0.0, 0.0, 0.0], description="m/s, steady wind (inertial, z up)")
+    velocity: Vec3 = Field(
+        SteadyWind().value.tolist(), description="m/s, steady wind (inertial, z up)"
+    )
     gust_amplitude: Vec3 = Field(
         [0.0, 0.0, 0.0], description="m/s, peak of the 1-cosine gust (zero: none)"
     )

@@ -26,8 +26,10 @@ filter's exact statistics for any ``dt``.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from scipy.linalg import expm
 
 from .. import _validate as V
@@ -35,30 +37,224 @@ from .. import _validate as V
 FT = 0.3048  # m per foot
 
 
+class WindParams(NamedTuple):
+    """A wind as the record of its compiled step (:func:`wind_velocity`): the sum of the
+    steady winds ``steady`` (3,), the 1-cosine gusts ``gusts`` (G, 5: amplitude (3), start,
+    duration) and at most one Dryden turbulence (``turbulence``) sampled every ``turb_dt`` s:
+    the inertial directions of ``u, v, w`` (``axes`` (3, 3), columns), and per component its
+    shaping filter's exact discretization (:class:`DrydenTurbulence`): the transition ``phi``
+    (3, 2, 2), the Cholesky factors of the sample covariance ``lq`` and of the stationary
+    covariance ``l0`` (3, 2, 2), the output row ``c`` (3, 2) (``u`` has one state: its rows
+    and columns beyond the first are zero)."""
+
+    steady: np.ndarray
+    gusts: np.ndarray
+    turbulence: bool
+    turb_dt: float
+    axes: np.ndarray
+    phi: np.ndarray
+    lq: np.ndarray
+    c: np.ndarray
+    l0: np.ndarray
+
+
+class WindState(NamedTuple):
+    """A wind's state: the turbulence samples taken (``taken`` (1,)) and its filters' states
+    ``x`` (5,: ``u``'s one, ``v``'s two, ``w``'s two)."""
+
+    taken: np.ndarray
+    x: np.ndarray
+
+    @classmethod
+    def initial(cls) -> WindState:
+        return cls(np.zeros(1), np.zeros(N_WIND_NORMALS))
+
+
+#: standard normals a turbulence sample draws (and its initial state): ``u``'s, then ``v``'s
+#: two, then ``w``'s two, the order of :class:`DrydenTurbulence`
+N_WIND_NORMALS = 5
+#: each filter's state dimension and its first entry in :attr:`WindState.x`
+_DIMS = (1, 2, 2)
+
+
+@njit(cache=True)
+def wind_start(p, st, normals):
+    """The turbulence's initial state from ``normals`` (:data:`N_WIND_NORMALS`,): the
+    stationary distribution of its filters (``x_i = L0_i z_i``), no sample taken yet."""
+    st.taken[0] = 0.0
+    for i in range(N_WIND_NORMALS):
+        st.x[i] = 0.0
+    if not p.turbulence:
+        return
+    z = 0
+    for f in range(3):
+        k = 1 if f == 0 else 2
+        for r in range(k):
+            acc = 0.0
+            for c in range(k):
+                acc += p.l0[f, r, c] * normals[z + c]
+            st.x[z + r] = acc
+        z += k
+
+
+@njit(cache=True)
+def wind_samples_due(p, st, t):
+    """The turbulence samples to take to reach time ``t`` (each draws
+    :data:`N_WIND_NORMALS` normals); ``ValueError`` if ``t`` is before the last sample."""
+    if not p.turbulence:
+        return 0
+    k = int(math.floor(t / p.turb_dt + 1e-9))
+    taken = int(st.taken[0])
+    if k < taken:
+        raise ValueError("turbulence is sampled forward in time")
+    return k - taken
+
+
+@njit(cache=True)
+def _turbulence_step(p, st, normals):
+    """One sample of the turbulence: ``x_i <- Phi_i x_i + Lq_i z_i`` (the exact discretization
+    of the shaping filters)."""
+    z = 0
+    for f in range(3):
+        k = 1 if f == 0 else 2
+        x0 = st.x[z]
+        x1 = st.x[z + 1] if k == 2 else 0.0
+        for r in range(k):
+            a = p.phi[f, r, 0] * x0
+            b = p.lq[f, r, 0] * normals[z]
+            if k == 2:
+                a += p.phi[f, r, 1] * x1
+                b += p.lq[f, r, 1] * normals[z + 1]
+            st.x[z + r] = a + b
+        z += k
+    st.taken[0] += 1.0
+
+
+@njit(cache=True)
+def wind_velocity(p, st, t, normals, out):
+    """The wind (3,) at time ``t`` into ``out``: steady + gusts + turbulence, the turbulence
+    brought to its sample ``floor(t / turb_dt)`` first with one row of ``normals`` (rows, 5)
+    per sample (:func:`wind_samples_due` of them; ``ValueError`` if fewer)."""
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    for i in range(3):
+        out[i] = out[i] + p.steady[i]
+    for g in range(p.gusts.shape[0]):
+        x = (t - p.gusts[g, 3]) / p.gusts[g, 4]
+        if 0.0 <= x <= 1.0:
+            h = 1.0 - math.cos(2.0 * math.pi * x)
+            for i in range(3):
+                out[i] = out[i] + 0.5 * p.gusts[g, i] * h
+    if p.turbulence:
+        due = wind_samples_due(p, st, t)
+        if due > normals.shape[0]:
+            raise ValueError("turbulence: more samples due than rows of normals")
+        for row in range(due):
+            _turbulence_step(p, st, normals[row])
+        # the filters' outputs c_i . x_i (u: one state, v and w: two)
+        u_ = p.c[0, 0] * st.x[0]
+        v_ = p.c[1, 0] * st.x[1] + p.c[1, 1] * st.x[2]
+        w_ = p.c[2, 0] * st.x[3] + p.c[2, 1] * st.x[4]
+        for i in range(3):
+            out[i] = out[i] + (p.axes[i, 0] * u_ + p.axes[i, 1] * v_ + p.axes[i, 2] * w_)
+
+
 class Wind:
     """Base class: ``velocity(t, p=None)`` the wind (3,) at time ``t`` and point ``p``; winds add
-    with ``+``."""
+    with ``+``. A wind is the record :meth:`params` (:class:`WindParams`) of the compiled
+    :func:`wind_velocity` with its state; a turbulence draws its normals from its own seeded
+    generator (:meth:`normals`)."""
 
-    def velocity(self, t: float, p=None) -> np.ndarray:  # pragma: no cover - interface
-        raise NotImplementedError
+    def parts(self) -> tuple:
+        """The winds this one sums (itself for a single wind)."""
+        return (self,)
+
+    def params(self) -> WindParams:
+        """The record of the sum of :meth:`parts` (:func:`wind_params`)."""
+        return wind_params(self.parts())
+
+    def turbulence(self):
+        """The :class:`DrydenTurbulence` among :meth:`parts`, or ``None``."""
+        found = [w for w in self.parts() if isinstance(w, DrydenTurbulence)]
+        return found[0] if found else None
+
+    def velocity(self, t: float, p=None) -> np.ndarray:
+        """The wind at time ``t`` (:func:`wind_velocity`; the turbulence asked at
+        non-decreasing times)."""
+        if getattr(self, "state", None) is None:
+            self.reset()
+        rec, st = self.record, self.state
+        due = wind_samples_due(rec, st, float(t))
+        out = np.empty(3)
+        wind_velocity(rec, st, float(t), self.normals(due), out)
+        return out
+
+    def normals(self, samples: int) -> np.ndarray:
+        """``(samples, 5)`` standard normals of the turbulence's next samples (from its
+        generator, in its order; none without turbulence)."""
+        turb = self.turbulence()
+        if turb is None or samples <= 0:
+            return np.zeros((0, N_WIND_NORMALS))
+        return turb.rng.standard_normal((samples, N_WIND_NORMALS))
 
     def __add__(self, other: Wind) -> Wind:
         return _Sum((self, other))
 
     def reset(self) -> None:
-        """Restart a random wind's sequence (same seed, same samples); nothing for the others."""
+        """Restart a random wind's sequence (same seed, same samples): its generator and its
+        filters' initial state (:func:`wind_start`): :attr:`record` and :attr:`state`, the
+        record and the state :func:`wind_velocity` advances (a plant integrating this wind
+        advances the same state)."""
+        #: the wind's record (:func:`wind_params`)
+        self.record = self.params()
+        #: the wind's state (:class:`WindState`)
+        self.state = WindState.initial()
+        turb = self.turbulence()
+        if turb is not None:
+            turb.rng = np.random.default_rng(turb.seed)
+            wind_start(self.record, self.state, turb.rng.standard_normal(N_WIND_NORMALS))
+
+
+def wind_params(parts) -> WindParams:
+    """The :class:`WindParams` of the sum of the winds ``parts`` (steady winds, gusts and at
+    most one turbulence; ``ValueError`` for a second one)."""
+    steady = np.zeros(3)
+    gusts = []
+    turb = None
+    for w in parts:
+        if isinstance(w, SteadyWind):
+            steady = steady + w.value
+        elif isinstance(w, Gust):
+            gusts.append([*w.amplitude, w.start, w.duration])
+        elif isinstance(w, DrydenTurbulence):
+            if turb is not None:
+                raise ValueError("wind: at most one Dryden turbulence in a sum")
+            turb = w
+        else:
+            raise ValueError(f"wind: {type(w).__name__} is not a steady wind, gust or turbulence")
+    phi, lq, l0 = np.zeros((3, 2, 2)), np.zeros((3, 2, 2)), np.zeros((3, 2, 2))
+    c = np.zeros((3, 2))
+    axes, dt = np.eye(3), 1.0
+    if turb is not None:
+        axes, dt = turb.axes, turb.dt
+        for i, (f_phi, f_lq, f_c, f_p0) in enumerate(turb._filters):
+            k = f_phi.shape[0]
+            phi[i, :k, :k] = f_phi
+            lq[i, :k, :k] = f_lq
+            l0[i, :k, :k] = np.linalg.cholesky(f_p0)
+            c[i, :k] = f_c
+    g = np.array(gusts, float).reshape(-1, 5)
+    return WindParams(steady, np.ascontiguousarray(g), turb is not None, float(dt),
+                      np.ascontiguousarray(axes, float), phi, lq, c, l0)  # fmt: skip
 
 
 class _Sum(Wind):
     def __init__(self, parts):
-        self.parts = tuple(parts)
+        self._parts = tuple(parts)
 
-    def reset(self) -> None:
-        for w in self.parts:
-            w.reset()
-
-    def velocity(self, t, p=None):
-        return sum((w.velocity(t, p) for w in self.parts), np.zeros(3))
+    def parts(self) -> tuple:
+        return tuple(p for w in self._parts for p in w.parts())
 
 
 class SteadyWind(Wind):
@@ -66,9 +262,6 @@ class SteadyWind(Wind):
 
     def __init__(self, velocity=(0.0, 0.0, 0.0)):
         self.value = V.array("velocity", velocity, (3,))
-
-    def velocity(self, t, p=None):
-        return self.value.copy()
 
 
 class Gust(Wind):
@@ -79,12 +272,6 @@ class Gust(Wind):
         self.amplitude = V.array("amplitude", amplitude, (3,))
         self.start = V.finite_scalar("start", start)
         self.duration = V.positive("duration", duration)
-
-    def velocity(self, t, p=None):
-        x = (t - self.start) / self.duration
-        if not 0.0 <= x <= 1.0:
-            return np.zeros(3)
-        return 0.5 * self.amplitude * (1.0 - math.cos(2.0 * math.pi * x))
 
 
 def low_altitude_scales(height: float, wind20: float) -> tuple[np.ndarray, np.ndarray]:
@@ -171,45 +358,17 @@ class DrydenTurbulence(Wind):
             # stationary initial state: the solution of P = Phi P Phi^T + Q
             p0 = _stationary(phi, q)
             self._filters.append((phi, np.linalg.cholesky(q + 1e-300 * np.eye(len(b))), c, p0))
-        self.reset()
-
-    def reset(self) -> None:
-        """Restart the sequence (same seed, same samples)."""
-        self._rng = np.random.default_rng(self.seed)
-        self._x = [
-            np.linalg.cholesky(p0) @ self._rng.standard_normal(p0.shape[0])
-            for *_, p0 in self._filters
-        ]
-        self._k = 0
-        self._value = self._output()
-
-    def _output(self):
-        uvw = np.array([c @ x for (_, _, c, _), x in zip(self._filters, self._x, strict=True)])
-        return self.axes @ uvw
-
-    def _step(self):
-        for i, (phi, lq, _, _) in enumerate(self._filters):
-            self._x[i] = phi @ self._x[i] + lq @ self._rng.standard_normal(lq.shape[0])
-        self._k += 1
-        self._value = self._output()
+        self.rng = np.random.default_rng(self.seed)
 
     def sample(self, n: int) -> np.ndarray:
         """The next ``n`` samples (n, 3) in the ``u, v, w`` components (not rotated)."""
+        if getattr(self, "state", None) is None:
+            self.reset()
         out = np.empty((n, 3))
         for k in range(n):
-            self._step()
-            out[k] = self.axes.T @ self._value
+            t = (int(self.state.taken[0]) + 1) * self.dt
+            out[k] = self.axes.T @ self.velocity(t)
         return out
-
-    def velocity(self, t, p=None):
-        k = int(math.floor(t / self.dt + 1e-9))
-        if k < self._k:
-            raise ValueError(
-                f"DrydenTurbulence is sampled forward in time: t = {t!r} is before the last sample; call reset()"
-            )
-        while self._k < k:
-            self._step()
-        return self._value.copy()
 
 
 def _stationary(phi, q):

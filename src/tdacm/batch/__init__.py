@@ -1,12 +1,12 @@
-"""The batched engine: N closed loops in lockstep as one compiled control period.
+"""The batched engine: N closed loops in lockstep, the blocks' compiled steps called for
+every world.
 
-:class:`Batch` holds a :class:`~tdacm.batch.engine.BatchModel` (the constants, packed from the
-blocks of an assembled :class:`~tdacm.loop.ClosedLoop`) and a
+:class:`Batch` holds a :class:`~tdacm.batch.engine.BatchModel` (the blocks' records stacked
+over the worlds, from the blocks of an assembled :class:`~tdacm.loop.ClosedLoop`) and a
 :class:`~tdacm.batch.engine.BatchData` (the state of every world) and steps them with
 :func:`~tdacm.batch.engine.step_worlds` / :func:`~tdacm.batch.engine.run_worlds`.
 :func:`tdacm.sim.batch.build_batch` builds one from a scenario and seeds; the engine is tested
-equal to the block loop (``tests/batch``). docs/batch.md: what runs batched, the speed, the
-GPU port.
+equal to the block loop (``tests/batch``). docs/batch.md: what runs batched, the speed.
 """
 
 from __future__ import annotations
@@ -15,14 +15,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._records import replicate, take
+from ..control.hierarchical import ControllerState, ControllerWork
+from ..loop.arms import ArmsMemo
+from ..loop.plant import PlantData
+from ..loop.safety import SafetyState
+from ..loop.sensors import CameraSensorState
+from ..loop.servo import ServoOut, servo_state
 from . import engine as E
-from .engine import TERMINATIONS, BatchData, BatchModel
+from .engine import TERMINATIONS, BatchData, BatchModel, Frame
 from .random import stream_state
 
 __all__ = ["Batch", "BatchModel", "BatchData", "BatchResult", "TERMINATIONS"]
 
-#: random streams of a world's seed: the sensors', the plant's
-SENSOR_STREAM, PLANT_STREAM = 1, 2
+#: random streams of a world's seed: the cameras', the plant's, the estimation's (the
+#: proprioceptive sensors and their start-up reading)
+SENSOR_STREAM, PLANT_STREAM, ESTIMATION_STREAM = 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -65,6 +73,58 @@ class BatchResult:
         return out
 
 
+def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int, estimation) -> BatchData:
+    """The state of ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs, each block's
+    state as its block makes it (the arms' with an arm axis; ``estimation`` one world's
+    :class:`~tdacm.batch.engine.EstimationData`; then
+    :func:`~tdacm.batch.engine.reset_worlds`)."""
+    k = int(model.n_arms)
+    sensors = take(model.sensor, 0)
+    latency = int(np.max(model.sensor.latency))
+    servo = take(take(model.servo, 0), 0)
+    ns = int(servo.strains[1] - servo.strains[0])
+    window = _window(model)
+    per_arm = lambda record: replicate(replicate(record, k), n_worlds)  # noqa: E731
+    frame = Frame(np.zeros(1, np.bool_), np.zeros(1, np.bool_), np.zeros((4, 2)),
+                  np.zeros((4, 2)), np.ones(4), np.zeros(1, np.int64))  # fmt: skip
+    return BatchData(
+        q=np.zeros((n_worlds, n)),
+        qd=np.zeros((n_worlds, n)),
+        k=np.zeros(n_worlds, np.int64),
+        active=np.zeros(n_worlds, np.bool_),
+        termination=np.zeros(n_worlds, np.int64),
+        request=np.zeros(n_worlds, np.bool_),
+        rng_sensors=np.zeros((n_worlds, 2), np.uint64),
+        rng_plant=np.zeros((n_worlds, 2), np.uint64),
+        rng_estimation=np.zeros((n_worlds, 2), np.uint64),
+        sensor=per_arm(CameraSensorState.empty(take(sensors, 0), latency)),
+        frame=per_arm(frame),
+        servo=per_arm(servo_state(servo, n, ns, window)),
+        servo_out=per_arm(ServoOut.empty(n, ns)),
+        robot_out=replicate(ServoOut.empty(n, ns), n_worlds),
+        memo=replicate(ArmsMemo.initial(), n_worlds),
+        estimation=replicate(estimation, n_worlds),
+        controller=replicate(ControllerState.initial(n), n_worlds),
+        work=replicate(ControllerWork.empty(n), n_worlds),
+        safety=replicate(SafetyState.initial(), n_worlds),
+        plant=replicate(PlantData.initial(take(model.plant, 0)), n_worlds),
+        u=np.zeros((n_worlds, n_u)),
+        tau=np.zeros((n_worlds, n)),
+        q_ref=np.zeros((n_worlds, n)),
+        saturated=np.zeros((n_worlds, 2), np.bool_),
+        force=np.zeros(n_worlds),
+        q_next=np.zeros((n_worlds, n)),
+        qd_next=np.zeros((n_worlds, n)),
+        qdd_next=np.zeros((n_worlds, n)),
+    )
+
+
+def _window(model: BatchModel) -> int:
+    """The robust servo's target-filter window (0 for the measured servo)."""
+    servo = take(take(model.servo, 0), 0)
+    return int(servo.filter.record.window) if servo.robust else 0
+
+
 class Batch:
     """N worlds of one scenario in lockstep (module docstring).
 
@@ -82,9 +142,14 @@ class Batch:
     threads:
         Threads stepping disjoint ranges of worlds (default: the machine's cores); the
         results do not depend on it.
+    estimation:
+        One world's :class:`~tdacm.batch.engine.EstimationData` (the filter's and the
+        sensors' state records, replicated over the worlds).
     """
 
-    def __init__(self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None):
+    def __init__(
+        self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None, estimation=None
+    ):
         self.model = model
         self.threads = threads
         self.seeds = np.asarray(seeds, np.int64).ravel()
@@ -99,7 +164,7 @@ class Batch:
         self.n_worlds = n_worlds
         #: the per-world parameters the batch was built with (``None``: the scenario's)
         self.params = None
-        self.data = E.empty_data(model, n_worlds, q0.shape[1], n_u)
+        self.data = empty_data(model, n_worlds, q0.shape[1], n_u, estimation)
         self.reset()
 
     @property
@@ -119,6 +184,7 @@ class Batch:
         d = self.data
         d.rng_sensors[which] = stream_state(self.seeds[which], SENSOR_STREAM)
         d.rng_plant[which] = stream_state(self.seeds[which], PLANT_STREAM)
+        d.rng_estimation[which] = stream_state(self.seeds[which], ESTIMATION_STREAM)
         E.reset_worlds(self.model, d, which, q0s, qd0s)
 
     def step(self, twist=None) -> None:

@@ -1,35 +1,30 @@
-"""N closed loops in lockstep: one compiled control period over a structure of arrays.
+"""N closed loops in lockstep: the blocks' compiled steps called for every world.
 
-:func:`step_worlds` is :meth:`tdacm.loop.ClosedLoop.step` for every world of a batch at once,
-as compiled code parallel over the worlds (numba ``prange``), with no Python per world per
-period. One period of one world, in the block loop's order:
+The engine is the loop over worlds, nothing more: a world's period calls the same compiled
+steps as the block loop's blocks (:class:`tdacm.loop.ClosedLoop`), in the same order, on that
+world's records (:func:`tdacm._records.take` of the stacked ones). It owns the threads, one
+random stream per world, the terminations and the logging; no block's logic lives here.
 
-    sensors     the tip camera's analytic detection at the true state, its pixel noise,
-                dropped frames and latency (the world's own random stream)
-    estimation  the true state
-    servo       perception (normalized points, IPPE depths), the mode switch, the view in
-                the virtual camera C_V (eq. (18)), the paper's IBVS on the advanced features
-                (eqs. (19)-(21), (39)) or an external twist, the joint-rate mapping and its
-                command shaping; or the robust servo (``ibvs.features = "predicted"``):
-                the frame fused into the target filter, the IBVS on the points predicted
-                from its estimate (:func:`~tdacm.batch.servo.robust_step`)
-    controller  the adaptive sliding-mode law with its model error, the hierarchical drone
-                loop and the allocation (eqs. S2-S10; :mod:`tdacm.batch.control`)
-    safety      the error-growth monitor
-    plant       RK4 substeps of the coupled model (eq. (9)) with the disturbances, the
-                aerodynamics and the wind (:mod:`tdacm.batch.plant`)
+One period of world ``w`` (:func:`sense` then :func:`act`)::
 
-A world that ends (a :class:`~tdacm.loop.data.Termination`, or its last period) stops; the
-others go on. The state of all worlds is a :class:`BatchData` (arrays with a leading world
-axis); the constants are a :class:`BatchModel` (shared arrays, and per-world rows where
-worlds differ: the controller's model error, its camera model and reference snapshot, the
-initial state, and each world's parameters of :class:`~tdacm.batch.params.WorldParams`: its
-robot, C_L imperfections and target pose). A world's result depends only on its own seed and parameters, not on the
-batch size, its index or the thread count (every random draw comes from its own
-counter-based stream, :mod:`tdacm.batch.random`).
+    sense   the tip camera at the true state      loop.sensors: camera_pose_into,
+            (analytic detection, dropped frames,  analytic_detect, frame_dropped,
+            pixel noise, latency)                 add_pixel_noise, latency_push
+            perception (normalized points, IPPE)  loop.perception.perceive
+            the servo's view, target filter and   loop.servo.servo_perceive
+            mode switch
+    act     C_G's snapshot when the recovery      loop.servo.needs_global, servo_command
+            needs one; IBVS or recovery
+            the low-level controller              control.hierarchical.controller_step
+            the safety monitor                    loop.safety.safety_arm, safety_check
+            the plant over the period             loop.plant.plant_step
 
-GPU: one world per thread is a translation of :func:`_period` (plain arrays, no Python
-objects, the world's slices); docs/batch.md says what a port needs.
+The estimate is the true state. A world that ends (a termination, or its last sample) stops;
+the others go on. The constants of all worlds are a :class:`BatchModel` (the blocks' records
+stacked with a leading world axis, and the model arrays the worlds share), their state a
+:class:`BatchData`. A world's result depends only on its seed and its rows, not on the batch
+size, its index or the thread count (every draw comes from its own counter-based stream,
+:mod:`tdacm.batch.random`).
 """
 
 from __future__ import annotations
@@ -39,241 +34,194 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..vision.target_filter import FP_WINDOW, N_FSTATE
-from . import control as CT
-from . import plant as PL
-from . import servo as S
-from .random import normal
+from .._records import copy_into, take
+from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
+from ..control.hierarchical import controller_step
+from ..estimation import ekf_step as EK
+from ..estimation import sensor_steps as SS
+from ..loop.arms import arms_command
+from ..loop.data import Termination
+from ..loop.perception import perceive
+from ..loop.plant import plant_step
+from ..loop.safety import safety_arm, safety_check
+from ..loop.sensors import (
+    add_pixel_noise,
+    analytic_detect,
+    camera_pose_into,
+    frame_dropped,
+    global_offered,
+    latency_push,
+)
+from ..loop.servo import (
+    BEHIND,
+    IBVS,
+    IBVS_ENGAGED,
+    NO_FAILURE,
+    RECOVERY,
+    needs_global,
+    servo_command,
+    servo_perceive,
+    servo_reset,
+)
+from ..system.worlds import model_of_world
+from ..vision.camera import normalize_into
+from .random import normal, uniform
 
-#: termination codes of :attr:`BatchData.termination` (0: running or ran to the end), in the
-#: order of :data:`TERMINATIONS`
+#: the termination codes of :attr:`BatchData.termination` (0: running or ran to its end),
+#: each the :class:`~tdacm.loop.data.Termination` of :data:`TERMINATIONS`
 RUNNING, SAFETY, RECOVERY_FAILED, PLANT_FAILED, BEHIND_CAMERA, TUMBLED, NON_FINITE = range(7)
-#: the :class:`~tdacm.loop.data.Termination` value of each code
+FORCE_LIMIT, ESTIMATOR_FAILED = 7, 8
 TERMINATIONS = (
     None,
-    "safety",
-    "recovery failed",
-    "plant failed",
-    "behind camera",
-    "tumbled",
-    "non-finite command",
+    Termination.SAFETY,
+    Termination.RECOVERY_FAILED,
+    Termination.PLANT_FAILED,
+    Termination.BEHIND_CAMERA,
+    Termination.TUMBLED,
+    Termination.NON_FINITE,
+    Termination.FORCE_LIMIT,
+    Termination.ESTIMATOR_FAILED,
 )
 
 
 class BatchModel(NamedTuple):
-    """The constants of a batch: the sensing half (:class:`~tdacm.batch.servo.ServoModel`),
-    the controller (:class:`~tdacm.batch.control.ControllerArrays`, with the per-world rows
-    ``coord`` (N, 5, n), ``damping`` (N, n, n) and ``control_params`` (N, p): each world's
-    model error, its rotor-drag estimate included) with its model's
-    :class:`~tdacm.system.kernels.ModelArrays` ``control_model``, the plant
-    (:class:`~tdacm.batch.plant.PlantArrays`) with the system's ``plant_model``, the control
-    period ``dt`` and the number of periods of a run ``steps`` (a run has ``steps + 1``
-    samples, the last without a plant step, as :meth:`~tdacm.loop.ClosedLoop.run`).
+    """The constants of a batch: every block's record stacked over the worlds (a leading
+    world axis; :func:`tdacm._records.stack`; the arms' blocks with a second axis, one row an
+    arm) and what the worlds share. ``sensor`` the tip cameras' and ``global_sensor`` C_G's
+    (:class:`~tdacm.loop.sensors.CameraSensorParams`), ``perception``
+    (:class:`~tdacm.loop.perception.PerceptionParams`), ``servo``
+    (:class:`~tdacm.loop.servo.ServoParams`), ``controller``
+    (:class:`~tdacm.control.hierarchical.ControllerParams`), ``safety``
+    (:class:`~tdacm.loop.safety.SafetyParams`), ``plant``
+    (:class:`~tdacm.loop.plant.PlantParams`) and ``robot`` each world's robot
+    (:class:`~tdacm.system.worlds.RobotRows`, the plant's and the controller model's alike);
+    the shared model arrays of the plant's system ``plant_model`` and of the controller's
+    private model ``control_model``; the control period ``dt``, the periods of a run
+    ``steps`` (``steps + 1`` samples, the last without a plant step, as
+    :meth:`~tdacm.loop.ClosedLoop.run`) and C_G's schedule ``global_every``; ``n_arms`` the
+    arms (one arm: :func:`~tdacm.loop.servo.servo_command`, several:
+    :func:`~tdacm.loop.arms.arms_command`)."""
 
-    Each world's robot (the plant's and the controller model's arrays, which describe the same
-    robot): the stacks ``stiffness``, ``rod_damping`` (N, n, n), ``step_mass``
-    (N, n_steps, 6), ``mb6`` (N, 6), ``tendon_d``, ``tendon_dd`` (N, n_g, n_a, 3) replace
-    those fields of ``plant_model`` and ``control_model``
-    (:func:`~tdacm.batch.plant.model_of_world`; rows equal to the scenario's when the worlds
-    share its robot). ``gains`` (N, 3, n, n): each world's ``A_d, A_p, A_a`` (the default
-    gains are shaped by the robot's inertia, :func:`~tdacm.control.hierarchical.default_gains`)."""
-
-    servo: S.ServoModel
-    control: CT.ControllerArrays
-    control_model: object
-    coord: np.ndarray
-    damping: np.ndarray
-    control_params: np.ndarray
-    plant: PL.PlantArrays
+    sensor: object
+    global_sensor: object
+    perception: object
+    servo: object
+    controller: object
+    safety: object
+    plant: object
+    robot: object
     plant_model: object
+    control_model: object
     dt: float
     steps: int
-    stiffness: np.ndarray
-    rod_damping: np.ndarray
-    step_mass: np.ndarray
-    mb6: np.ndarray
-    tendon_d: np.ndarray
-    tendon_dd: np.ndarray
-    gains: np.ndarray
+    global_every: int
+    n_arms: int
+    estimation: object
+
+
+class Estimation(NamedTuple):
+    """The estimation of a batch's worlds (records stacked over the worlds): whether the
+    worlds run on the EKF's estimates (``on``; else on the true state, the records below
+    unused), the filter's :class:`~tdacm.estimation.ekf_step.EkfParams` ``ekf``, the
+    proprioceptive sensors' (``pose``, ``imu``, ``encoders``,
+    :mod:`tdacm.estimation.sensor_steps`; disabled where the robot has none) and the start-up
+    reading's (``start_pose``, ``start_encoders``: no latency, no dropout), whether the start
+    is measured (``measured``: else the nominal configuration) from ``nominal`` (n,) with the
+    encoders' zero ``q_ref`` (n_s,), the configured start errors ``strain_error``,
+    ``position_error`` and whether the filter fuses C_L's view of the target (``fuse_view``)."""
+
+    on: bool
+    ekf: object
+    pose: object
+    imu: object
+    encoders: object
+    start_pose: object
+    start_encoders: object
+    measured: bool
+    nominal: np.ndarray
+    q_ref: np.ndarray
+    strain_error: float
+    position_error: float
+    fuse_view: bool
+
+
+class EstimationData(NamedTuple):
+    """The estimation's state of a batch's worlds (stacked): the filter's
+    :class:`~tdacm.estimation.ekf_step.EkfState` ``ekf`` and its period's measurements
+    ``meas``, the sensors' states (``pose``, ``imu``, ``encoders``, ``start_pose``,
+    ``start_encoders``), the estimate ``q_hat``, ``qd_hat`` (n,) and its ``p_qq`` (n, n), the
+    filter's status of the period ``status`` (1,), the plant's accelerations at the period's
+    start ``qdd`` (n,) with ``has_qdd`` (1,) (what the IMU senses) and a sensor's reading
+    ``out`` (scratch)."""
+
+    ekf: object
+    meas: object
+    pose: object
+    imu: object
+    encoders: object
+    start_pose: object
+    start_encoders: object
+    q_hat: np.ndarray
+    qd_hat: np.ndarray
+    p_qq: np.ndarray
+    status: np.ndarray
+    qdd: np.ndarray
+    has_qdd: np.ndarray
+    out: np.ndarray
+
+
+class Frame(NamedTuple):
+    """The frame a world's tip camera delivered this period: ``detected``, ``found`` (detected
+    and perceived), its pixels ``uv`` (4, 2), normalized points ``xy`` and depths ``z`` (the
+    perception's), its capture period ``capture`` (stacked: a leading world axis)."""
+
+    detected: np.ndarray
+    found: np.ndarray
+    uv: np.ndarray
+    xy: np.ndarray
+    z: np.ndarray
+    capture: np.ndarray
 
 
 class BatchData(NamedTuple):
     """The state of every world (leading axis ``N``): the plant's ``q``, ``qd`` and period
-    count ``k`` (``t = k dt``), whether it still runs (``active``) and why it ended
-    (``termination``, :data:`TERMINATIONS`); the servo's ``sstate``
-    (:data:`~tdacm.batch.servo.N_SSTATE` rows) and recovery trajectory ``rstate``, its
-    reference ``q_d``, ``qd_d``; the latency
-    buffer; the safety monitor's (armed at, previous RMSE); the controller's ``delta_hat``,
-    ``att``, ``att_rate``, ``att_set``; the wind's state and each world's aerodynamics copy;
-    the random streams of the sensors and of the plant; the last period's outputs (``u``,
-    ``rmse``, ``found``, ``twist``, ``features``); the frame the tip camera delivered at the
-    start of the current period (``meas_found``, ``meas_uv``: :func:`sense_worlds`); the
-    robust servo's target filter, smoothed target pose and C_L pose history (``f_*``,
-    ``t_pose``, ``cam_hist``: the fields of :class:`~tdacm.batch.servo.FilterData`; a window of
-    zero frames when the servo works on the measured points); C_L's pose ``meas_gc`` at the
-    state ``meas_q`` the frame was taken at (the period's servo reads it when the state is
-    still that one: one camera-pose recursion a period instead of two). The robust servo's
-    perception of the current period (:func:`~tdacm.batch.servo.robust_predict`, the frame
-    fused into the filter), kept for the period ``pred_k`` (-1: none) by the first of the
-    observation (:func:`world_view`) and the step (:func:`_act`) to need it: ``pred_flags``
-    (valid, pix_ok, view), the predicted points ``pred_pv``, depths ``pred_zv`` and C_L
-    pixels ``pred_pix``."""
+    count ``k`` (``t = k dt``), whether it runs (``active``), why it ended (``termination``),
+    whether its servo asked C_G for the next period (``request``), its random streams
+    (``rng_sensors``, ``rng_plant``), the blocks' states (``sensor``, ``servo``,
+    ``controller``, ``safety``, ``plant``; the arms' with a second axis), the period's frames
+    (``frame``, one per arm), each arm's servo outputs (``servo_out``) and the robot's
+    (``robot_out``, arm 0's for one arm; ``memo`` the servo of several arms' own,
+    :class:`~tdacm.loop.arms.ArmsMemo`), the controller's scratch (``work``) and outputs (``u``,
+    ``tau``, ``q_ref``), and the plant step's scratch ``q_next``, ``qd_next``, ``qdd_next``."""
 
     q: np.ndarray
     qd: np.ndarray
     k: np.ndarray
     active: np.ndarray
     termination: np.ndarray
-    sstate: np.ndarray
-    rstate: np.ndarray
-    q_d: np.ndarray
-    qd_d: np.ndarray
-    fifo_uv: np.ndarray
-    fifo_found: np.ndarray
-    safety: np.ndarray
-    delta_hat: np.ndarray
-    att: np.ndarray
-    att_rate: np.ndarray
-    att_set: np.ndarray
-    wind: np.ndarray
-    aero: np.ndarray
+    request: np.ndarray
     rng_sensors: np.ndarray
     rng_plant: np.ndarray
+    rng_estimation: np.ndarray
+    sensor: object
+    frame: Frame
+    servo: object
+    servo_out: object
+    robot_out: object
+    memo: object
+    estimation: object
+    controller: object
+    work: object
+    safety: object
+    plant: object
     u: np.ndarray
-    rmse: np.ndarray
-    found: np.ndarray
-    twist: np.ndarray
-    features: np.ndarray
-    meas_found: np.ndarray
-    meas_uv: np.ndarray
-    f_state: np.ndarray
-    f_pose: np.ndarray
-    f_cov: np.ndarray
-    f_hyp: np.ndarray
-    f_rc: np.ndarray
-    f_pc: np.ndarray
-    f_z: np.ndarray
-    t_pose: np.ndarray
-    cam_hist: np.ndarray
-    meas_gc: np.ndarray
-    meas_q: np.ndarray
-    pred_k: np.ndarray
-    pred_flags: np.ndarray
-    pred_pv: np.ndarray
-    pred_zv: np.ndarray
-    pred_pix: np.ndarray
-
-
-def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int) -> BatchData:
-    """Zeroed state for ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs (then
-    :func:`reset_worlds`)."""
-    n_strains = n - (6 if model.plant_model.floating else 0)
-    cap = int(model.servo.sensor[:, S.SN_LATENCY].max()) + 1
-    na = model.plant.aero.shape[0]
-    robust = model.servo.params[S.P_ROBUST] != 0.0
-    win = int(model.servo.filter_params[FP_WINDOW]) if robust else 0
-    hist = cap if robust else 0
-    return BatchData(
-        q=np.zeros((n_worlds, n)),
-        qd=np.zeros((n_worlds, n)),
-        k=np.zeros(n_worlds, np.int64),
-        active=np.zeros(n_worlds, np.bool_),
-        termination=np.zeros(n_worlds, np.int64),
-        sstate=np.zeros((n_worlds, S.N_SSTATE)),
-        rstate=np.zeros((n_worlds, 3 + 2 * n_strains)),
-        q_d=np.zeros((n_worlds, n)),
-        qd_d=np.zeros((n_worlds, n)),
-        fifo_uv=np.zeros((n_worlds, cap, 4, 2)),
-        fifo_found=np.zeros((n_worlds, cap), np.bool_),
-        safety=np.zeros((n_worlds, 2)),
-        delta_hat=np.zeros((n_worlds, n)),
-        att=np.zeros((n_worlds, 2)),
-        att_rate=np.zeros((n_worlds, 2)),
-        att_set=np.zeros((n_worlds, 1), np.bool_),
-        wind=np.zeros((n_worlds, PL.N_WIND_STATE)),
-        aero=np.zeros((n_worlds, na)),
-        rng_sensors=np.zeros((n_worlds, 2), np.uint64),
-        rng_plant=np.zeros((n_worlds, 2), np.uint64),
-        u=np.zeros((n_worlds, n_u)),
-        rmse=np.full(n_worlds, np.nan),
-        found=np.zeros(n_worlds, np.bool_),
-        twist=np.zeros((n_worlds, 6)),
-        features=np.zeros((n_worlds, 6)),
-        meas_found=np.zeros(n_worlds, np.bool_),
-        meas_uv=np.zeros((n_worlds, 4, 2)),
-        f_state=np.zeros((n_worlds, N_FSTATE)),
-        f_pose=np.zeros((n_worlds, 4, 4)),
-        f_cov=np.zeros((n_worlds, 6, 6)),
-        f_hyp=np.zeros((n_worlds, 2, 4, 4)),
-        f_rc=np.zeros((n_worlds, win, 3, 3)),
-        f_pc=np.zeros((n_worlds, win, 3)),
-        f_z=np.zeros((n_worlds, win, 4, 2)),
-        t_pose=np.zeros((n_worlds, 4, 4)),
-        cam_hist=np.zeros((n_worlds, hist, 4, 4)),
-        meas_gc=np.zeros((n_worlds, 4, 4)),
-        meas_q=np.full((n_worlds, n), np.nan),
-        pred_k=np.full(n_worlds, -1, np.int64),
-        pred_flags=np.zeros((n_worlds, 3), np.bool_),
-        pred_pv=np.zeros((n_worlds, 4, 2)),
-        pred_zv=np.zeros((n_worlds, 4)),
-        pred_pix=np.zeros((n_worlds, 4, 2)),
-    )
-
-
-@njit(cache=True)
-def reset_worlds(model, data, which, q0, qd0):
-    """Start the worlds ``which`` (bool, N) at ``(q0, qd0)`` (N, n), as
-    :meth:`~tdacm.loop.ClosedLoop.reset`: time 0, the initial mode from the first (ideal) C_L
-    view, the reference at ``q0`` (roll and pitch zero), the controller, the safety monitor
-    and the latency buffer cleared, the turbulence's initial state drawn from the world's
-    plant stream. The random streams are not rewound: set ``data.rng_*`` to restart them."""
-    sm = model.servo
-    m = model.plant_model
-    for w in range(which.shape[0]):
-        if not which[w]:
-            continue
-        n = q0.shape[1]
-        for i in range(n):
-            data.q[w, i] = q0[w, i]
-            data.qd[w, i] = qd0[w, i]
-            data.q_d[w, i] = q0[w, i]
-            data.qd_d[w, i] = 0.0
-            data.delta_hat[w, i] = 0.0
-        if m.floating:
-            data.q_d[w, 0] = 0.0
-            data.q_d[w, 1] = 0.0
-        data.k[w] = 0
-        data.active[w] = True
-        data.termination[w] = RUNNING
-        for i in range(S.N_SSTATE):
-            data.sstate[w, i] = 0.0
-        data.sstate[w, S.S_MODE] = S.first_mode(q0[w], m, sm, w)
-        # a start in recovery asks C_G for its first period (ClosedLoop.reset)
-        data.sstate[w, S.S_REQUEST] = 1.0 if data.sstate[w, S.S_MODE] == S.RECOVERY else 0.0
-        data.sstate[w, S.S_LAST_FUSED] = -1.0
-        data.sstate[w, S.S_LAST_SEEN] = np.nan
-        data.sstate[w, S.S_CG_MISSED] = np.nan
-        for i in range(data.f_state.shape[1]):
-            data.f_state[w, i] = 0.0
-        data.rstate[w, S.R_ON] = 0.0
-        data.safety[w, 0] = 0.0
-        data.safety[w, 1] = np.nan
-        for i in range(2):
-            data.att[w, i] = 0.0
-            data.att_rate[w, i] = 0.0
-        data.att_set[w, 0] = False
-        normals = np.empty(PL.N_WIND_NORMALS)
-        if model.plant.wind[PL.W_TURB_ON] != 0.0:
-            for i in range(PL.N_WIND_NORMALS):
-                normals[i] = normal(data.rng_plant[w])
-        PL.wind_start(model.plant.wind, normals, data.wind[w])
-        for i in range(model.plant.aero.shape[0]):
-            data.aero[w, i] = model.plant.aero[i]
-        data.rmse[w] = np.nan
-        data.found[w] = False
-        for i in range(n):
-            data.meas_q[w, i] = np.nan  # no frame taken at this state yet
-        data.pred_k[w] = -1
+    tau: np.ndarray
+    q_ref: np.ndarray
+    saturated: np.ndarray
+    force: np.ndarray
+    q_next: np.ndarray
+    qd_next: np.ndarray
+    qdd_next: np.ndarray
 
 
 @njit(cache=True)
@@ -283,258 +231,407 @@ def _end(data, w, code):
 
 
 @njit(cache=True)
-def _sense(model, data, w):
-    """The first half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.sense`): the
-    tip camera's frame at the current state, kept in ``meas_found``, ``meas_uv``."""
-    uv = data.meas_uv[w]
-    data.meas_found[w] = S.measure(data.q[w], model.plant_model, model.servo, w,
-                                   data.rng_sensors[w], data.fifo_uv[w], data.fifo_found[w],
-                                   data.sstate[w], uv, data.meas_gc[w])  # fmt: skip
-    for i in range(data.q.shape[1]):
-        data.meas_q[w, i] = data.q[w, i]
-    data.pred_k[w] = -1  # a new frame: not fused yet
+def _draws(base, due, count, rng):
+    """A proprioceptive sensor's draws when it captures (``due``): ``count`` standard normals,
+    then a uniform when it drops readings (the order its Python block draws them in)."""
+    if not due:
+        return np.empty(0), 0.0
+    normals = np.empty(count)
+    for i in range(count):
+        normals[i] = normal(rng)
+    return normals, (uniform(rng) if base.dropout > 0.0 else 0.0)
 
 
 @njit(cache=True)
-def _filter_data(data, w):
-    """World ``w``'s :class:`~tdacm.batch.servo.FilterData` (views of its rows)."""
-    return S.FilterData(data.f_state[w], data.f_pose[w], data.f_cov[w], data.f_hyp[w],
-                        data.f_rc[w], data.f_pc[w], data.f_z[w], data.t_pose[w],
-                        data.cam_hist[w])  # fmt: skip
+def _poll_pose(p, st, t, q, rng, out, meas):
+    """Poll the pose sensor at ``t`` on the true ``q``; a delivered reading into ``meas``."""
+    due = SS.sensor_due(p.base, st, t)
+    normals, u01 = _draws(p.base, due, SS.pose_normals(p), rng)
+    tc = SS.pose_sample(p, st, t, q, normals, u01, out)
+    if tc == tc:
+        EK.measurement_put(meas, EK.POSE, tc, out[:12])
 
 
 @njit(cache=True)
-def _predict(model, data, w, g_c):
-    """The robust servo's perception of world ``w``'s current period
-    (:func:`~tdacm.batch.servo.robust_predict`: the frame :func:`_sense` kept fused into the
-    target filter, the points predicted from its estimate), run once a period: the first
-    call keeps its results in ``data.pred_*``, the next ones of the same period read them.
-    ``g_c``: C_L's pose at the world's state (:func:`world_camera_pose`)."""
-    k = int(data.sstate[w, S.S_PERIOD])
-    if data.pred_k[w] != k:
-        valid, pix_ok, view = S.robust_predict(model.dt, k, data.q[w], data.meas_found[w],
-                                               data.meas_uv[w], model.plant_model, model.servo,
-                                               w, data.sstate[w], _filter_data(data, w), g_c,
-                                               data.pred_pv[w], data.pred_zv[w],
-                                               data.pred_pix[w])  # fmt: skip
-        data.pred_flags[w, 0] = valid
-        data.pred_flags[w, 1] = pix_ok
-        data.pred_flags[w, 2] = view
-        data.pred_k[w] = k
+def _poll_imu(p, st, t, q, qd, qdd, has_qdd, rng, out, meas):
+    """Poll the IMU at ``t`` on the true state and accelerations; a reading into ``meas``."""
+    due = SS.sensor_due(p.base, st.base, t)
+    normals, u01 = _draws(p.base, due, SS.imu_normals(p, st, has_qdd) if due else 0, rng)
+    tc = SS.imu_sample(p, st, t, q, qd, qdd, has_qdd, normals, u01, out)
+    if tc == tc:
+        EK.measurement_put(meas, EK.IMU, tc, out[:6])
 
 
 @njit(cache=True)
-def world_camera_pose(model, data, w):
-    """C_L's pose at world ``w``'s state: the one :func:`_sense` kept when the state is the
-    one its frame was taken at (always, in a period), else computed."""
+def _poll_encoders(p, st, m, t, q, rng, out, meas):
+    """Poll the tendon encoders at ``t`` on the true ``q``; a reading into ``meas``."""
+    due = SS.sensor_due(p.base, st.base, t)
+    normals, u01 = _draws(p.base, due, SS.encoder_normals(p), rng)
+    tc = SS.encoder_sample(p, st, m, t, q, normals, u01, out)
+    if tc == tc:
+        EK.measurement_put(meas, EK.ENCODERS, tc, out[: st.bias.shape[0]])
+
+
+@njit(cache=True)
+def _estimate_of(e, d, n):
+    """The estimate of the filter's latest tick into ``d.q_hat``, ``d.qd_hat``, ``d.p_qq``."""
+    s = EK.ekf_latest(d.ekf)
+    for i in range(n):
+        d.q_hat[i] = d.ekf.x[s, i]
+        d.qd_hat[i] = d.ekf.x[s, n + i]
+        for j in range(n):
+            d.p_qq[i, j] = d.ekf.p[s, i, j]
+
+
+@njit(cache=True)
+def _start_estimation(model, data, w, mw, mc):
+    """The estimator's start at time 0 (:meth:`~tdacm.estimation.block.FilterBlock.reset`):
+    the sensors' schedules and turn-on biases (the world's estimation stream), the start-up
+    reading, the initial configuration (:func:`~tdacm.estimation.ekf_step.initial_estimate`),
+    the filter's reset and, with a start-up reading, its first update."""
+    e = model.estimation
+    ep, ip, cp = take(e.ekf, w), take(e.imu, w), take(e.encoders, w)
+    d = take(data.estimation, w)
+    rng = data.rng_estimation[w]
+    n = data.q.shape[1]
+    for st in (d.pose, d.start_pose):
+        SS.sensor_reset(st, 0.0)
+    for st in (d.imu.base, d.encoders.base, d.start_encoders.base):
+        SS.sensor_reset(st, 0.0)
+    d.imu.t_last[0] = np.nan
+    z = np.empty(6)
+    for i in range(6):
+        z[i] = normal(rng)
+    SS.imu_turn_on(ip, d.imu, z)
+    z = np.empty(d.encoders.bias.shape[0])
+    for i in range(z.shape[0]):
+        z[i] = normal(rng)
+    SS.encoder_turn_on(cp, d.encoders, z)
+    for i in range(z.shape[0]):
+        z[i] = normal(rng)
+    SS.encoder_turn_on(take(e.start_encoders, w), d.start_encoders, z)
+    meas = d.meas
+    meas.rows[0] = 0
     q = data.q[w]
-    for i in range(q.shape[0]):
-        if not q[i] == data.meas_q[w, i]:
+    if e.measured:
+        if take(e.start_pose, w).base.enabled:
+            _poll_pose(take(e.start_pose, w), d.start_pose, 0.0, q, rng, d.out, meas)
+        _poll_encoders(take(e.start_encoders, w), d.start_encoders, mw, 0.0, q, rng, d.out, meas)
+    q0 = np.empty(n)
+    EK.initial_estimate(ep, mc, meas, e.nominal[w], e.q_ref[w], e.strain_error, e.position_error,
+                        q0)  # fmt: skip
+    x0 = np.zeros(ep.nx)
+    for i in range(n):
+        x0[i] = q0[i]
+    EK.ekf_reset(ep, d.ekf, 0.0, x0, ep.p0)
+    d.status[0] = EK.OK
+    if e.measured:
+        d.status[0] = EK.ekf_step(ep, d.ekf, mc, 0.0, data.u[w], False, meas)
+    _estimate_of(e, d, n)
+    d.has_qdd[0] = False
+
+
+@njit(cache=True)
+def _estimate(model, data, w, mw, mc, k, dt):
+    """The estimator's period (:meth:`~tdacm.estimation.block.FilterBlock.step`): the
+    proprioceptive sensors polled on the true state (the pose, the IMU, the encoders), C_L's
+    new detection of the target when the filter fuses it (the first arm's, normalized by the
+    controller's camera model), then the filter's step with the input applied over the last
+    period (:func:`~tdacm.estimation.ekf_step.ekf_step`)."""
+    e = model.estimation
+    ep = take(e.ekf, w)
+    d = take(data.estimation, w)
+    rng = data.rng_estimation[w]
+    n = data.q.shape[1]
+    t = k * dt
+    q, qd = data.q[w], data.qd[w]
+    meas = d.meas
+    meas.rows[0] = 0
+    _poll_pose(take(e.pose, w), d.pose, t, q, rng, d.out, meas)
+    _poll_imu(take(e.imu, w), d.imu, t, q, qd, d.qdd, d.has_qdd[0], rng, d.out, meas)
+    _poll_encoders(take(e.encoders, w), d.encoders, mw, t, q, rng, d.out, meas)
+    f = take(take(data.frame, w), 0)
+    if e.fuse_view and f.detected[0]:
+        t_capture = f.capture[0] * dt
+        if EK.view_is_new(d.ekf, t_capture):
+            xy = np.empty((4, 2))
+            normalize_into(take(take(model.perception, w), 0).camera, f.uv, xy)
+            EK.measurement_put(meas, EK.VIEW, t_capture, xy.ravel())
+    d.status[0] = EK.ekf_step(ep, d.ekf, mc, t, data.u[w], k > 0, meas)
+    if d.status[0] == EK.OK:
+        _estimate_of(e, d, n)
+
+
+@njit(cache=True)
+def reset_worlds(model, data, which, q0, qd0):
+    """Start the worlds ``which`` (bool, N) at ``(q0, qd0)`` (N, n), as
+    :meth:`~tdacm.loop.ClosedLoop.reset`: time 0, the blocks' states cleared, the initial mode
+    from the first (ideal) C_L frame, the turbulence's initial state from the world's plant
+    stream. The random streams are not rewound: set ``data.rng_*`` to restart them."""
+    n = q0.shape[1]
+    for w in range(which.shape[0]):
+        if not which[w]:
+            continue
+        for i in range(n):
+            data.q[w, i] = q0[w, i]
+            data.qd[w, i] = qd0[w, i]
+        data.k[w] = 0
+        data.active[w] = True
+        data.termination[w] = RUNNING
+        mw = model_of_world(model.plant_model, take(model.robot, w))
+        mc = model_of_world(model.control_model, take(model.robot, w))
+        for i in range(data.u.shape[1]):
+            data.u[w, i] = 0.0
+        q_est = data.q[w]
+        if model.estimation.on:  # the estimate the blocks start from
+            _start_estimation(model, data, w, mw, mc)
+            q_est = data.estimation.q_hat[w]
+        recovering = False
+        for a in range(model.n_arms):
+            sp = take(take(model.sensor, w), a)
+            ss = take(take(data.sensor, w), a)
+            ss.head[0] = 0
+            ss.count[0] = 0
+            # the first C_L frame, ideal (no draws): the initial mode
             g_c = np.empty((4, 4))
-            S.tip_camera_pose(q, model.plant_model, model.servo.rod, model.servo.mount, g_c)
-            return g_c
-    return data.meas_gc[w]
+            camera_pose_into(sp, mw, data.q[w], g_c)
+            uv = np.empty((4, 2))
+            corners = np.empty((sp.corners.shape[0], 4, 2))
+            seen = np.empty(sp.corners.shape[0], np.bool_)
+            found = analytic_detect(sp, g_c, uv, corners, seen)
+            st = take(take(data.servo, w), a)
+            servo_reset(take(take(model.servo, w), a), st, mw, q_est, found, uv)
+            recovering = recovering or st.mode[0] != IBVS
+        # a start in recovery asks C_G for its first period (ClosedLoop.reset)
+        data.request[w] = recovering
+        data.memo.lost[w, 0] = recovering
+        cs = take(data.controller, w)
+        for i in range(n):
+            cs.delta_hat[i] = 0.0
+        cs.att_set[0] = False
+        st = take(data.safety, w)
+        st.armed_at[0] = 0.0
+        st.prev[0] = np.nan
+        pp = take(model.plant, w)
+        pd = take(data.plant, w)
+        for i in range(pp.aero.shape[0]):
+            pd.aero[i] = pp.aero[i]
+        normals = np.zeros(N_WIND_NORMALS)
+        if pp.wind.turbulence:
+            for i in range(N_WIND_NORMALS):
+                normals[i] = normal(data.rng_plant[w])
+        wind_start(pp.wind, pd.wind, normals)
+        data.robot_out.rmse[w, 0] = np.nan
+        for a in range(model.n_arms):
+            data.servo_out.rmse[w, a, 0] = np.nan
 
 
 @njit(cache=True)
-def _period(model, data, w, twist_in):
-    """One control period of world ``w`` (module docstring): :func:`_sense`, :func:`_act`."""
-    _sense(model, data, w)
-    _act(model, data, w, twist_in)
+def sense(model, data, w):
+    """The first half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.sense`): the
+    tip camera's frame at the true state (its imperfections drawn from the world's sensor
+    stream, its latency), perceived, and the servo's view of it
+    (:func:`~tdacm.loop.servo.servo_perceive`: what an agent observes)."""
+    k = data.k[w]
+    dt = model.dt
+    q = data.q[w]
+    n = q.shape[0]
+    mw = model_of_world(model.plant_model, take(model.robot, w))
+    rng = data.rng_sensors[w]
+    p_qq = np.zeros((n, n))  # the true state: an exact camera pose
+    g_c = np.empty((4, 4))
+    uv = np.empty((4, 2))
+    normals = np.empty(8)
+    for a in range(model.n_arms):
+        sp = take(take(model.sensor, w), a)
+        camera_pose_into(sp, mw, q, g_c)
+        corners = np.empty((sp.corners.shape[0], 4, 2))
+        seen = np.empty(sp.corners.shape[0], np.bool_)
+        found = analytic_detect(sp, g_c, uv, corners, seen)
+        if sp.dropout > 0.0 and frame_dropped(sp, uniform(rng)):
+            found = False
+        elif found and sp.pixel_noise > 0.0:
+            for i in range(8):
+                normals[i] = normal(rng)
+            add_pixel_noise(sp, uv, corners[:0], normals)
+        ss = take(take(data.sensor, w), a)
+        slot = latency_push(sp, ss, found, uv, corners, k)
+        f = take(take(data.frame, w), a)
+        f.uv[:, :] = ss.uv[slot]
+        f.capture[0] = ss.capture[slot]
+        pc = take(take(model.perception, w), a)
+        f.detected[0] = ss.found[slot]
+        f.found[0] = f.detected[0] and perceive(pc.camera, pc.object_2d, f.uv, f.xy, f.z)
+    q_est = q
+    if model.estimation.on:  # the estimator's period; a failure ends the world in act
+        _estimate(model, data, w, mw, model_of_world(model.control_model, take(model.robot, w)),
+                  k, dt)  # fmt: skip
+        if data.estimation.status[w, 0] != EK.OK:
+            return
+        q_est = data.estimation.q_hat[w]
+        p_qq = data.estimation.p_qq[w]
+    for a in range(model.n_arms):
+        f = take(take(data.frame, w), a)
+        servo_perceive(take(take(model.servo, w), a), take(take(data.servo, w), a), mw, k * dt,
+                       dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
+                       take(take(data.servo_out, w), a))  # fmt: skip
 
 
 @njit(cache=True)
-def _act(model, data, w, twist_in):
+def act(model, data, w, twist_in):
     """The second half of world ``w``'s period (:meth:`~tdacm.loop.ClosedLoop.act`) on the
-    frame :func:`_sense` kept: the servo (or ``twist_in`` when finite), the controller, the
-    safety monitor and the plant."""
-    sm = model.servo
-    pa = model.plant
-    m = model.plant_model
+    frame :func:`sense` perceived: the servo's command (``twist_in`` when finite replaces the
+    IBVS twist; C_G's analytic snapshot when the recovery reads one), the low-level
+    controller, the safety monitor and the plant over the period."""
     dt = model.dt
     k = data.k[w]
     t = k * dt
     q = data.q[w]
     qd = data.qd[w]
     n = q.shape[0]
-    found = data.meas_found[w]
-    out = np.empty(15)
-    qdd_d = np.empty(n)
-    g_c = world_camera_pose(model, data, w)
-    if sm.params[S.P_ROBUST] != 0.0:
-        _predict(model, data, w, g_c)
-        pf = data.pred_flags[w]
-        mode = S.robust_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
-                             data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in, out,
-                             pf[0], pf[1], pf[2], data.pred_pv[w], data.pred_zv[w],
-                             data.pred_pix[w])  # fmt: skip
+    mw = model_of_world(model.plant_model, take(model.robot, w))
+    q_est, qd_est = q, qd
+    if model.estimation.on:  # the blocks read the estimate (the estimator's failure ends)
+        if data.estimation.status[w, 0] != EK.OK:
+            _end(data, w, ESTIMATOR_FAILED)
+            return
+        q_est, qd_est = data.estimation.q_hat[w], data.estimation.qd_hat[w]
+    offered = global_offered(k, model.global_every, data.request[w])
+    servos, states = take(model.servo, w), take(data.servo, w)
+    outs = take(data.servo_out, w)
+    robot = take(data.robot_out, w)
+    karms = model.n_arms
+    m_count = take(take(model.global_sensor, w), 0).corners.shape[0]
+    corners = np.zeros((karms, m_count, 4, 2))
+    seen = np.zeros((karms, m_count), np.bool_)
+    g_found = np.zeros(karms, np.bool_)
+    for a in range(karms):  # C_G's analytic snapshot of each arm's marker, when it is read
+        st, out = take(states, a), take(outs, a)
+        if karms == 1:
+            need = needs_global(st, out, offered)
+        else:
+            need = offered and out.mode[0] == RECOVERY and st.traj_on[0] == 0.0
+        if need:
+            gp = take(take(model.global_sensor, w), a)
+            g_c = np.empty((4, 4))
+            camera_pose_into(gp, mw, q, g_c)
+            uv = np.empty((4, 2))
+            g_found[a] = analytic_detect(gp, g_c, uv, corners[a], seen[a])
+            for i in range(m_count):
+                g_found[a] = g_found[a] or seen[a, i]
+    if karms == 1:
+        out = take(outs, 0)
+        servo_command(take(servos, 0), take(states, 0), mw, t, dt, q_est, offered, twist_in,
+                      g_found[0], corners[0], seen[0], out)  # fmt: skip
+        copy_into(out, robot)
     else:
-        mode = S.servo_step(t, dt, q, found, data.meas_uv[w], m, sm, w, data.sstate[w],
-                            data.rstate[w], data.q_d[w], data.qd_d[w], qdd_d, twist_in,
-                            out, g_c)  # fmt: skip
-    data.found[w] = found
-    data.rmse[w] = out[0]
-    for i in range(6):
-        data.twist[w, i] = out[3 + i]
-        data.features[w, i] = out[9 + i]
-    if out[1] == S.IBVS_ENGAGED:  # the safety monitor re-arms (its grace period)
-        data.safety[w, 0] = t
-        data.safety[w, 1] = np.nan
-    if out[2] == 1.0:
-        _end(data, w, BEHIND_CAMERA)
+        arms_command(servos, states, mw, t, dt, q_est, offered, twist_in, g_found, corners, seen,
+                     outs, take(data.memo, w), robot)  # fmt: skip
+    lead = take(states, 0)
+    data.request[w] = robot.request[0]
+    if robot.event[0] == IBVS_ENGAGED:  # the safety monitor re-arms (its grace period)
+        safety_arm(take(data.safety, w), t)
+    if robot.failure[0] != NO_FAILURE:
+        _end(data, w, BEHIND_CAMERA if robot.failure[0] == BEHIND else RECOVERY_FAILED)
         return
-    if out[2] == 2.0:
-        _end(data, w, RECOVERY_FAILED)
-        return
-    # the low-level controller on this world's model error, its model of this world's robot
-    mc = PL.model_of_world(model.control_model, model.mb6[w], model.stiffness[w],
-                           model.rod_damping[w], model.step_mass[w], model.tendon_d[w],
-                           model.tendon_dd[w])  # fmt: skip
-    base = model.control
-    ca = CT.ControllerArrays(base.loads, model.control_params[w], model.coord[w],
-                             model.damping[w], model.gains[w], base.g4_lu, base.g4_piv)  # fmt: skip
-    tau = np.empty(n)
-    q_ref = np.empty(n)
-    work = np.zeros((CT.N_WORK, n))
-    CT.controller_period(ca, mc, data.delta_hat[w], data.att[w], data.att_rate[w], data.att_set[w],
-                         q, qd, data.q_d[w], data.qd_d[w], qdd_d, dt, data.u[w], tau,
-                         q_ref, work)  # fmt: skip
-    for i in range(data.u.shape[1]):
-        if not np.isfinite(data.u[w, i]):
+    # the low-level controller on its model of this world's robot
+    mc = model_of_world(model.control_model, take(model.robot, w))
+    u = data.u[w]
+    _, thrust_sat, tension_sat, _, _ = controller_step(
+        take(model.controller, w), take(data.controller, w), mc, q_est, qd_est, lead.q_d, lead.qd_d,
+        robot.qdd_d, dt, u, data.tau[w], data.q_ref[w], take(data.work, w),
+    )  # fmt: skip
+    data.saturated[w, 0] = thrust_sat
+    data.saturated[w, 1] = tension_sat
+    for i in range(u.shape[0]):
+        if not np.isfinite(u[i]):
             _end(data, w, NON_FINITE)
             return
-    if mode == S.IBVS and not S.safety_check(sm, t, out[0], data.safety[w]):
+    if robot.mode[0] == IBVS and not safety_check(take(model.safety, w), take(data.safety, w),
+                                                  t, robot.rmse[0]):  # fmt: skip
         _end(data, w, SAFETY)
         return
     if k >= model.steps:  # the last sample: recorded, no plant step
         data.active[w] = False
         return
-    # the plant over the period
+    # the plant over the period, its draws from the world's plant stream
+    pp = take(model.plant, w)
+    pd = take(data.plant, w)
     dn = np.zeros(3)
-    if pa.disturbances[PL.D_DOWNWASH_ON] != 0.0:
+    if pp.downwash_on:
         for i in range(3):
             dn[i] = normal(data.rng_plant[w])
-    wn = np.zeros((1, PL.N_WIND_NORMALS))
-    if pa.wind[PL.W_TURB_ON] != 0.0 and k >= 1:
-        for i in range(PL.N_WIND_NORMALS):
-            wn[0, i] = normal(data.rng_plant[w])
-    loads = np.empty(pa.loads.shape[0])
-    q_out = np.empty(n)
-    qd_out = np.empty(n)
-    mw = PL.model_of_world(m, model.mb6[w], model.stiffness[w], model.rod_damping[w],
-                           model.step_mass[w], model.tendon_d[w], model.tendon_dd[w])  # fmt: skip
-    ok, tumbled, _ = PL.plant_period(pa, mw, data.aero[w], q, qd, data.wind[w], data.u[w], dt, 0.0,
-                                     k, dn, wn, loads, q_out, qd_out)  # fmt: skip
+    due = wind_samples_due(pp.wind, pd.wind, t) if pp.has_wind else 0
+    wn = np.empty((due, N_WIND_NORMALS))
+    for r in range(due):
+        for i in range(N_WIND_NORMALS):
+            wn[r, i] = normal(data.rng_plant[w])
+    ok, tumbled, _, force = plant_step(pp, pd, mw, q, qd, u, dt, 0.0, k, dn, wn, data.q_next[w],
+                                       data.qd_next[w], data.qdd_next[w])  # fmt: skip
+    data.force[w] = force
     for i in range(n):
-        q[i] = q_out[i]
-        qd[i] = qd_out[i]
+        q[i] = data.q_next[w, i]
+        qd[i] = data.qd_next[w, i]
+    if model.estimation.on:  # what the IMU senses next period
+        e = take(data.estimation, w)
+        e.has_qdd[0] = ok
+        for i in range(n):
+            e.qdd[i] = data.qdd_next[w, i]
     data.k[w] = k + 1
     if not ok:
         _end(data, w, PLANT_FAILED)
     elif tumbled:
         _end(data, w, TUMBLED)
+    elif force > pp.force_limit:
+        _end(data, w, FORCE_LIMIT)
 
 
 @njit(cache=True, nogil=True)
 def step_worlds(model, data, twist, lo, hi):
-    """One control period of every active world of ``lo <= w < hi`` (``twist`` (N, 6): an
-    external twist per world replacing the IBVS twist, NaN rows for none). Releases the GIL:
-    :func:`parallel` runs disjoint ranges of worlds in threads."""
+    """One control period (:func:`sense`, :func:`act`) of every active world of
+    ``lo <= w < hi`` (``twist`` (N, 6): an external twist per world, NaN rows for the IBVS
+    twist). Releases the GIL: :func:`parallel` runs disjoint ranges of worlds in threads."""
     for w in range(lo, hi):
         if data.active[w]:
-            _period(model, data, w, twist[w])
+            sense(model, data, w)
+            act(model, data, w, twist[w])
 
 
 @njit(cache=True, nogil=True)
 def sense_worlds(model, data, lo, hi):
-    """The first half of the period (:func:`_sense`) of the active worlds ``lo <= w < hi``:
-    what an agent observes before it acts (the Gymnasium vector env)."""
+    """:func:`sense` of the active worlds ``lo <= w < hi``: what an agent observes before it
+    acts (the Gymnasium vector env)."""
     for w in range(lo, hi):
         if data.active[w]:
-            _sense(model, data, w)
+            sense(model, data, w)
 
 
 @njit(cache=True, nogil=True)
 def act_worlds(model, data, twist, lo, hi):
-    """The second half of the period (:func:`_act`) of the active worlds ``lo <= w < hi``
-    on the frames :func:`sense_worlds` kept, with the external twists ``twist`` (N, 6)."""
+    """:func:`act` of the active worlds ``lo <= w < hi`` with the external twists ``twist``
+    (N, 6; NaN rows: the IBVS twist)."""
     for w in range(lo, hi):
         if data.active[w]:
-            _act(model, data, w, twist[w])
+            act(model, data, w, twist[w])
 
 
 @njit(cache=True, nogil=True)
-def world_view(model, data, w, pv, zv, pix):
-    """World ``w``'s view in the frame :func:`sense_worlds` kept: the points and depths in
-    the servo's camera into ``pv`` (4, 2), ``zv`` (4,) (``pix`` (4, 2): the prediction in
-    C_L's pixels, robust servo). The measured points (:func:`~tdacm.batch.servo.servo_view`),
-    or with the robust servo the points predicted from the target filter after fusing the
-    frame: the period's perception (:func:`_predict`), which the period's step then reuses
-    (the step's result is the one it would have without the view). Returns
-    :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` (a prediction exists) or ``BEHIND``."""
-    sm = model.servo
-    m = model.plant_model
-    if sm.params[S.P_ROBUST] != 0.0:
-        _predict(model, data, w, world_camera_pose(model, data, w))
-        pv[:, :] = data.pred_pv[w]
-        zv[:] = data.pred_zv[w]
-        pix[:, :] = data.pred_pix[w]
-        return S.SEEN if data.pred_flags[w, 0] else S.NOT_SEEN
-    return S.servo_view(data.q[w], data.meas_found[w], data.meas_uv[w], m, sm, w,
-                        world_camera_pose(model, data, w), pv, zv)  # fmt: skip
-
-
-@njit(cache=True, nogil=True)
-def observe_worlds(model, data, points, error, status, lo, hi):
-    """What each world ``lo <= w < hi`` sees in the frame :func:`sense_worlds` kept, without
-    changing the course of its run (the env's observation, the features the servo works on): the points
-    in the servo's camera ``points`` (N, 4, 2), the feature error ``error`` (N, 6) (angles
-    wrapped) and ``status`` (N,) :data:`~tdacm.batch.servo.NOT_SEEN`, ``SEEN`` or ``BEHIND``.
-    The measured points (:meth:`VisualServo.observe`), or with the robust servo the points
-    predicted from the target filter after fusing the frame (:func:`world_view`: the
-    period's perception, which the period's :func:`act_worlds` reuses); ``SEEN`` when a
-    prediction exists."""
-    zv = np.empty(4)
-    pix = np.empty((4, 2))
-    for w in range(lo, hi):
-        _observe(model, data, w, points, error, status, zv, pix)
-
-
-@njit(cache=True)
-def _observe(model, data, w, points, error, status, zv, pix):
-    """World ``w``'s row of :func:`observe_worlds`."""
-    sm = model.servo
-    st = world_view(model, data, w, points[w], zv, pix)
-    status[w] = st
-    if st == S.SEEN:
-        f = S._features_kernel(points[w])
-        for i in range(6):
-            e = f[i] - sm.desired_features[w, i]
-            error[w, i] = S._wrap(e) if i < 3 else e
-
-
-@njit(cache=True, nogil=True)
-def act_sense_observe(model, data, twist, acting, sensing, points, error, status, lo, hi):
-    """The vector env's step of the worlds ``lo <= w < hi`` in one pass a world: the second
-    half of the period (:func:`_act`, twist ``twist[w]``) of the active worlds of ``acting``
-    (bool, N), then the tip camera's next frame (:func:`_sense`) of the worlds of ``sensing``
-    whose state is finite, whether the engine still runs them or not, then every world's
-    view into ``points``, ``error``, ``status`` as :func:`observe_worlds`. Equal to
-    :func:`act_worlds`, :func:`sense_worlds`, :func:`observe_worlds` one after the other
-    (the worlds are independent), with one meeting of the threads instead of three."""
-    zv = np.empty(4)
-    pix = np.empty((4, 2))
+def act_sense(model, data, twist, acting, sensing, lo, hi):
+    """The vector env's step of the worlds ``lo <= w < hi`` in one pass a world: :func:`act`
+    (twist ``twist[w]``) of the active worlds of ``acting`` (bool, N), then :func:`sense` of
+    the worlds of ``sensing`` whose state is finite, whether the engine still runs them or
+    not. Equal to :func:`act_worlds` then :func:`sense_worlds` (the worlds are independent),
+    with one meeting of the threads instead of two."""
     n = data.q.shape[1]
     for w in range(lo, hi):
         if acting[w] and data.active[w]:
-            _act(model, data, w, twist[w])
+            act(model, data, w, twist[w])
         if sensing[w]:
             finite = True
             for i in range(n):
                 finite = finite and np.isfinite(data.q[w, i])
             if finite:
-                _sense(model, data, w)
-        _observe(model, data, w, points, error, status, zv, pix)
+                sense(model, data, w)
 
 
 @njit(cache=True, nogil=True)
@@ -542,9 +639,8 @@ def run_worlds(model, data, periods, log_q, log_rmse, log_mode, log_u, lo, hi):
     """``periods`` control periods of every world with the IBVS twist, logging each world's
     state at the start of each period (``log_q`` (periods, N, n), or (0, N, n): not logged),
     the servo's normalized RMSE and mode (``log_rmse``, ``log_mode`` (periods, N); NaN / -1
-    once a world has ended) and the inputs (``log_u`` (periods, N, n_u) or (0, ...)), for
-    the worlds ``lo <= w < hi``. Each world runs all its periods in one call (no
-    synchronization between periods); releases the GIL (:func:`parallel`)."""
+    once a world has ended) and the inputs (``log_u`` (periods, N, n_u) or (0, ...)), for the
+    worlds ``lo <= w < hi``. Each world runs all its periods in one call; releases the GIL."""
     for w in range(lo, hi):
         nan6 = np.full(6, np.nan)
         for p in range(periods):
@@ -555,9 +651,10 @@ def run_worlds(model, data, periods, log_q, log_rmse, log_mode, log_u, lo, hi):
             if log_q.shape[0] > 0:
                 for i in range(data.q.shape[1]):
                     log_q[p, w, i] = data.q[w, i]
-            _period(model, data, w, nan6)
-            log_rmse[p, w] = data.rmse[w]
-            log_mode[p, w] = int(data.sstate[w, S.S_MODE])
+            sense(model, data, w)
+            act(model, data, w, nan6)
+            log_rmse[p, w] = data.robot_out.rmse[w, 0]
+            log_mode[p, w] = data.robot_out.mode[w, 0]
             if log_u.shape[0] > 0:
                 for i in range(data.u.shape[1]):
                     log_u[p, w, i] = data.u[w, i]

@@ -3,7 +3,7 @@
 A :class:`WorldParams` gives each world of a batch its own robot, C_L imperfections and target
 pose; a field left ``None`` is the scenario's value for every world. The robot's parameters
 are relative factors on the scenario's model arrays (each world's rows of the
-:class:`~tdacm.batch.engine.BatchModel` stacks, :func:`robot_rows`), each one the model a
+:class:`~tdacm.batch.engine.BatchModel` stacks, :func:`~tdacm.system.worlds.robot_rows`), each one the model a
 scenario with that parameter scaled builds (tested against the block loop):
 
 =================  ==========================================  ==============================
@@ -30,10 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..system.kernels import LOAD_DISTRIBUTED
+from ..system.worlds import ROBOT_FACTORS
 
-#: the robot's relative factors, in the column order of :meth:`WorldParams.robot_factors`
-ROBOT_FACTORS = ("stiffness", "damping", "drone_mass", "rod_mass", "moment_arm")
 #: the C_L imperfections, in the column order of :attr:`tdacm.batch.servo.ServoModel.sensor`
 SENSOR_FIELDS = ("pixel_noise", "dropout", "latency")
 #: the target's pose
@@ -137,30 +135,3 @@ class WorldParams:
             f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[idx]
             for f in dataclasses.fields(self)
         })  # fmt: skip
-
-
-def robot_rows(m, factors) -> dict:
-    """Each world's rows of the model arrays ``m`` (a
-    :class:`~tdacm.system.kernels.ModelArrays` of one arm) for the factors ``factors``
-    (n, 5) (:data:`ROBOT_FACTORS`): ``stiffness`` ``f_k K``, ``rod_damping`` ``f_d D``,
-    ``step_mass`` with the rod sections' rows (``step_load`` distributed) times ``f_rho``,
-    ``mb6`` with the mass entries times ``f_m`` (the inertias kept), ``tendon_d`` and
-    ``tendon_dd`` times ``f_r``: C-contiguous stacks with a leading world axis. The model is
-    linear in each (``K`` in ``E`` at a fixed Poisson ratio, ``D`` in the viscosity, the
-    sections' inertia in the density, the offsets in the tendon radius), so a factor of 1
-    gives the scenario's arrays bit for bit."""
-    f = np.asarray(factors, float)
-    n = f.shape[0]
-    rod = m.step_load == LOAD_DISTRIBUTED
-    mass_scale = np.where(rod[None, :], f[:, 3:4], 1.0)
-    mb6 = np.tile(m.mb6, (n, 1))
-    mb6[:, 3:6] = m.mb6[3:6][None, :] * f[:, 2:3]
-    c = np.ascontiguousarray
-    return {
-        "stiffness": c(m.stiffness[None] * f[:, 0, None, None]),
-        "rod_damping": c(m.damping[None] * f[:, 1, None, None]),
-        "step_mass": c(m.step_mass[None] * mass_scale[:, :, None]),
-        "mb6": c(mb6),
-        "tendon_d": c(m.tendon_d[None] * f[:, 4, None, None, None]),
-        "tendon_dd": c(m.tendon_dd[None] * f[:, 4, None, None, None]),
-    }

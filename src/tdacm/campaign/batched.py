@@ -152,7 +152,6 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
     """Run the worlds of ``rows`` (their seeds, initial states, scenario records ``cfgs``)
     and fill their rows."""
     from ..batch import engine as E
-    from ..batch import servo as S
     from ..sim.assemble import build_loop
     from ..sim.batch import build_batch, world_params
 
@@ -170,42 +169,57 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
     d, model = batch.data, batch.model
     periods = model.steps + 1
     nw, n = d.q.shape
+    k = int(model.n_arms)
     rmse = np.full((periods, nw), np.nan)
+    rmse_meas = np.full((periods, nw), np.nan)
+    rmse_arms = np.full((periods, nw, k), np.nan)
     mode = np.full((periods, nw), -1, np.int64)
     found = np.zeros((periods, nw), np.bool_)
     recorded = np.zeros((periods, nw), np.bool_)
-    u_max = np.full((nw, d.u.shape[1]), -np.inf)
-    q_last = batch.q0.copy()
+    q_log = np.zeros((periods, nw, n))
+    u_log = np.zeros((periods, nw, d.u.shape[1]))
+    sat = np.zeros((periods, nw, 2), np.bool_)
     # the block loop records no sample for a period that ends before the controller's output
     # is checked (ClosedLoop.act): the servo's behind-camera and recovery failures, a
     # non-finite command
     unrecorded = np.array([E.BEHIND_CAMERA, E.RECOVERY_FAILED, E.NON_FINITE])
-    nan_twist = np.full((nw, 6), np.nan)
+    nan_twist = np.full((nw, 6 * k), np.nan)
     for p in range(periods):
         active = d.active.copy()
         if not active.any():
             break
-        q_start = d.q.copy()
+        q_log[p] = d.q
         E.parallel(E.step_worlds, (model, d, nan_twist), nw, threads)
         rec = active & ~(~d.active & np.isin(d.termination, unrecorded))
         recorded[p] = rec
-        rmse[p, rec] = d.rmse[rec]
-        mode[p, rec] = d.sstate[rec, S.S_MODE].astype(np.int64)
-        found[p, rec] = d.found[rec]
-        u_max[rec] = np.maximum(u_max[rec], d.u[rec])
-        q_last[rec] = q_start[rec]
+        rmse[p] = d.robot_out.rmse[:, 0]
+        rmse_meas[p] = d.robot_out.rmse_measured[:, 0]
+        rmse_arms[p] = d.servo_out.rmse[:, :, 0]
+        mode[p] = d.robot_out.mode[:, 0]
+        found[p] = d.frame.detected[:, 0, 0]
+        u_log[p] = d.u
+        sat[p] = d.saturated
     wall = (time.perf_counter() - t_build) / nw
     t = np.arange(periods) * model.dt
     for w, row in enumerate(rows):
         sel = recorded[:, w]
-        summary = _summary(a, model.servo.desired_points[w], t[sel], rmse[sel, w], mode[sel, w], found[sel, w], u_max[w],
-                           q_last[w], d, w, wall, _truth(a, params, w))  # fmt: skip
-        _fill(spec, row, summary, t[sel], rmse[sel, w])
+        arrays = {
+            "t": t[sel], "rmse": rmse[sel, w], "mode": mode[sel, w], "q": q_log[sel, w],
+            "u": u_log[sel, w], "detected_local": found[sel, w],
+            "thrust_saturated": sat[sel, w, 0], "tension_saturated": sat[sel, w, 1],
+            "rmse_measured": rmse_meas[sel, w],
+        }  # fmt: skip
+        arrays["rmse_true"] = _true_rmse(a, params, w, model, arrays["q"])
+        if k > 1:
+            arrays["rmse_arms"] = rmse_arms[sel, w]
+            arrays["rmse_true_arms"] = np.full((int(sel.sum()), k), np.nan)
+        summary = _summary(a, arrays, d, w, wall, spec, row)
+        _fill(spec, row, summary, arrays["t"], arrays["rmse"])
     return rows
 
 
 def _fill(spec, row, summary, t, rmse) -> None:
-    from .runner import succeeded
+    from .spec import succeeded
     from .store import ROW_FIELDS
 
     for k in ROW_FIELDS:
@@ -215,30 +229,38 @@ def _fill(spec, row, summary, t, rmse) -> None:
 
 def _reason(code: int, a, t, rmse, d, w) -> str | None:
     """The termination in words, as the block loop says it (the safety monitor's numbers,
-    the drone's tilt)."""
+    the drone's tilt, the servo's failure, the contact force)."""
     from ..batch import engine as E
+    from ..loop.closed_loop import NON_FINITE_REASON, PLANT_FAILED_REASON, tumbled_reason
+    from ..loop.plant import force_limit_reason
+    from ..loop.safety import stop_reason
+    from ..loop.servo import FAILURE_REASONS
 
     loop = a.loop
+    t_end = d.k[w] * loop.dt
     if code == E.SAFETY:
         f = np.flatnonzero(np.isfinite(rmse))
-        prev, now, tt = rmse[f[-2]], rmse[f[-1]], t[f[-1]]
-        growth = loop.safety.growth_limit
-        return (
-            f"safety monitor: normalized RMSE grew from {prev:.5f} to {now:.5f} "
-            f"(+{100 * (now / prev - 1):.1f} % > {100 * growth:.0f} %) at t = {tt:.2f} s"
-        )
+        return stop_reason(loop.safety.params, rmse[f[-2]], rmse[f[-1]], t[f[-1]])
     if code == E.TUMBLED:
-        q = d.q[w]
-        return (
-            f"drone tumbled: roll {np.degrees(q[0]):.0f} deg, pitch "
-            f"{np.degrees(q[1]):.0f} deg at t = {d.k[w] * loop.dt:.2f} s"
-        )
-    return {
-        E.PLANT_FAILED: "plant integration failed (singular mass matrix or non-finite state)",
-        E.BEHIND_CAMERA: "servo: a point lies behind the virtual camera",
-        E.RECOVERY_FAILED: "recovery failed: no global-camera view of the target or no plan",
-        E.NON_FINITE: "non-finite controller output u",
-    }.get(code)
+        return tumbled_reason(d.q[w], t_end)
+    if code in (E.BEHIND_CAMERA, E.RECOVERY_FAILED):
+        return FAILURE_REASONS.get(int(d.robot_out.failure[w, 0]))
+    if code == E.FORCE_LIMIT:
+        return force_limit_reason(float(d.force[w]), loop.plant.params.force_limit, t_end)
+    return {E.PLANT_FAILED: PLANT_FAILED_REASON, E.NON_FINITE: NON_FINITE_REASON}.get(code)
+
+
+def _true_rmse(a, params, w, model, q) -> np.ndarray:
+    """World ``w``'s true image error at its last sample (NaN before: the summary reads the
+    last finite one), from its own target and reference."""
+    from ..loop.servo import normalized_rmse
+
+    out = np.full(q.shape[0], np.nan)
+    truth = _truth(a, params, w)
+    if truth is not None and q.shape[0]:
+        pts, _ = truth(q[-1])
+        out[-1] = normalized_rmse(pts, model.servo.desired_points[w, 0])
+    return out
 
 
 def _truth(a, params, w):
@@ -257,60 +279,27 @@ def _truth(a, params, w):
     return truth_of(world, loop.sensors.local)
 
 
-def _summary(a, desired, t, rmse, mode, found, u_max, q_last, d, w, wall, truth) -> dict:
-    """World ``w``'s summary fields of :data:`~tdacm.campaign.store.ROW_FIELDS`, computed as
-    :meth:`tdacm.sim.runner.Simulation.summary` computes them from the run's arrays
-    (``final_rmse_true`` at the last recorded state, where the block loop takes the last
-    finite sample of its series: the same unless the true points are out of view then). The
-    block loop's other fields (the estimator's, the target filter's, the hold's) are not
-    those of a scenario the engine runs: absent, stored as NaN in both."""
+def _summary(a, arrays, d, w, wall, spec, row) -> dict:
+    """World ``w``'s summary: :func:`tdacm.sim.runner.run_summary`, the block loop's, from its
+    logged ``arrays`` and how it ended."""
+    from .._records import take
     from ..batch.engine import TERMINATIONS
-    from ..loop.servo import normalized_rmse
-    from ..sim.assemble import camera_pose_error
-    from ..sim.runner import last_samples, late_rmse
+    from ..loop.servo import filter_estimate
+    from ..sim.runner import RunOutcome, run_summary
 
-    loop, world = a.loop, a.world
-    s = loop.plant.system
-    cfg = a.scenario.config
-    finite = np.isfinite(rmse)
-
-    def reach(level):
-        idx = np.flatnonzero(finite & (rmse <= level))
-        return float(t[idx[0]]) if idx.size else None
-
-    switch = np.flatnonzero((mode[1:] == 0) & (mode[:-1] == 1))
-    last2 = last_samples(t, rmse, 2.0)
     code = int(d.termination[w])
-    cam_dp = cam_da = drone_dp = None
-    rmse_true = None
-    if t.size:
-        cam_dp, cam_da = camera_pose_error(loop, q_last, world.q_star)
-        if s.floating:
-            drone_dp = float(np.linalg.norm(q_last[3:6] - world.q_star[3:6]))
-        if truth is not None:  # the world's own reference (its camera model, its target)
-            pts, _ = truth(q_last)
-            rmse_true = float(normalized_rmse(pts, desired))
-            rmse_true = rmse_true if np.isfinite(rmse_true) else None
-    na = s.n_a
-    return {
-        "initial_rmse": float(rmse[finite][0]) if finite.any() else None,
-        "final_rmse": float(rmse[finite][-1]) if finite.any() else None,
-        "min_rmse": float(np.nanmin(rmse)) if finite.any() else None,
-        "late_rmse_1s": late_rmse(t, rmse, 1.0),
-        "within_0.01_last_2s": float(np.mean(last2 <= 0.01)) if last2.size else None,
-        "time_to_0.01": reach(0.01),
-        "time_to_0.001": reach(0.001),
-        "mode_switch_time": float(t[switch[0] + 1]) if switch.size else None,
-        "terminated": code != 0,
-        "termination_reason": _reason(code, a, t, rmse, d, w) if code else None,
-        "termination": TERMINATIONS[code],
-        "wall_time_s": wall,
-        "max_tension": float(u_max[-na:].max()) if t.size else 0.0,
-        "max_thrust": float(u_max[:4].max()) if (t.size and s.floating) else None,
-        "local_detection_rate": float(np.mean(found)) if t.size else 0.0,
-        "estimation_source": cfg.estimation.source,
-        "final_rmse_true": rmse_true,
-        "final_camera_position_error_m": cam_dp,
-        "final_camera_rotation_error_deg": cam_da,
-        "final_drone_position_error_m": drone_dp,
-    }
+    t, mode = arrays["t"], arrays["mode"]
+    switch = np.flatnonzero((mode[1:] == 0) & (mode[:-1] == 1))
+    servo = take(take(d.servo, w), 0)
+    outcome = RunOutcome(
+        seed=int(row["seed"]),
+        requested_duration=float(spec.duration if spec.duration is not None else t[-1]),
+        wall_time_s=wall,
+        terminated=code != 0,
+        reason=_reason(code, a, t, arrays["rmse"], d, w) if code else None,
+        termination=TERMINATIONS[code],
+        switch_time=float(t[switch[0] + 1]) if switch.size else None,
+        plan=None,
+        target_estimate=filter_estimate(servo.filter),
+    )
+    return run_summary(a, arrays, outcome)

@@ -57,6 +57,7 @@ import numpy as np
 from pydantic import ValidationError, model_validator
 
 from .._config import ConfigModel, Field
+from ..sim.runner import SUCCESS_RMSE
 
 
 class CampaignSpecError(ValueError):
@@ -131,7 +132,7 @@ class CampaignSpecConfig(ConfigModel):
         None, gt=0, description="s, overrides the scenario's duration (unset: the scenario's)"
     )
     success_rmse: float = Field(
-        0.01, gt=0, description="a run succeeds if it ends at or below this normalized RMSE"
+        SUCCESS_RMSE, gt=0, description="a run succeeds if it ends at or below this normalized RMSE"
     )
     success_window: float | None = Field(
         None,
@@ -193,7 +194,7 @@ class CampaignSpec:
     #: the engine: ``True`` the batched engine (:mod:`tdacm.campaign.batched`), ``False`` the
     #: block loop, ``"auto"`` batched where supported; how the runs execute, not what they
     #: are, so not in :meth:`fingerprint` (a stored campaign resumes on either)
-    batched: bool | str = "auto"
+    batched: bool | str = CampaignSpecConfig.model_fields["batched"].default
 
     def as_dict(self) -> dict:
         out = {
@@ -322,7 +323,7 @@ def _check_range(source, where, key, d: dict, base) -> None:
 
 
 def parse_spec(
-    text: str, source: str = "<spec>", scenario_defaults: dict | None = None
+    text: str, source: str = CampaignSpec.source, scenario_defaults: dict | None = None
 ) -> CampaignSpec:
     """Parse and validate a campaign spec (TOML text).  ``scenario_defaults`` (the scenario's
     resolved data) lets the validation check every distribution key and vector length."""
@@ -554,3 +555,38 @@ def to_toml(data: dict) -> str:
     from ..sim.scenario import dict_to_toml
 
     return dict_to_toml(data)
+
+
+def succeeded(spec: CampaignSpec, arrays: dict, summary: dict) -> bool:
+    """A run's success: not terminated (safety monitor, force limit, ...) and, with
+    ``spec.success_hold_force_rms``, the hold criterion of :func:`held`; else its normalized RMSE at or
+    below ``spec.success_rmse``, either its last sample or, with ``spec.success_window``, the
+    RMS of the samples of its last ``success_window`` seconds (a criterion that the wandering
+    of the RMSE after convergence does not decide by one sample)."""
+    if summary.get("terminated"):
+        return False
+    if spec.success_hold_force_rms is not None:
+        return held(spec, summary)
+    if spec.success_window is None:
+        value = summary.get("final_rmse")
+    else:
+        from ..sim.runner import late_rmse
+
+        value = late_rmse(arrays["t"], arrays["rmse"], spec.success_window)
+    return bool(value is not None and np.isfinite(value) and value <= spec.success_rmse)
+
+
+def held(spec: CampaignSpec, summary: dict) -> bool:
+    """Servoing into contact (``spec.success_hold_force_rms``): the hold lasted the
+    scenario's ``touch.hold_time`` (to half a period), the true force's RMS error over it is
+    at most that fraction of the desired force and the normalized RMSE stayed at or below
+    ``spec.success_rmse`` (:func:`tdacm.sim.runner.touch_summary`)."""
+    dur, hold_time = summary.get("hold_duration"), summary.get("touch_hold_time")
+    rms, img = summary.get("hold_force_rms_rel"), summary.get("hold_image_error_max")
+    if None in (dur, hold_time, rms, img):
+        return False
+    return bool(
+        dur >= hold_time - 0.5 * summary["dt"]
+        and rms <= spec.success_hold_force_rms
+        and img <= spec.success_rmse
+    )

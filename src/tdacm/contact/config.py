@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import model_validator
 
 from .._config import ConfigModel, Field
-from .shapes import Box, ContactModel, Cylinder, Plane, Sphere, rotation_about
+from .shapes import ORIGIN, Box, ContactModel, Cylinder, Plane, Sphere, rotation_about
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 _D = {f.name: f.default for f in fields(ContactModel)}
@@ -24,8 +24,8 @@ class ObstacleConfig(ConfigModel):
     """One ``[[scene.obstacles]]`` table: a plane, sphere, box or cylinder."""
 
     shape: Literal["plane", "sphere", "box", "cylinder"] = Field(description="kind of obstacle")
-    position: Vec3 = Field([0.0, 0.0, 0.0], description="m, centre (a point of a plane)")
-    normal: Vec3 = Field([0.0, 0.0, 1.0], description="plane: outward normal (solid below it)")
+    position: Vec3 = Field(list(ORIGIN), description="m, centre (a point of a plane)")
+    normal: Vec3 = Field(list(Plane().normal), description="plane: outward normal (solid below it)")
     radius: float | None = Field(None, gt=0, description="m, sphere or cylinder radius")
     size: Vec3 | None = Field(None, description="m, box edge lengths along its axes")
     length: float | None = Field(None, gt=0, description="m, cylinder length along its axis")

@@ -23,6 +23,9 @@ import numpy as np
 from .. import _validate as V
 from . import layout as CL
 
+#: an obstacle's default ``position`` (the world's origin)
+ORIGIN = (0.0, 0.0, 0.0)
+
 
 def _rotation(name: str, r) -> np.ndarray:
     a = V.array(name, r, (3, 3))
@@ -53,7 +56,7 @@ def _frame_with_z(n: np.ndarray) -> np.ndarray:
 class Plane:
     """The half-space ``(x - position) . normal <= 0``."""
 
-    position: tuple = (0.0, 0.0, 0.0)
+    position: tuple = ORIGIN
     normal: tuple = (0.0, 0.0, 1.0)
 
     def row(self) -> np.ndarray:
@@ -65,7 +68,7 @@ class Plane:
 
 @dataclass(frozen=True)
 class Sphere:
-    position: tuple = (0.0, 0.0, 0.0)
+    position: tuple = ORIGIN
     radius: float = 0.1
 
     def row(self) -> np.ndarray:
@@ -75,7 +78,7 @@ class Sphere:
 
 @dataclass(frozen=True)
 class Box:
-    position: tuple = (0.0, 0.0, 0.0)
+    position: tuple = ORIGIN
     size: tuple = (0.4, 0.4, 0.4)
     rotation: tuple | np.ndarray | None = None
 
@@ -89,7 +92,7 @@ class Box:
 
 @dataclass(frozen=True)
 class Cylinder:
-    position: tuple = (0.0, 0.0, 0.0)
+    position: tuple = ORIGIN
     radius: float = 0.05
     length: float = 0.5
     rotation: tuple | np.ndarray | None = None

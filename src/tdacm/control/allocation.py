@@ -21,6 +21,7 @@ from numba import njit
 
 from .._linalg import cholesky_substitute
 from .._linalg import solve as _solve
+from .config import LAW_DEFAULTS
 
 
 @njit(cache=True)
@@ -129,7 +130,12 @@ class TendonAllocation:
 
 
 def allocate_tensions(
-    b_s, tau_s, max_tension: float, pretension: float = 0.5, weight: float = 1e-3, tol: float = 1e-6
+    b_s,
+    tau_s,
+    max_tension: float,
+    pretension: float = LAW_DEFAULTS.pretension,
+    weight: float = 1e-3,
+    tol: float = 1e-6,
 ) -> TendonAllocation:
     """Tendon tensions ``0 <= T <= max_tension`` with ``B_s T ~= tau_s`` (see module doc).
 
@@ -142,7 +148,7 @@ def allocate_tensions(
         raise ValueError(f"B_s must be (n_s, n_a) and tau_s (n_s,), got {b.shape}, {tau.shape}")
     if max_tension <= 0 or pretension < 0 or pretension > max_tension:
         raise ValueError("need 0 <= pretension <= max_tension and max_tension > 0")
-    t, resid, at_max, at_zero = _allocate_tensions_kernel(
+    t, resid, at_max, at_zero = allocate_tensions_kernel(
         np.ascontiguousarray(b), np.ascontiguousarray(tau), float(max_tension),
         float(pretension), float(weight),
     )  # fmt: skip
@@ -152,7 +158,7 @@ def allocate_tensions(
 
 
 @njit(cache=True)
-def _allocate_tensions_kernel(b, tau, max_tension, pretension, weight):
+def allocate_tensions_kernel(b, tau, max_tension, pretension, weight):
     """The bounded least squares of :func:`allocate_tensions` on checked arrays:
     ``(T, |B_s T - tau_s|, any T at T_max, any T at 0)``."""
     ns, na = b.shape

@@ -1,8 +1,9 @@
-"""Parameter record of the low-level controller's law (the adaptive law, the drone loop and the
-allocation of :class:`~tdacm.control.TDACMController`): the keys of the scenario's
-``[controller]`` section that the law reads. The loop's ``[controller]`` record
-(:class:`tdacm.loop.config.ControllerConfig`) extends it; :class:`TDACMController` and
-:func:`~tdacm.control.default_gains` take it whole.
+"""Parameter records of the low-level controller: its law (the adaptive law, the drone loop and
+the allocation of :class:`~tdacm.control.TDACMController`), the keys of the scenario's
+``[controller]`` section that the law reads, and its model of the robot (:class:`ModelConfig`,
+section ``[model]``, whose defaults :class:`~tdacm.control.EstimatedModel` takes). The loop's
+``[controller]`` record (:class:`tdacm.loop.config.ControllerConfig`) extends the law's;
+:class:`TDACMController` and :func:`~tdacm.control.default_gains` take it whole.
 
 The adaptive law's diagonal gains come in three rates per group of coordinates: ``beta`` of the
 sliding variable ``s_q = edot + beta e`` (``*_position_rate``, 1/s), the damping rate of
@@ -90,3 +91,19 @@ ControlLawConfig = create_model(
 
 #: the defaults (a controller built without a scenario)
 LAW_DEFAULTS = ControlLawConfig()
+
+
+class ModelConfig(ConfigModel):
+    """Section ``[model]``: the controller's model of the robot."""
+
+    perturbation: float = Field(
+        0.1, ge=0, lt=1, description="relative std of the model's parameter errors, in [0, 1)"
+    )
+    gravity_feedforward: bool = Field(
+        True, description="compensate gravity with the model (false: lumped into Delta_hat)"
+    )
+    rotor_drag: bool = Field(
+        True,
+        description="with [aerodynamics] drone drag on, the model (controller and EKF) knows the "
+        "drone's linear rotor drag (drone_linear, perturbed like D); false: lumped into Delta_hat",
+    )

@@ -33,9 +33,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..lie.euler import rot_zyx
+from ..system.kernels import coupled_terms
 from ..system.tdacm import TDACM, Loads
+from .config import ModelConfig
 
 
 @dataclass(frozen=True)
@@ -69,9 +72,9 @@ class EstimatedModel:
     def __init__(
         self,
         system: TDACM,
-        level: float = 0.1,
+        level: float = ModelConfig().perturbation,
         seed: int = 0,
-        gravity_feedforward: bool = True,
+        gravity_feedforward: bool = ModelConfig().gravity_feedforward,
         rotor_drag=None,
     ):
         if not isinstance(system, TDACM):
@@ -106,6 +109,8 @@ class EstimatedModel:
     def reseed(self, seed: int) -> None:
         """Draw the parameter errors of ``seed`` (what a model built with that seed has)."""
         self.seed = int(seed)
+        #: counts the draws: the holders of a snapshot of them (the controller's record) renew it
+        self.revision = getattr(self, "revision", -1) + 1
         n, level = self.n, self.level
         rng = np.random.default_rng(self.seed)
         draw = lambda: rng.uniform(-level, level, n)  # noqa: E731
@@ -122,26 +127,94 @@ class EstimatedModel:
             else (1.0 + self.d_r) * self.nominal_rotor_drag
         )
 
+    @property
+    def knows_rotor_drag(self) -> bool:
+        return self.nominal_rotor_drag is not None
+
+    @property
+    def damping_hat(self) -> np.ndarray:
+        """The constant part of ``D_hat``: ``S_D D S_D`` (n x n)."""
+        sd = self.damping_scale
+        d = self.system.model_arrays.damping
+        return np.ascontiguousarray(sd[:, None] * d * sd[None, :])
+
     def rotor_damping(self, q) -> np.ndarray:
         """The estimated rotor drag's generalized damping on the drone's position rows,
         ``R diag(k_r_hat) R^T`` (3 x 3), at the attitude of ``q``."""
-        r = rot_zyx(float(q[0]), float(q[1]), float(q[2]))
-        return (r * self.rotor_drag[None, :]) @ r.T
+        out = np.empty((3, 3))
+        rotor_damping_into(np.asarray(q, float), self.rotor_drag, out)
+        return out
 
     def terms(self, q, qd) -> EstimatedTerms:
-        """Estimated ``M, C, D, K`` at ``(q, qdot)``."""
-        t = self.system.terms(q, qd)
-        sm, sd = self.mass_scale, self.damping_scale
-        m_hat = sm[:, None] * t.M * sm[None, :]
-        c_hat = sm[:, None] * t.C * sm[None, :]
-        d_hat = sd[:, None] * t.D * sd[None, :]
-        if self.nominal_rotor_drag is not None:
-            d_hat[3:6, 3:6] += self.rotor_damping(q)
-        k_hat = (1.0 + self.d_k) * t.K
-        if self.gravity_feedforward:
-            k_hat = k_hat - (1.0 + self.d_g) * t.tau_ext
+        """Estimated ``M, C, D, K`` at ``(q, qdot)`` (:func:`estimated_terms`)."""
+        q = np.ascontiguousarray(q, dtype=float)
+        qd = np.ascontiguousarray(qd, dtype=float)
+        n = self.n
+        m_hat, c_hat, d_hat = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+        k_hat = np.empty(n)
+        estimated_terms(
+            q, qd, self.system.model_arrays, self.system.loads.packed(), self.mass_scale,
+            self.damping_hat, 1.0 + self.d_k, 1.0 + self.d_g, self.gravity_feedforward,
+            self.knows_rotor_drag, self.rotor_drag, False, m_hat, c_hat, d_hat, k_hat,
+        )  # fmt: skip
         return EstimatedTerms(m_hat, c_hat, d_hat, k_hat)
 
     def true_terms(self, q, qd):
         """The nominal (unperturbed) terms of the private model."""
         return self.system.terms(q, qd)
+
+
+@njit(cache=True)
+def rotor_damping_into(q, k_r, out):
+    """``R diag(k_r) R^T`` (3 x 3) into ``out``: the rotor drag's generalized damping on the
+    drone's position rows at the attitude of ``q`` (``R = Rz Ry Rx``)."""
+    r = rot_zyx(q[0], q[1], q[2])
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += r[i, c] * k_r[c] * r[j, c]
+            out[i, j] = acc
+
+
+@njit(cache=True)
+def estimated_terms(q, qd, m, loads, mass_scale, damping, stiffness_scale, gravity_scale,
+                    gravity_ff, rotor_drag, k_r, add_damping, m_hat, c_hat, d_hat, k_hat):  # fmt: skip
+    """The estimated terms (module docstring) at ``(q, qdot)`` on the private model's arrays
+    ``m`` and packed loads ``loads``: ``M_hat = S_m M S_m``, ``C_hat = S_m C S_m``,
+    ``D_hat = damping`` (``S_D D S_D``) plus ``R diag(k_r_hat) R^T`` on the drone's position
+    rows when the model knows the rotor drag, ``K_hat = (1 + d_K) K`` minus
+    ``(1 + d_g) tau_ext`` with the gravity feed-forward, into ``m_hat, c_hat, d_hat, k_hat``.
+    With ``add_damping``, ``c_hat`` receives ``C_hat + D_hat`` (what the adaptive law
+    multiplies ``qdot_r`` by) and ``d_hat`` is left alone."""
+    n = q.shape[0]
+    mm, cc, _, tau_ext, _, _, _ = coupled_terms(q, qd, m, loads, True)
+    for i in range(n):
+        for j in range(n):
+            m_hat[i, j] = mass_scale[i] * mm[i, j] * mass_scale[j]
+            c_hat[i, j] = mass_scale[i] * cc[i, j] * mass_scale[j]
+    if add_damping:
+        for i in range(n):
+            for j in range(n):
+                if not (rotor_drag and 3 <= i < 6 and 3 <= j < 6):
+                    c_hat[i, j] = c_hat[i, j] + damping[i, j]
+    else:
+        for i in range(n):
+            for j in range(n):
+                d_hat[i, j] = damping[i, j]
+    if rotor_drag:  # on the drone's position rows: D_hat + R diag(k_r) R^T
+        rd = np.empty((3, 3))
+        rotor_damping_into(q, k_r, rd)
+        for i in range(3):
+            for j in range(3):
+                if add_damping:
+                    c_hat[3 + i, 3 + j] = c_hat[3 + i, 3 + j] + (damping[3 + i, 3 + j] + rd[i, j])
+                else:
+                    d_hat[3 + i, 3 + j] = d_hat[3 + i, 3 + j] + rd[i, j]
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += m.stiffness[i, j] * q[j]
+        k_hat[i] = stiffness_scale[i] * acc
+        if gravity_ff:
+            k_hat[i] = k_hat[i] - gravity_scale[i] * tau_ext[i]

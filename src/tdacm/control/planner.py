@@ -35,12 +35,12 @@ from ..vision.targets import ArucoMarker
 
 #: order of OpenCV's marker corners (TL, TR, BR, BL) that IPPE_SQUARE expects
 #: ((-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2) in a y-down target frame)
-_IPPE_ORDER = (3, 2, 1, 0)
+IPPE_ORDER = (3, 2, 1, 0)
 
 
-def _square(side: float) -> np.ndarray:
+def square_corners(side: float) -> np.ndarray:
     """A square marker's corners in the target frame's axes (x right, y down), in the order
-    of :data:`_IPPE_ORDER`'s pixels (bottom-left, bottom-right, top-right, top-left)."""
+    of :data:`IPPE_ORDER`'s pixels (bottom-left, bottom-right, top-right, top-left)."""
     h = 0.5 * side
     return np.array([[-h, h], [h, h], [h, -h], [-h, -h]])
 
@@ -64,10 +64,10 @@ def estimate_target_pose(detection, camera, target) -> np.ndarray:
     obj = target.corner_points(mid)  # OpenCV order, target frame
     centre = obj.mean(axis=0)
     side = float(np.linalg.norm(obj[1] - obj[0]))
-    img = np.asarray(detection.corners[mid], float)[list(_IPPE_ORDER)]
+    img = np.asarray(detection.corners[mid], float)[list(IPPE_ORDER)]
     xy = np.column_stack(((img[:, 0] - camera.cx) / camera.fx, (img[:, 1] - camera.cy) / camera.fy))
     g = np.eye(4)
-    if not square_pose(_square(side), np.ascontiguousarray(xy), centre, g):
+    if not square_pose(square_corners(side), np.ascontiguousarray(xy), centre, g):
         raise ValueError("the marker's corners admit no pose")
     return g
 
@@ -319,14 +319,16 @@ class Mode(StrEnum):
 
 
 class ModeSwitch:
-    """IBVS / recovery switching with a margin and hysteresis (module docstring)."""
+    """IBVS / recovery switching with a margin and hysteresis (module docstring); ``margin_px``,
+    ``confirm`` and ``lose`` are the scenario's ``[recovery]`` keys (their defaults are those of
+    :class:`tdacm.loop.config.RecoveryConfig`)."""
 
     def __init__(
         self,
         camera,
-        margin_px: float = 20.0,
-        confirm: int = 2,
-        lose: int = 5,
+        margin_px: float,
+        confirm: int,
+        lose: int,
         initial: Mode | str = Mode.RECOVERY,
     ):
         self.camera = camera

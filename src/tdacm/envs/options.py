@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..sim.runner import SUCCESS_RMSE
+
 #: The upper bounds of the randomization ranges (module docstring).
 RANDOMIZATION_LIMITS = {
     "stiffness": 0.1,
@@ -121,7 +123,7 @@ class EnvOptions:
     action_type: str = "twist"
     max_steps: int = 250
     init_noise: float | tuple[float, ...] = 0.02
-    success_rmse: float = 0.01
+    success_rmse: float = SUCCESS_RMSE
     success_bonus: float = 10.0
     lost_penalty: float = 1.0
     max_lost: int = 10

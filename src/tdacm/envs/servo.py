@@ -75,6 +75,7 @@ from ..loop.policy import (
     observation_size,
     state_scales,
 )
+from ..loop.servo import BEHIND
 from ..vision.virtual import BehindVirtualCamera
 from .options import EnvOptions, clip_action
 
@@ -216,7 +217,8 @@ class TipServoEnv(gym.Env):
         # a robot of several arms: one single-arm servo per arm (tdacm.loop.arms.ArmsServo)
         self._arm_servos = list(getattr(loop.servo, "arms", [loop.servo]))
         for servo in self._arm_servos:
-            servo.perceive = _perceive_once(type(servo).perceive.__get__(servo))
+            if not getattr(servo, "_compiled", False):  # the compiled servos perceive once
+                servo.perceive = _perceive_once(type(servo).perceive.__get__(servo))
 
     @property
     def desired_points(self) -> np.ndarray:
@@ -241,12 +243,19 @@ class TipServoEnv(gym.Env):
             rmse = math.nan
             points = error = None
             behind = seen = False
-            try:
-                parts = servo.perceive(loop.plant.state.t, loop.dt, v, est)
-            except BehindVirtualCamera:
-                behind = True
+            if getattr(servo, "_compiled", False):  # the servo's compiled first part, once
+                out = servo.perceive_period(loop.plant.state.t, loop.dt, v, est)
+                behind = bool(out.failure[0] == BEHIND)
+                seen = bool(out.seen[0])
+                if seen:
+                    points, error, rmse = out.points, out.error, float(out.rmse[0])
             else:
-                _, _, seen, _, points, _, error, rmse, _ = parts
+                try:
+                    parts = servo.perceive(loop.plant.state.t, loop.dt, v, est)
+                except BehindVirtualCamera:
+                    behind = True
+                else:
+                    _, _, seen, _, points, _, error, rmse, _ = parts
             seen = bool(seen) and not behind
             obs = observation(
                 np.zeros((1, 6)) if error is None else np.asarray(error)[None],

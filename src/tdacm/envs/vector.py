@@ -11,12 +11,11 @@ returned it, as :class:`gymnasium.vector.SyncVectorEnv` over single envs gives).
 A step: the scaled twists replace the IBVS twists of the running worlds (a row of NaN keeps
 the servo's own IBVS twist, a teacher for imitation; ``batch.data.twist`` holds the twist
 each world applied)
-(:func:`~tdacm.batch.engine.act_worlds`: the servo's mapping and shaping, the low-level
-controller, the plant), then each world's tip camera delivers its next frame
-(:func:`~tdacm.batch.engine.sense_worlds`) and the env reads it
-(:func:`~tdacm.batch.engine.observe_worlds`), in one compiled pass a world
-(:func:`~tdacm.batch.engine.act_sense_observe`). With the robust servo the observation's
-fusion of the frame into the target filter is the period's own: the next step reuses it. Endings: the engine's (:data:`ENGINE_ENDINGS`)
+(:func:`~tdacm.batch.engine.act`: the servo's mapping and shaping, the low-level
+controller, the plant), then each world's tip camera delivers its next frame and the servo
+perceives it (:func:`~tdacm.batch.engine.sense`: the view, the target filter, the mode
+switch), in one compiled pass a world (:func:`~tdacm.batch.engine.act_sense`); the env reads
+the servo's view (``batch.data.servo_out``). Endings: the engine's (:data:`ENGINE_ENDINGS`)
 and the env's own, in the single env's order: out of envelope (roll/pitch beyond
 :data:`~tdacm.envs.servo.MAX_TILT` or a non-finite state), behind camera, target lost for
 ``max_lost`` steps, success.
@@ -40,11 +39,12 @@ parameters of the engine (:class:`~tdacm.batch.params.WorldParams`): its rod's s
 damping, the drone's and the rod's masses, the tendons' moment arms, C_L's pixel noise,
 dropout and latency. Still a function of ``s + i`` only (tested).
 
-What differs from the single env: the twist action only; the engine's scenario support (the
-EKF, contact and the multi-arm robots are refused naming the key). The observation holds the
+What differs from the single env: the twist action only; the engine's scenario support
+(contact is refused naming the key; the EKF's estimates and several arms run). The state in
+the observation is the controller's (the EKF's estimate on estimates). The observation holds the
 features the servo works on, as the single env's: with the robust servo (the shipped
-``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame
-(:func:`~tdacm.batch.engine.observe_worlds`), else the detected points. The recovery with the global camera runs batched as in the single env's loop (its
+``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame, else
+the detected points. The recovery with the global camera runs batched as in the single env's loop (its
 failure ends a world as ``recovery failed``). No ``render``.
 """
 
@@ -58,11 +58,14 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..batch import engine as E
-from ..batch import servo as BS
 from ..loop.data import Termination
 from ..loop.policy import OBS_CLIP, observation, observation_size, state_scales
+from ..loop.servo import BEHIND as _BEHIND
 from .options import EnvOptions, clip_action
 from .servo import ENV_DEFAULTS, MAX_TILT, _merge
+
+#: the view of a world's last frame in ``_status``: none, the servo's, a point behind C_V
+NOT_SEEN, SEEN, BEHIND = 0, 1, 2
 
 
 def _ending(name):
@@ -138,7 +141,7 @@ class TipServoVectorEnv(VectorEnv):
         self.success_bonus = float(o.success_bonus)
         self.lost_penalty = float(o.lost_penalty)
         self.max_lost = int(o.max_lost)
-        self.scale = np.array([o.max_angular] * 3 + [o.max_linear] * 3, float)
+        self.scale = None  # per arm, once the robot is known
         self.render_mode = None
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
 
@@ -173,14 +176,22 @@ class TipServoVectorEnv(VectorEnv):
         self.q0 = np.asarray(a.world.q0, float)
         self.qd0 = np.asarray(a.world.qd0, float)
         self.q_star = np.asarray(a.world.q_star, float)
-        cam = loop.perception.local_camera
-        self.point_scale = np.array([cam.cx / cam.fx, cam.cy / cam.fy])
+        # a robot of k arms: 6 k actions, one 15-entry observation block per arm and the
+        # state once, as the single env (tdacm.envs.servo)
+        self.n_arms = k = int(self.batch.model.n_arms)
+        self.scale = np.tile([o.max_angular] * 3 + [o.max_linear] * 3, k).astype(float)
+        perceptions = list(getattr(loop.perception, "arms", None) or [loop.perception])
+        self.point_scales = np.array([
+            [p.local_camera.cx / p.local_camera.fx, p.local_camera.cy / p.local_camera.fy]
+            for p in perceptions
+        ])  # fmt: skip
+        self.point_scale = self.point_scales[0]
         self.q_scale = state_scales(n, s.floating)
 
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
-        high = np.full(observation_size(n), OBS_CLIP, np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(6 * k,), dtype=np.float32)
+        high = np.full(observation_size(n) + 15 * (k - 1), OBS_CLIP, np.float32)
         low = -high
-        high[14], low[14] = 1.0, 0.0
+        high[14 : 15 * k : 15], low[14 : 15 * k : 15] = 1.0, 0.0  # each arm's detection flag
         self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, N)
         self.observation_space = batch_space(self.single_observation_space, N)
@@ -194,14 +205,14 @@ class TipServoVectorEnv(VectorEnv):
         self._reached = np.zeros(N, np.bool_)
         self._left = np.zeros(N, np.bool_)
         self._autoreset = np.zeros(N, np.bool_)
-        self._obs = np.zeros((N, observation_size(n)), np.float32)
+        self._obs = np.zeros((N, observation_size(n) + 15 * (k - 1)), np.float32)
         self._rmse = np.full(N, np.nan)
         self._status = np.zeros(N, np.int64)
         self._points = np.zeros((N, 4, 2))
         self._error = np.zeros((N, 6))
         self._all = np.ones(N, np.bool_)
         self._none = np.zeros(N, np.bool_)
-        self._nan_twist = np.full((N, 6), np.nan)
+        self._nan_twist = np.full((N, 6 * k), np.nan)
         self._started = False
 
     # ------------------------------------------------------------------ helpers
@@ -241,21 +252,31 @@ class TipServoVectorEnv(VectorEnv):
         """The second half of the period of the running worlds of ``acting`` with the twists
         ``twist``, then the next frame of the worlds ``which`` (whether the engine still runs
         them or not) and their observation, RMSE and view status into the env's buffers: one
-        compiled pass a world (:func:`~tdacm.batch.engine.act_sense_observe`)."""
+        compiled pass a world (:func:`~tdacm.batch.engine.act_sense`)."""
         d = self.batch.data
-        self._parallel(
-            E.act_sense_observe,
-            (self.batch.model, d, twist, acting, which, self._points, self._error, self._status),
-        )
-        seen = self._status == BS.SEEN
-        obs = observation(
-            self._error, self._points, seen, d.q, d.qd, self.q_star, self.q_scale,
-            self.point_scale,
-        )  # fmt: skip
-        dp = self.batch.model.servo.desired_points
-        with np.errstate(invalid="ignore"):
-            rmse = np.sqrt(np.mean(np.sum((self._points - dp) ** 2, axis=2), axis=1))
-        rmse = np.where(seen, rmse, np.nan)
+        self._parallel(E.act_sense, (self.batch.model, d, twist, acting, which))
+        out = d.servo_out  # (N, arms, ...): each arm's view
+        seen_arm = out.seen[:, :, 0] & (out.failure[:, :, 0] != _BEHIND)
+        behind = (out.failure[:, :, 0] == _BEHIND).any(axis=1)
+        seen = seen_arm.all(axis=1)
+        self._status = np.where(behind, BEHIND, np.where(seen, SEEN, NOT_SEEN))
+        self._points[:] = out.points[:, 0]
+        self._error[:] = out.error[:, 0]
+        # the state in the observation is the controller's: the EKF's estimate where the
+        # scenario runs on estimates (as the single env's), else the true state
+        on_estimates = self.batch.model.estimation.on
+        q = d.estimation.q_hat if on_estimates else d.q
+        qd = d.estimation.qd_hat if on_estimates else d.qd
+        blocks = []
+        for a in range(self.n_arms):
+            obs_a = observation(
+                out.error[:, a], out.points[:, a], seen_arm[:, a], q, qd, self.q_star,
+                self.q_scale, self.point_scales[a],
+            )  # fmt: skip
+            blocks.append(obs_a[:, :15])
+        obs = np.concatenate([*blocks, obs_a[:, 15:]], axis=1)
+        with np.errstate(invalid="ignore"):  # the worst arm's, NaN if an arm sees nothing
+            rmse = np.where(seen_arm, out.rmse[:, :, 0], np.nan).max(axis=1)
         self._obs[which] = obs[which]
         self._rmse[which] = rmse[which]
 
@@ -293,7 +314,7 @@ class TipServoVectorEnv(VectorEnv):
         info = {
             "rmse": self._rmse.copy(),
             "_rmse": which.copy(),
-            "detected": which & (status != BS.NOT_SEEN),
+            "detected": which & (status != NOT_SEEN),
             "_detected": which.copy(),
             "loop_seed": np.where(which, self.batch.seeds, 0).astype(np.int32),
             "_loop_seed": which.copy(),
@@ -305,11 +326,12 @@ class TipServoVectorEnv(VectorEnv):
             raise ResetNeeded("Cannot call step() before calling reset()")
         N = self.num_envs
         a = np.asarray(actions, dtype=float)
-        finite = np.isfinite(a).all(axis=1) if a.shape == (N, 6) else None
+        width = 6 * self.n_arms
+        finite = np.isfinite(a).all(axis=1) if a.shape == (N, width) else None
         if finite is None or not np.all(finite | np.isnan(a).all(axis=1)):
             raise ValueError(
-                f"actions must be an array of shape ({N}, 6), each row finite or all NaN (the "
-                f"servo's own twist), got shape {a.shape}"
+                f"actions must be an array of shape ({N}, {width}), each row finite or all NaN "
+                f"(the servo's own twist), got shape {a.shape}"
             )
         twist = clip_action(a, -1.0, 1.0) * self.scale
         d = self.batch.data
@@ -329,11 +351,11 @@ class TipServoVectorEnv(VectorEnv):
             with np.errstate(invalid="ignore"):
                 out |= np.abs(q[:, :2]).max(axis=1) > MAX_TILT
         status, rmse = self._status, self._rmse
-        seen = status == BS.SEEN
+        seen = status == SEEN
         self.lost[stepping] = np.where(seen[stepping], 0, self.lost[stepping] + 1)
         envelope = stepping & ~engine_end & out
         free = stepping & ~engine_end & ~out
-        behind = free & (status == BS.BEHIND)
+        behind = free & (status == BEHIND)
         free &= ~behind
         lost = free & (self.lost >= self.max_lost)
         free &= ~lost
@@ -379,7 +401,7 @@ class TipServoVectorEnv(VectorEnv):
         info = {
             "rmse": rmse.copy(),
             "_rmse": np.ones(N, np.bool_),
-            "detected": np.where(resetting, status != BS.NOT_SEEN, seen),
+            "detected": np.where(resetting, status != NOT_SEEN, seen),
             "_detected": np.ones(N, np.bool_),
             "success": success,
             "_success": stepping.copy(),

@@ -16,6 +16,7 @@ import numpy as np
 
 from .camera import TargetViewMeasurement
 from .ekf import EstimatorDiverged, ExtendedKalmanFilter
+from .ekf_step import initial_estimate, view_is_new
 from .estimate import StateEstimate
 from .proprioception import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
@@ -65,7 +66,6 @@ class FilterBlock:
 
         self.prior = None  # the filter's state before the start-up update (tests, logs)
         self.normalize = normalize if estimator.camera is not None else None
-        self._last_view = -np.inf
 
     def initial_guess(self, t: float) -> np.ndarray:
         """The nominal configuration plus the configured errors (no start-up reading)."""
@@ -82,22 +82,24 @@ class FilterBlock:
         reference, the controller) start from a measured state, as on a robot that reads its
         sensors before engaging the controller."""
         f = self.filter
-        self._last_view = -np.inf
         if self.initial_measurements is None:
             return f.reset(self.initial_guess(t), t0=t)
         meas = self.initial_measurements(t)
-        q = f.initial_guess(meas, self.nominal_q)
-        q[f.n - f.n_s :] += self.strain_error
-        if f.floating:
-            q[3:6] += self.position_error
+        f.renew()
+        q = np.empty(f.n)
+        initial_estimate(f.params, f.model_arrays, f.pack(meas), self.nominal_q, f.q_ref,
+                         self.strain_error, self.position_error, q)  # fmt: skip
         self.prior = f.reset(q, t0=t)
         return f.step(t, None, meas)
 
     def step(self, readings, u_applied, dt: float):
         meas = [m for m in readings.other.values() if isinstance(m, _KNOWN)]
         local = readings.local
-        if self.normalize is not None and local.found and local.t_capture > self._last_view:
-            self._last_view = local.t_capture
+        if (
+            self.normalize is not None
+            and local.found
+            and view_is_new(self.filter.state, float(local.t_capture))
+        ):
             pts = self.normalize(local.detection.points)
             meas.append(TargetViewMeasurement(local.t_capture, pts))
         try:

@@ -21,8 +21,9 @@ Model (the same geometry as the servo's target filter, :mod:`tdacm.vision.target
   ``xi = Ad(g_{C_L}^L)^-1 J_L^L(q) dq`` (eq. (10)); on the target
   ``d c / d p_T = R_C^T``, ``d c / d theta = -R_C^T [R_T X_i]x J_l(theta)`` (``J_l`` the left
   Jacobian of SO(3));
-* initialization at the first detection: planar PnP (both IPPE solutions; the one whose z axis
-  is closest to the believed normal ``level_normal``) composed with the current camera-pose
+* initialization at the first detection: planar PnP (both IPPE solutions,
+  :func:`pose_from_view`; the one whose z axis is closest to the believed normal
+  ``level_normal``) composed with the current camera-pose
   estimate, with a wide prior (``initial_*_std``) uncorrelated with the rest, so the frames
   themselves build the correlations. Written into every tick the filter keeps (no measurement
   touched the target states before, so this is exact);
@@ -40,9 +41,11 @@ import numpy as np
 from numba import njit
 from scipy.special import chdtri
 
+from .. import _validate as C
 from ..lie.se3 import skew
-from ..vision import _checks as C
-from ..vision.target_filter import planar_pnp_poses
+from ..vision.ippe import canonical_frame
+from ..vision.target_filter import pnp_kernel
+from .config import EstimationConfig
 
 
 @dataclass(frozen=True)
@@ -70,8 +73,8 @@ class TargetCamera:
     object_points: np.ndarray
     sigma: np.ndarray
     level_normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))
-    target_initial_position_std: float = 0.05
-    target_initial_attitude_std: float = 0.05
+    target_initial_position_std: float = EstimationConfig().target_initial_position_std
+    target_initial_attitude_std: float = EstimationConfig().target_initial_attitude_std
     reinit_after: float = 0.5
 
     def __post_init__(self):
@@ -127,11 +130,39 @@ def view_model(rc, pc, rt, pt, jl, obj):
     return z, h_cam, h_tgt, True
 
 
+@njit(cache=True)
+def pose_from_view(obj, obj2d, canon_inv, points, camera_pose, level_normal, out):
+    """World pose (into ``out``, 4x4) of the target from one detection ``points`` (k, 2,
+    normalized) seen from ``camera_pose``: of the two planar PnP solutions
+    (:func:`~tdacm.vision.target_filter.pnp_kernel`, IPPE on the target's points ``obj`` with
+    their canonical plane frame ``obj2d``, ``canon_inv``), the one whose z axis is closest to
+    ``level_normal`` (the first on a tie). False if PnP fails or puts a point behind the
+    camera."""
+    poses = np.empty((2, 4, 4))
+    got = pnp_kernel(obj, obj2d, canon_inv, points, camera_pose, poses)
+    if got == 0:
+        return False
+    best = 0
+    if got == 2:
+        ln = level_normal
+        d0 = poses[0, 0, 2] * ln[0] + poses[0, 1, 2] * ln[1] + poses[0, 2, 2] * ln[2]
+        d1 = poses[1, 0, 2] * ln[0] + poses[1, 1, 2] * ln[1] + poses[1, 2, 2] * ln[2]
+        if d1 > d0:
+            best = 1
+    out[:, :] = poses[best]
+    return True
+
+
 def target_pose_from_view(points, object_points, camera_pose, level_normal) -> np.ndarray | None:
-    """World pose (4x4) of the target from one detection (planar PnP, ``SOLVEPNP_IPPE``) seen
-    from ``camera_pose``: of the two solutions of the planar ambiguity, the one whose z axis
-    is closest to ``level_normal``; ``None`` if PnP fails or puts a point behind the camera."""
-    poses = planar_pnp_poses(object_points, points, camera_pose)
-    if not poses:
-        return None
-    return max(poses, key=lambda g: float(g[:3, 2] @ level_normal))
+    """World pose (4x4) of the target from one detection (:func:`pose_from_view`); ``None``
+    if PnP fails or puts a point behind the camera."""
+    obj = np.ascontiguousarray(object_points, dtype=float)
+    obj2d, canon = canonical_frame(obj)
+    out = np.empty((4, 4))
+    ok = pose_from_view(
+        obj, np.ascontiguousarray(obj2d), np.ascontiguousarray(np.linalg.inv(canon)),
+        np.ascontiguousarray(points, dtype=float).reshape(-1, 2),
+        np.ascontiguousarray(camera_pose, dtype=float), np.asarray(level_normal, dtype=float),
+        out,
+    )  # fmt: skip
+    return out if ok else None

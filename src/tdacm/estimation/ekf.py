@@ -30,29 +30,35 @@ Measurements (``docs/estimation.md`` has the Jacobians):
   target, six more states ``[p_T, theta]`` (the target pose) at the end of ``x``
   (:mod:`tdacm.estimation.camera` has the model and the Jacobians).
 
-Latency: the filter keeps its last ``max_delay`` seconds of ticks (prior, input, transition,
+Latency: the filter keeps its last ``max_delay`` seconds of ticks (input, transition, noise,
 measurements). A late measurement is attached to the tick of its capture time and the filter
 re-runs from there (updates at each tick, mean re-propagated with RK4, covariance with the
 stored ``Phi`` and ``Q``: the linearization is not redone, an O(correction) approximation).
 Missing measurements (dropouts, slower sensors) simply mean predict-only ticks.
+
+The filter's one period is the compiled :func:`~tdacm.estimation.ekf_step.ekf_step` over the
+records :class:`~tdacm.estimation.ekf_step.EkfParams` (built here once, :func:`ekf_params`)
+and :class:`~tdacm.estimation.ekf_step.EkfState`; :class:`ExtendedKalmanFilter` is the Python
+block around it (validation, measurement objects, the divergence as an exception, timings).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from ..control.model import EstimatedModel
-from ..lie.euler import euler_from_rotation, euler_rate_matrix, rot_zyx
-from ..lie.se3 import adjoint_pair, so3_exp_and_left_jacobian, so3_log
-from ..vision.mounts import tip_camera_pose
-from . import kernels as EK
-from .camera import TargetCamera, TargetViewMeasurement, target_pose_from_view, view_model
+from ..lie.euler import euler_from_rotation
+from ..lie.se3 import adjoint_pair
+from ..vision.ippe import canonical_frame
+from . import ekf_step as ES
+from .camera import TargetCamera, TargetViewMeasurement
 from .config import EstimatorConfig
 from .estimate import StateEstimate
 from .inversion import strains_from_tendon_lengths
+from .kernels import tendon_lengths_and_jacobian
 from .proprioception import (
     EncoderMeasurement,
     ImuMeasurement,
@@ -60,44 +66,138 @@ from .proprioception import (
     SensorSuiteConfig,
 )
 
+__all__ = [
+    "EstimatorConfig",
+    "EstimatorDiverged",
+    "ExtendedKalmanFilter",
+    "FilterTick",
+    "StateEstimate",
+    "ekf_params",
+    "euler_from_rotation",
+]
+
 
 class EstimatorDiverged(FloatingPointError):
     """The filter cannot go on: its model's mass matrix lost positive definiteness at the
-    estimated state, or the state became non-finite. :class:`~.block.FilterBlock` turns it
-    into :attr:`StateEstimate.failure` (the closed loop ends the run)."""
+    estimated state, the innovation covariance became singular, or the state became
+    non-finite. :class:`~.block.FilterBlock` turns it into :attr:`StateEstimate.failure`
+    (the closed loop ends the run)."""
 
 
-def _kalman_update(x, p, r, h, rr):
-    """:func:`~.kernels.kalman_update`; a singular innovation covariance ``H P H^T + R`` (only
-    a broken ``P`` makes it so: ``R`` is positive definite) is the filter's divergence."""
-    try:
-        return EK.kalman_update(x, p, r, h, rr)
-    except np.linalg.LinAlgError as exc:
-        raise EstimatorDiverged(
-            f"estimator diverged (singular innovation covariance: {exc})"
-        ) from exc
-
-
-@dataclass(slots=True, eq=False)
-class _Tick:
-    """One filter period in the history: its input, prior, transition ``phi``, process noise
-    ``qn`` and Jacobian, the measurements fused at it and its posterior (the prior until
-    one is)."""
+class FilterTick(NamedTuple):
+    """One kept tick of the filter's history: its time, posterior state and covariance."""
 
     t: float
-    u: object
-    x_prior: np.ndarray
-    p_prior: np.ndarray
-    phi: object
-    qn: object
-    jac: object
-    meas: list = field(default_factory=list)
-    x_post: np.ndarray = None
-    p_post: np.ndarray = None
+    x: np.ndarray
+    P: np.ndarray
 
-    def __post_init__(self):
-        self.x_post = self.x_prior
-        self.p_post = self.p_prior
+
+#: measurement objects -> kinds of :mod:`~tdacm.estimation.ekf_step`
+_KINDS = {
+    EncoderMeasurement: ES.ENCODERS,
+    PoseMeasurement: ES.POSE,
+    ImuMeasurement: ES.IMU,
+    TargetViewMeasurement: ES.VIEW,
+}
+
+
+def ekf_params(
+    model: EstimatedModel,
+    sensors: SensorSuiteConfig,
+    config: EstimatorConfig,
+    q_ref,
+    camera: TargetCamera | None,
+) -> ES.EkfParams:
+    """The :class:`~tdacm.estimation.ekf_step.EkfParams` of a filter on the controller's
+    ``model`` assuming ``sensors``, tuned by ``config``, with encoders zeroed at the strains
+    ``q_ref`` and the tip ``camera`` (or ``None``): the noise of the process model, the
+    default initial covariance and the measurement noises (module docstring)."""
+    sysm = model.system  # private, gravity-only copy (no disturbances)
+    m = sysm.model_arrays
+    n, n_s, n_a = sysm.n, sysm.n_s, sysm.n_a
+    floating = sysm.floating
+    i_target = 3 * n + (6 if floating else 0)
+    nx = i_target + (6 if camera is not None else 0)
+    c, imu, enc, pose = config, sensors.imu, sensors.encoders, sensors.pose
+
+    def blocks(a, b, d, e=None, f=None, target=None):
+        """A vector over the state from per-block values (q, qd, a_d[, b_g, b_a][, target])."""
+        parts = [a, b, d] + ([e, f] if floating else [])
+        if camera is not None:
+            parts.append(np.zeros(6) if target is None else target)
+        return np.concatenate(parts)
+
+    def per_coord(ang, lin, strain):
+        if floating:
+            return np.array([ang] * 3 + [lin] * 3 + [strain] * n_s, float)
+        return np.full(n_s, float(strain))
+
+    wa = per_coord(c.accel_noise_angular, c.accel_noise_linear, c.accel_noise_strain)
+    wd = per_coord(c.disturbance_walk_angular, c.disturbance_walk_linear, c.disturbance_walk_strain)
+    # a small floor keeps Q_c positive on the bias states (numerical conditioning)
+    qc = np.diag(
+        blocks(np.zeros(n), wa**2, wd**2, np.full(3, max(imu.gyro_bias_walk, 1e-5)) ** 2,
+               np.full(3, max(imu.accel_bias_walk, 1e-4)) ** 2)
+    )  # fmt: skip
+    q_std = per_coord(c.initial_attitude_std, c.initial_position_std, c.initial_strain_std)
+    ad_std = per_coord(
+        c.initial_disturbance_angular_std,
+        c.initial_disturbance_linear_std,
+        c.initial_disturbance_strain_std,
+    )
+    target_std = None
+    if camera is not None:
+        target_std = np.array(
+            [camera.target_initial_position_std] * 3 + [camera.target_initial_attitude_std] * 3
+        )
+    p0 = np.diag(
+        blocks(q_std, np.full(n, c.initial_velocity_std), ad_std,
+               np.full(3, max(imu.gyro_bias, 1e-4)), np.full(3, max(imu.accel_bias, 1e-3)),
+               target_std) ** 2
+    )  # fmt: skip
+    skip = np.zeros(n, dtype=np.bool_)
+    if floating:
+        skip[3:6] = True  # the dynamics do not depend on the drone's position
+    rr = [imu.gyro_noise**2] * 3 + [imu.accel_noise**2 + c.accel_model_error**2] * 3
+    if camera is not None:
+        obj = camera.object_points
+        k = obj.shape[0]
+        obj2d, canon = canonical_frame(obj)
+        cam = dict(
+            tip_mount=camera.tip_mount.copy(),
+            ad_mount_inv=adjoint_pair(camera.tip_mount)[1],
+            object_points=obj.copy(),
+            canonical_points=np.ascontiguousarray(obj2d),
+            canonical_inv=np.ascontiguousarray(np.linalg.inv(canon)),
+            r_view=np.diag(np.tile(camera.sigma**2, k)),
+            gate=camera.gate,
+            reinit_after=float(camera.reinit_after),
+            level_normal=camera.level_normal.copy(),
+            p_target=np.diag(target_std**2),
+        )
+    else:
+        cam = dict(
+            tip_mount=np.eye(4), ad_mount_inv=np.eye(6), object_points=np.zeros((0, 3)),
+            canonical_points=np.zeros((0, 2)), canonical_inv=np.eye(4),
+            r_view=np.zeros((0, 0)), gate=0.0, reinit_after=0.0, level_normal=np.zeros(3),
+            p_target=np.zeros((6, 6)),
+        )  # fmt: skip
+    ca = np.ascontiguousarray
+    return ES.EkfParams(
+        n=int(n), n_s=int(n_s), n_a=int(n_a), n_u=int(sysm.n_u), nx=int(nx),
+        floating=bool(floating), camera=camera is not None, i_target=int(i_target),
+        rk4_steps=int(c.rk4_steps), loads=sysm.loads.packed().copy(),
+        gravity=sysm.loads.gravity.copy(), mass_scale=ca(model.mass_scale, float),
+        damping_scale=ca(model.damping_scale, float), stiffness_scale=ca(1.0 + model.d_k),
+        gravity_scale=ca(1.0 + model.d_g), rotor_drag=ca(model.rotor_drag, float), skip=skip,
+        qc=qc, model_error_fraction=float(c.model_error_fraction), p0=p0,
+        l_ref=tendon_lengths_and_jacobian(q_ref, m)[0],
+        r_encoders=np.eye(n_a) * max(enc.variance + enc.bias**2, 1e-16),
+        r_pose=np.diag([pose.position_noise**2] * 3 + [pose.attitude_noise**2] * 3)
+        + np.eye(6) * 1e-14,
+        r_imu=np.diag(rr) + np.eye(6) * 1e-14, r_gyro=np.diag(rr[:3]) + np.eye(3) * 1e-14,
+        max_delay=float(c.max_delay), **cam,
+    )  # fmt: skip
 
 
 class ExtendedKalmanFilter:
@@ -118,7 +218,17 @@ class ExtendedKalmanFilter:
         A :class:`~tdacm.estimation.camera.TargetCamera` to fuse the tip camera's view of the
         static target (six more states: the target pose); ``None`` (default): proprioceptive
         sensors only.
+    period:
+        The period (s) the filter will be stepped at, to size its window of ticks at once
+        (:func:`~tdacm.estimation.ekf_step.window_ticks`); ``None``: the window grows to what
+        ``max_delay`` needs as the filter runs.
+
+    The filter's parameters are :attr:`params`, its state :attr:`state` (records of
+    :mod:`~tdacm.estimation.ekf_step`).
     """
+
+    #: measurements a tick holds at first (the slots and the window grow when a run needs more)
+    SLOTS = 8
 
     def __init__(
         self,
@@ -127,98 +237,49 @@ class ExtendedKalmanFilter:
         config: EstimatorConfig | None = None,
         q_ref=None,
         camera: TargetCamera | None = None,
+        period: float | None = None,
     ):
         if not isinstance(model, EstimatedModel):
             raise ValueError(f"model must be an EstimatedModel, got {model!r}")
+        if camera is not None and not isinstance(camera, TargetCamera):
+            raise ValueError(f"camera must be a TargetCamera or None, got {camera!r}")
         self.model = model
         self.sensors = SensorSuiteConfig() if sensors is None else sensors
         self.config = EstimatorConfig() if config is None else config
         sysm = model.system  # private, gravity-only copy (no disturbances)
         self.system = sysm
-        self._m = sysm.model_arrays
-        self._loads = sysm.loads.packed().copy()
-        self._gravity = sysm.loads.gravity.copy()
-        self._s_m = np.ascontiguousarray(model.mass_scale)
-        self._s_d = np.ascontiguousarray(model.damping_scale)
-        self._k_scale = 1.0 + model.d_k
-        self._g_scale = 1.0 + model.d_g
-        self._drag = np.ascontiguousarray(model.rotor_drag, dtype=float)
-        n = sysm.n
-        self.n, self.n_s, self.n_a = n, sysm.n_s, sysm.n_a
+        #: the model arrays of the controller's private model, which the filter propagates
+        self.model_arrays = sysm.model_arrays
+        self.n, self.n_s, self.n_a = sysm.n, sysm.n_s, sysm.n_a
         self.floating = sysm.floating
-        self.nx = 3 * n + (6 if self.floating else 0)
-        if camera is not None and not isinstance(camera, TargetCamera):
-            raise ValueError(f"camera must be a TargetCamera or None, got {camera!r}")
         self.camera = camera
-        self.i_target = self.nx  # index of [p_T, theta] in the state (with a camera)
-        if camera is not None:
-            self.nx += 6
-            self._ad_mount_inv = adjoint_pair(camera.tip_mount)[1]
-            self._r_view = np.diag(np.tile(camera.sigma**2, camera.object_points.shape[0]))
-        self._anchor = None  # R_A of the target (set at its first detection)
-        self._view_ok_t = -np.inf  # capture time of the last fused view
-        self.views_fused = 0  # target views fused / gated out (re-runs of late ticks count)
-        self.views_rejected = 0
-        self.target_restarts = 0
-        self._skip = np.zeros(n, dtype=np.bool_)
-        if self.floating:
-            self._skip[3:6] = True  # the dynamics do not depend on the drone's position
         self.q_ref = np.zeros(self.n_s) if q_ref is None else np.asarray(q_ref, float)
-        self._l_ref = EK.tendon_lengths_and_jacobian(self.q_ref, self._m)[0]
-        self._qc = self._continuous_noise()
-        self._hist: list[_Tick] = []
-        self.dropped_late = 0  # measurements older than the kept history
+        if self.q_ref.shape != (self.n_s,):
+            raise ValueError(f"q_ref must hold the {self.n_s} strains, got {self.q_ref.shape}")
+        self.params = ekf_params(model, self.sensors, self.config, self.q_ref, camera)
+        self._revision = model.revision
+        self.nx = self.params.nx
+        self.i_target = self.params.i_target  # index of [p_T, theta] (with a camera)
+        if period is None:
+            window = 4
+        else:
+            if not period > 0:
+                raise ValueError(f"period must be positive, got {period!r}")
+            window = ES.window_ticks(self.config.max_delay, float(period))
+        self.state = ES.EkfState.empty(self.params, window, self.SLOTS)
         self.timings: list[float] = []  # wall time of each step (s)
 
     # ------------------------------------------------------------------ set-up
-    def _blocks(self, a, b, c, d=None, e=None, target=None):
-        """A vector over the state from per-block values (q, qd, a_d[, b_g, b_a][, target])."""
-        parts = [a, b, c] + ([d, e] if self.floating else [])
-        if self.camera is not None:
-            parts.append(np.zeros(6) if target is None else target)
-        return np.concatenate(parts)
-
-    def _per_coord(self, ang, lin, strain):
-        if self.floating:
-            return np.array([ang] * 3 + [lin] * 3 + [strain] * self.n_s, float)
-        return np.full(self.n_s, float(strain))
-
-    def _continuous_noise(self):
-        c, n = self.config, self.n
-        wa = self._per_coord(c.accel_noise_angular, c.accel_noise_linear, c.accel_noise_strain)
-        wd = self._per_coord(
-            c.disturbance_walk_angular, c.disturbance_walk_linear, c.disturbance_walk_strain
-        )
-        imu = self.sensors.imu
-        # a small floor keeps Q_c positive on the bias states (numerical conditioning)
-        bg = np.full(3, max(imu.gyro_bias_walk, 1e-5))
-        ba = np.full(3, max(imu.accel_bias_walk, 1e-4))
-        return np.diag(self._blocks(np.zeros(n), wa**2, wd**2, bg**2, ba**2))
+    def renew(self) -> None:
+        """Take the model's current parameter errors (after ``model.reseed``) into the
+        filter's record."""
+        if self._revision != self.model.revision:
+            self.params = ekf_params(self.model, self.sensors, self.config, self.q_ref, self.camera)
+            self._revision = self.model.revision
 
     def default_covariance(self) -> np.ndarray:
         """``P0`` from the config's initial standard deviations and the IMU's bias specs."""
-        c = self.config
-        q_std = self._per_coord(
-            c.initial_attitude_std, c.initial_position_std, c.initial_strain_std
-        )
-        qd_std = np.full(self.n, c.initial_velocity_std)
-        ad_std = self._per_coord(
-            c.initial_disturbance_angular_std,
-            c.initial_disturbance_linear_std,
-            c.initial_disturbance_strain_std,
-        )
-        imu = self.sensors.imu
-        bg = np.full(3, max(imu.gyro_bias, 1e-4))
-        ba = np.full(3, max(imu.accel_bias, 1e-3))
-        return np.diag(self._blocks(q_std, qd_std, ad_std, bg, ba, self._target_std()) ** 2)
-
-    def _target_std(self):
-        cam = self.camera
-        if cam is None:
-            return None
-        return np.array(
-            [cam.target_initial_position_std] * 3 + [cam.target_initial_attitude_std] * 3
-        )
+        return self.params.p0.copy()
 
     def initial_guess(self, measurements, fallback_q=None) -> np.ndarray:
         """``q`` from one set of measurements: drone pose from the pose sensor, strains from
@@ -238,6 +299,7 @@ class ExtendedKalmanFilter:
         """Start at ``(q0, qd0)`` (``qd0`` default zeros, disturbances and biases zero) with
         covariance ``P0`` (full ``nx x nx``, or ``2n x 2n`` for ``[q, qd]`` only; default
         :meth:`default_covariance`)."""
+        self.renew()
         n = self.n
         q0 = np.asarray(q0, float)
         qd0 = np.zeros(n) if qd0 is None else np.asarray(qd0, float)
@@ -254,339 +316,220 @@ class ExtendedKalmanFilter:
                 raise ValueError(f"P0 must be {2 * n}x{2 * n} or {self.nx}x{self.nx}")
         x = np.zeros(self.nx)
         x[:n], x[n : 2 * n] = q0, qd0
-        self._hist = [_Tick(float(t0), None, x, p, None, None, None)]
-        self.dropped_late = 0
+        ES.ekf_reset(self.params, self.state, float(t0), x, np.ascontiguousarray(p))
         self.timings = []
-        self._anchor = None
-        self._view_ok_t = -np.inf
-        self.views_fused = self.views_rejected = self.target_restarts = 0
         return self.estimate
 
     def warm_up(self) -> None:
-        """Run every kernel once (numba compiles or loads them), leaving no state behind."""
+        """Run the compiled step once (numba compiles or loads it), leaving no state behind."""
         n = self.n
         q = np.zeros(n)
         if self.floating:
             q[5] = 1.0
-        kept = (self._hist, self.dropped_late, self.timings, self._anchor, self._view_ok_t,
-                self.views_fused, self.views_rejected, self.target_restarts)  # fmt: skip
-        self.reset(q)
-        u = np.zeros(self.system.n_u)
-        meas = [EncoderMeasurement(0.0, np.zeros(self.n_a))]
-        if self.floating:
-            meas += [PoseMeasurement(0.0, q[3:6], np.eye(3)),
-                     ImuMeasurement(0.02, np.zeros(3), np.array([0.0, 0.0, 9.81]))]  # fmt: skip
-        if self.camera is not None:  # a target 1 m in front of C_L
-            obj = self.camera.object_points
-            z = obj[:, :2] / (obj[:, 2:] + 1.0)
-            meas.append(TargetViewMeasurement(0.02, z))
-        self.step(0.0, None, meas[:2])
-        self.step(0.02, u, meas[2:])
-        (self._hist, self.dropped_late, self.timings, self._anchor, self._view_ok_t,
-         self.views_fused, self.views_rejected, self.target_restarts) = kept  # fmt: skip
+        kept, timings = self.state, self.timings
+        self.state = ES.EkfState.empty(self.params, 4, self.SLOTS)
+        try:
+            self.reset(q)
+            u = np.zeros(self.system.n_u)
+            meas = [EncoderMeasurement(0.0, np.zeros(self.n_a))]
+            if self.floating:
+                meas += [PoseMeasurement(0.0, q[3:6], np.eye(3)),
+                         ImuMeasurement(0.02, np.zeros(3), np.array([0.0, 0.0, 9.81]))]  # fmt: skip
+            if self.camera is not None:  # a target 1 m in front of C_L
+                obj = self.camera.object_points
+                z = obj[:, :2] / (obj[:, 2:] + 1.0)
+                meas.append(TargetViewMeasurement(0.02, z))
+            self.step(0.0, None, meas[:2])
+            self.step(0.02, u, meas[2:])
+        finally:
+            self.state, self.timings = kept, timings
 
     # ------------------------------------------------------------------ outputs
+    def _latest(self) -> int:
+        if self.state.kept[0] == 0:
+            raise RuntimeError("call reset() before using the filter")
+        return int(ES.ekf_latest(self.state))
+
     @property
     def estimate(self) -> StateEstimate:
-        tk = self._hist[-1]
-        n = self.n
+        s, n, st = self._latest(), self.n, self.state
         return StateEstimate(
-            tk.t,
-            tk.x_post[:n].copy(),
-            tk.x_post[n : 2 * n].copy(),
-            tk.p_post[: 2 * n, : 2 * n].copy(),
+            float(st.t[s]),
+            st.x[s, :n].copy(),
+            st.x[s, n : 2 * n].copy(),
+            st.p[s, : 2 * n, : 2 * n].copy(),
         )
 
     @property
     def x(self) -> np.ndarray:
-        """The full filter state ``[q, qd, a_d(, b_g, b_a)]``."""
-        return self._hist[-1].x_post.copy()
+        """The full filter state ``[q, qd, a_d(, b_g, b_a)(, p_T, theta)]``."""
+        return self.state.x[self._latest()].copy()
 
     @property
     def P_full(self) -> np.ndarray:
-        return self._hist[-1].p_post.copy()
+        return self.state.p[self._latest()].copy()
+
+    def history(self) -> list[FilterTick]:
+        """The kept ticks, oldest first (copies)."""
+        st = self.state
+        out = []
+        for i in range(int(st.kept[0])):
+            s = (int(st.head[0]) + i) % st.window
+            out.append(FilterTick(float(st.t[s]), st.x[s].copy(), st.p[s].copy()))
+        return out
+
+    @property
+    def dropped_late(self) -> int:
+        """Measurements older than the kept history (not fused)."""
+        return int(self.state.dropped_late[0])
+
+    @property
+    def views_fused(self) -> int:
+        """Target views fused (re-runs of late ticks count again)."""
+        return int(self.state.views_fused[0])
+
+    @property
+    def views_rejected(self) -> int:
+        """Target views gated out or with a point behind C_L."""
+        return int(self.state.views_rejected[0])
+
+    @property
+    def target_restarts(self) -> int:
+        """Times the target states were started again after ``reinit_after`` s of rejects."""
+        return int(self.state.target_restarts[0])
 
     # ------------------------------------------------------------------ process model
-    def _qdd(self, x, u):
-        n = self.n
-        a, ok = EK.model_qdd(
-            x[:n], x[n : 2 * n], u, x[2 * n : 3 * n], self._m, self._loads,
-            self._s_m, self._s_d, self._k_scale, self._g_scale, self._drag,
-        )  # fmt: skip
-        if not ok:
-            raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
-        return a
-
-    def _predict(self, prev: _Tick, t: float, u) -> _Tick:
-        n, nx = self.n, self.nx
-        dt = t - prev.t
-        x = prev.x_post
-        q, qd, ad = x[:n], x[n : 2 * n], x[2 * n : 3 * n]
-        args = (
-            self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale, self._drag
-        )  # fmt: skip
-        a0, jac, ok = EK.linearize(q, qd, u, ad, *args, self._skip)
-        q1, qd1, ok2 = EK.propagate_mean(q, qd, u, ad, dt, self.config.rk4_steps, *args)
-        if not (ok and ok2):
-            raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
-        a = np.zeros((nx, nx))
-        a[:n, n : 2 * n] = np.eye(n)
-        a[n : 2 * n, : 2 * n] = jac
-        a[n : 2 * n, 2 * n : 3 * n] = np.eye(n)
-        phi = EK.transition(a, dt)
-        qn = EK.discrete_noise(a, self._qc, dt)
-        # relative model error: the perturbed M, C, D, K are off by up to ~10 %, so the
-        # predicted acceleration (f_hat + a_d; a_d holds the slow bias, e.g. the gravity
-        # error at hover) is, over this period, off by ~ fraction * |f_hat + a_d|
-        # (systematic within the period: a fully correlated position/velocity increment)
-        rel = self.config.model_error_fraction * np.abs(a0)
-        g = np.concatenate([0.5 * dt * dt * rel, dt * rel])
-        idx = np.arange(2 * n)
-        sub = np.zeros((2 * n, 2 * n))
-        sub[idx[:n], idx[:n]] = g[:n] ** 2
-        sub[idx[n:], idx[n:]] = g[n:] ** 2
-        sub[:n, n:] = sub[n:, :n] = np.diag(g[:n] * g[n:])
-        qn[: 2 * n, : 2 * n] += sub
-        xp = x.copy()
-        xp[:n], xp[n : 2 * n] = q1, qd1
-        pp = phi @ prev.p_post @ phi.T + qn
-        return _Tick(t, u, xp, 0.5 * (pp + pp.T), phi, qn, jac)
-
-    def _repropagate(self, prev: _Tick, tk: _Tick) -> None:
-        """Prior of ``tk`` from the (changed) posterior of ``prev`` with the stored Phi, Q."""
-        n = self.n
-        x = prev.x_post
-        args = (
-            self._m, self._loads, self._s_m, self._s_d, self._k_scale, self._g_scale, self._drag
-        )  # fmt: skip
-        q1, qd1, ok = EK.propagate_mean(
-            x[:n], x[n : 2 * n], tk.u, x[2 * n : 3 * n], tk.t - prev.t, self.config.rk4_steps, *args
+    def _qdd(self, x, u) -> np.ndarray:
+        """The process model's ``f_hat(q, qd, u) + a_d`` at the state ``x``."""
+        a, ok = ES.model_acceleration(
+            self.params,
+            self.model_arrays,
+            np.ascontiguousarray(x, float),
+            np.ascontiguousarray(u, float),
         )
         if not ok:
-            raise EstimatorDiverged("estimator: the model's mass matrix is not positive definite")
-        xp = x.copy()
-        xp[:n], xp[n : 2 * n] = q1, qd1
-        pp = tk.phi @ prev.p_post @ tk.phi.T + tk.qn
-        tk.x_prior, tk.p_prior = xp, 0.5 * (pp + pp.T)
-
-    # ------------------------------------------------------------------ updates
-    def _update_tick(self, tk: _Tick, late=None) -> None:
-        """Fuse the tick's measurements into its prior (``late is None``) or only the
-        ``late`` ones into its current posterior (the others are in it already)."""
-        if late is None:
-            x, p, todo = tk.x_prior, tk.p_prior, tk.meas
-        else:
-            x, p, todo = tk.x_post, tk.p_post, late
-        order = {EncoderMeasurement: 0, PoseMeasurement: 1, ImuMeasurement: 2,
-                 TargetViewMeasurement: 3}  # fmt: skip
-        for meas in sorted(todo, key=lambda m: order[type(m)]):
-            if isinstance(meas, TargetViewMeasurement):
-                x, p = self._view_update(x, p, meas)
-                continue
-            res = self._measurement(x, meas, tk)
-            if res is not None:
-                x, p, _ = _kalman_update(x, p, *res)
-        tk.x_post, tk.p_post = x, p
+            raise EstimatorDiverged(ES.DIVERGENCE[ES.MASS_NOT_PD])
+        return a
 
     # ------------------------------------------------------------------ the tip camera
+    def _need_camera(self) -> None:
+        if self.camera is None:
+            raise ValueError("the filter has no camera (ExtendedKalmanFilter(..., camera=...))")
+
     def camera_pose(self, q) -> np.ndarray:
         """World pose of C_L at ``q`` in the filter's model: ``g_L(q) g_{C_L}^L``."""
-        return tip_camera_pose(self.system, q, self.camera.tip_mount)
+        self._need_camera()
+        return ES.camera_pose(self.params, self.model_arrays, np.ascontiguousarray(q, float))[0]
 
     def target_pose(self, x=None) -> np.ndarray | None:
         """The filter's target pose (4x4, world) from state ``x`` (default: the latest);
         ``None`` before the target was first seen."""
-        if self._anchor is None:
+        if not self.state.has_anchor[0]:
             return None
-        x = self._hist[-1].x_post if x is None else x
+        x = self.x if x is None else np.ascontiguousarray(x, float)
         i = self.i_target
         g = np.eye(4)
-        g[:3, :3] = (
-            so3_exp_and_left_jacobian(np.ascontiguousarray(x[i + 3 : i + 6]))[0] @ self._anchor
-        )
+        g[:3, :3] = ES.target_rotation(self.params, self.state, x)[0]
         g[:3, 3] = x[i : i + 3]
         return g
 
     def view_prediction(self, x):
         """Predicted normalized points (2k,) of the target at state ``x`` and the Jacobian
         (2k x nx) of :mod:`~tdacm.estimation.camera`; ``None`` if a point is behind C_L."""
-        n, i = self.n, self.i_target
-        q = x[:n]
-        g_c = self.camera_pose(q)
-        rot, jl = so3_exp_and_left_jacobian(np.ascontiguousarray(x[i + 3 : i + 6]))
-        z, h_cam, h_tgt, ok = view_model(
-            np.ascontiguousarray(g_c[:3, :3]), g_c[:3, 3].copy(), rot @ self._anchor,
-            np.ascontiguousarray(x[i : i + 3]), jl, self.camera.object_points,
-        )  # fmt: skip
-        if not ok:
-            return None
-        h = np.zeros((z.size, self.nx))
-        h[:, :n] = h_cam @ (self._ad_mount_inv @ self.system.tip_jacobian(q))
-        h[:, i : i + 6] = h_tgt
-        return z, h
+        self._need_camera()
+        z, h, ok = ES.view_prediction(
+            self.params, self.state, self.model_arrays, np.ascontiguousarray(x, float)
+        )
+        return (z, h) if ok else None
 
-    def _set_target(self, g_t, x, p):
-        """(Re)start the target states at pose ``g_t`` with the wide prior, uncorrelated
-        with the rest, in ``x, p`` and in every kept tick (before the first view nothing
-        touched these states, so this is exact; a restart forgets the old target)."""
-        i = self.i_target
-        self._anchor = np.ascontiguousarray(g_t[:3, :3])
-        p0 = np.diag(self._target_std() ** 2)
-
-        def put(xx, pp):
-            xx = xx.copy()
-            xx[i : i + 3], xx[i + 3 : i + 6] = g_t[:3, 3], 0.0
-            pp = pp.copy()
-            pp[i : i + 6, :] = 0.0
-            pp[:, i : i + 6] = 0.0
-            pp[i : i + 6, i : i + 6] = p0
-            return xx, pp
-
-        for tk in self._hist:
-            tk.x_prior, tk.p_prior = put(tk.x_prior, tk.p_prior)
-            tk.x_post, tk.p_post = put(tk.x_post, tk.p_post)
-        return put(x, p)
-
-    def _view_update(self, x, p, meas: TargetViewMeasurement):
-        """Fuse one detection of the target (gated; module :mod:`~tdacm.estimation.camera`)."""
-        cam = self.camera
-        if cam is None:
-            raise ValueError(
-                "a TargetViewMeasurement needs an ExtendedKalmanFilter built with a camera"
-            )
-        pts = np.asarray(meas.points, float)
-        if self._anchor is None or meas.t - self._view_ok_t > cam.reinit_after:
-            # first view, or every view gated out for a while: (re)start from this one
-            g_t = target_pose_from_view(
-                pts, cam.object_points, self.camera_pose(x[: self.n]), cam.level_normal
-            )
-            if g_t is None:
-                return x, p
-            restart = self._anchor is not None
-            x, p = self._set_target(g_t, x, p)
-            self._view_ok_t = meas.t
-            if restart:
-                self.target_restarts += 1
-        pred = self.view_prediction(x)
-        if pred is None:
-            self.views_rejected += 1
-            return x, p
-        x1, p1, nis = _kalman_update(x, p, pts.ravel() - pred[0], pred[1], self._r_view)
-        if nis > cam.gate:
-            self.views_rejected += 1
-            return x, p
-        self.views_fused += 1
-        self._view_ok_t = max(self._view_ok_t, meas.t)
-        return x1, p1
-
-    def _measurement(self, x, meas, tk: _Tick):
-        n, nx = self.n, self.nx
-        sc = self.sensors
-        if isinstance(meas, EncoderMeasurement):
-            qs = x[n - self.n_s : n]
-            lengths, dl_dq = EK.tendon_lengths_and_jacobian(qs, self._m)
-            h = np.zeros((self.n_a, nx))
-            h[:, n - self.n_s : n] = dl_dq
-            r = np.asarray(meas.delta_length, float) - (lengths - self._l_ref)
-            var = sc.encoders.variance + sc.encoders.bias**2
-            return r, h, np.eye(self.n_a) * max(var, 1e-16)
-        if not self.floating:
-            return None
-        if isinstance(meas, PoseMeasurement):
-            rot = rot_zyx(x[0], x[1], x[2])
-            r = np.concatenate(
-                [meas.position - x[3:6], so3_log(np.ascontiguousarray(rot.T @ meas.rotation))]
-            )
-            h = np.zeros((6, nx))
-            h[0:3, 3:6] = np.eye(3)
-            h[3:6, 0:3] = euler_rate_matrix(x[0], x[1])
-            pc = sc.pose
-            rr = np.diag([pc.position_noise**2] * 3 + [pc.attitude_noise**2] * 3)
-            return r, h, rr + np.eye(6) * 1e-14
-        if isinstance(meas, ImuMeasurement):
-            ic = sc.imu
-            ib = 3 * n
-            q, qd = x[:n], x[n : 2 * n]
-            h = np.zeros((6, nx))
-            w_hat = EK.body_rate(q, qd) + x[ib : ib + 3]
-            h[0:3, n : n + 3] = euler_rate_matrix(q[0], q[1])
-            h[0:3, ib : ib + 3] = np.eye(3)
-            eps = 1e-7
-            for j in range(2):
-                qq = q.copy()
-                qq[j] += eps
-                h[0:3, j] = (EK.body_rate(qq, qd) - EK.body_rate(q, qd)) / eps
-            rows = [0, 1, 2]
-            r_list = [meas.gyro - w_hat]
-            rr = [ic.gyro_noise**2] * 3
-            if tk.u is not None and tk.jac is not None:
-                qdd = self._qdd(x, tk.u)
-                f_hat = EK.specific_force(q, qdd, self._gravity) + x[ib + 3 : ib + 6]
-                rot = rot_zyx(q[0], q[1], q[2])
-                h[3:6, : 2 * n] = rot.T @ tk.jac[3:6, :]
-                h[3:6, 2 * n + 3 : 2 * n + 6] = rot.T
-                h[3:6, ib + 3 : ib + 6] = np.eye(3)
-                f0 = EK.specific_force(q, qdd, self._gravity)
-                for j in range(3):
-                    qq = q.copy()
-                    qq[j] += eps
-                    h[3:6, j] += (EK.specific_force(qq, qdd, self._gravity) - f0) / eps
-                rows += [3, 4, 5]
-                r_list.append(meas.accel - f_hat)
-                rr += [ic.accel_noise**2 + self.config.accel_model_error**2] * 3
-            return np.concatenate(r_list), h[rows], np.diag(rr) + np.eye(len(rows)) * 1e-14
-        raise ValueError(f"unknown measurement {meas!r}")
+    def start_target(self, g_t) -> None:
+        """(Re)start the target states at the pose ``g_t`` (4x4, world) with the wide prior,
+        in the latest estimate and every kept tick (what the first view does from its planar
+        PnP pose)."""
+        self._need_camera()
+        s = self._latest()
+        st = self.state
+        x, p = st.x[s].copy(), st.p[s].copy()
+        ES.set_target(self.params, st, np.ascontiguousarray(g_t, float), x, p)
 
     # ------------------------------------------------------------------ step
+    def pack(self, measurements) -> ES.EkfMeasurements:
+        """The measurement objects as the rows of :class:`~.ekf_step.EkfMeasurements`."""
+        meas = ES.EkfMeasurements.empty(self.params, len(measurements))
+        k = self.params.object_points.shape[0]
+        shapes = {ES.ENCODERS: (self.n_a,), ES.IMU: (3,), ES.POSE: (3,), ES.VIEW: (k, 2)}
+        for i, m in enumerate(measurements):
+            kind = _KINDS.get(type(m))
+            if kind is None:
+                raise ValueError(f"unknown measurement {m!r}")
+            if kind == ES.VIEW and self.camera is None:
+                raise ValueError(
+                    "a TargetViewMeasurement needs an ExtendedKalmanFilter built with a camera"
+                )
+            if kind == ES.ENCODERS:
+                parts = [m.delta_length]
+            elif kind == ES.POSE:
+                parts = [m.position, m.rotation]
+            elif kind == ES.IMU:
+                parts = [m.gyro, m.accel]
+            else:
+                parts = [m.points]
+            parts = [np.asarray(a, float) for a in parts]
+            if parts[0].shape != shapes[kind] or (kind == ES.POSE and parts[1].shape != (3, 3)):
+                raise ValueError(f"measurement {m!r}: wrong shape")
+            row = np.concatenate([a.ravel() for a in parts])
+            meas.kind[i] = kind
+            meas.t[i] = float(m.t)
+            meas.data[i, : row.size] = row
+        meas.rows[0] = len(measurements)
+        return meas
+
+    def _grow(self, window: int, slots: int) -> None:
+        """A larger window (or more slots a tick) holding the same history."""
+        old = self.state
+        new = ES.EkfState.empty(self.params, window, slots)
+        cnt, w = int(old.kept[0]), old.window
+        order = (int(old.head[0]) + np.arange(cnt)) % w
+        for name in ("t", "x", "p", "u", "has_u", "phi", "qn", "jac", "m_count"):
+            getattr(new, name)[:cnt] = getattr(old, name)[order]
+        for name in ("m_kind", "m_t", "m_data"):
+            getattr(new, name)[:cnt, : old.slots] = getattr(old, name)[order]
+        for name in ("anchor", "has_anchor", "view_ok_t", "last_view", "dropped_late",
+                     "views_fused", "views_rejected", "target_restarts"):  # fmt: skip
+            getattr(new, name)[...] = getattr(old, name)
+        new.kept[0] = cnt
+        self.state = new
+
     def step(self, t: float, u_applied, measurements=()) -> StateEstimate:
         """Advance to time ``t`` with the input ``u_applied`` held since the previous step
         (``None`` at the reset time: update only) and fuse ``measurements`` (any mix of pose,
-        IMU and encoder measurements, possibly captured earlier than ``t``)."""
+        IMU, encoder and target-view measurements, possibly captured earlier than ``t``)."""
         w0 = time.perf_counter()
-        if not self._hist:
+        if self.state.kept[0] == 0:
             raise RuntimeError("call reset() before step()")
+        self.renew()
         t = float(t)
-        last = self._hist[-1]
-        new_tick = t > last.t + 1e-9
-        if not new_tick and t < last.t - 1e-9:
-            raise ValueError(f"time went backwards: {t} < {last.t}")
-        # a measurement belongs to the tick nearest its capture time (half a period either side)
-        if new_tick:
-            tol = 0.5 * (t - last.t)
-        elif len(self._hist) > 1:
-            tol = 0.5 * (last.t - self._hist[-2].t)
+        if u_applied is None:
+            u = np.zeros(self.system.n_u)
         else:
-            tol = 1e-6
-        current, earliest, late = [], len(self._hist), {}
-        for m in measurements:
-            if new_tick and m.t > last.t + tol:
-                current.append(m)
-                continue
-            j = int(np.argmin([abs(tk.t - m.t) for tk in self._hist]))
-            if abs(self._hist[j].t - m.t) > tol + 1e-9:
-                self.dropped_late += 1  # older than the kept history
-                continue
-            self._hist[j].meas.append(m)
-            late.setdefault(j, []).append(m)
-            earliest = min(earliest, j)
-        if earliest < len(self._hist):
-            # the late ones on top of the posterior of their tick (sequential updates), then
-            # the later ticks re-run from their re-propagated priors with all their updates
-            self._update_tick(self._hist[earliest], late[earliest])
-            for i in range(earliest + 1, len(self._hist)):
-                self._repropagate(self._hist[i - 1], self._hist[i])
-                self._update_tick(self._hist[i])
-        if new_tick:
-            u = np.asarray(u_applied, float)
+            u = np.ascontiguousarray(u_applied, dtype=float)
             if u.shape != (self.system.n_u,):
                 raise ValueError(f"u_applied must have {self.system.n_u} entries, got {u.shape}")
-            tk = self._predict(last, t, u)
-            tk.meas = current
-            self._update_tick(tk)
-            self._hist.append(tk)
-            while len(self._hist) > 1 and self._hist[1].t < t - self.config.max_delay - 1e-9:
-                self._hist.pop(0)
-        if not np.all(np.isfinite(self._hist[-1].x_post)):
-            raise EstimatorDiverged("estimator diverged (non-finite state)")
+        meas = self.pack(list(measurements))
+        while True:
+            status = ES.ekf_step(self.params, self.state, self.model_arrays, t, u, u_applied is not None,
+                                 meas)  # fmt: skip
+            if status == ES.WINDOW_FULL:
+                self._grow(2 * self.state.window, self.state.slots)
+            elif status == ES.TICK_FULL:
+                self._grow(self.state.window, 2 * self.state.slots)
+            else:
+                break
+        if status == ES.TIME_BACKWARDS:
+            raise ValueError(f"time went backwards: {t} < {self.estimate.t}")
+        if status == ES.NO_INPUT:
+            raise ValueError(f"u_applied is needed to advance to t = {t} (> {self.estimate.t})")
+        if status != ES.OK:
+            raise EstimatorDiverged(ES.DIVERGENCE[status])
         self.timings.append(time.perf_counter() - w0)
         return self.estimate

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..system.tdacm import TDACM
 from .kernels import tendon_lengths_and_jacobian
@@ -57,6 +58,18 @@ def strains_from_tendon_lengths(
     if qs.shape != (ns,):
         raise ValueError(f"q0 must hold the {ns} strains, got shape {qs.shape}")
     l_ref = tendon_lengths_and_jacobian(qr, m)[0]
+    qs, iterations, converged = strains_gauss_newton(m, l_ref, dl, qs, float(tol), int(max_iter))
+    lengths, jac = tendon_lengths_and_jacobian(qs, m)
+    rank = int(np.linalg.matrix_rank(jac))
+    return InversionResult(qs, lengths - l_ref - dl, iterations, rank, converged and rank == ns)
+
+
+@njit(cache=True)
+def strains_gauss_newton(m, l_ref, dl, qs0, tol, max_iter):
+    """The Gauss-Newton iterations of :func:`strains_from_tendon_lengths` on the model arrays
+    ``m``: from ``qs0``, the strains whose lengths minus ``l_ref`` match ``dl``; returns
+    ``(q_s, iterations, converged)``."""
+    qs = qs0.copy()
     converged = False
     iterations = 0
     for it in range(1, max_iter + 1):
@@ -68,6 +81,4 @@ def strains_from_tendon_lengths(
         if np.linalg.norm(step) <= tol * (1.0 + np.linalg.norm(qs)):
             converged = True
             break
-    lengths, jac = tendon_lengths_and_jacobian(qs, m)
-    rank = int(np.linalg.matrix_rank(jac))
-    return InversionResult(qs, lengths - l_ref - dl, iterations, rank, converged and rank == ns)
+    return qs, iterations, converged

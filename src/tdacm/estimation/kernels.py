@@ -178,17 +178,30 @@ def body_rate(q, qd):
     return euler_rate_matrix(q[0], q[1]) @ qd[:3]
 
 
+#: :func:`kalman_update` outcomes: fused; ``H P H^T + R`` singular; not finite
+UPDATE_OK, UPDATE_SINGULAR, UPDATE_NONFINITE = 0, 1, 2
+
+
 @njit(cache=True)
 def kalman_update(x, p, r, h, rr):
     """Joseph-form EKF update with residual ``r = z - h(x)``, Jacobian ``h``, noise ``rr``:
     ``K = P H^T (H P H^T + R)^-1``, ``x + K r``, ``(I - K H) P (I - K H)^T + K R K^T``
-    (symmetrized). Returns ``(x, P, nis)`` with the normalized innovation squared."""
+    (symmetrized). Returns ``(x, P, nis, status)`` with the normalized innovation squared and
+    :data:`UPDATE_OK`, or :data:`UPDATE_SINGULAR` / :data:`UPDATE_NONFINITE` when the
+    innovation covariance cannot be solved with (``x``, ``P`` then unchanged: only a broken
+    ``P`` does that, ``R`` being positive definite)."""
     ph = p @ h.T
     s = h @ ph + rr
     s = 0.5 * (s + s.T)
-    k = np.linalg.solve(s, ph.T).T
-    nis = r @ np.linalg.solve(s, r)
+    pht = ph.T.copy()
+    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(pht)) and np.all(np.isfinite(r))):
+        return x, p, np.nan, UPDATE_NONFINITE
+    try:
+        k = np.linalg.solve(s, pht).T
+        nis = r @ np.linalg.solve(s, r)
+    except Exception:  # noqa: BLE001 - numba's LinAlgError of a singular s
+        return x, p, np.nan, UPDATE_SINGULAR
     x1 = x + k @ r
     ikh = np.eye(p.shape[0]) - k @ h
     p1 = ikh @ p @ ikh.T + k @ rr @ k.T
-    return x1, 0.5 * (p1 + p1.T), nis
+    return x1, 0.5 * (p1 + p1.T), nis, UPDATE_OK

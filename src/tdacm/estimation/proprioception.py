@@ -7,7 +7,10 @@ result by ``latency`` seconds (delivered at the first poll at or after ``t_captu
 latency``) and loses a captured sample with probability ``dropout``. ``sample`` returns a small
 frozen measurement carrying its capture time ``t``, or ``None`` when nothing new is delivered.
 Every sensor draws from its own ``numpy.random.Generator`` seeded by ``(seed, stream)``, so a
-run is reproducible from its seed and adding one sensor does not change another's noise.
+run is reproducible from its seed and adding one sensor does not change another's noise. Each
+sensor is a Python block over its compiled poll (:mod:`~tdacm.estimation.sensor_steps`, the
+records and steps the batched engine calls too): the block draws the capture's random numbers
+in the order that module states and passes them in.
 
 Defaults, typical of the hardware class (a 0.7 kg quadrotor with a PX4/ArduPilot-class flight
 controller, a motion-capture or good visual-inertial pose, tendon motors with encoders); the
@@ -31,17 +34,14 @@ reasons are in ``docs/estimation.md``:
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..system.tdacm import TDACM
+from . import sensor_steps as SS
 from .config import EncoderConfig, ImuConfig, SensorSuiteConfig
-from .kernels import body_rate, specific_force, tendon_lengths_and_jacobian
-
-_EPS_T = 1e-9
+from .kernels import tendon_lengths_and_jacobian
 
 
 # ----------------------------------------------------------------------------- measurements
@@ -72,16 +72,11 @@ class EncoderMeasurement:
 
 
 # ----------------------------------------------------------------------------- sensors
-def _rotvec_exp(w):
-    th = float(np.linalg.norm(w))
-    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if th < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + math.sin(th) / th * k + (1 - math.cos(th)) / th**2 * (k @ k)
-
-
 class _Sensor:
-    """Schedule, latency and dropout shared by every sensor (see module docstring)."""
+    """Schedule, latency and dropout shared by every sensor (see module docstring): a Python
+    block over the compiled poll of :mod:`~tdacm.estimation.sensor_steps` (its records
+    ``params`` and ``state``); the random numbers come from ``rng``, drawn here in the order
+    that module states."""
 
     def __init__(self, config, rng: np.random.Generator, t0: float = 0.0):
         self.config = config
@@ -89,30 +84,20 @@ class _Sensor:
         self.period = 1.0 / config.rate_hz
         self.reset(t0)
 
-    def reset(self, t0: float = 0.0) -> None:
-        self._next = float(t0)
-        self._queue: deque = deque()
-
-    def _capture(self, t, q, qd, qdd):  # pragma: no cover - abstract
+    def _base_state(self) -> SS.SensorState:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def sample(self, t: float, q, qd, qdd=None):
-        """Poll at time ``t`` with the plant state; the delivered measurement or ``None``."""
-        c = self.config
-        if not c.enabled:
-            return None
-        if t >= self._next - _EPS_T:
-            # one capture per poll at most; the schedule stays on its grid
-            while self._next <= t + _EPS_T:
-                self._next += self.period
-            meas = self._capture(float(t), q, qd, qdd)
-            lost = c.dropout > 0 and self.rng.random() < c.dropout
-            if meas is not None and not lost:
-                self._queue.append((t + c.latency, meas))
-        out = None
-        while self._queue and self._queue[0][0] <= t + _EPS_T:
-            out = self._queue.popleft()[1]  # the newest delivered one
-        return out
+    def reset(self, t0: float = 0.0) -> None:
+        """The schedule starts at ``t0`` with nothing in flight (drawn biases are kept)."""
+        SS.sensor_reset(self._base_state(), float(t0))
+
+    def _draw(self, due: bool, normals: int):
+        """The capture's standard normals and dropout uniform (module docstring's order)."""
+        if not due:
+            return _NO_NORMALS, 0.0
+        z = self.rng.standard_normal(normals) if normals else _NO_NORMALS
+        u01 = self.rng.random() if self.config.dropout > 0 else 0.0
+        return z, u01
 
     def measure(self, state):
         """The closed loop's sensor protocol (:class:`tdacm.loop.sensors.Sensors` ``other``):
@@ -120,53 +105,94 @@ class _Sensor:
         return self.sample(state.t, state.q, state.qd, getattr(state, "qdd", None))
 
 
+_NO_NORMALS = np.zeros(0)
+
+
+def _f(x) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=float)
+
+
 class DronePoseSensor(_Sensor):
     """Position with isotropic Gaussian noise; attitude ``R exp([n]x)`` with a body-frame
-    Gaussian rotation vector ``n``."""
+    Gaussian rotation vector ``n`` (:func:`~.sensor_steps.pose_sample`)."""
 
-    def _capture(self, t, q, qd, qdd):
-        c = self.config
-        from ..lie.euler import rot_zyx
+    def __init__(self, config, rng: np.random.Generator, t0: float = 0.0):
+        c = config
+        self.params = SS.PoseParams(
+            SS.SensorParams.from_config(c), float(c.position_noise), float(c.attitude_noise)
+        )
+        self.state = SS.SensorState.empty(12, SS.queue_capacity(c), t0)
+        self._out = np.empty(12)
+        super().__init__(config, rng, t0)
 
-        r = rot_zyx(q[0], q[1], q[2])
-        p = np.asarray(q[3:6], float) + c.position_noise * self.rng.standard_normal(3)
-        r_m = r @ _rotvec_exp(c.attitude_noise * self.rng.standard_normal(3))
-        return PoseMeasurement(t, p, r_m)
+    def _base_state(self):
+        return self.state
+
+    def sample(self, t: float, q, qd, qdd=None):
+        """Poll at time ``t`` with the plant state; the delivered measurement or ``None``."""
+        t = float(t)
+        p = self.params
+        z, u01 = self._draw(SS.sensor_due(p.base, self.state, t), SS.pose_normals(p))
+        tc = SS.pose_sample(p, self.state, t, _f(q), z, u01, self._out)
+        if tc != tc:  # NaN: nothing delivered
+            return None
+        o = self._out
+        return PoseMeasurement(float(tc), o[:3].copy(), o[3:12].reshape(3, 3).copy())
 
 
 class Imu(_Sensor):
     """Gyro ``T(phi, theta) Phi_dot + b_g + n_g``; accelerometer ``R^T (p_ddot - g) + b_a +
-    n_a`` (needs ``qdd``). Turn-on biases are drawn at construction (per run)."""
+    n_a`` (needs ``qdd``; :func:`~.sensor_steps.imu_sample`). Turn-on biases are drawn at
+    construction (per run)."""
 
     def __init__(self, config: ImuConfig, gravity, rng, t0=0.0):
-        self.gravity = np.asarray(gravity, float).copy()
-        self.gyro_bias = config.gyro_bias * rng.standard_normal(3)
-        self.accel_bias = config.accel_bias * rng.standard_normal(3)
-        self._t_last = None
+        c = config
+        self.params = SS.ImuParams(
+            SS.SensorParams.from_config(c), float(c.gyro_noise), float(c.accel_noise),
+            float(c.gyro_bias_walk), float(c.accel_bias_walk), _f(gravity).copy(),
+            float(c.gyro_bias), float(c.accel_bias),
+        )  # fmt: skip
+        self.state = SS.ImuState(
+            SS.SensorState.empty(6, SS.queue_capacity(c), t0), np.zeros(3), np.zeros(3),
+            np.full(1, np.nan),
+        )  # fmt: skip
+        SS.imu_turn_on(self.params, self.state, rng.standard_normal(6))
+        self._out = np.empty(6)
         super().__init__(config, rng, t0)
 
-    def _capture(self, t, q, qd, qdd):
-        if qdd is None:  # no input applied yet (first period): no sample
+    @property
+    def gravity(self) -> np.ndarray:
+        return self.params.gravity
+
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        return self.state.gyro_bias
+
+    @property
+    def accel_bias(self) -> np.ndarray:
+        return self.state.accel_bias
+
+    def _base_state(self):
+        return self.state.base
+
+    def sample(self, t: float, q, qd, qdd=None):
+        """Poll at time ``t`` with the plant state; the delivered measurement or ``None``."""
+        t = float(t)
+        p, st = self.params, self.state
+        has_qdd = qdd is not None
+        due = SS.sensor_due(p.base, st.base, t)
+        z, u01 = self._draw(due, SS.imu_normals(p, st, has_qdd) if due else 0)
+        qdd = _f(qdd) if has_qdd else _NO_NORMALS
+        tc = SS.imu_sample(p, st, t, _f(q), _f(qd), qdd, has_qdd, z, u01, self._out)
+        if tc != tc:
             return None
-        c = self.config
-        if self._t_last is not None and (c.gyro_bias_walk > 0 or c.accel_bias_walk > 0):
-            h = math.sqrt(max(t - self._t_last, 0.0))
-            self.gyro_bias = self.gyro_bias + c.gyro_bias_walk * h * self.rng.standard_normal(3)
-            self.accel_bias = self.accel_bias + c.accel_bias_walk * h * self.rng.standard_normal(3)
-        self._t_last = t
-        q = np.asarray(q, float)
-        w = body_rate(q, np.asarray(qd, float)) + self.gyro_bias
-        f = specific_force(q, np.asarray(qdd, float), self.gravity) + self.accel_bias
-        return ImuMeasurement(
-            t,
-            w + c.gyro_noise * self.rng.standard_normal(3),
-            f + c.accel_noise * self.rng.standard_normal(3),
-        )
+        return ImuMeasurement(float(tc), self._out[:3].copy(), self._out[3:6].copy())
 
 
 class TendonEncoders(_Sensor):
     """``round((l(q_s) - l(q_ref) + bias + noise) / resolution) * resolution`` per tendon
-    (lengths from the model's ``l(q)``, the same quadrature as ``B_s``)."""
+    (lengths from the model's ``l(q)``, the same quadrature as ``B_s``;
+    :func:`~.sensor_steps.encoder_sample`)."""
 
     def __init__(self, config: EncoderConfig, system: TDACM, rng, q_ref=None, t0=0.0):
         self.model = system.model_arrays
@@ -175,18 +201,40 @@ class TendonEncoders(_Sensor):
         if qs_ref.shape != (system.n_s,):
             raise ValueError(f"q_ref must hold the {system.n_s} strains, got {qs_ref.shape}")
         self.q_ref = qs_ref
-        self.l_ref = tendon_lengths_and_jacobian(qs_ref, self.model)[0]
-        self.bias = config.bias * rng.standard_normal(system.n_a)
+        c = config
+        l_ref = tendon_lengths_and_jacobian(qs_ref, self.model)[0]
+        self.params = SS.EncoderParams(
+            SS.SensorParams.from_config(c), float(c.noise), float(c.resolution), l_ref,
+            int(system.n_s), float(c.bias),
+        )  # fmt: skip
+        self.state = SS.EncoderState(
+            SS.SensorState.empty(system.n_a, SS.queue_capacity(c), t0), np.zeros(system.n_a)
+        )
+        SS.encoder_turn_on(self.params, self.state, rng.standard_normal(system.n_a))
+        self._out = np.empty(system.n_a)
         super().__init__(config, rng, t0)
 
-    def _capture(self, t, q, qd, qdd):
-        c = self.config
-        qs = np.asarray(q, float)[-self.n_s :]
-        dl = tendon_lengths_and_jacobian(qs, self.model)[0] - self.l_ref + self.bias
-        dl = dl + c.noise * self.rng.standard_normal(dl.shape)
-        if c.resolution > 0:
-            dl = np.round(dl / c.resolution) * c.resolution
-        return EncoderMeasurement(t, dl)
+    @property
+    def l_ref(self) -> np.ndarray:
+        return self.params.l_ref
+
+    @property
+    def bias(self) -> np.ndarray:
+        return self.state.bias
+
+    def _base_state(self):
+        return self.state.base
+
+    def sample(self, t: float, q, qd, qdd=None):
+        """Poll at time ``t`` with the plant state; the delivered measurement or ``None``."""
+        t = float(t)
+        p, st = self.params, self.state
+        due = SS.sensor_due(p.base, st.base, t)
+        z, u01 = self._draw(due, SS.encoder_normals(p))
+        tc = SS.encoder_sample(p, st, self.model, t, _f(q), z, u01, self._out)
+        if tc != tc:
+            return None
+        return EncoderMeasurement(float(tc), self._out.copy())
 
 
 class SensorSuite:

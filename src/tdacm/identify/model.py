@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numba
 import numpy as np
 
+from .. import paper_values as PV
 from ..rod import Rod, Tendons
 from ..system import TDACM, Loads
 from ..system import kernels as K
@@ -62,7 +63,12 @@ class IdentModel:
     camera offset are used by camera measurements only.
     """
 
-    def __init__(self, system: TDACM, tip_mount: np.ndarray | None = None, camera_offset=0.0):
+    def __init__(
+        self,
+        system: TDACM,
+        tip_mount: np.ndarray | None = None,
+        camera_offset=PV.LOCAL_CAMERA_OFFSET,
+    ):
         if system.n_rods != 1 or not isinstance(system.rod, Rod):
             raise ValueError("identification supports one uniform rod (a Rod, not sectioned)")
         t = system.tendons
@@ -239,7 +245,7 @@ class IdentModel:
         """Drone and tip poses (T, 4, 4) of the rows of ``q`` (``parallel``: over the cores,
         the same result)."""
         m = system.model_arrays
-        lo, hi = system._rod_steps[0], system._rod_steps[1]
+        lo, hi = m.rod_steps[0], m.rod_steps[1]
         return (IK.poses_many if parallel else IK.poses)(
             np.ascontiguousarray(q, dtype=float),
             m.floating,

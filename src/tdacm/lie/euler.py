@@ -90,9 +90,16 @@ def is_singular(theta: float) -> bool:
 
 
 def euler_from_rotation(r: np.ndarray) -> np.ndarray:
-    """``[phi, theta, psi]`` of a rotation matrix (ZYX), ``theta`` in ``[-pi/2, pi/2]``."""
-    r = np.asarray(r, dtype=float)
-    theta = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
+    """``[phi, theta, psi]`` of a rotation matrix (ZYX), ``theta`` in ``[-pi/2, pi/2]``
+    (:func:`euler_zyx`)."""
+    return np.array(euler_zyx(np.ascontiguousarray(r, dtype=float)))
+
+
+@njit(cache=True)
+def euler_zyx(r):
+    """``(phi, theta, psi)`` of a rotation matrix ``r`` (ZYX), ``theta`` in
+    ``[-pi/2, pi/2]``."""
+    theta = -np.arcsin(min(max(r[2, 0], -1.0), 1.0))
     phi = np.arctan2(r[2, 1], r[2, 2])
     psi = np.arctan2(r[1, 0], r[0, 0])
-    return np.array([phi, theta, psi])
+    return phi, theta, psi

@@ -34,15 +34,37 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
+from .._linalg import SVD_PINV, svd_solve
+from .._records import stack, take
 from ..control import Mode
+from ..vision.mounts import tip_jacobian_into
 from ..vision.tip import rates_from_jacobian
+from ..vision.virtual import BehindVirtualCamera
 from .data import CameraMeasurement, DeferredMeasurement, LocalView, ServoCommand, ServoEvent
 from .logger import RunLog
 from .sensors import Sensors
-from .servo import normalized_rmse
+from .servo import (
+    EVENT_NAMES,
+    FAILURE_REASONS,
+    IBVS,
+    IBVS_ENGAGED,
+    NO_EVENT,
+    NO_FAILURE,
+    RECOVERY,
+    RECOVERY_PLANNED,
+    TARGET_LOST,
+    RobustServo,
+    ServoOut,
+    VisualServo,
+    _recovery,
+    follow,
+    normalized_rmse,
+)
 
 #: Per-arm series of :class:`ArmsLog` (one column per arm).
 ARM_SERIES = (
@@ -192,6 +214,22 @@ class ArmsServo:
             raise ValueError("ArmsServo needs two or more arm servos")
         for name in _FROM_LEAD:
             setattr(self, name, getattr(self.arms[0], name))
+        # the compiled step (arms_command) runs the arms' servos of tdacm.loop.servo; the
+        # squeeze (a subclass) runs the methods below
+        self._compiled = type(self) is ArmsServo and all(
+            type(a) in (VisualServo, RobustServo) for a in self.arms
+        )
+        #: the arms' records stacked (a leading arm axis); each arm's servo holds its views
+        self.params = stack([a.params for a in self.arms])
+        self.state = stack([a.state for a in self.arms])
+        for k, a in enumerate(self.arms):
+            a.state = take(self.state, k)
+        n, ns = self.n, self.arms[0]._n_s
+        self._outs = stack([ServoOut.empty(n, ns) for _ in self.arms])
+        for k, a in enumerate(self.arms):
+            a._out = take(self._outs, k)
+        self._robot = ServoOut.empty(n, ns)
+        self.memo = ArmsMemo.initial()
 
     @property
     def mode(self) -> str:
@@ -210,6 +248,7 @@ class ArmsServo:
         for a, v in zip(self.arms, views, strict=True):
             a.reset(q0, v)
         self._lost = self.mode == Mode.RECOVERY
+        self.memo.lost[0] = self._lost
 
     def joint_rates(self, q, twists) -> np.ndarray:
         """``qdot_d[c] = [J_k(q_v)[:, c]]_k^+ [Ad(g_{C_Lk}^{Lk}) v_k]_k`` over the commanded
@@ -221,6 +260,8 @@ class ArmsServo:
     def step(self, t: float, dt: float, view: ArmsView, gview, est, twist=None) -> ServoCommand:
         """One period. ``twist`` (optional): the arms' twists stacked (``6 k`` values)
         replacing the IBVS twists."""
+        if self._compiled:
+            return self.compiled_step(t, dt, view, gview, est, twist)
         q = est.q
         per = [a.perceive(t, dt, v, est) for a, v in zip(self.arms, view.arms, strict=True)]
         modes, event = self._robot_event(per)
@@ -238,6 +279,70 @@ class ArmsServo:
             t, dt, q, gview, modes, seen_all, twists, event
         )
         return self._command(per, states, twists, qdd_d, event, failure, request, plan)
+
+    def compiled_step(self, t, dt, view, gview, est, twist=None) -> ServoCommand:
+        """One period of the compiled step: each arm's :func:`~.servo.servo_perceive`, then
+        :func:`arms_command` with each arm's C_G snapshot read when its recovery needs one."""
+        c = np.ascontiguousarray
+        q = c(est.q, dtype=float)
+        k = len(self.arms)
+        m = self.arms[0]._m
+        outs = self._outs
+        for arm, v in zip(self.arms, view.arms, strict=True):
+            arm.perceive_period(t, dt, v, est)  # into its row of outs
+            arm._memo = None
+        offered = gview is not None
+        views = gview if isinstance(gview, tuple) else (gview,) * k
+        m_count = self.params.marker_centres.shape[1]
+        g_found = np.zeros(k, np.bool_)
+        corners = np.zeros((k, m_count, 4, 2))
+        seen = np.zeros((k, m_count), np.bool_)
+        if offered:
+            for a, arm in enumerate(self.arms):
+                if outs.mode[a, 0] == RECOVERY and arm.state.traj_on[0] == 0.0:
+                    g_found[a], corners[a], seen[a] = arm._global_corners(views[a])
+        tw = np.full(6 * k, np.nan) if twist is None else c(twist, dtype=float).reshape(6 * k)
+        robot, memo = self._robot, self.memo
+        arms_command(self.params, self.state, m, float(t), float(dt), q, offered, tw, g_found,
+                     corners, seen, outs, memo, robot)  # fmt: skip
+        self._lost = bool(memo.lost[0])
+        failure = None
+        if robot.failure[0] != NO_FAILURE:
+            a = int(memo.failed_arm[0])
+            if robot.failure[0] == 1:  # BEHIND: eq. (18) undefined, the loop ends the run
+                raise BehindVirtualCamera("a point lies behind the virtual camera")
+            failure = f"arm {a}: {FAILURE_REASONS[int(robot.failure[0])]}"
+        plan = None
+        if robot.planned[0]:
+            a = int(memo.planned_arm[0])
+            o, st = take(outs, a), self.arms[a].state
+            plan = {
+                "t": float(st.traj_t0[0]), "q_s_d": o.plan_qs.tolist(),
+                "point_local": o.plan_point.tolist(), "cost": float(o.plan_cost[0]),
+                "success": bool(o.plan_success[0]), "duration": float(o.plan_duration[0]),
+                "arm": a,
+            }  # fmt: skip
+        states = []
+        for a, arm in enumerate(self.arms):
+            o = take(outs, a)
+            seen_a = bool(o.seen[0])
+            meas = float(o.rmse_measured[0]) if arm.params.robust else math.nan
+            states.append(ArmServoState(o.points.copy() if seen_a else None,
+                                        float(o.rmse[0]) if seen_a else math.nan, meas,
+                                        o.twist.copy(), seen_a))  # fmt: skip
+        o0, lead = take(outs, 0), self.arms[0]
+        seen0 = bool(o0.seen[0])
+        extra = {}
+        if lead.params.robust:
+            extra["target_pose"] = lead.state.target_pose.copy() if lead.state.tp_set[0] else None
+        return ServoCommand(
+            self.mode, lead.state.q_d.copy(), lead.state.qd_d.copy(), robot.qdd_d.copy(),
+            robot.twist.copy(), o0.features.copy() if seen0 else None,
+            o0.error.copy() if seen0 else None, o0.points.copy() if seen0 else None,
+            float(robot.rmse[0]), event=EVENT_NAMES.get(int(robot.event[0])), failure=failure,
+            rmse_measured=float(robot.rmse_measured[0]), arms=tuple(states),
+            request_global=bool(robot.request[0]), plan=plan, **extra,
+        )  # fmt: skip
 
     def _command(self, per, states, twists, qdd_d, event, failure, request, plan, **extra):
         """The period's :class:`ServoCommand` from the arms' perceptions ``per`` and states:
@@ -360,3 +465,169 @@ class ArmsLog(RunLog):
             np.array([np.asarray(v.points, float).reshape(4, 2) if v.found else nan_pts
                       for v in views]) if len(views) == k else np.full((k, 4, 2), np.nan)
         )  # fmt: skip
+
+
+# ============================================================================ compiled step
+# The servo of several arms as one compiled step over the arms' stacked servo records (a
+# leading arm axis, :func:`tdacm._records.take`): every arm's :func:`~.servo.servo_perceive`,
+# then :func:`arms_command`. :class:`ArmsServo` calls it for the block loop, the batched
+# engine for every world.
+
+
+@njit(cache=True)
+def stacked_joint_rates(ps, m, q, twists, out):
+    """``qdot_d[c] = [J_k(q_v)[:, c]]_k^+ [Ad(g_{C_Lk}^{Lk}) v_k]_k`` over the commanded
+    coordinates ``c`` of the arms' records ``ps`` (stacked) for their twists ``twists`` (k, 6),
+    ``q_v`` ``q`` with roll and pitch zero (docs/control.md, "Two arms")."""
+    k = twists.shape[0]
+    n = q.shape[0]
+    qv = q.copy()
+    if m.floating:
+        qv[0] = 0.0
+        qv[1] = 0.0
+    lead = take(ps, 0)
+    cmd = lead.commanded
+    jc = np.empty((6 * k, cmd.shape[0]))
+    rhs = np.empty(6 * k)
+    jac = np.empty((6, n))
+    for a in range(k):
+        p = take(ps, a)
+        tip_jacobian_into(qv, m, p.rod, jac)
+        for i in range(6):
+            acc = 0.0
+            for c in range(6):
+                acc += p.ad_mount[i, c] * twists[a, c]
+            rhs[6 * a + i] = acc
+            for c in range(cmd.shape[0]):
+                jc[6 * a + i, c] = jac[i, cmd[c]]
+    x = svd_solve(jc, rhs, SVD_PINV, 1e-8)
+    for i in range(n):
+        out[i] = 0.0
+    for c in range(cmd.shape[0]):
+        out[cmd[c]] = x[c]
+
+
+class ArmsMemo(NamedTuple):
+    """The servo of several arms' own state and outputs besides its arms': whether an arm
+    was in recovery last period (``lost`` (1,) bool), the arm whose failure ends the run
+    (``failed_arm``) and the arm whose plan was made this period (``planned_arm``), -1: none
+    (one-element arrays)."""
+
+    lost: np.ndarray
+    failed_arm: np.ndarray
+    planned_arm: np.ndarray
+
+    @classmethod
+    def initial(cls) -> ArmsMemo:
+        return cls(np.zeros(1, np.bool_), np.full(1, -1, np.int64), np.full(1, -1, np.int64))
+
+
+@njit(cache=True)
+def arms_command(ps, ss, m, t, dt, q, offered, twist_in, g_found, corners, marker_seen, outs,
+                 memo, robot):  # fmt: skip
+    """The end of a period of the servo of several arms (after each arm's
+    :func:`~.servo.servo_perceive` into its outputs ``outs``; module docstring) on the arms'
+    records ``ps``, ``ss`` (stacked): the robot's event (an arm losing its target; IBVS
+    engaged when the last lost arm sees it again), then the recovery of the arms that lost
+    their target (each on its own strains from its own C_G snapshot: ``g_found`` (k,),
+    ``corners`` (k, M, 4, 2), ``marker_seen`` (k, M); the drone and the other rods hold),
+    else, when every arm sees its target, the stacked joint rates (:func:`stacked_joint_rates`)
+    of the arms' twists (IBVS, or ``twist_in`` (6 k) when finite) followed by arm 0's servo
+    (its ``q_d``, ``qd_d`` are the robot's reference), else a hold. ``robot`` (a
+    :class:`~.servo.ServoOut`) receives the robot's mode (recovery if an arm recovers),
+    event, failure, request, the worst arm's RMSEs (NaN if an arm has none), arm 0's twist
+    and ``qdd_d``; ``memo`` (:class:`ArmsMemo`) the arms that failed or planned."""
+    k = outs.mode.shape[0]
+    n = q.shape[0]
+    lead = take(ss, 0)
+    robot.failure[0] = NO_FAILURE
+    robot.request[0] = False
+    robot.planned[0] = False
+    memo.failed_arm[0] = -1
+    memo.planned_arm[0] = -1
+    for i in range(n):
+        robot.qdd_d[i] = 0.0
+    for i in range(6):
+        robot.twist[i] = 0.0
+    any_lost = False
+    all_seen = True
+    event = NO_EVENT
+    for a in range(k):
+        any_lost = any_lost or outs.mode[a, 0] == RECOVERY
+        all_seen = all_seen and outs.seen[a, 0]
+        if event == NO_EVENT and outs.event[a, 0] == TARGET_LOST:
+            event = TARGET_LOST
+    was_lost = memo.lost[0]
+    memo.lost[0] = any_lost
+    if event == NO_EVENT and was_lost and not any_lost:
+        event = IBVS_ENGAGED
+    robot.mode[0] = RECOVERY if any_lost else IBVS
+    robot.seen[0] = all_seen
+    robot.event[0] = event
+    for a in range(k):  # a point behind an arm's C_V ends the run (servo_perceive's failure)
+        if outs.failure[a, 0] != NO_FAILURE:
+            robot.failure[0] = outs.failure[a, 0]
+            memo.failed_arm[0] = a
+            return
+    external = np.isfinite(twist_in[0])
+    twists = np.zeros((k, 6))
+    for a in range(k):
+        if outs.mode[a, 0] == IBVS and all_seen:
+            for i in range(6):
+                twists[a, i] = twist_in[6 * a + i] if external else outs.ibvs_twist[a, i]
+        for i in range(6):
+            outs.twist[a, i] = twists[a, i]
+    if any_lost:
+        q_d = lead.q_d.copy()
+        qd_d = np.zeros(n)
+        for a in range(k):
+            if outs.mode[a, 0] != RECOVERY:
+                continue
+            p = take(ps, a)
+            s = take(ss, a)
+            out = take(outs, a)
+            for i in range(n):
+                out.qdd_d[i] = 0.0
+            _recovery(p, s, m, t, q, offered, g_found[a], corners[a], marker_seen[a], out)
+            if out.request[0]:  # holding for a snapshot
+                robot.request[0] = True
+                continue
+            if out.failure[0] != NO_FAILURE:
+                if memo.failed_arm[0] < 0:
+                    robot.failure[0] = out.failure[0]
+                    memo.failed_arm[0] = a
+                continue
+            if out.planned[0] and memo.planned_arm[0] < 0:
+                memo.planned_arm[0] = a
+                robot.planned[0] = True
+            for j in range(p.strains[0], p.strains[1]):
+                q_d[j] = s.q_d[j]
+                qd_d[j] = s.qd_d[j]
+                robot.qdd_d[j] = out.qdd_d[j]
+        for i in range(n):
+            lead.q_d[i] = q_d[i]
+            lead.qd_d[i] = qd_d[i]
+        if robot.planned[0] and event == NO_EVENT:
+            robot.event[0] = RECOVERY_PLANNED
+    elif all_seen:
+        rates = np.empty(n)
+        stacked_joint_rates(ps, m, q, twists, rates)
+        follow(take(ps, 0), lead, m, q, rates, t, dt, robot.qdd_d)
+    else:  # an arm's target not seen this period (nothing fused yet): hold
+        for i in range(n):
+            lead.qd_d[i] = 0.0
+    for i in range(6):
+        robot.twist[i] = twists[0, i]
+    robot.rmse[0] = _worst(outs.rmse)
+    robot.rmse_measured[0] = _worst(outs.rmse_measured)
+
+
+@njit(cache=True)
+def _worst(values):
+    """The largest of the arms' ``values`` (k, 1), NaN if one is."""
+    worst = -np.inf
+    for a in range(values.shape[0]):
+        if not np.isfinite(values[a, 0]):
+            return np.nan
+        worst = max(worst, values[a, 0])
+    return worst

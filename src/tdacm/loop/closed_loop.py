@@ -243,8 +243,8 @@ class ClosedLoop:
         else:
             act = ActuatorCommand(np.asarray(u, float), np.zeros(len(est.q)), cmd.q_d)
         if not _finite(act.u):
-            what = "actuator command" if u is not None else "controller output"
-            return LoopStep(t, view, est, cmd, act, True, f"non-finite {what} u",
+            reason = "non-finite actuator command u" if u is not None else NON_FINITE_REASON
+            return LoopStep(t, view, est, cmd, act, True, reason,
                             Termination.NON_FINITE)  # fmt: skip
         self.log.record(state, sensed.readings, view, est, cmd, act, sensed.force)
         self._u = act.u
@@ -254,12 +254,10 @@ class ClosedLoop:
             return LoopStep(t, view, est, cmd, act, True, None)
         plant.advance(act.u, dt)
         if not plant.ok:
-            reason = "plant integration failed (singular mass matrix or non-finite state)"
-            return LoopStep(t, view, est, cmd, act, True, reason, Termination.PLANT_FAILED)
+            return LoopStep(t, view, est, cmd, act, True, PLANT_FAILED_REASON,
+                            Termination.PLANT_FAILED)  # fmt: skip
         if plant.tumbled:
-            q = plant.state.q
-            reason = (f"drone tumbled: roll {np.degrees(q[0]):.0f} deg, pitch "
-                      f"{np.degrees(q[1]):.0f} deg at t = {plant.state.t:.2f} s")  # fmt: skip
+            reason = tumbled_reason(plant.state.q, plant.state.t)
             return LoopStep(t, view, est, cmd, act, True, reason, Termination.TUMBLED)
         if getattr(plant, "over_limit", None) is not None:
             return LoopStep(t, view, est, cmd, act, True, plant.over_limit, Termination.FORCE_LIMIT)
@@ -353,6 +351,20 @@ class ClosedLoop:
 
     def close(self) -> None:
         self.sensors.close()
+
+
+#: why a run ends when the plant's integration fails (``Termination.PLANT_FAILED``)
+PLANT_FAILED_REASON = "plant integration failed (singular mass matrix or non-finite state)"
+#: why a run ends on a non-finite command of the low-level controller
+NON_FINITE_REASON = "non-finite controller output u"
+
+
+def tumbled_reason(q, t: float) -> str:
+    """Why a run ends with the drone tumbled at ``q``, time ``t`` (``Termination.TUMBLED``)."""
+    return (
+        f"drone tumbled: roll {np.degrees(q[0]):.0f} deg, pitch {np.degrees(q[1]):.0f} deg "
+        f"at t = {t:.2f} s"
+    )
 
 
 def caused_by_interrupt(exc: BaseException) -> bool:

@@ -1,6 +1,7 @@
 """Parameter records of the loop's blocks, one per scenario section they read: ``[ibvs]``,
-``[servo]``, ``[recovery]``, ``[controller]``, ``[model]``, ``[cameras]``, ``[safety]``,
-``[disturbances]`` and the camera imperfections of ``[sensors]`` (:class:`SensorModel`).
+``[servo]``, ``[recovery]``, ``[controller]``, ``[cameras]``, ``[safety]``, ``[disturbances]``
+and the camera imperfections of ``[sensors]`` (:class:`SensorModel`); ``[model]`` is
+:class:`tdacm.control.config.ModelConfig`, next to the controller's model.
 
 Layout: a block's parameter record lives with its block (this module for the loop's blocks,
 :mod:`tdacm.estimation.config` for the filter and the proprioceptive sensors), and the
@@ -20,10 +21,15 @@ from pydantic import field_validator
 from .._config import ConfigModel, Field
 from .._validate import unit_vector
 from ..control.config import ControlLawConfig
+from ..vision.ibvs import DEFAULT_MODE, DEFAULT_SOLVER
 
 Vec2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vec6 = Annotated[list[float], Field(min_length=6, max_length=6)]
+
+#: RK4 steps of the plant per control period: the default of the scenario's ``substeps`` and of
+#: :class:`~tdacm.loop.plant.Plant`
+PLANT_SUBSTEPS = 4
 
 
 class IbvsConfig(ConfigModel):
@@ -32,7 +38,7 @@ class IbvsConfig(ConfigModel):
 
     gain: float = Field(1.0, gt=0, description="IBVS gain lambda of v = -lambda J_img^-1 e, 1/s")
     mode: Literal["current", "desired", "mean"] = Field(
-        "current", description="interaction matrix at the current, desired or mean features"
+        DEFAULT_MODE, description="interaction matrix at the current, desired or mean features"
     )
     compensation: Literal["exact", "rotation", "approx"] = Field(
         "exact", description="form of the virtual-camera (roll/pitch) compensation, eq. (18)"
@@ -67,7 +73,7 @@ class IbvsConfig(ConfigModel):
         0.05, ge=0, description="singular-value floor of the J_img solve (0: plain inverse)"
     )
     solver: Literal["floor", "damped"] = Field(
-        "floor", description="well-conditioned solve: floored singular values or damped"
+        DEFAULT_SOLVER, description="well-conditioned solve: floored singular values or damped"
     )
     filter_pixel_sigma: float = Field(
         1.0, gt=0, description="px, corner noise assumed by the target filter"
@@ -146,22 +152,6 @@ class ControllerConfig(ControlLawConfig):
     )
     options: dict[str, Any] = Field(
         {}, description="any keys: passed to a user controller as context.options"
-    )
-
-
-class ModelConfig(ConfigModel):
-    """Section ``[model]``: the controller's model of the robot."""
-
-    perturbation: float = Field(
-        0.1, ge=0, lt=1, description="relative std of the model's parameter errors, in [0, 1)"
-    )
-    gravity_feedforward: bool = Field(
-        True, description="compensate gravity with the model (false: lumped into Delta_hat)"
-    )
-    rotor_drag: bool = Field(
-        True,
-        description="with [aerodynamics] drone drag on, the model (controller and EKF) knows the "
-        "drone's linear rotor drag (drone_linear, perturbed like D); false: lumped into Delta_hat",
     )
 
 

@@ -11,7 +11,7 @@ import sys
 
 from ..control import TDACMController
 from ..control.config import ControlLawConfig
-from ..control.pd import PDGravityLaw
+from ..control.hierarchical import LAW_ADAPTIVE, LAW_PD
 from .data import ActuatorCommand, ServoCommand, StateEstimate
 from .protocols import ControllerContext, LowLevelController
 
@@ -19,8 +19,9 @@ from .protocols import ControllerContext, LowLevelController
 class AdaptiveLowLevel:
     """The paper's controller (eqs. S2-S10) with the drone loop and allocation."""
 
-    #: Built as ``law_class(model, gains)`` in place of the adaptive law when set.
-    law_class = None
+    #: The law of the compiled step (:data:`~tdacm.control.hierarchical.LAW_ADAPTIVE` or
+    #: :data:`~tdacm.control.hierarchical.LAW_PD`).
+    law_kind = LAW_ADAPTIVE
 
     def __init__(self, context: ControllerContext):
         law = context.law
@@ -28,11 +29,8 @@ class AdaptiveLowLevel:
             o = context.options
             law = ControlLawConfig(**{k: o[k] for k in ControlLawConfig.model_fields if k in o})
         self.controller = TDACMController.from_config(
-            context.system, context.model, context.q_star, law
+            context.system, context.model, context.q_star, law, kind=self.law_kind
         )
-        if self.law_class is not None:
-            c = self.controller
-            c.law = self.law_class(c.model, c.gains)
 
     def reset(self, estimate: StateEstimate) -> None:
         self.controller.reset()
@@ -47,10 +45,10 @@ class AdaptiveLowLevel:
 
 
 class PDGravityController(AdaptiveLowLevel):
-    """PD + gravity (:class:`~tdacm.control.pd.PDGravityLaw`) with the same drone loop and
+    """PD + gravity (:mod:`tdacm.control.pd`) with the same drone loop and
     allocation: ``controller.class = "tdacm.loop.lowlevel:PDGravityController"``."""
 
-    law_class = PDGravityLaw
+    law_kind = LAW_PD
 
 
 def load_class(path: str, search: tuple[str, ...] = ()):

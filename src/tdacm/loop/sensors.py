@@ -14,18 +14,164 @@ Sensors read the true :class:`~.data.PlantState`; nothing after them does.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import replace
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from ..vision import TargetDetector
-from ..vision.camera import PinholeCamera, points_in_camera
+from ..vision.camera import CameraParams, PinholeCamera, in_image, project_world
 from ..vision.detect import NOT_DETECTED, Detection
-from ..vision.mounts import tip_camera_pose
-from .config import SensorModel
+from ..vision.mounts import base_pose_into, mul4, rod_steps, tip_camera_pose_into
+from .config import CamerasConfig, SensorModel
 from .data import CameraMeasurement, DeferredMeasurement, PlantState, SensorReadings
+
+# ----------------------------------------------------------------------------- compiled step
+_NO_CAMERA = CameraParams(1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 1.0)
+_NO_ROD = np.zeros(2, np.int64)
+_NO_CORNERS = np.zeros((1, 4, 3))
+
+
+class CameraSensorParams(NamedTuple):
+    """A camera sensor's parameters (the record of its compiled step): the true camera
+    ``camera`` (:class:`~tdacm.vision.camera.CameraParams`), its carrier (``on_tip``: the tip
+    of the rod of Magnus steps ``rod`` (2,), else the drone's body), its mount ``g_C^F``
+    (4, 4); the analytic front end's target in the world: every marker's corners ``corners``
+    (M, 4, 3) and the feature points ``features`` (4, 3); the imperfections ``pixel_noise``
+    (px), ``dropout`` (probability) and ``latency`` (frames)."""
+
+    camera: CameraParams
+    on_tip: bool
+    rod: np.ndarray
+    mount: np.ndarray
+    corners: np.ndarray
+    features: np.ndarray
+    pixel_noise: float
+    dropout: float
+    latency: int
+
+
+class CameraSensorState(NamedTuple):
+    """A camera sensor's latency buffer: ``latency + 1`` frames (pixels ``uv`` (L, 4, 2),
+    markers' corners ``corners`` (L, M, 4, 2), ``found`` (L,), the capture period
+    ``capture`` (L,)) as a ring from ``head`` with ``count`` frames."""
+
+    uv: np.ndarray
+    corners: np.ndarray
+    found: np.ndarray
+    capture: np.ndarray
+    head: np.ndarray
+    count: np.ndarray
+
+    @classmethod
+    def empty(cls, p: CameraSensorParams, latency: int | None = None) -> CameraSensorState:
+        """An empty buffer for ``latency`` frames (default the record's; larger for a batch
+        whose worlds have other latencies)."""
+        cap = int(p.latency if latency is None else latency) + 1
+        m = p.corners.shape[0]
+        return cls(np.zeros((cap, 4, 2)), np.zeros((cap, m, 4, 2)), np.zeros(cap, np.bool_),
+                   np.zeros(cap, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64))  # fmt: skip
+
+
+@njit(cache=True)
+def camera_pose_into(p, m, q, out):
+    """The camera's world pose at ``q``: ``g_L(q) g_C^L`` on a tip, ``g_b(q) g_C^b`` on the
+    drone."""
+    if p.on_tip:
+        tip_camera_pose_into(q, m, p.rod, p.mount, out)
+    else:
+        g_b = np.empty((4, 4))
+        base_pose_into(q, m, g_b)
+        mul4(g_b, p.mount, out)
+
+
+@njit(cache=True)
+def analytic_detect(p, g_c, out_uv, out_corners, out_seen):
+    """The analytic front end (:class:`AnalyticFrontEnd`) of the camera at the world pose
+    ``g_c``: a marker is seen (``out_seen`` (M,), its corners' pixels in ``out_corners``
+    (M, 4, 2)) when its four corners lie between the clipping planes and inside the image (the
+    detector needs each marker whole); the target is detected (True, the feature points'
+    pixels in ``out_uv`` (4, 2)) when every marker is seen."""
+    c = p.camera
+    px = np.empty(2)
+    every = True
+    for mk in range(p.corners.shape[0]):
+        ok = True
+        for k in range(4):
+            z = project_world(c, g_c, p.corners[mk, k], px)
+            if not (z > 0.0 and z >= c.near and z <= c.far and in_image(c, px[0], px[1], 0.0)):
+                ok = False
+            out_corners[mk, k, 0] = px[0]
+            out_corners[mk, k, 1] = px[1]
+        out_seen[mk] = ok
+        every = every and ok
+    if not every:
+        return False
+    for k in range(4):
+        project_world(c, g_c, p.features[k], px)
+        out_uv[k, 0] = px[0]
+        out_uv[k, 1] = px[1]
+    return True
+
+
+@njit(cache=True)
+def frame_dropped(p, u_drop):
+    """The frame is dropped (a missed frame): the uniform draw ``u_drop`` below ``dropout``."""
+    return p.dropout > 0.0 and u_drop < p.dropout
+
+
+@njit(cache=True)
+def add_pixel_noise(p, uv, corners, normals):
+    """Gaussian pixel noise of standard deviation ``pixel_noise`` on a detection: its points
+    ``uv`` (4, 2) take the first 8 standard ``normals``, each of its markers' corners
+    ``corners`` (M, 4, 2) the next 8, in that order."""
+    s = p.pixel_noise
+    for k in range(4):
+        uv[k, 0] += s * normals[2 * k]
+        uv[k, 1] += s * normals[2 * k + 1]
+    j = 8
+    for mk in range(corners.shape[0]):
+        for k in range(4):
+            corners[mk, k, 0] += s * normals[j]
+            corners[mk, k, 1] += s * normals[j + 1]
+            j += 2
+
+
+@njit(cache=True)
+def global_offered(k, every, requested):
+    """C_G's frame is offered to the servo in period ``k``: every ``every`` periods (0:
+    never) and whenever the servo asked for it (``requested``)."""
+    return requested or (every > 0 and k % every == 0)
+
+
+@njit(cache=True)
+def latency_slots(st, cap):
+    """The ring buffer's slots of a new frame: ``(write, read)``, the slot to store this
+    period's frame in and the slot of the frame delivered now (the oldest of the ``cap =
+    latency + 1`` kept; the first frame until the buffer has filled), the ring advanced."""
+    head, count = st.head[0], st.count[0]
+    if count < cap:
+        slot = (head + count) % cap
+        count += 1
+    else:
+        slot = head
+        head = (head + 1) % cap
+    st.head[0], st.count[0] = head, count
+    return slot, head
+
+
+@njit(cache=True)
+def latency_push(p, st, found, uv, corners, capture):
+    """Store this period's frame and return the slot of the delivered one
+    (:func:`latency_slots`, ``latency + 1`` frames kept)."""
+    write, read = latency_slots(st, p.latency + 1)
+    st.uv[write] = uv
+    st.corners[write] = corners
+    st.found[write] = found
+    st.capture[write] = capture
+    return read
 
 
 def perturbed_camera(camera, relative_error: float, rng: np.random.Generator):
@@ -49,28 +195,31 @@ class AnalyticFrontEnd:
         self.camera = camera
         self.target = target
         g = np.asarray(target_pose, float)
-        self._features_w = target.feature_points @ g[:3, :3].T + g[:3, 3]
+        #: the target's feature points (4, 3) and its markers' corners (M, 4, 3) in the world
+        self.features_world = np.ascontiguousarray(target.feature_points @ g[:3, :3].T + g[:3, 3])
         ids = tuple(getattr(target, "ids", ())) or (target.marker_id,)
-        self._ids = ids
-        self._corners_w = [target.corner_points(i) @ g[:3, :3].T + g[:3, 3] for i in ids]
+        self.ids = ids
+        self.corners_world = np.ascontiguousarray(
+            [target.corner_points(i) @ g[:3, :3].T + g[:3, 3] for i in ids], dtype=float
+        )
+        self._params = CameraSensorParams(
+            camera.params(), False, np.zeros(2, np.int64), np.eye(4), self.corners_world,
+            self.features_world, 0.0, 0.0, 0,
+        )  # fmt: skip
 
     def reset(self) -> None:
         pass
 
     def detect_at(self, pose: np.ndarray) -> Detection:
-        cam = self.camera
-        corners = {}
-        for i, pw in zip(self._ids, self._corners_w, strict=True):
-            pc = points_in_camera(pw, pose)
-            # cam.in_fov(pc), with the projection kept for the detection
-            pix = cam.project_checked(pc)
-            z = pc[:, 2]
-            if np.all((z >= cam.near) & (z <= cam.far) & cam.pixels_in_image_checked(pix, 0.0)):
-                corners[i] = pix
-        if len(corners) < len(self._ids):
-            return Detection(False, None, tuple(corners), corners)
-        points = cam.project_checked(points_in_camera(self._features_w, pose))
-        return Detection(True, points, tuple(corners), corners)
+        """The detection at the camera pose ``pose`` (:func:`analytic_detect`)."""
+        uv = np.empty((4, 2))
+        corners = np.empty((len(self.ids), 4, 2))
+        seen = np.empty(len(self.ids), np.bool_)
+        found = analytic_detect(
+            self._params, np.ascontiguousarray(pose, dtype=float), uv, corners, seen
+        )
+        pix = {i: corners[k] for k, i in enumerate(self.ids) if seen[k]}
+        return Detection(bool(found), uv if found else None, tuple(pix), pix)
 
 
 class RenderedFrontEnd:
@@ -159,21 +308,43 @@ class CameraSensor:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.keep_images = bool(keep_images)
         self.rod = int(rod)  # the arm carrying a tip camera (robots with several arms)
-        self._fifo = deque(maxlen=self.model.latency_steps + 1)
+        fe = front_end
+        analytic = isinstance(fe, AnalyticFrontEnd)
+        m = self.model
+        #: the record of the compiled steps (the analytic front end's target, none otherwise)
+        self.params = CameraSensorParams(
+            fe.camera.params() if analytic or not fe.camera.has_distortion else _NO_CAMERA,
+            carrier == "tip", rod_steps(system, self.rod) if carrier == "tip" else _NO_ROD,
+            np.ascontiguousarray(self.mount), fe.corners_world if analytic else _NO_CORNERS,
+            fe.features_world if analytic else np.zeros((4, 3)), float(m.pixel_noise),
+            float(m.dropout), int(m.latency_steps),
+        )  # fmt: skip
+        self._ring = CameraSensorState.empty(self.params._replace(corners=_NO_CORNERS[:0]))
+        self._fifo = [None] * (m.latency_steps + 1)
 
     @property
     def camera(self) -> PinholeCamera:
         return self.front_end.camera
 
+    def seeing(self, target, target_pose) -> CameraSensor:
+        """A copy of this camera with the analytic front end of ``target`` at ``target_pose``
+        (the same imperfections and generator, empty buffers): the reference snapshot of a
+        world with its own target."""
+        fe = AnalyticFrontEnd(self.front_end.camera, target, target_pose)
+        return CameraSensor(self.system, self.carrier, self.mount, fe, self.model, self.rng,
+                            self.keep_images, self.rod)  # fmt: skip
+
     def reset(self) -> None:
         self.front_end.reset()
-        self._fifo.clear()
+        self._ring.head[0] = 0
+        self._ring.count[0] = 0
 
     def pose(self, q) -> np.ndarray:
-        """Inertial pose of the camera at configuration ``q``."""
-        if self.carrier == "tip":
-            return tip_camera_pose(self.system, q, self.mount, self.rod)
-        return self.system.base_pose(q) @ self.mount
+        """Inertial pose of the camera at configuration ``q`` (:func:`camera_pose_into`)."""
+        out = np.empty((4, 4))
+        camera_pose_into(self.params, self.system.model_arrays,
+                         np.ascontiguousarray(q, dtype=float), out)  # fmt: skip
+        return out
 
     def ideal(self, q) -> tuple[Detection, np.ndarray | None]:
         """Detection (no imperfections) and image (``None`` for the analytic front end)."""
@@ -184,15 +355,19 @@ class CameraSensor:
         return fe.detect_at(pose, self.system, q, self.keep_images)
 
     def _imperfect(self, det: Detection) -> Detection:
-        m = self.model
-        if m.dropout > 0 and self.rng.random() < m.dropout:
+        """The imperfections (:func:`frame_dropped`, :func:`add_pixel_noise`), their draws
+        from the sensor's generator: a uniform when frames drop, then, for a detection with
+        pixel noise, 8 normals for its points and 8 for each marker seen."""
+        p = self.params
+        if p.dropout > 0 and frame_dropped(p, self.rng.random()):
             return NOT_DETECTED
-        if not det.found or m.pixel_noise == 0:
+        if not det.found or p.pixel_noise == 0:
             return det
-        s = m.pixel_noise
-        points = det.points + self.rng.normal(0.0, s, det.points.shape)
-        corners = {k: v + self.rng.normal(0.0, s, np.shape(v)) for k, v in det.corners.items()}
-        return Detection(True, points, det.ids, corners)
+        ids = tuple(det.corners)
+        points = np.array(det.points, float)
+        corners = np.array([det.corners[k] for k in ids], float).reshape(len(ids), 4, 2)
+        add_pixel_noise(p, points, corners, self.rng.standard_normal(8 + 8 * len(ids)))
+        return Detection(True, points, det.ids, dict(zip(ids, corners, strict=True)))
 
     def measure(self, state: PlantState) -> CameraMeasurement:
         det, image = self.ideal(state.q)
@@ -200,8 +375,10 @@ class CameraSensor:
         meas = CameraMeasurement(state.t, det, image if self.keep_images else None)
         if self.model.latency_steps == 0:
             return meas
-        self._fifo.append(meas)
-        return self._fifo[0]
+        # the delivered frame: latency_steps old
+        write, read = latency_slots(self._ring, self.params.latency + 1)
+        self._fifo[write] = meas
+        return self._fifo[read]
 
     def close(self) -> None:
         close = getattr(self.front_end, "close", None)
@@ -220,10 +397,10 @@ class Sensors:
         self,
         local: CameraSensor,
         global_: CameraSensor | None = None,
-        global_every: int = 1,
+        global_every: int = CamerasConfig().global_every,
         always_global: bool = False,
         other: dict | None = None,
-        global_output_every: int = 0,
+        global_output_every: int = CamerasConfig().global_output_every,
     ):
         self.local = local
         self.global_ = global_
@@ -257,9 +434,7 @@ class Sensors:
         g = self.global_
         if g is not None:
             every, out_every = self.global_every, self.global_output_every
-            offered = (
-                self.always_global or request_global or (every > 0 and k % every == 0)
-            )  # fmt: skip
+            offered = self.always_global or global_offered(k, every, bool(request_global))
             if offered:
                 glob = DeferredMeasurement(state.t, partial(g.measure, state))
             if self.always_global or (out_every > 0 and k % out_every == 0):

@@ -23,9 +23,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
+from .._linalg import SVD_PINV, svd_solve
 from .._linalg import solve as _solve
 from ..control import (
     CubicTrajectory,
@@ -34,18 +37,58 @@ from ..control import (
     estimate_target_pose,
     plan_rod_configuration,
 )
-from ..control.planner import rod_columns
+from ..control.planner import (
+    IPPE_ORDER,
+    PLAN_BOUND,
+    plan_kernel,
+    rod_columns,
+    square_corners,
+    square_pose,
+)
 from ..lie.se3 import adjoint_pair, expmap, so3_log
-from ..vision.features import _min_edge2, advanced_features
-from ..vision.ibvs import IBVSController
-from ..vision.mounts import tip_camera_pose
-from ..vision.target_filter import TargetFilter
+from ..vision.camera import CameraParams, all_in_image
+from ..vision.features import advanced_features, min_edge2, min_edge2_of
+from ..vision.ibvs import MODES, IBVSController, ibvs_law
+from ..vision.ippe import canonical_frame
+from ..vision.mounts import (
+    base_pose_into,
+    inv4,
+    mul4,
+    rod_steps,
+    tip_camera_pose,
+    tip_camera_pose_into,
+    tip_jacobian_into,
+)
+from ..vision.target_filter import (
+    TargetFilter,
+    TargetFilterParams,
+    TargetFilterState,
+    filter_reset,
+    points_in_kernel,
+)
+from ..vision.target_filter import filter_update as _filter_update
+from ..vision.targets import ArucoMarker
 from ..vision.tip import rates_from_jacobian
-from ..vision.virtual import virtual_points, virtual_transform
+from ..vision.virtual import (
+    EXACT,
+    METHODS,
+    BehindVirtualCamera,
+    virtual_points,
+    virtual_points_into,
+    virtual_transform,
+    virtual_transform_into,
+)
 from .config import IbvsConfig, RecoveryConfig
-from .data import GlobalView, LocalView, ServoCommand, StateEstimate
+from .data import GlobalView, LocalView, ServoCommand, ServoEvent, StateEstimate
+from .perception import perceive
 
 MODE_CODES = {Mode.IBVS: 0, Mode.RECOVERY: 1}
+#: the C_L poses the robust servo keeps (a frame is fused with its capture period's: the
+#: largest latency it compensates is one less)
+FILTER_HISTORY = 64
+_NO_UV = np.zeros((4, 2))
+_NO_Z = np.ones(4)
+_NO_TWIST = np.full(6, np.nan)
 
 
 def normalized_rmse(points, desired) -> float:
@@ -132,7 +175,64 @@ class VisualServo:
         self.switch = ModeSwitch(
             local_camera, self.recovery.margin_px, self.recovery.confirm, self.recovery.lose
         )
+        self._setup()
+        # the compiled step (:func:`servo_perceive`, :func:`servo_command`) runs the servos of
+        # this module; the servos built on their parts (touch, several arms) run the methods
+        # below
+        self._compiled = type(self) in (VisualServo, RobustServo)
+        self._m = s.model_arrays
+        self.params = self.servo_params()
+        self._n_s = int(self.params.strains[1] - self.params.strains[0])
+        window = int(self.target_filter.window) if isinstance(self, RobustServo) else 0
+        self.state = servo_state(self.params, n, self._n_s, window)
+        self._out = ServoOut.empty(n, self._n_s)
+        self._memo = None
         self.reset(np.zeros(n))
+
+    def _setup(self) -> None:
+        """What a servo builds before its records (the robust servo's target filter)."""
+
+    def servo_params(self) -> ServoParams:
+        """The record of the compiled step (:class:`ServoParams`) of this servo."""
+        s, cfg, rc = self.system, self.config, self.recovery
+        target = self.target
+        ids = tuple(getattr(target, "ids", ())) if not isinstance(target, ArucoMarker) else ()
+        marker_ids = ids or (target.marker_id,)
+        corners = [target.corner_points(i) for i in marker_ids]
+        side = float(np.linalg.norm(corners[0][1] - corners[0][0]))
+        object_2d = canonical_frame(target.feature_points)[0]
+        robust = isinstance(self, RobustServo)
+        if robust:
+            fp = filter_record(self.target_filter, object_2d, FILTER_HISTORY)
+        else:
+            unused = TargetFilter(self.local_camera, target.feature_points, level_prior=0.0,
+                                  window=1)  # fmt: skip
+            fp = FilterParams(unused.params, object_2d, 1)
+        ib = self.ibvs
+        base = s.n - s.n_s
+        cols = slice(0, s.n_s) if s.n_rods == 1 else rod_columns(s, self.rod)
+        c = np.ascontiguousarray
+        return ServoParams(
+            gain=float(ib.gain), interaction=MODES.index(ib.mode), floor=float(ib.floor),
+            damped=ib.solver == "damped", compensation=METHODS.index(self.compensation),
+            desired_points=c(self.desired_points), desired_depths=c(np.broadcast_to(
+                np.asarray(self.desired_depths, float), (4,))),
+            desired_features=c(ib.desired), desired_interaction=c(ib.interaction_desired),
+            camera=self.local_camera.params(), mount=c(self.tip_mount),
+            ad_mount=c(self._ad_mount), mount_inv=c(np.linalg.inv(self.tip_mount)),
+            ad_mount_inv=c(self._ad_mount_inv), rod=rod_steps(s, self.rod),
+            strains=np.array([base + cols.start, base + cols.stop], np.int64),
+            commanded=c(self._cmd, np.int64), limits=c(self._lim),
+            soft_start=float(cfg.soft_start), rate_filter=float(cfg.rate_filter),
+            margin_px=float(rc.margin_px), confirm=int(rc.confirm), lose=int(rc.lose),
+            global_camera=self.global_camera.params(), drone_mount=c(self.drone_mount),
+            square=square_corners(side), marker_centres=c([k.mean(axis=0) for k in corners]),
+            largest_tag=bool(ids), max_speed=float(rc.max_speed),
+            z_min=float(self.local_camera.near), bound=float(PLAN_BOUND), robust=robust,
+            filter=fp, smoothing=float(cfg.filter_smoothing) if robust else 0.0,
+            lost_timeout=float(rc.lost_timeout), accel_ff=bool(cfg.accel_feedforward),
+            leak=float(cfg.reference_leak),
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ state
     def reset(self, q0, first_view: LocalView | None = None) -> None:
@@ -148,9 +248,16 @@ class VisualServo:
         self.qd_d = np.zeros(self.n)
         self.ibvs_start = 0.0
         self.traj = None
+        if getattr(self, "state", None) is not None:
+            self._memo = None
+            uv = first_view.pixels if seen else np.zeros((4, 2))
+            servo_reset(self.params, self.state, self._m, np.ascontiguousarray(q0, dtype=float),
+                        bool(seen), np.ascontiguousarray(uv, dtype=float))  # fmt: skip
 
     @property
     def mode(self) -> str:
+        if self._compiled:
+            return Mode.IBVS if self.state.mode[0] == IBVS else Mode.RECOVERY
         return self.switch.mode
 
     # ------------------------------------------------------------------ pieces
@@ -301,7 +408,102 @@ class VisualServo:
     ) -> ServoCommand:
         """One servo period. ``twist`` (optional) replaces the IBVS twist (an external
         command, e.g. a learning agent's action); shaping and the mapping still apply."""
+        if self._compiled:
+            return self.compiled_step(t, dt, view, gview, est, twist)
         return self.command(t, dt, est.q, gview, twist, *self.perceive(t, dt, view, est))
+
+    def perceive_period(self, t, dt, view, est) -> ServoOut:
+        """The first part of the period (:func:`servo_perceive`) on the view ``view`` and the
+        estimate ``est``, once: asked again with the same ``view`` and ``est`` (an env's
+        observation, then the period's step), it returns the same outputs."""
+        memo = self._memo
+        if memo is not None and memo[0] is view and memo[1] is est:
+            return self._out
+        p, st, out = self.params, self.state, self._out
+        c = np.ascontiguousarray
+        q = c(est.q, dtype=float)
+        n = q.shape[0]
+        found = bool(view.found)
+        if found:
+            uv, xy = c(view.pixels, dtype=float), c(view.points, dtype=float)
+            z = c(view.depths, dtype=float)
+            capture = int(round(view.t_capture / dt))
+        else:
+            uv, xy, z, capture = _NO_UV, _NO_UV, _NO_Z, -1
+        est_p = getattr(est, "P", None)
+        p_qq = np.zeros((n, n)) if est_p is None or not p.robust else c(np.asarray(est_p)[:n, :n])
+        k = int(round(t / dt))
+        servo_perceive(p, st, self._m, float(t), float(dt), k, q, p_qq, found, uv, xy, z, capture,
+                       out)  # fmt: skip
+        self._memo = (view, est)
+        return out
+
+    def compiled_step(self, t, dt, view, gview, est, twist=None) -> ServoCommand:
+        """One period of the compiled step (:meth:`perceive_period`, then
+        :func:`servo_command` with C_G's snapshot read when :func:`needs_global`)."""
+        p, st = self.params, self.state
+        c = np.ascontiguousarray
+        q = c(est.q, dtype=float)
+        out = self.perceive_period(t, dt, view, est)
+        self._memo = None
+        if out.failure[0] == BEHIND:  # eq. (18) undefined: the loop ends the run, as an outcome
+            raise BehindVirtualCamera(FAILURE_REASONS[BEHIND].removeprefix("servo: "))
+        offered = gview is not None
+        m_count = p.marker_centres.shape[0]
+        g_found, corners, seen = False, np.zeros((m_count, 4, 2)), np.zeros(m_count, np.bool_)
+        if needs_global(st, out, offered):
+            g_found, corners, seen = self._global_corners(gview)
+        tw = _NO_TWIST if twist is None else c(twist, dtype=float)
+        servo_command(p, st, self._m, float(t), float(dt), q, offered, tw, g_found, corners, seen,
+                      out)  # fmt: skip
+        return self._command_of(out)
+
+    def _global_corners(self, gview):
+        """``(found, corners (M, 4, 2), seen (M,))`` of C_G's view for :func:`servo_command`:
+        each marker's detected corners (OpenCV order) in the target's marker order."""
+        target = self.target
+        ids = tuple(getattr(target, "ids", ())) if not isinstance(target, ArucoMarker) else ()
+        ids = ids or (target.marker_id,)
+        corners = np.zeros((len(ids), 4, 2))
+        seen = np.zeros(len(ids), np.bool_)
+        if not gview.found:
+            return False, corners, seen
+        det = gview.detection.corners or {}
+        for i, mid in enumerate(ids):
+            if mid in det:
+                corners[i] = np.asarray(det[mid], float)
+                seen[i] = True
+        return True, corners, seen
+
+    def _command_of(self, out: ServoOut) -> ServoCommand:
+        """The :class:`~.data.ServoCommand` of the compiled step's outputs."""
+        st = self.state
+        mode = Mode.IBVS if out.mode[0] == IBVS else Mode.RECOVERY
+        seen = bool(out.seen[0])
+        event = EVENT_NAMES.get(int(out.event[0]))
+        plan = None
+        if out.planned[0]:
+            event = "recovery planned"
+            plan = {
+                "t": None, "q_s_d": out.plan_qs.tolist(), "point_local": out.plan_point.tolist(),
+                "cost": float(out.plan_cost[0]), "success": bool(out.plan_success[0]),
+                "duration": float(out.plan_duration[0]),
+            }  # fmt: skip
+            plan["t"] = float(st.traj_t0[0])
+        failure = FAILURE_REASONS.get(int(out.failure[0]))
+        extra = {}
+        if self.params.robust:
+            extra = {
+                "rmse_measured": float(out.rmse_measured[0]),
+                "target_pose": st.target_pose.copy() if st.tp_set[0] else None,
+            }
+        return ServoCommand(
+            mode, st.q_d.copy(), st.qd_d.copy(), out.qdd_d.copy(), out.twist.copy(),
+            out.features.copy() if seen else None, out.error.copy() if seen else None,
+            out.points.copy() if seen else None, float(out.rmse[0]) if seen else math.nan,
+            request_global=bool(out.request[0]), event=event, plan=plan, failure=failure,
+            **extra,
+        )  # fmt: skip
 
     def perceive(self, t: float, dt: float, view: LocalView, est: StateEstimate) -> tuple:
         """The first part of a period: the mode switch on the view and the view in C_V.
@@ -395,8 +597,8 @@ class RobustServo(VisualServo):
        target in C_G holds and retries for ``lost_timeout`` s before giving up.
     """
 
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
+    def _setup(self) -> None:
+        """The target filter and the prediction's constants (before the records are built)."""
         c = self.config
         self.target_filter = TargetFilter(
             self.local_camera,
@@ -478,7 +680,7 @@ class RobustServo(VisualServo):
         xy, z = self.target_filter.points_in(servo_pose, self.target_pose)
         # behind the camera, or so far that the corners coincide (an estimate thrown off by
         # large pixel noise): no features, the target counts as not seen this period
-        if np.any(z <= 0) or _min_edge2(xy) < 1e-24:
+        if np.any(z <= 0) or min_edge2_of(xy) < 1e-24:
             return PredictedView()
         pix = None
         if camera_pose is not None:
@@ -569,3 +771,720 @@ class RobustServo(VisualServo):
             c = self._leak
             self.q_d[c] += r.reference_leak * dt * (q[c] - self.q_d[c])
         return qdd_d
+
+
+# ----------------------------------------------------------------------------- target filter
+class FilterParams(NamedTuple):
+    """The target filter's constants for the servo's step: ``record`` the filter's
+    (:class:`~tdacm.vision.target_filter.TargetFilterParams`), ``object_2d`` (4, 2) the
+    target's points in their canonical frame (the perception's), ``history`` the C_L poses
+    kept (latency + 1)."""
+
+    record: TargetFilterParams
+    object_2d: np.ndarray
+    history: int
+
+
+def filter_record(tf, object_2d, history: int) -> FilterParams:
+    """The :class:`FilterParams` of a :class:`~tdacm.vision.TargetFilter` ``tf``."""
+    return FilterParams(tf.params, np.ascontiguousarray(object_2d, float), int(history))
+
+
+def filter_state(window: int) -> TargetFilterState:
+    return TargetFilterState.initial(window)
+
+
+def filter_estimate(fs) -> tuple | None:
+    """``(pose (4, 4), covariance (6, 6), rejected frames)`` of a target filter's state
+    ``fs`` (copies), ``None`` before its first estimate."""
+    if not fs.initialized[0]:
+        return None
+    return fs.pose.copy(), fs.cov.copy(), int(fs.rejected[0])
+
+
+def target_estimate(servo) -> tuple | None:
+    """The robust servo's estimate of the target (:func:`filter_estimate`; arm 0's with
+    several arms), ``None`` for a servo without one or before its first estimate."""
+    servo = getattr(servo, "arms", [servo])[0]
+    if getattr(servo, "_compiled", False):
+        return filter_estimate(servo.state.filter) if servo.params.robust else None
+    filt = getattr(servo, "target_filter", None)
+    if filt is None or not filt.initialized:
+        return None
+    return filt.pose.copy(), filt.P.copy(), int(filt.rejected)
+
+
+@njit(cache=True)
+def filter_initialized(fs):
+    return fs.initialized[0]
+
+
+@njit(cache=True)
+def filter_update(fp, fs, uv, g_c, cov):
+    return _filter_update(fp.record, fs, uv, g_c, cov)
+
+
+# ============================================================================ compiled step
+# The servo's per-world step over its records (the module docstring's periods), called by
+# :class:`VisualServo` / :class:`RobustServo` for the block loop and by the batched engine
+# (:mod:`tdacm.batch`) for every world: :func:`servo_reset`, then every period
+# :func:`servo_perceive` (the view, the target filter and the mode switch) and
+# :func:`servo_command` (IBVS or the recovery; C_G's snapshot is an input, read only when
+# :func:`needs_global` says so).
+
+#: the servo's mode codes (:class:`tdacm.control.Mode`)
+IBVS, RECOVERY = 0, 1
+#: events of a period (:class:`~.data.ServoEvent`; a recovery planned)
+NO_EVENT, IBVS_ENGAGED, TARGET_LOST, RECOVERY_PLANNED = 0, 1, 2, 3
+#: failures of a period: none, a point behind C_V (``Termination.BEHIND_CAMERA``), C_G does
+#: not see the target, no pose from C_G's corners (``Termination.RECOVERY_FAILED``)
+NO_FAILURE, BEHIND, NOT_SEEN_BY_GLOBAL, NO_POSE = 0, 1, 2, 3
+#: the failures in words (the summary's ``termination_reason``, the block loop's and the
+#: engine's alike)
+FAILURE_REASONS = {
+    BEHIND: "servo: a point lies behind the virtual camera",
+    NOT_SEEN_BY_GLOBAL: "recovery: target not seen by C_G",
+    NO_POSE: "recovery planning failed: the marker's corners admit no pose",
+}
+EVENT_NAMES = {
+    IBVS_ENGAGED: ServoEvent.IBVS_ENGAGED,
+    TARGET_LOST: ServoEvent.TARGET_LOST,
+    RECOVERY_PLANNED: "recovery planned",
+}
+#: the interaction matrix of ``ibvs.mode`` (:data:`tdacm.vision.ibvs.MODES`)
+CURRENT, DESIRED, MEAN = 0, 1, 2
+
+
+class ServoParams(NamedTuple):
+    """The servo's parameters (the record of the compiled step), for one arm's camera.
+
+    The IBVS (``[ibvs]``): ``gain``, ``interaction`` (:data:`CURRENT`, ...), ``floor`` and
+    ``damped`` (the solve), ``compensation`` (the virtual camera's form,
+    :data:`tdacm.vision.virtual.EXACT`, ...), the reference snapshot in C_V
+    ``desired_points`` (4, 2), ``desired_depths`` (4,), ``desired_features`` (6,),
+    ``desired_interaction`` (6, 6). The camera: ``camera`` the controller's model of C_L (a
+    :class:`~tdacm.vision.camera.CameraParams`), ``mount`` ``g_{C_L}^L`` (4, 4) and its adjoint
+    ``ad_mount`` (6, 6), ``mount_inv``, ``ad_mount_inv``, ``rod`` the Magnus steps of its rod
+    (2,) and ``strains`` the rod's strain coordinates ``[start, stop)`` in ``q``. The joint
+    rates and their shaping: ``commanded`` (k,) the commanded coordinates, ``limits`` (n,)
+    their rate limits, ``soft_start``, ``rate_filter`` (s). The mode switch (``[recovery]``):
+    ``margin_px``, ``confirm``, ``lose``. The recovery: ``global_camera`` (C_G's model),
+    ``drone_mount`` ``g_{C_G}^b``, ``square`` (4, 2) a marker's corners in its plane,
+    ``marker_centres`` (M, 3) each marker's centre in the target frame, ``largest_tag`` (plan
+    on the largest tag seen of a pattern), ``max_speed`` (rad/s), ``z_min`` (m, C_L's near
+    plane) and ``bound`` (the plan's strain bound). The robust servo (``robust``): the target
+    filter's record ``filter``, ``smoothing`` (s), ``lost_timeout`` (s), ``accel_ff``,
+    ``leak`` (1/s) and ``history`` the C_L poses kept (latency + 1)."""
+
+    gain: float
+    interaction: int
+    floor: float
+    damped: bool
+    compensation: int
+    desired_points: np.ndarray
+    desired_depths: np.ndarray
+    desired_features: np.ndarray
+    desired_interaction: np.ndarray
+    camera: CameraParams
+    mount: np.ndarray
+    ad_mount: np.ndarray
+    mount_inv: np.ndarray
+    ad_mount_inv: np.ndarray
+    rod: np.ndarray
+    strains: np.ndarray
+    commanded: np.ndarray
+    limits: np.ndarray
+    soft_start: float
+    rate_filter: float
+    margin_px: float
+    confirm: int
+    lose: int
+    global_camera: CameraParams
+    drone_mount: np.ndarray
+    square: np.ndarray
+    marker_centres: np.ndarray
+    largest_tag: bool
+    max_speed: float
+    z_min: float
+    bound: float
+    robust: bool
+    filter: FilterParams
+    smoothing: float
+    lost_timeout: float
+    accel_ff: bool
+    leak: float
+
+
+class ServoState(NamedTuple):
+    """The servo's state (one-element arrays for its scalars): the mode and the switch's
+    counters (``good``: frames inside the margin while recovering, ``bad``: frames missed
+    while servoing), when IBVS engaged (``ibvs_start``), the reference ``q_d``, ``qd_d``
+    (n,), the recovery's cubic trajectory (``traj_on``, ``traj_t0``, ``traj_tf``, from
+    ``traj_q0`` by ``traj_dq``, the rod's strains). The robust servo: the target filter's
+    state ``filter``, the smoothed target pose ``target_pose`` (``tp_set``), the capture
+    period of the last frame fused (``last_fused``, -1: none), the time of the last frame
+    the filter accepted (``last_seen``, NaN: none), when C_G first missed the target in a
+    recovery (``cg_missed``, NaN: none) and the C_L poses and their covariances of the last
+    periods (``cam_hist`` (H, 4, 4), ``cov_hist`` (H, 6, 6)): a frame is fused with its
+    capture period's."""
+
+    mode: np.ndarray
+    good: np.ndarray
+    bad: np.ndarray
+    ibvs_start: np.ndarray
+    q_d: np.ndarray
+    qd_d: np.ndarray
+    traj_on: np.ndarray
+    traj_t0: np.ndarray
+    traj_tf: np.ndarray
+    traj_q0: np.ndarray
+    traj_dq: np.ndarray
+    filter: TargetFilterState
+    target_pose: np.ndarray
+    tp_set: np.ndarray
+    last_fused: np.ndarray
+    last_seen: np.ndarray
+    cg_missed: np.ndarray
+    cam_hist: np.ndarray
+    cov_hist: np.ndarray
+
+
+class ServoOut(NamedTuple):
+    """What the servo's step produced in a period (written by the step; one-element arrays
+    for the scalars): the ``mode``, its ``event`` and a ``failure`` (:data:`NO_FAILURE`, ...),
+    whether it asks C_G for the next period (``request``); whether a view is servoed on
+    (``seen``: measured and perceived, or predicted by the robust servo), its points
+    ``points`` (4, 2) and depths ``depths`` (4,) in the servo camera (C_V; C_L for a held
+    base), their ``features``, ``error`` (angles wrapped) and IBVS ``ibvs_twist`` (6,), the
+    normalized ``rmse`` to the reference and ``rmse_measured`` (the measured view's, robust
+    servo), the twist applied ``twist`` (zeros when not servoing), the robust servo's
+    predicted C_L pixels ``pixels`` (4, 2) (``pixels_ok``: in front of C_L) and the
+    reference's acceleration ``qdd_d`` (n,); a recovery plan made this period (``planned``):
+    the rod's strains ``plan_qs`` (ns,), the target in C_L ``plan_point`` (3,), its
+    ``plan_cost``, ``plan_success`` and the trajectory's ``plan_duration``."""
+
+    mode: np.ndarray
+    event: np.ndarray
+    failure: np.ndarray
+    request: np.ndarray
+    seen: np.ndarray
+    points: np.ndarray
+    depths: np.ndarray
+    features: np.ndarray
+    error: np.ndarray
+    ibvs_twist: np.ndarray
+    rmse: np.ndarray
+    rmse_measured: np.ndarray
+    twist: np.ndarray
+    pixels: np.ndarray
+    pixels_ok: np.ndarray
+    qdd_d: np.ndarray
+    planned: np.ndarray
+    plan_qs: np.ndarray
+    plan_point: np.ndarray
+    plan_cost: np.ndarray
+    plan_success: np.ndarray
+    plan_duration: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int, ns: int) -> ServoOut:
+        z1 = lambda: np.zeros(1)  # noqa: E731
+        i1 = lambda: np.zeros(1, np.int64)  # noqa: E731
+        b1 = lambda: np.zeros(1, np.bool_)  # noqa: E731
+        return cls(i1(), i1(), i1(), b1(), b1(), np.zeros((4, 2)), np.zeros(4), np.zeros(6),
+                   np.zeros(6), np.zeros(6), z1(), z1(), np.zeros(6), np.zeros((4, 2)), b1(),
+                   np.zeros(n), b1(), np.zeros(ns), np.zeros(3), z1(), b1(), z1())  # fmt: skip
+
+
+def servo_state(p: ServoParams, n: int, ns: int, window: int) -> ServoState:
+    """A servo state for ``n`` coordinates, a rod of ``ns`` strains and a target filter of
+    ``window`` frames (zeros: :func:`servo_reset` starts it)."""
+    h = int(p.filter.history) if p.robust else 1
+    z1 = lambda: np.zeros(1)  # noqa: E731
+    return ServoState(
+        z1(), z1(), z1(), z1(), np.zeros(n), np.zeros(n), z1(), z1(), z1(), np.zeros(ns),
+        np.zeros(ns), filter_state(window if p.robust else 0), np.eye(4), z1(), z1(), z1(),
+        z1(), np.zeros((h, 4, 4)), np.zeros((h, 6, 6)),
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def rmse_to(pv, dp):
+    """``sqrt(mean_k |p_k - p_k^d|^2)`` over the four points (:func:`normalized_rmse`)."""
+    acc = 0.0
+    for k in range(4):
+        dx = pv[k, 0] - dp[k, 0]
+        dy = pv[k, 1] - dp[k, 1]
+        acc += dx * dx + dy * dy
+    return np.sqrt(acc / 4.0)
+
+
+@njit(cache=True)
+def switch_update(mode, counters, seen_inside, found, confirm, lose):
+    """The mode switch's hysteresis (:class:`tdacm.control.ModeSwitch`): ``counters`` =
+    (frames inside the margin while recovering, frames missed while servoing), updated in
+    place; returns the new mode."""
+    if mode == RECOVERY:
+        counters[0] = counters[0] + 1 if seen_inside else 0
+        if counters[0] >= confirm:
+            counters[1] = 0
+            return IBVS
+        return RECOVERY
+    counters[1] = 0 if found else counters[1] + 1
+    if counters[1] >= lose:
+        counters[0] = 0
+        return RECOVERY
+    return IBVS
+
+
+@njit(cache=True)
+def servo_reset(p, s, m, q0, found, uv):
+    """Start from ``q0`` (the estimate): the reference at ``q0`` with a level drone, the
+    initial mode IBVS when the first (ideal) C_L frame ``found`` has its pixels ``uv`` inside
+    the switch's margin and its corners explicable (:func:`~.perception.perceive`), recovery
+    otherwise; the target filter and the robust servo's memory cleared."""
+    n = q0.shape[0]
+    for i in range(n):
+        s.q_d[i] = q0[i]
+        s.qd_d[i] = 0.0
+    if m.floating:
+        s.q_d[0] = 0.0
+        s.q_d[1] = 0.0
+    xy = np.empty((4, 2))
+    z = np.empty(4)
+    seen = found and perceive(p.camera, p.filter.object_2d, uv, xy, z)
+    s.mode[0] = IBVS if seen and all_in_image(p.camera, uv, p.margin_px) else RECOVERY
+    s.good[0] = 0.0
+    s.bad[0] = 0.0
+    s.ibvs_start[0] = 0.0
+    s.traj_on[0] = 0.0
+    filter_reset(s.filter)
+    s.tp_set[0] = 0.0
+    s.last_fused[0] = -1.0
+    s.last_seen[0] = np.nan
+    s.cg_missed[0] = np.nan
+
+
+@njit(cache=True)
+def _servo_camera_pose(p, m, q, g_c, out):
+    """The servo camera's world pose: C_V (eq. (18)) for a floating base, C_L for a held one."""
+    if not m.floating:
+        out[:, :] = g_c
+        return
+    g_b = np.empty((4, 4))
+    base_pose_into(q, m, g_b)
+    gv = np.empty((4, 4))
+    virtual_transform_into(g_b, g_c, gv)  # g_{C_L}^{C_V}; C_V = C_L (g_{C_L}^{C_V})^-1
+    iv = np.empty((4, 4))
+    inv4(gv, iv)
+    mul4(g_c, iv, out)
+
+
+@njit(cache=True)
+def to_virtual(p, m, q, g_c, xy, z, pv, zv):
+    """Points ``xy`` (4, 2) with depths ``z`` of C_L in the servo camera (C_V, eq. (18), for a
+    floating base) into ``pv``, ``zv``; False when a point maps behind C_V."""
+    if not m.floating:
+        pv[:, :] = xy
+        zv[:] = z
+        return True
+    g_b = np.empty((4, 4))
+    base_pose_into(q, m, g_b)
+    gv = np.empty((4, 4))
+    virtual_transform_into(g_b, g_c, gv)
+    if not virtual_points_into(xy, z, gv, p.compensation, pv, zv):
+        return False
+    if p.compensation != EXACT:  # the other forms give the ratio z^{C_V} / z^{C_L}
+        for k in range(4):
+            zv[k] = zv[k] * z[k]
+    return True
+
+
+@njit(cache=True)
+def _smooth_target(p, s, a):
+    """The smoothed target pose toward the filter's estimate by the fraction ``a`` of one
+    period: a first-order filter of time constant ``smoothing`` on SE(3)
+    (:meth:`RobustServo.predict_target`)."""
+    if not filter_initialized(s.filter):  # nothing fused yet, or the filter restarted
+        return
+    pose = s.filter.pose
+    if s.tp_set[0] == 0.0 or a >= 1.0:
+        s.target_pose[:, :] = pose
+        s.tp_set[0] = 1.0
+        return
+    d = np.empty((4, 4))
+    inv4(s.target_pose, d)
+    d2 = np.empty((4, 4))
+    mul4(d, pose, d2)
+    w = a * so3_log(np.ascontiguousarray(d2[:3, :3]))
+    step = expmap(np.array([w[0], w[1], w[2], 0.0, 0.0, 0.0]))
+    for i in range(3):
+        step[i, 3] = a * d2[i, 3]
+    out = np.empty((4, 4))
+    mul4(s.target_pose, step, out)
+    s.target_pose[:, :] = out
+
+
+@njit(cache=True)
+def _camera_covariance(p, m, q, p_qq, out):
+    """``J_C P_qq J_C^T`` (6 x 6, ``[w; v]`` in C_L, symmetrized) with ``J_C = Ad(g_{C_L}^L)^-1
+    J_L^L(q)`` (eq. (10)): the C_L pose's covariance from an estimate's ``P_qq``."""
+    n = q.shape[0]
+    jl = np.empty((6, n))
+    tip_jacobian_into(q, m, p.rod, jl)
+    j = p.ad_mount_inv @ jl
+    c = j @ p_qq @ j.T
+    for a in range(6):
+        for b in range(6):
+            out[a, b] = 0.5 * (c[a, b] + c[b, a])
+
+
+@njit(cache=True)
+def servo_perceive(p, s, m, t, dt, k, q, p_qq, found, uv, xy, z, capture, out):
+    """The first part of a period at time ``t`` (period ``k``) on the estimate ``q`` (with
+    ``P_qq`` (n, n), zeros for the true state): the view the servo works on, the target
+    filter and the mode switch, into ``out`` (a :class:`ServoOut`; ``twist``, ``qdd_d`` and the
+    plan are :func:`servo_command`'s).
+
+    The measured servo: the delivered frame (``found``, its pixels ``uv`` and their
+    normalized points ``xy`` and IPPE depths ``z`` from the perception block) in C_V (eq.
+    (18)). The robust servo: the frame (captured at period ``capture``) fused into the target
+    filter with the C_L pose (and its covariance) of its capture period, the smoothed target
+    estimate, the points predicted in the servo camera and in C_L; the switch watches the
+    predicted C_L pixels while servoing. Then the features, the error and the IBVS twist
+    (eqs. (19)-(21), (39)) of the view."""
+    n = q.shape[0]
+    out.failure[0] = NO_FAILURE
+    out.event[0] = NO_EVENT
+    out.request[0] = False
+    out.planned[0] = False
+    out.rmse[0] = np.nan
+    out.rmse_measured[0] = np.nan
+    out.pixels_ok[0] = False
+    for i in range(6):
+        out.twist[i] = 0.0
+        out.features[i] = 0.0
+        out.error[i] = 0.0
+        out.ibvs_twist[i] = 0.0
+    for i in range(n):
+        out.qdd_d[i] = 0.0
+    pv, zv = out.points, out.depths
+    g_c = np.empty((4, 4))
+    tip_camera_pose_into(q, m, p.rod, p.mount, g_c)
+    prev = int(s.mode[0])
+    counters = np.array([int(s.good[0]), int(s.bad[0])])
+    if p.robust:
+        hist = s.cam_hist.shape[0]
+        s.cam_hist[k % hist] = g_c
+        _camera_covariance(p, m, q, p_qq, s.cov_hist[k % hist])
+        cap = max(0, capture)
+        if found and cap > s.last_fused[0]:
+            s.last_fused[0] = cap
+            if filter_update(p.filter, s.filter, uv, s.cam_hist[cap % hist],
+                             s.cov_hist[cap % hist]):  # fmt: skip
+                s.last_seen[0] = cap * dt
+        a = min(1.0, dt / p.smoothing) if p.smoothing > 0.0 else 1.0
+        _smooth_target(p, s, a)
+        valid = False
+        if s.tp_set[0] != 0.0:
+            g_s = np.empty((4, 4))
+            _servo_camera_pose(p, m, q, g_c, g_s)
+            points_in_kernel(p.filter.record.object_points, g_s, s.target_pose, pv, zv)
+            valid = min_edge2(pv) >= 1e-24
+            for i in range(4):
+                if not zv[i] > 0.0:
+                    valid = False
+            if valid:
+                xl = np.empty((4, 2))
+                zl = np.empty(4)
+                points_in_kernel(p.filter.record.object_points, g_c, s.target_pose, xl, zl)
+                ok = True
+                for i in range(4):
+                    if not zl[i] > 0.0:
+                        ok = False
+                    out.pixels[i, 0] = p.camera.fx * xl[i, 0] + p.camera.cx
+                    out.pixels[i, 1] = p.camera.fy * xl[i, 1] + p.camera.cy
+                out.pixels_ok[0] = ok
+        if found:  # what was measured, in C_V (logged)
+            mv = np.empty((4, 2))
+            mz = np.empty(4)
+            if to_virtual(p, m, q, g_c, xy, z, mv, mz):
+                out.rmse_measured[0] = rmse_to(mv, p.desired_points)
+        if prev == IBVS:
+            seen = (
+                valid
+                and out.pixels_ok[0]
+                and np.isfinite(s.last_seen[0])
+                and t - s.last_seen[0] <= p.lost_timeout
+                and all_in_image(p.camera, out.pixels, 0.0)
+            )
+            ins = seen and all_in_image(p.camera, out.pixels, p.margin_px)
+        else:
+            seen = found
+            ins = seen and all_in_image(p.camera, uv, p.margin_px)
+        out.seen[0] = valid
+    else:
+        view = found
+        if view and not to_virtual(p, m, q, g_c, xy, z, pv, zv):
+            out.failure[0] = BEHIND
+            view = False
+        seen = found
+        ins = found and all_in_image(p.camera, uv, p.margin_px)
+        out.seen[0] = view
+        if view and min_edge2(pv) < 1e-24:  # coincident corners: nothing to servo on
+            out.failure[0] = BEHIND
+            out.seen[0] = False
+    mode = switch_update(prev, counters, ins, seen, p.confirm, p.lose)
+    s.mode[0], s.good[0], s.bad[0] = mode, counters[0], counters[1]
+    out.mode[0] = mode
+    if prev == RECOVERY and mode == IBVS:  # IBVS engages: its ramp restarts
+        s.ibvs_start[0] = t
+        s.traj_on[0] = 0.0
+        out.event[0] = IBVS_ENGAGED
+    elif prev == IBVS and mode == RECOVERY:
+        out.event[0] = TARGET_LOST
+    if out.seen[0]:
+        out.rmse[0] = rmse_to(pv, p.desired_points)
+        f, e, v = ibvs_law(pv, zv, p.desired_features, p.desired_interaction,
+                                p.interaction, p.gain, p.floor, p.damped)  # fmt: skip
+        for i in range(6):
+            out.features[i] = f[i]
+            out.error[i] = e[i]
+            out.ibvs_twist[i] = v[i]
+
+
+@njit(cache=True)
+def needs_global(s, out, offered):
+    """Whether this period's :func:`servo_command` reads C_G's snapshot: a recovery without a
+    trajectory yet, C_G offered this period."""
+    return offered and out.mode[0] == RECOVERY and s.traj_on[0] == 0.0 and out.failure[0] == 0
+
+
+@njit(cache=True)
+def joint_rates(p, m, q, twist, out):
+    """``qdot_d[cmd] = (J_L^L(q_v)[:, cmd])^+ Ad(g_{C_L}^L) v`` with roll and pitch of ``q_v``
+    zero (the virtual-camera chain's Jacobian, :meth:`VisualServo.joint_rates`) into ``out``."""
+    n = q.shape[0]
+    qv = q.copy()
+    if m.floating:
+        qv[0] = 0.0
+        qv[1] = 0.0
+    jac = np.empty((6, n))
+    tip_jacobian_into(qv, m, p.rod, jac)
+    tip = np.zeros(6)
+    for i in range(6):
+        acc = 0.0
+        for c in range(6):
+            acc += p.ad_mount[i, c] * twist[c]
+        tip[i] = acc
+    cmd = p.commanded
+    jc = np.empty((6, cmd.shape[0]))
+    for i in range(6):
+        for c in range(cmd.shape[0]):
+            jc[i, c] = jac[i, cmd[c]]
+    x = svd_solve(jc, tip, SVD_PINV, 1e-8)
+    for i in range(n):
+        out[i] = 0.0
+    for c in range(cmd.shape[0]):
+        out[cmd[c]] = x[c]
+
+
+@njit(cache=True)
+def shape(p, s, rates, t, dt):
+    """Limit, ramp and filter the joint rates into ``qd_d``; integrate ``q_d`` (command
+    shaping, docs/control.md): the rates scaled to their limits, a ramp of time constant
+    ``soft_start`` after IBVS engages, a first-order filter of ``rate_filter`` (it starts from
+    the recovery's last rates: a smooth hand-over, and keeps the IBVS from exciting the
+    coupled roll/strain mode, ~2 Hz)."""
+    cmd = p.commanded
+    t_ib = t - s.ibvs_start[0]
+    ramp = 1.0 - np.exp(-t_ib / p.soft_start) if p.soft_start > 0.0 else 1.0
+    scale = 1.0
+    for c in range(cmd.shape[0]):
+        scale = max(scale, abs(rates[cmd[c]]) / p.limits[cmd[c]])
+    a_f = min(1.0, dt / p.rate_filter) if p.rate_filter > 0.0 else 1.0
+    n = s.q_d.shape[0]
+    new = np.zeros(n)
+    for c in range(cmd.shape[0]):
+        new[cmd[c]] = rates[cmd[c]] / scale
+    for i in range(n):
+        s.qd_d[i] = s.qd_d[i] + a_f * (ramp * new[i] - s.qd_d[i])
+        s.q_d[i] = s.q_d[i] + s.qd_d[i] * dt
+
+
+@njit(cache=True)
+def _plan(p, s, m, t, q, corners, marker_seen, out):
+    """The recovery plan from one C_G snapshot (:meth:`VisualServo.plan`): the target's pose
+    in C_G from one square marker (the largest tag seen of a pattern; ``corners`` (M, 4, 2)
+    OpenCV order, ``marker_seen`` (M,)), its centre in the body frame, the rod's strains that
+    put it on C_L's optical axis (:func:`~tdacm.control.planner.plan_kernel`) and the cubic
+    trajectory there (:class:`~tdacm.control.CubicTrajectory`, duration from ``max_speed``).
+    False when no marker is seen or its corners admit no pose."""
+    cam = p.global_camera
+    mk = -1
+    if p.largest_tag:
+        best = -1.0
+        for i in range(corners.shape[0]):
+            if not marker_seen[i]:
+                continue
+            ext = 0.0
+            for a in range(2):
+                lo_, hi_ = np.inf, -np.inf
+                for c in range(4):
+                    lo_ = min(lo_, corners[i, c, a])
+                    hi_ = max(hi_, corners[i, c, a])
+                ext += hi_ - lo_
+            if ext > best:
+                best, mk = ext, i
+    elif marker_seen[0]:
+        mk = 0
+    if mk < 0:
+        return False
+    xy = np.empty((4, 2))
+    for c in range(4):
+        src = IPPE_ORDER[c]
+        xy[c, 0] = (corners[mk, src, 0] - cam.cx) / cam.fx
+        xy[c, 1] = (corners[mk, src, 1] - cam.cy) / cam.fy
+    g = np.empty((4, 4))
+    if not square_pose(p.square, xy, p.marker_centres[mk], g):
+        return False
+    p_body = np.empty(3)
+    dm = p.drone_mount
+    for i in range(3):
+        p_body[i] = dm[i, 0] * g[0, 3] + dm[i, 1] * g[1, 3] + dm[i, 2] * g[2, 3] + dm[i, 3]
+    a0, a1 = p.strains[0], p.strains[1]
+    ns = a1 - a0
+    qs_now = q[a0:a1].copy()
+    x, point, cost, feasible = plan_kernel(qs_now, m, p.rod[0], p.rod[1], p.mount_inv, p_body,
+                                           p.z_min, p.bound, True)  # fmt: skip
+    big = 0.0
+    for i in range(ns):
+        big = max(big, abs(x[i] - qs_now[i]))
+    s.traj_on[0] = 1.0
+    s.traj_t0[0] = t
+    s.traj_tf[0] = t + max(0.5, 1.5 * big / p.max_speed)
+    for i in range(ns):
+        s.traj_q0[i] = qs_now[i]
+        s.traj_dq[i] = x[i] - qs_now[i]
+        out.plan_qs[i] = x[i]
+    for i in range(3):
+        out.plan_point[i] = point[i]
+    out.planned[0] = True
+    out.plan_cost[0] = cost
+    out.plan_success[0] = feasible and cost < 1e-3
+    out.plan_duration[0] = s.traj_tf[0] - t
+    return True
+
+
+@njit(cache=True)
+def _follow(p, s, t, qdd_d):
+    """The cubic trajectory at ``t`` into the rod's strains of ``q_d``, ``qd_d``, ``qdd_d``
+    (:class:`~tdacm.control.CubicTrajectory`; the other coordinates held)."""
+    n = s.q_d.shape[0]
+    a0 = p.strains[0]
+    ns = s.traj_q0.shape[0]
+    t0, tf = s.traj_t0[0], s.traj_tf[0]
+    h = tf - t0
+    tt = min(max(t - t0, 0.0), h)
+    moving = not (t >= tf or t < t0)
+    for i in range(n):
+        s.qd_d[i] = 0.0
+    for i in range(ns):
+        d = s.traj_dq[i]
+        a2 = 3 * d / h**2
+        a3 = -2 * d / h**3
+        j = a0 + i
+        s.q_d[j] = s.traj_q0[i] + a2 * tt**2 + a3 * tt**3
+        if moving:
+            s.qd_d[j] = 2 * a2 * tt + 3 * a3 * tt**2
+            qdd_d[j] = 2 * a2 + 6 * a3 * tt
+
+
+@njit(cache=True)
+def _recovery(p, s, m, t, q, offered, g_found, corners, marker_seen, out):
+    """The recovery mode for one period: before a trajectory exists, hold and ask C_G for a
+    snapshot (not ``offered``), detect the target in it, plan and start from the current pose
+    with a level drone; then follow the trajectory. When C_G misses the target the robust
+    servo holds and asks again for ``lost_timeout`` s after the first miss; otherwise (and
+    when no plan exists) the period fails."""
+    n = q.shape[0]
+    if s.traj_on[0] == 0.0:
+        if not offered:  # hold and ask C_G for the next period
+            for i in range(n):
+                s.qd_d[i] = 0.0
+            out.request[0] = True
+            return
+        if not g_found:
+            for i in range(n):
+                s.qd_d[i] = 0.0
+            if not p.robust:
+                out.failure[0] = NOT_SEEN_BY_GLOBAL
+                return
+            if not np.isfinite(s.cg_missed[0]):
+                s.cg_missed[0] = t
+            if t - s.cg_missed[0] >= p.lost_timeout:
+                out.failure[0] = NOT_SEEN_BY_GLOBAL
+            else:
+                out.request[0] = True
+            return
+        s.cg_missed[0] = np.nan
+        if not _plan(p, s, m, t, q, corners, marker_seen, out):
+            for i in range(n):
+                s.qd_d[i] = 0.0
+            out.failure[0] = NO_POSE
+            return
+        for i in range(n):
+            s.q_d[i] = q[i]
+        if m.floating:
+            s.q_d[0] = 0.0
+            s.q_d[1] = 0.0
+    _follow(p, s, t, out.qdd_d)
+
+
+@njit(cache=True)
+def follow(p, s, m, q, rates, t, dt, qdd_d):
+    """IBVS mode on joint rates already mapped: shaped into ``qd_d`` and integrated into
+    ``q_d`` (:func:`shape`); the robust servo on a flying base adds the acceleration
+    feed-forward of the filtered rate into ``qdd_d`` (the low-level loop follows the
+    deceleration instead of lagging into an overshoot; the paper has ``qdd_d = 0``) and the
+    leak of ``q_d`` toward the estimate ``q`` (``q_d`` is only an integrated rate while the
+    vision loop closes on the actual pose: no wind-up while the plant lags)."""
+    n = q.shape[0]
+    qd_prev = s.qd_d.copy()
+    shape(p, s, rates, t, dt)
+    if p.robust and m.floating:
+        if p.accel_ff:
+            for i in range(n):
+                qdd_d[i] = (s.qd_d[i] - qd_prev[i]) / dt
+        if p.leak > 0.0:
+            cmd = p.commanded
+            for c in range(cmd.shape[0]):
+                j = cmd[c]
+                s.q_d[j] += p.leak * dt * (q[j] - s.q_d[j])
+
+
+@njit(cache=True)
+def servo_command(p, s, m, t, dt, q, offered, twist_in, g_found, corners, marker_seen, out):
+    """The end of a period (after :func:`servo_perceive`): in IBVS mode with a view (or an
+    external ``twist_in``, finite: a learning agent's action) the twist's joint rates
+    (:func:`joint_rates`) shaped into ``qd_d`` and integrated into ``q_d`` (the robust servo
+    adds the acceleration feed-forward of the filtered rate and the leak of ``q_d`` toward the
+    estimate on a flying base); in recovery the plan from C_G's snapshot (``g_found``, its
+    markers' ``corners`` and ``marker_seen``, read when :func:`needs_global`) and its cubic
+    trajectory; otherwise a hold."""
+    n = q.shape[0]
+    if out.failure[0] != NO_FAILURE:
+        return
+    mode = out.mode[0]
+    external = np.isfinite(twist_in[0])
+    if mode == IBVS and (out.seen[0] or external):
+        for i in range(6):
+            out.twist[i] = twist_in[i] if external else out.ibvs_twist[i]
+        rates = np.empty(n)
+        joint_rates(p, m, q, out.twist, rates)
+        follow(p, s, m, q, rates, t, dt, out.qdd_d)
+    elif mode == RECOVERY:
+        _recovery(p, s, m, t, q, offered, g_found, corners, marker_seen, out)
+    else:  # IBVS mode but the target is not seen (or nothing fused yet): hold
+        for i in range(n):
+            s.qd_d[i] = 0.0

@@ -144,7 +144,7 @@ class ArmsForceBlock:
         u = np.asarray(u_applied, float)
         r = e0.residual(q, qd, u, qdd)
         self._last = r
-        return self._reading(est.t, q, r, e0._r_cov(q, qd, u, qdd, est.P))
+        return self._reading(est.t, q, r, e0.residual_covariance(q, qd, u, qdd, est.P))
 
     def tare(self) -> None:
         """Every arm's estimator takes the last period's residual as the model's bias."""

@@ -194,10 +194,11 @@ def reseed(assembly: Assembly, seed: int) -> Assembly:
     loop.sensors.local.rng = np.random.default_rng([seed, 1])
     for k, sensor in enumerate(getattr(loop.sensors, "locals_", [])[1:], start=1):
         sensor.rng = np.random.default_rng([seed, 1, k])  # arm k's C_L ([[robot.arms]])
-    loop.plant.rng = np.random.default_rng(seed)
+    wind = None
     if loop.plant.wind is not None:  # the turbulence of [seed, WIND_STREAM]
         sc = assembly.scenario
-        loop.plant.wind = air_of(sc.config, assembly.world, seed, sc.source)[1]
+        wind = air_of(sc.config, assembly.world, seed, sc.source)[1]
+    loop.plant.reseed(np.random.default_rng(seed), wind)
     return replace(assembly, seed=seed)
 
 

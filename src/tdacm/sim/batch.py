@@ -13,28 +13,40 @@ world the rows the block loop built on that world's scenario has (tested equal).
 
 from __future__ import annotations
 
-import copy
-from collections import deque
 from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 
+from .._records import put, replicate, stack, take
 from ..batch import Batch, BatchResult
-from ..batch.control import P_MIN_LIFT_FORCE, controller_arrays
-from ..batch.engine import BatchModel
-from ..batch.pack import Unsupported, check_loop, servo_model, target_points
-from ..batch.params import ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams, robot_rows
-from ..batch.plant import plant_arrays
-from ..control.hierarchical import default_gains
+from ..batch.engine import BatchModel, Estimation, EstimationData
+from ..batch.params import MAX_LATENCY, ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams
+from ..control.hierarchical import TDACMController, controller_params, default_gains
+from ..estimation import ekf_step as EK
+from ..estimation.block import FilterBlock
+from ..estimation.config import EstimatorConfig, SensorSuiteConfig
+from ..estimation.ekf import ExtendedKalmanFilter, ekf_params
+from ..estimation.proprioception import SensorSuite
+from ..loop.arms import ArmsServo
+from ..loop.estimation import TrueState
+from ..loop.lowlevel import AdaptiveLowLevel, PDGravityController
 from ..loop.sensors import AnalyticFrontEnd, perturbed_camera
+from ..loop.servo import RobustServo, VisualServo
 from ..system.kernels import coupled_terms
+from ..system.worlds import robot_rows
+from ..vision.features import advanced_features, feature_interaction_matrix
 from .assemble import build_loop, reference_snapshot
+from .blocks import startup_sensors
 from .scenario import Scenario, ScenarioError, load_scenario
 
-#: the model arrays a world's robot replaces (:func:`~tdacm.batch.params.robot_rows`)
+#: the model arrays a world's robot replaces (:class:`~tdacm.system.worlds.RobotRows`)
 _ROBOT_FIELDS = ("stiffness", "damping", "step_mass", "mb6", "tendon_d", "tendon_dd")
 _GAINS = ("beta", "A_d", "A_p", "A_a")
+
+
+class Unsupported(ValueError):
+    """A scenario the engine does not run; the message names the key."""
 
 
 #: the scenario keys a world can have its own value of, and the
@@ -104,15 +116,6 @@ def world_scene(world, params: WorldParams | None, w: int):
     return replace(world.scene, **kw)
 
 
-def _sensor_for(local, target, scene):
-    """A copy of the tip camera ``local`` seeing ``target`` at ``scene``'s pose (for the
-    reference snapshot of a world with its own target pose)."""
-    out = copy.copy(local)
-    out.front_end = AnalyticFrontEnd(local.front_end.camera, target, scene.target_pose)
-    out._fifo = deque(maxlen=local.model.latency_steps + 1)
-    return out
-
-
 class _Robot:
     """A world's robot as :func:`~tdacm.control.hierarchical.default_gains` reads a system:
     its size and its mass matrix (of the world's model arrays ``m``)."""
@@ -126,10 +129,229 @@ class _Robot:
         return SimpleNamespace(M=coupled_terms(q, qd, self._m, self._loads, True)[0])
 
 
-def _gains_of(a, f) -> np.ndarray | None:
-    """``(3, n, n)`` the gains ``A_d, A_p, A_a`` of the robot of factors ``f`` (5,) when the
-    scenario's controller has the default gains (shaped by the robot's inertia at the desired
-    configuration); ``None``: the scenario's (other gains, or the scenario's masses)."""
+def arm_blocks(loop) -> tuple[list, list, list, list]:
+    """The per-arm blocks of an assembled loop: ``(tip cameras, C_G sensors, perceptions,
+    servos)``, one of each per arm (arm 0 first; C_G detecting each arm's marker)."""
+    sensors = loop.sensors
+    locals_ = list(getattr(sensors, "locals_", None) or [sensors.local])
+    globals_ = [sensors.global_, *getattr(sensors, "globals_", [])]
+    perceptions = list(getattr(loop.perception, "arms", None) or [loop.perception])
+    servos = list(loop.servo.arms) if isinstance(loop.servo, ArmsServo) else [loop.servo]
+    return locals_, globals_, perceptions, servos
+
+
+def refuse(loop) -> None:
+    """Refuse (:class:`Unsupported`, naming the scenario key) the blocks the engine does not
+    run: rendered cameras, a user's controller class, and what is not batched yet."""
+    locals_, globals_, _, servos = arm_blocks(loop)
+    if not all(isinstance(s.front_end, AnalyticFrontEnd) for s in locals_):
+        raise Unsupported(
+            "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"
+        )
+    several = isinstance(loop.servo, ArmsServo)
+    if (several and type(loop.servo) is not ArmsServo) or any(
+        type(s) not in (VisualServo, RobustServo) for s in servos
+    ):
+        raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched (touch.enabled)")
+    if not isinstance(loop.estimator, TrueState | FilterBlock):
+        raise Unsupported(
+            f"estimation: the engine runs the true state or the shipped EKF, got "
+            f"{type(loop.estimator).__name__}"
+        )
+    if loop.force is not None:
+        raise Unsupported("servoing into contact is not batched (touch.enabled)")
+    if any(g is None for g in globals_):
+        raise Unsupported("the engine needs the global camera C_G")
+    if not all(isinstance(g.front_end, AnalyticFrontEnd) for g in globals_):
+        raise Unsupported(
+            "the engine's global camera is analytic: set cameras.global_renderer = 'planar' "
+            "(with the analytic C_L)"
+        )
+    low = loop.controller
+    if type(low) not in (AdaptiveLowLevel, PDGravityController):
+        raise Unsupported(
+            f"controller.class: the engine runs the shipped controllers, got "
+            f"{type(low).__module__}.{type(low).__qualname__}"
+        )
+    if type(low.controller) is not TDACMController:
+        raise Unsupported("controller.class: the engine runs the shipped controllers")
+    if max(s.model.latency_steps for s in locals_) > MAX_LATENCY:
+        raise Unsupported(f"sensors.latency_steps: the engine buffers {MAX_LATENCY} frames")
+
+
+def _reference(points, depths):
+    """The servo's reference records of a snapshot: points (4, 2), depths (4,), features (6,)
+    and interaction matrix (6, 6)."""
+    pts = np.ascontiguousarray(points, float)
+    z = np.ascontiguousarray(np.broadcast_to(np.asarray(depths, float), (4,)))
+    return pts, z, advanced_features(pts), feature_interaction_matrix(pts, z)
+
+
+def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
+    """World ``w``'s block records (seed ``seed``, parameters row ``w`` of ``params``), each as
+    the block loop built on that world's scenario has it: the controller's (its model error
+    drawn from the seed, its gains and masses for the world's robot), and per arm (lists,
+    arm 0 first) the tip camera's (the world's target and imperfections), C_G's, the
+    perception's and the servo's (the seed's camera model and the reference snapshot taken
+    with it), and the robot's factors."""
+    loop = a.loop
+    low = loop.controller.controller
+    a.model.reseed(int(seed))
+    s = loop.plant.system
+    f = np.ones(len(ROBOT_FACTORS))
+    if params is not None:
+        f = params.robot_factors(params.n_worlds)[w]
+    gains = low.gains
+    if np.any(f != 1.0):
+        gains = _gains_of(a, f) or gains
+    ctl = controller_params(s, a.model, gains, low.config, low.exact_attitude, low.params.law)
+    if np.any(f != 1.0):
+        sd = a.model.damping_scale
+        d = a.model.system.model_arrays.damping * f[ROBOT_FACTORS.index("damping")]
+        mb = s.base.mass * f[ROBOT_FACTORS.index("drone_mass")] if s.floating else 0.0
+        rod = s.arms[0].rod
+        total = mb + (rod.mass * f[ROBOT_FACTORS.index("rod_mass")] + rod.tip_mass)
+        ctl = ctl._replace(
+            damping=np.ascontiguousarray(sd[:, None] * d * sd[None, :]),
+            min_lift_force=low.config.min_lift * float(total * np.linalg.norm(s.loads.gravity)),
+        )
+    world = a.world
+    locals_, globals_, perceptions, servos = arm_blocks(loop)
+    several = len(locals_) > 1
+    out = {"controller": ctl, "factors": f, "sensor": [], "global_sensor": [], "servo": [],
+           "perception": [], "ekf": _ekf_params(a)}  # fmt: skip
+    for k, (local, glob, perception, servo) in enumerate(
+        zip(locals_, globals_, perceptions, servos, strict=True)
+    ):
+        sensor, g_rec = local.params, glob.params
+        base_scene = world.scenes[k] if several else world.scene
+        scene = base_scene if several else world_scene(world, params, w)
+        if scene is not base_scene:  # the world's own target pose
+            fe = AnalyticFrontEnd(local.front_end.camera, world.target, scene.target_pose)
+            sensor = sensor._replace(corners=fe.corners_world, features=fe.features_world)
+            g_rec = g_rec._replace(corners=fe.corners_world, features=fe.features_world)
+        if params is not None and params.given(SENSOR_FIELDS):
+            m = local.model
+            row = params.sensor_rows([m.pixel_noise, m.dropout, m.latency_steps])[w]
+            sensor = sensor._replace(pixel_noise=float(row[0]), dropout=float(row[1]),
+                                     latency=int(row[2]))  # fmt: skip
+        s_rec, p_rec = servo.params, perception.params
+        err = local.model.intrinsics_error
+        if err > 0 or scene is not base_scene:  # the seed's camera model, its snapshot
+            cam = perception.local_camera
+            if err > 0:
+                nominal = world.robot.arms[k].local_camera if several else world.robot.local_camera
+                rng = np.random.default_rng([seed, 1, k] if k else [seed, 1])
+                cam = perturbed_camera(nominal, err, rng)
+            snap = local if scene is base_scene else local.seeing(world.target, scene.target_pose)
+            pts, z, feats, inter = _reference(
+                *reference_snapshot(snap, world.robot, world.target, scene, world.q_star, cam)
+            )
+            cp = cam.params()
+            s_rec = s_rec._replace(
+                camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
+                desired_interaction=inter, filter=s_rec.filter._replace(record=s_rec.filter.record.with_camera(cam)),
+            )  # fmt: skip
+            p_rec = p_rec._replace(camera=cp)
+        out["sensor"].append(sensor)
+        out["global_sensor"].append(g_rec)
+        out["servo"].append(s_rec)
+        out["perception"].append(p_rec)
+    return out
+
+
+def _ekf_params(a):
+    """The filter's record for the assembly's model as now seeded: the loop's EKF, or for a
+    loop on the true state a filter of the default sensors (unused: the engine's records
+    have one type for either)."""
+    est = a.loop.estimator
+    if isinstance(est, FilterBlock):
+        f = est.filter
+        return ekf_params(a.model, f.sensors, f.config, f.q_ref, f.camera)
+    s = a.model.system
+    return ekf_params(a.model, SensorSuiteConfig(), EstimatorConfig(), np.zeros(s.n_s), None)
+
+
+def estimation_records(a, seeds, rows, dt: float) -> tuple[Estimation, EstimationData]:
+    """The engine's estimation records of the worlds ``seeds`` (their filters' ``rows``): the
+    loop's EKF and sensors when it runs on estimates, else records of the default sensors that
+    the engine does not read (``on`` false)."""
+    loop = a.loop
+    est = loop.estimator
+    s = loop.plant.system
+    n = len(seeds)
+    on = isinstance(est, FilterBlock)
+    if on:
+        other = loop.sensors.other
+        suite_cfg = est.filter.sensors
+        filt = est.filter
+    else:
+        other, suite_cfg, filt = {}, SensorSuiteConfig(), None
+    # the sensors' records; a robot without a drone has no pose sensor and no IMU: disabled
+    off = suite_cfg.model_copy(update=dict(
+        pose=suite_cfg.pose.model_copy(update=dict(enabled=False)),
+        imu=suite_cfg.imu.model_copy(update=dict(enabled=False)),
+    ))  # fmt: skip
+    drone = SensorSuite(_Floating(s), off, 0)
+    pose = other.get("pose", drone.pose)
+    imu = other.get("imu", drone.imu)
+    encoders = other.get("encoders") or SensorSuite(s, suite_cfg, 0).encoders
+    start = startup_sensors(suite_cfg, s, 0)
+    start_pose = start.pose if start.pose is not None else drone.pose
+    ekf = stack([r["ekf"] for r in rows])
+    p0 = take(ekf, 0)
+    nominal = est.nominal_q if on else np.zeros(s.n)
+    q_ref = filt.q_ref if on else np.zeros(s.n_s)
+    model = Estimation(
+        on=on,
+        ekf=ekf,
+        pose=replicate(pose.params, n),
+        imu=replicate(imu.params, n),
+        encoders=replicate(encoders.params, n),
+        start_pose=replicate(start_pose.params, n),
+        start_encoders=replicate(start.encoders.params, n),
+        measured=bool(on and est.initial_measurements is not None),
+        nominal=replicate(np.asarray(nominal, float), n),
+        q_ref=replicate(np.asarray(q_ref, float), n),
+        strain_error=float(est.strain_error) if on else 0.0,
+        position_error=float(est.position_error) if on else 0.0,
+        fuse_view=bool(on and est.normalize is not None),
+    )
+    window = EK.window_ticks(filt.config.max_delay, dt) if on else 2
+    slots = 2 * ExtendedKalmanFilter.SLOTS
+    data = EstimationData(
+        ekf=EK.EkfState.empty(p0, window, slots),
+        meas=EK.EkfMeasurements.empty(p0, slots),
+        pose=pose.state,
+        imu=imu.state,
+        encoders=encoders.state,
+        start_pose=start_pose.state,
+        start_encoders=start.encoders.state,
+        q_hat=np.zeros(s.n),
+        qd_hat=np.zeros(s.n),
+        p_qq=np.zeros((s.n, s.n)),
+        status=np.zeros(1, np.int64),
+        qdd=np.zeros(s.n),
+        has_qdd=np.zeros(1, np.bool_),
+        out=np.zeros(max(12, s.n_a)),
+    )
+    return model, data
+
+
+class _Floating:
+    """A system as a sensor suite reads it, with a drone (for disabled drone sensors)."""
+
+    def __init__(self, system):
+        self.floating = True
+        self.loads = system.loads
+        self.model_arrays = system.model_arrays
+        self.n_s, self.n_a = system.n_s, system.n_a
+
+
+def _gains_of(a, f):
+    """``AdaptiveGains`` of the robot of factors ``f`` (5,) when the scenario's controller has
+    the default gains (shaped by the robot's inertia at the desired configuration); ``None``:
+    the scenario's (other gains, or the scenario's masses)."""
     mass = [ROBOT_FACTORS.index("drone_mass"), ROBOT_FACTORS.index("rod_mass")]
     if np.all(f[mass] == 1.0):
         return None
@@ -140,51 +362,8 @@ def _gains_of(a, f) -> np.ndarray | None:
     if any(not np.array_equal(getattr(nominal, k), getattr(c.gains, k)) for k in _GAINS):
         return None  # gains given by the user: not shaped by the inertia
     rows = robot_rows(s.model_arrays, f[None, :])
-    m = s.model_arrays._replace(mb6=rows["mb6"][0], step_mass=rows["step_mass"][0])
-    g = default_gains(_Robot(s, m), q_star, c.config)
-    return np.ascontiguousarray(np.stack([g.A_d, g.A_p, g.A_a]), dtype=float)
-
-
-def _world_rows(a, seed: int, params: WorldParams | None, w: int) -> dict:
-    """World ``w``'s rows (seed ``seed``, parameters row ``w`` of ``params``): the
-    controller's model error, scalars and gains, its camera model, reference snapshot and
-    target."""
-    loop = a.loop
-    a.model.reseed(int(seed))
-    ca, _ = controller_arrays(loop.controller, loop.dt)
-    out = {"coord": ca.coord, "damping": ca.damping, "params": ca.params, "gains": ca.gains}
-    f = None if params is None else params.robot_factors(params.n_worlds)[w]
-    if f is not None and np.any(f != 1.0):
-        gains = _gains_of(a, f)
-        if gains is not None:
-            out["gains"] = gains
-        sd = a.model.damping_scale
-        d = a.model.system.model_arrays.damping * f[ROBOT_FACTORS.index("damping")]
-        out["damping"] = np.ascontiguousarray(sd[:, None] * d * sd[None, :])
-        c = loop.controller.controller
-        s = loop.plant.system
-        mb = s.base.mass * f[ROBOT_FACTORS.index("drone_mass")] if s.floating else 0.0
-        rod = s.arms[0].rod
-        total = mb + (rod.mass * f[ROBOT_FACTORS.index("rod_mass")] + rod.tip_mass)
-        p = ca.params.copy()
-        p[P_MIN_LIFT_FORCE] = c.min_lift * float(total * np.linalg.norm(s.loads.gravity))
-        out["params"] = p
-    world = a.world
-    scene = world_scene(world, params, w)
-    local = loop.sensors.local
-    err = local.model.intrinsics_error
-    own_target = scene is not world.scene
-    cam = None
-    if err > 0:  # the seed's camera model and the reference snapshot it takes
-        cam = perturbed_camera(world.robot.local_camera, err, np.random.default_rng([seed, 1]))
-    if err > 0 or own_target:
-        sensor = _sensor_for(local, world.target, scene) if own_target else local
-        ctl = loop.perception.local_camera if cam is None else cam
-        out["ctl"] = ctl
-        out["ref"] = reference_snapshot(sensor, world.robot, world.target, scene, world.q_star, ctl)
-    if own_target:
-        out["target"] = target_points(world.target, scene.target_pose)
-    return out
+    m = s.model_arrays._replace(mb6=rows.mb6[0], step_mass=rows.step_mass[0])
+    return default_gains(_Robot(s, m), q_star, c.config)
 
 
 def build_batch(
@@ -216,53 +395,43 @@ def build_batch(
             raise ScenarioError(f"params: {params.n_worlds} worlds for {seeds.size} seeds")
         if params.n_worlds is None:
             params = None
+        elif params.latency is not None and np.any(params.latency > MAX_LATENCY):
+            raise ScenarioError(f"params.latency: the engine buffers {MAX_LATENCY} frames")
     a = build_loop(sc, int(seeds[0])) if assembly is None else assembly
     loop = a.loop
     try:
-        check_loop(loop)  # the blocks first: a refusal names the scenario's key
-        base, cm = controller_arrays(loop.controller, loop.dt)
-        pa, pm = plant_arrays(loop.plant)
+        refuse(loop)  # the blocks first: a refusal names the scenario's key
+        pm = loop.plant.system.model_arrays
+        cm = a.model.system.model_arrays
         if any(not np.array_equal(getattr(pm, k), getattr(cm, k)) for k in _ROBOT_FIELDS):
             raise Unsupported("the controller's model describes another robot than the plant")
-        rows = [_world_rows(a, int(s), params, w) for w, s in enumerate(seeds)]
+        rows = [world_records(a, int(s), params, w) for w, s in enumerate(seeds)]
         a.model.reseed(int(seeds[0]))
-        ctl = refs = targets = None
-        if any("ref" in r for r in rows):
-            ctl = [r.get("ctl", loop.perception.local_camera) for r in rows]
-            refs = [r.get("ref", (loop.servo.desired_points, loop.servo.desired_depths))
-                    for r in rows]  # fmt: skip
-        if any("target" in r for r in rows):
-            fe = loop.sensors.local.front_end
-            shared = (np.array(fe._corners_w, float), fe._features_w)
-            targets = [r.get("target", shared) for r in rows]
-        sensor = None
-        if params is not None and params.given(SENSOR_FIELDS):
-            m = loop.sensors.local.model
-            sensor = params.sensor_rows([m.pixel_noise, m.dropout, m.latency_steps])
-        sm = servo_model(loop, seeds.size, ctl, refs, targets, sensor)
+        estimation, estimation_data = estimation_records(a, seeds, rows, float(loop.dt))
     except (Unsupported, ValueError) as exc:
         raise ScenarioError(f"{sc.source}: the batched engine: {exc}") from None
-    f = (
-        np.ones((seeds.size, len(ROBOT_FACTORS)))
-        if params is None
-        else params.robot_factors(seeds.size)
-    )
-    robot = robot_rows(pm, f)
     dur = float(sc.data["duration"] if duration is None else duration)
-    steps = int(round(dur / loop.dt))
+    n = seeds.size
+    arms = lambda key: stack([stack(r[key]) for r in rows])  # noqa: E731 - (worlds, arms)
     model = BatchModel(
-        sm, base, cm,
-        np.ascontiguousarray([r["coord"] for r in rows]),
-        np.ascontiguousarray([r["damping"] for r in rows]),
-        np.ascontiguousarray([r["params"] for r in rows]),
-        pa, pm, float(loop.dt), steps,
-        robot["stiffness"], robot["rod_damping"], robot["step_mass"], robot["mb6"],
-        robot["tendon_d"], robot["tendon_dd"],
-        np.ascontiguousarray([r["gains"] for r in rows]),
-    )  # fmt: skip
+        sensor=arms("sensor"),
+        global_sensor=arms("global_sensor"),
+        perception=arms("perception"),
+        servo=arms("servo"),
+        controller=stack([r["controller"] for r in rows]),
+        safety=replicate(loop.safety.params, n),
+        plant=replicate(loop.plant.params, n),
+        robot=robot_rows(pm, np.array([r["factors"] for r in rows])),
+        plant_model=pm,
+        control_model=cm,
+        dt=float(loop.dt),
+        steps=int(round(dur / loop.dt)),
+        global_every=int(loop.sensors.global_every),
+        n_arms=len(loop.plant.system.arms),
+        estimation=estimation,
+    )
     q0 = a.world.q0 if q0 is None else q0
-    n_u = loop.plant.system.n_u
-    batch = Batch(model, seeds, q0, a.world.qd0, n_u, threads)
+    batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads, estimation_data)
     batch.params = params
     return batch
 
@@ -277,53 +446,26 @@ def run_batch(
 def reseed_world(batch: Batch, assembly, w: int, seed: int, params=None) -> None:
     """Give world ``w`` of ``batch`` (built by :func:`build_batch` with ``assembly``) the seed
     ``seed`` and the parameters ``params`` (a :class:`~tdacm.batch.params.WorldParams` of one
-    world; ``None``: the batch's own for ``w``): its rows in place, drawn as
+    world; ``None``: the batch's own for ``w``): its records in place, drawn as
     :func:`build_batch` draws them, and ``batch.seeds[w]``, from which
     :meth:`~tdacm.batch.Batch.reset` starts its random streams. A latency beyond the one the
-    batch was built with is refused (its buffers are sized then). Call ``batch.reset`` for
-    the world afterwards."""
+    batch was built with is refused (its buffers are sized then). Call ``batch.reset`` for the
+    world afterwards."""
     seed = int(seed)
     if seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed}")
-    loop, model = assembly.loop, batch.model
+    model = batch.model
     row, rw = params, 0
     if row is None and getattr(batch, "params", None) is not None:
         row, rw = batch.params, w
-    r = _world_rows(assembly, seed, row, rw)
-    model.coord[w] = r["coord"]
-    model.damping[w] = r["damping"]
-    model.control_params[w] = r["params"]
-    model.gains[w] = r["gains"]
-    sm = model.servo
-    if "ref" in r:
-        one = servo_model(loop, 1, [r["ctl"]], [r["ref"]])
-        sm.ctl_camera[w] = one.ctl_camera[0]
-        sm.desired_points[w] = one.desired_points[0]
-        sm.desired_depths[w] = one.desired_depths[0]
-        sm.desired_features[w] = one.desired_features[0]
-        sm.desired_interaction[w] = one.desired_interaction[0]
-    fe = loop.sensors.local.front_end
-    corners, features = r.get("target", (np.array(fe._corners_w, float), fe._features_w))
-    sm.corners[w] = corners
-    sm.features[w] = features
-    m = loop.sensors.local.model
-    nominal = [m.pixel_noise, m.dropout, m.latency_steps]
-    sn = nominal if row is None else row.sensor_rows(nominal)[rw]
-    if sn[2] > batch.data.fifo_found.shape[1] - 1:
-        raise ValueError(
-            f"latency {int(sn[2])}: the batch buffers {batch.data.fifo_found.shape[1] - 1} frames"
-        )
-    sm.sensor[w] = sn
-    f = (
-        np.ones((1, len(ROBOT_FACTORS)))
-        if row is None
-        else row.robot_factors(row.n_worlds)[rw : rw + 1]
-    )
-    rr = robot_rows(model.plant_model, f)
-    model.stiffness[w] = rr["stiffness"][0]
-    model.rod_damping[w] = rr["rod_damping"][0]
-    model.step_mass[w] = rr["step_mass"][0]
-    model.mb6[w] = rr["mb6"][0]
-    model.tendon_d[w] = rr["tendon_d"][0]
-    model.tendon_dd[w] = rr["tendon_dd"][0]
+    r = world_records(assembly, seed, row, rw)
+    cap = batch.data.sensor.found.shape[2] - 1
+    latency = max(s.latency for s in r["sensor"])
+    if latency > cap:
+        raise ValueError(f"latency {latency}: the batch buffers {cap} frames")
+    for key in ("sensor", "global_sensor", "perception", "servo"):
+        put(getattr(model, key), w, stack(r[key]))
+    put(model.controller, w, r["controller"])
+    put(model.estimation.ekf, w, r["ekf"])
+    put(model.robot, w, take(robot_rows(model.plant_model, r["factors"][None, :]), 0))
     batch.seeds[w] = seed

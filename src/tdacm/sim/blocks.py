@@ -23,6 +23,7 @@ from .._linalg import solve as _solve
 from ..aero.config import AerodynamicsConfig
 from ..control import EstimatedModel
 from ..control.allocation import box_least_squares
+from ..control.config import ModelConfig
 from ..estimation import (
     EstimatorConfig,
     ExtendedKalmanFilter,
@@ -39,7 +40,6 @@ from ..loop.config import (
     CamerasConfig,
     ControllerConfig,
     IbvsConfig,
-    ModelConfig,
     RecoveryConfig,
     SensorModel,
     ServoConfig,
@@ -68,6 +68,7 @@ from ..vision.features import estimate_depths
 from ..vision.target_filter import reference_from_pose
 from ..vision.virtual import virtual_camera_points, virtual_camera_transform, virtual_pose
 from .config import ScenarioConfig, SceneSection
+from .robot import TipConfig
 from .scenario import ScenarioError
 
 #: The paper profile's command shaping: no rate limits, no ramp, no filter (docs/control.md,
@@ -391,7 +392,9 @@ def air_of(cfg: ScenarioConfig, world, seed: int, source: str = "scenario"):
     return aero_array(s, record), wind
 
 
-def contact_plant_options(scene: SceneSection, system, tip_mount=None, probe_length=0.0) -> dict:
+def contact_plant_options(
+    scene: SceneSection, system, tip_mount=None, probe_length: float = TipConfig().probe_length
+) -> dict:
     """The :class:`~tdacm.loop.plant.Plant` keywords of ``[scene]``'s obstacles and
     ``[scene.contact]`` (none without obstacles: the contact-free plant); the tip sphere on
     a probe of ``probe_length`` along the optical axis of C_L mounted at ``tip_mount``."""
@@ -466,6 +469,27 @@ def truth_of(world, local: CameraSensor):
 
 
 # ----------------------------------------------------------------------------- estimation
+#: the start-up reading's random streams: an independent copy of the sensors
+#: (:func:`startup_sensors`)
+STARTUP_STREAM_OFFSET = 100
+
+
+def startup_sensors(config, system, seed: int) -> SensorSuite:
+    """The start-up reading's sensors (``estimation.initial_guess = "measured"``): a copy of
+    the suite of ``config`` (a :class:`~tdacm.estimation.SensorSuiteConfig`) with the pose and
+    the encoders enabled, no latency and no dropout (read before the run starts), on their own
+    streams."""
+    start = config.model_copy(
+        update=dict(
+            pose=config.pose.model_copy(update=dict(latency=0.0, dropout=0.0, enabled=True)),
+            encoders=config.encoders.model_copy(
+                update=dict(latency=0.0, dropout=0.0, enabled=True)
+            ),
+        )
+    )
+    return SensorSuite(system, start, seed, stream_offset=STARTUP_STREAM_OFFSET)
+
+
 def proprioceptive_sensors(sensors, system, seed: int) -> SensorSuite:
     """The drone pose, IMU and tendon-encoder sensors of a ``[sensors]`` record (a
     :class:`~tdacm.estimation.SensorSuite` seeded by ``[seed, 11..13]``): the sensors block
@@ -498,15 +522,7 @@ def estimation_block(
     cfg = suite.config
     init = None
     if est.initial_guess == "measured":
-        start = cfg.model_copy(
-            update=dict(
-                pose=cfg.pose.model_copy(update=dict(latency=0.0, dropout=0.0, enabled=True)),
-                encoders=cfg.encoders.model_copy(
-                    update=dict(latency=0.0, dropout=0.0, enabled=True)
-                ),
-            )
-        )
-        first = SensorSuite(system, start, seed, stream_offset=100)
+        first = startup_sensors(cfg, system, seed)
 
         def init(t):
             first.reset(t)

@@ -2,12 +2,14 @@
 
 Layout (one default per value, imports one way): each block declares the record of the
 section it reads next to its code - :mod:`tdacm.loop.config` (``[ibvs]``, ``[recovery]``,
-``[controller]``, ``[model]``, ``[cameras]``, ``[safety]``, ``[disturbances]``, the camera
-keys of ``[sensors]``), :mod:`tdacm.aero.config` (``[aerodynamics]``, ``[wind]``),
-:mod:`tdacm.estimation.config` (``[estimation]``, the proprioceptive keys of ``[sensors]``),
-:mod:`tdacm.sim.robot` (``[robot]``, defaults from
-:mod:`tdacm.paper_values`) - and this module composes them with the sections that only the
-simulation reads (``[system]``, ``[initial]``, ``[desired]``, ``[scene]``, ``[expect]``).
+``[controller]``, ``[cameras]``, ``[safety]``, ``[disturbances]``, the camera keys of
+``[sensors]``), :mod:`tdacm.control.config` (``[model]``), :mod:`tdacm.contact.config`
+(``[scene.contact]``, ``[[scene.obstacles]]``), :mod:`tdacm.aero.config` (``[aerodynamics]``,
+``[wind]``), :mod:`tdacm.estimation.config` (``[estimation]``, the proprioceptive keys of
+``[sensors]``), :mod:`tdacm.sim.robot` (``[robot]``, defaults from :mod:`tdacm.paper_values`) -
+and this module composes them with the sections that only the simulation reads (``[system]``,
+``[initial]``, ``[desired]``, ``[scene]`` with the defaults of the rendered scene
+:class:`~tdacm.vision.scene.SceneConfig`, ``[expect]``).
 The records are pydantic models (:mod:`tdacm._config`): the same declaration gives the
 validation, the JSON Schema (``tdacm schema``) and docs/scenario-reference.md
 (:func:`reference_markdown`).
@@ -27,13 +29,14 @@ from pydantic import BaseModel, ValidationError, create_model, field_validator
 from .._config import ConfigModel, Field
 from ..aero.config import AerodynamicsConfig, WindConfig
 from ..contact.config import ContactConfig, ObstacleConfig
+from ..control.config import ModelConfig
 from ..estimation.config import EstimationConfig, ProprioceptiveSensors
 from ..loop.config import (
+    PLANT_SUBSTEPS,
     CamerasConfig,
     ControllerConfig,
     DisturbancesConfig,
     IbvsConfig,
-    ModelConfig,
     RecoveryConfig,
     SafetyConfig,
     SensorModel,
@@ -42,6 +45,7 @@ from ..loop.config import (
     Vec2,
     Vec6,
 )
+from ..vision.scene import SceneConfig
 from .robot import RobotConfig
 
 
@@ -80,15 +84,23 @@ class DesiredConfig(ConfigModel):
     )
 
 
+_SCENE = SceneConfig()  # the box and the target's pose (one source: tdacm.vision.scene)
+
+
 class SceneSection(ConfigModel):
     """Section ``[scene]``: the target on its box, and the obstacles the arm touches."""
 
     target: Literal["aruco", "apriltag"] = Field("aruco", description="fiducial target")
-    box_size: float = Field(0.4, gt=0, description="m, edge of the box the target lies on")
-    box_xy: Vec2 = Field([0.0, 0.0], description="m, the box's position in the world")
-    target_yaw_deg: float = Field(0.0, description="deg, the target's yaw about world z")
+    box_size: float = Field(
+        _SCENE.box_size, gt=0, description="m, edge of the box the target lies on"
+    )
+    box_xy: Vec2 = Field(list(_SCENE.box_xy), description="m, the box's position in the world")
+    target_yaw_deg: float = Field(
+        _SCENE.target_yaw_deg, description="deg, the target's yaw about world z"
+    )
     target_tilt_deg: Vec2 = Field(
-        [0.0, 0.0], description="deg, the target's tilt about world x, y (within +-30)"
+        list(_SCENE.target_tilt_deg),
+        description="deg, the target's tilt about world x, y (within +-30)",
     )
     obstacles: list[ObstacleConfig] = Field(
         [], description="[[scene.obstacles]]: planes, spheres, boxes, cylinders the arm touches"
@@ -130,7 +142,7 @@ class ScenarioConfig(ConfigModel):
     description: str = Field("", description="one line shown by `tdacm scenarios`")
     duration: float = Field(5.0, gt=0, description="s, simulated time")
     dt: float = Field(0.02, gt=0, description="s, control period")
-    substeps: int = Field(4, ge=1, description="plant RK4 steps per control period")
+    substeps: int = Field(PLANT_SUBSTEPS, ge=1, description="plant RK4 steps per control period")
     seed: int = Field(0, ge=0, description="seed of every random draw of the run")
     system: SystemConfig = SystemConfig()
     robot: RobotConfig = RobotConfig()

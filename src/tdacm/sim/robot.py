@@ -345,7 +345,7 @@ class Robot:
     global_camera: PinholeCamera
     tip_mount: np.ndarray  # g_{C_L}^L
     drone_mount: np.ndarray  # g_{C_G}^b
-    probe_length: float = 0.0  # m, the contact sphere ahead of C_L ([robot.tip])
+    probe_length: float  # m, the contact sphere ahead of C_L ([robot.tip])
     arms: tuple = ()  # ArmRobot per arm ([[robot.arms]]); empty: the single-arm form
 
 

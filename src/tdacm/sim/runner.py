@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import inspect
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,12 +24,24 @@ from ..loop.closed_loop import ClosedLoop, controller_name
 from ..loop.data import PHASES
 from ..loop.safety import SafetyMonitor
 from ..loop.sensors import RenderedFrontEnd
-from ..loop.servo import MODE_CODES, normalized_rmse
+from ..loop.servo import MODE_CODES, normalized_rmse, target_estimate
 from .assemble import Assembly, World, build_loop, camera_pose_error
 from .outputs import write_run
 from .scenario import Scenario, check_run, load_scenario
 
-__all__ = ["MODE_CODES", "SafetyMonitor", "Simulation", "normalized_rmse", "run_scenario"]
+__all__ = [
+    "MODE_CODES",
+    "SUCCESS_RMSE",
+    "SafetyMonitor",
+    "Simulation",
+    "normalized_rmse",
+    "run_scenario",
+]
+
+#: The normalized RMSE at or below which a run counts as a success by default: a campaign's
+#: ``success_rmse`` (:class:`~tdacm.campaign.spec.CampaignSpecConfig`) and the servoing task's
+#: (:class:`~tdacm.envs.options.EnvOptions`).
+SUCCESS_RMSE = 0.01
 
 
 class Simulation:
@@ -109,77 +122,127 @@ class Simulation:
         return result.arrays, summary
 
     def summary(self, assembly: Assembly, result) -> dict:
+        """The run's summary (:func:`run_summary`) from the loop's result."""
         loop = assembly.loop
-        a = result.arrays
-        s = loop.plant.system
-        rmse = a["rmse"]
-        t = a["t"]
-        finite = np.isfinite(rmse)
-        initial = float(rmse[finite][0]) if finite.any() else None
-        final = float(rmse[finite][-1]) if finite.any() else None
+        return run_summary(
+            assembly,
+            result.arrays,
+            RunOutcome(
+                seed=self.seed,
+                requested_duration=self.duration,
+                wall_time_s=result.wall_time_s,
+                terminated=bool(result.terminated),
+                reason=result.reason,
+                termination=result.termination,
+                switch_time=result.switch_time,
+                plan=result.plan,
+                controller_failure=result.controller_failure,
+                target_estimate=target_estimate(loop.servo),
+                estimator_timings=getattr(loop.estimator, "timings", None),
+            ),
+        )
 
-        def reach(level):
-            idx = np.flatnonzero(finite & (rmse <= level))
-            return float(t[idx[0]]) if idx.size else None
 
-        # after convergence the RMSE wanders (docs/estimation.md, "What limits test C"): the last
-        # sample alone (final_rmse) ranks runs noisily; late_rmse_1s is the windowed criterion
-        last2 = last_samples(t, rmse, 2.0)
+@dataclass(frozen=True)
+class RunOutcome:
+    """How a run went besides its arrays, for :func:`run_summary`: its seed, the duration
+    asked for, its wall time, why it ended (``terminated``, ``reason``, ``termination``), when
+    IBVS first engaged after a recovery (``switch_time``), the recovery's plan, the low-level
+    controller's failure, the robust servo's final estimate of the target
+    (``target_estimate``: ``(pose, covariance, rejected frames)`` or ``None``) and the
+    estimator's step times (s, or ``None``)."""
 
-        u = a["u"]
-        na = s.n_a
-        sim_t = float(t[-1]) if t.size else 0.0
-        q_star = assembly.world.q_star
-        cam_dp = cam_da = drone_dp = None
-        if t.size:
-            cam_dp, cam_da = camera_pose_error(loop, a["q"][-1], q_star)
-            if s.floating:
-                drone_dp = float(np.linalg.norm(a["q"][-1][3:6] - q_star[3:6]))
-        cfg = self.scenario.config
-        return {
-            "scenario": self.scenario.name,
-            "seed": self.seed,
-            "duration": sim_t,
-            "requested_duration": self.duration,
-            "dt": cfg.dt,
-            "perturbation": cfg.model.perturbation,
-            "initial_rmse": initial,
-            "final_rmse": final,
-            "min_rmse": float(np.nanmin(rmse)) if finite.any() else None,
-            "late_rmse_1s": late_rmse(t, rmse, 1.0),
-            "within_0.01_last_2s": float(np.mean(last2 <= 0.01)) if last2.size else None,
-            "time_to_0.01": reach(0.01),
-            "time_to_0.001": reach(0.001),
-            "mode_switch_time": result.switch_time,
-            "initial_mode": "recovery" if a["mode"].size and a["mode"][0] == 1 else "ibvs",
-            "recovery_plan": result.plan,
-            "terminated": bool(result.terminated),
-            "termination_reason": result.reason,
-            "termination": None if result.termination is None else str(result.termination),
-            "final_camera_position_error_m": cam_dp,
-            "final_camera_rotation_error_deg": cam_da,
-            "final_drone_position_error_m": drone_dp,
-            "wall_time_s": result.wall_time_s,
-            "wall_per_sim_second": result.wall_time_s / sim_t if sim_t > 0 else None,
-            "max_tension": float(u[:, -na:].max()) if u.size else 0.0,
-            "min_tension": float(u[:, -na:].min()) if u.size else 0.0,
-            "max_thrust": float(u[:, :4].max()) if (u.size and s.floating) else None,
-            "tension_saturated_steps": int(np.sum(a["tension_saturated"])),
-            "thrust_saturated_steps": int(np.sum(a["thrust_saturated"])),
-            "final_q": a["q"][-1].tolist() if a["q"].size else None,
-            "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
-            "profile": cfg.controller.profile,
-            # an ablation (tdacm.loop.ablation): the controller read these from the plant
-            "controller_truth": cfg.estimation.controller_truth or None,
-            "controller": controller_provenance(loop.controller),
-            "controller_failure": _failure(result.controller_failure),
-            "final_rmse_true": _last_finite(a.get("rmse_true")),
-            "final_rmse_measured": _last_finite(a.get("rmse_measured")),
-            **arms_summary(a),
-            **touch_summary(a, cfg),
-            **_target_merit(loop, assembly.world),
-            **estimation_summary(a, s, cfg.estimation.source, loop),
-        }
+    seed: int
+    requested_duration: float
+    wall_time_s: float
+    terminated: bool
+    reason: str | None
+    termination: object
+    switch_time: float | None
+    plan: dict | None
+    controller_failure: object = None
+    target_estimate: tuple | None = None
+    estimator_timings: object = None
+
+
+def run_summary(assembly: Assembly, a: dict, outcome: RunOutcome) -> dict:
+    """The summary of a run of ``assembly``'s scenario from its arrays ``a`` (the
+    :class:`~tdacm.loop.logger.RunLog` arrays: ``t``, ``rmse``, ``mode``, ``q``, ``u``, the
+    saturation flags, the detections; the others where the run has them) and ``outcome``:
+    one summary for ``tdacm run``, the campaigns and the batched engine."""
+    loop = assembly.loop
+    s = loop.plant.system
+    scenario = assembly.scenario
+    rmse = a["rmse"]
+    t = a["t"]
+    finite = np.isfinite(rmse)
+    initial = float(rmse[finite][0]) if finite.any() else None
+    final = float(rmse[finite][-1]) if finite.any() else None
+
+    def reach(level):
+        idx = np.flatnonzero(finite & (rmse <= level))
+        return float(t[idx[0]]) if idx.size else None
+
+    # after convergence the RMSE wanders (docs/estimation.md, "What limits test C"): the last
+    # sample alone (final_rmse) ranks runs noisily; late_rmse_1s is the windowed criterion
+    last2 = last_samples(t, rmse, 2.0)
+
+    u = a["u"]
+    na = s.n_a
+    sim_t = float(t[-1]) if t.size else 0.0
+    q_star = assembly.world.q_star
+    cam_dp = cam_da = drone_dp = None
+    if t.size:
+        cam_dp, cam_da = camera_pose_error(loop, a["q"][-1], q_star)
+        if s.floating:
+            drone_dp = float(np.linalg.norm(a["q"][-1][3:6] - q_star[3:6]))
+    cfg = scenario.config
+    wall = outcome.wall_time_s
+    term = outcome.termination
+    return {
+        "scenario": scenario.name,
+        "seed": outcome.seed,
+        "duration": sim_t,
+        "requested_duration": outcome.requested_duration,
+        "dt": cfg.dt,
+        "perturbation": cfg.model.perturbation,
+        "initial_rmse": initial,
+        "final_rmse": final,
+        "min_rmse": float(np.nanmin(rmse)) if finite.any() else None,
+        "late_rmse_1s": late_rmse(t, rmse, 1.0),
+        "within_0.01_last_2s": float(np.mean(last2 <= 0.01)) if last2.size else None,
+        "time_to_0.01": reach(0.01),
+        "time_to_0.001": reach(0.001),
+        "mode_switch_time": outcome.switch_time,
+        "initial_mode": "recovery" if a["mode"].size and a["mode"][0] == 1 else "ibvs",
+        "recovery_plan": outcome.plan,
+        "terminated": bool(outcome.terminated),
+        "termination_reason": outcome.reason,
+        "termination": None if term is None else str(term),
+        "final_camera_position_error_m": cam_dp,
+        "final_camera_rotation_error_deg": cam_da,
+        "final_drone_position_error_m": drone_dp,
+        "wall_time_s": wall,
+        "wall_per_sim_second": wall / sim_t if sim_t > 0 else None,
+        "max_tension": float(u[:, -na:].max()) if u.size else 0.0,
+        "min_tension": float(u[:, -na:].min()) if u.size else 0.0,
+        "max_thrust": float(u[:, :4].max()) if (u.size and s.floating) else None,
+        "tension_saturated_steps": int(np.sum(a["tension_saturated"])),
+        "thrust_saturated_steps": int(np.sum(a["thrust_saturated"])),
+        "final_q": a["q"][-1].tolist() if a["q"].size else None,
+        "local_detection_rate": float(np.mean(a["detected_local"])) if t.size else 0.0,
+        "profile": cfg.controller.profile,
+        # an ablation (tdacm.loop.ablation): the controller read these from the plant
+        "controller_truth": cfg.estimation.controller_truth or None,
+        "controller": controller_provenance(loop.controller),
+        "controller_failure": _failure(outcome.controller_failure),
+        "final_rmse_true": _last_finite(a.get("rmse_true")),
+        "final_rmse_measured": _last_finite(a.get("rmse_measured")),
+        **arms_summary(a),
+        **touch_summary(a, cfg),
+        **_target_merit(outcome.target_estimate, assembly.world),
+        **estimation_summary(a, s, cfg.estimation.source, outcome.estimator_timings),
+    }
 
 
 def controller_provenance(controller) -> dict:
@@ -318,21 +381,22 @@ def _last_finite(x):
     return float(x[f][-1]) if f.any() else None
 
 
-def _target_merit(loop: ClosedLoop, world: World) -> dict:
-    """Final error of the robust servo's target estimate and its own 1-sigma (worst
+def _target_merit(estimate, world: World) -> dict:
+    """Final error of the robust servo's target estimate (``(pose, covariance, rejected)``
+    or ``None``, :func:`~tdacm.loop.servo.target_estimate`) and its own 1-sigma (worst
     rotation direction), when the servo has one."""
-    filt = getattr(loop.servo, "target_filter", None)
-    if filt is None or not filt.initialized:
+    if estimate is None:
         return {}
+    pose, cov, rejected = estimate
     g_t = world.scene.target_pose
-    e = np.linalg.solve(g_t, filt.pose)
+    e = np.linalg.solve(g_t, pose)
     ang = float(np.degrees(rotation_angle(e[:3, :3])))
-    sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(filt.P[:3, :3]).max())))
+    sig = float(np.degrees(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max())))
     return {
         "final_target_estimate_error_m": float(np.linalg.norm(e[:3, 3])),
         "final_target_estimate_error_deg": ang,
         "final_target_estimate_sigma_deg": sig,
-        "target_filter_rejected": int(filt.rejected),
+        "target_filter_rejected": int(rejected),
     }
 
 
@@ -341,7 +405,7 @@ def _target_merit(loop: ClosedLoop, world: World) -> dict:
 ESTIMATION_WINDOW_S = 1.0
 
 
-def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
+def estimation_summary(a: dict, s, source: str, timings=None) -> dict:
     """RMS estimation errors after :data:`ESTIMATION_WINDOW_S` (all samples if the run is
     shorter): strains (per component, pooled; rad/m) and drone position (Euclidean; m);
     ``None`` for ``source = "true"``. Plus the filter's median cost per period."""
@@ -361,7 +425,6 @@ def estimation_summary(a: dict, s, source: str, loop=None) -> dict:
         out["drone_position_estimation_rms"] = float(
             np.sqrt(np.mean(np.sum(err[:, 3:6] ** 2, axis=1)))
         )
-    timings = getattr(getattr(loop, "estimator", None), "timings", None)
     if timings is not None and len(timings) > 1:
         out["estimator_step_ms_median"] = float(np.median(timings[1:]) * 1e3)
     return out

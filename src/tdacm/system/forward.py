@@ -42,7 +42,7 @@ from ..aero import layout as AL
 from ..lie.blocks import ad_scalars, compose_rp_into, expmap_rp_into
 from ..lie.euler import euler_rates_into, rot_zyx_into
 from ..lie.se3 import tangent_coefficients_scalars
-from . import kernels as K
+from . import bodies as K
 
 _C4 = np.sqrt(3.0) / 12.0
 

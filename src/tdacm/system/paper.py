@@ -77,7 +77,7 @@ def paper_system(
 def dual_paper_system(
     *,
     separation: float = 0.3,
-    attachment_offset: float = 0.1,
+    attachment_offset: float = PV.ATTACHMENT_OFFSET,
     basis: StrainBasis | None = None,
     n_gauss: int | None = None,
     magnus_order: int | None = None,
@@ -109,6 +109,8 @@ def dual_paper_system(
         g[0, 3] = sign * separation / 2
         atts.append(g)
     tendons = Tendons.parallel(
-        radius=float(one.tendons.offsets[0, 1]), count=4, max_tension=one.tendons.max_tension
+        radius=float(one.tendons.offsets[0, 1]),
+        count=PV.TENDON_COUNT,
+        max_tension=one.tendons.max_tension,
     )
     return TDACM([one.rod, one.rod], [tendons, tendons], one.base, atts, loads)

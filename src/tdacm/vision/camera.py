@@ -21,11 +21,71 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from .. import paper_values as PV
 from . import _checks as C
+
+
+class CameraParams(NamedTuple):
+    """A pinhole camera without distortion as the record of the compiled steps
+    (:meth:`PinholeCamera.params`): focal lengths, principal point, resolution and clipping
+    planes."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: float
+    height: float
+    near: float
+    far: float
+
+
+@njit(cache=True)
+def in_image(c, u, v, margin):
+    """The pixel ``(u, v)`` lies at least ``margin`` px inside the image of ``c`` (a
+    :class:`CameraParams`; :meth:`PinholeCamera.pixels_in_image`)."""
+    return (
+        u >= margin - 0.5
+        and u <= c.width - 0.5 - margin
+        and v >= margin - 0.5
+        and v <= c.height - 0.5 - margin
+    )
+
+
+@njit(cache=True)
+def all_in_image(c, uv, margin):
+    """Every pixel of ``uv`` (N, 2) at least ``margin`` px inside the image of ``c``."""
+    for k in range(uv.shape[0]):
+        if not in_image(c, uv[k, 0], uv[k, 1], margin):
+            return False
+    return True
+
+
+@njit(cache=True)
+def normalize_into(c, uv, out):
+    """Normalized coordinates ``x = (u - c_x) / f_x``, ``y = (v - c_y) / f_y`` of the pixels
+    ``uv`` (N, 2) into ``out``."""
+    for k in range(uv.shape[0]):
+        out[k, 0] = (uv[k, 0] - c.cx) / c.fx
+        out[k, 1] = (uv[k, 1] - c.cy) / c.fy
+
+
+@njit(cache=True)
+def project_world(c, g_c, p, out_uv):
+    """The pixel (into ``out_uv`` (2,)) of the world point ``p`` (3,) in the camera ``c`` at
+    the world pose ``g_c``; returns its depth (the camera frame's ``z``)."""
+    d0, d1, d2 = p[0] - g_c[0, 3], p[1] - g_c[1, 3], p[2] - g_c[2, 3]
+    x = d0 * g_c[0, 0] + d1 * g_c[1, 0] + d2 * g_c[2, 0]
+    y = d0 * g_c[0, 1] + d1 * g_c[1, 1] + d2 * g_c[2, 1]
+    z = d0 * g_c[0, 2] + d1 * g_c[1, 2] + d2 * g_c[2, 2]
+    out_uv[0] = c.fx * x / z + c.cx
+    out_uv[1] = c.fy * y / z + c.cy
+    return z
 
 
 @dataclass(frozen=True)
@@ -136,6 +196,18 @@ class PinholeCamera:
         fh = 2.0 * math.degrees(math.atan(0.5 * self.width / self.fx))
         fv = 2.0 * math.degrees(math.atan(0.5 * self.height / self.fy))
         return fh, fv
+
+    def params(self) -> CameraParams:
+        """The camera as the compiled steps' record (``ValueError`` with lens distortion: the
+        compiled steps project without it)."""
+        if self.has_distortion:
+            raise ValueError(
+                f"camera {self.name or ''}: the compiled steps have no lens distortion"
+            )
+        return CameraParams(
+            float(self.fx), float(self.fy), float(self.cx), float(self.cy), float(self.width),
+            float(self.height), float(self.near), float(self.far),
+        )  # fmt: skip
 
     @property
     def has_distortion(self) -> bool:

@@ -254,9 +254,20 @@ def _interaction_kernel(p, z):
     return _jacobian_kernel(p) @ _points_kernel(p, z)
 
 
-def _min_edge2(p) -> float:
+@njit(cache=True)
+def min_edge2(p):
+    """The smallest ``num^2 + den^2`` of the six arctangent terms of the points ``p`` (4, 2):
+    below ``1e-24`` the features are undefined (coincident corners)."""
     t = _terms(p)
-    return float(np.min(t[:, 0] ** 2 + t[:, 1] ** 2))
+    best = np.inf
+    for k in range(t.shape[0]):
+        best = min(best, t[k, 0] ** 2 + t[k, 1] ** 2)
+    return best
+
+
+def min_edge2_of(p) -> float:
+    """:func:`min_edge2` of any ``(4, 2)`` points."""
+    return float(min_edge2(np.ascontiguousarray(p, dtype=float)))
 
 
 # ---------------------------------------------------------------------- advanced features
@@ -267,7 +278,7 @@ def advanced_features(points) -> np.ndarray:
 
     The angles are in radians, ``p_psi`` in ``(-pi, pi]``."""
     p = _check_points(points)
-    if _min_edge2(p) < 1e-24:
+    if min_edge2_of(p) < 1e-24:
         raise ValueError("points must be four distinct corners (an edge has zero length)")
     return _features_kernel(p)
 
@@ -302,7 +313,7 @@ def features_jacobian(points) -> np.ndarray:
     ``d atan2(n, d) = (d dn - n dd) / (n^2 + d^2)`` for the angle terms, ``1/4`` for the
     centroid, unit edge directions for the perimeter."""
     p = _check_points(points)
-    if _min_edge2(p) < 1e-24:
+    if min_edge2_of(p) < 1e-24:
         raise ValueError("points must be four distinct corners (an edge has zero length)")
     return _jacobian_kernel(p)
 
@@ -318,7 +329,7 @@ def feature_interaction_matrix(points, depths, order: str = "angular_first") -> 
     p = _check_points(points)
     _check_order(order)
     z = _check_depths(depths, 4)
-    if _min_edge2(p) < 1e-24:
+    if min_edge2_of(p) < 1e-24:
         raise ValueError("points must be four distinct corners (an edge has zero length)")
     m = _interaction_kernel(p, z)
     return m if order == "angular_first" else m[:, [3, 4, 5, 0, 1, 2]]

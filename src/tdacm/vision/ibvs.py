@@ -43,18 +43,20 @@ from . import _checks as C
 from .features import (
     _features_kernel,
     _interaction_kernel,
-    _min_edge2,
     _wrap,
     advanced_features,
     feature_interaction_matrix,
+    min_edge2_of,
     wrap_angle,
 )
 
 MODES = ("current", "desired", "mean")
 SOLVERS = ("floor", "damped")
+#: the default interaction matrix and solve (also the scenario's ``[ibvs]`` mode and solver)
+DEFAULT_MODE, DEFAULT_SOLVER = "current", "floor"
 
 
-def robust_solve(interaction, error, floor: float, solver: str = "floor") -> np.ndarray:
+def robust_solve(interaction, error, floor: float, solver: str = DEFAULT_SOLVER) -> np.ndarray:
     """``J^+ e`` with the small singular values of ``J`` floored (``solver="floor"``) or
     damped (``"damped"``) at ``floor`` (module docstring). ``floor = 0``: the plain solve."""
     jac = C.array("interaction", interaction, (6, 6))
@@ -70,29 +72,59 @@ def _robust_solve(jac: np.ndarray, e: np.ndarray, floor: float, solver: str) -> 
     floor = float(floor)
     if not np.isfinite(floor) or floor < 0:
         raise ValueError(f"floor must be >= 0, got {floor!r}")
-    if floor == 0.0:
-        return _solve(jac, e)
-    return svd_solve(jac, e, SVD_FLOOR if solver == "floor" else SVD_DAMPED, floor)
+    return ibvs_solve(np.ascontiguousarray(jac), np.ascontiguousarray(e), floor, solver == "damped")
 
 
 @njit(cache=True)
-def _twist_kernel(p, z, desired, interaction_desired, mode, gain, floor, damped):
-    """Features, error and twist of the law for checked points ``p`` (4, 2) and positive
-    depths ``z`` (4,) in one call (the servo's every period): ``mode`` 0 / 1 / 2 for
-    ``"current"`` / ``"desired"`` / ``"mean"``, ``floor > 0`` with ``damped`` False / True for
-    the ``"floor"`` / ``"damped"`` solve (:func:`robust_solve`). ``floor = 0`` is left to the
-    caller (the paper's plain solve and its least-squares fallback)."""
+def plain_solve(jac, e):
+    """``J^-1 e`` with the least-squares fallback when ``J`` is singular or the solution
+    explodes (the paper's plain solve, ``floor = 0``)."""
+    ok = True
+    x = np.zeros(e.shape[0])
+    try:
+        x = np.linalg.solve(jac, e)
+    except Exception:  # noqa: BLE001 - numba raises on a singular matrix
+        ok = False
+    if ok:
+        big = 0.0
+        emax = 0.0
+        for i in range(e.shape[0]):
+            if not np.isfinite(x[i]):
+                ok = False
+            big = max(big, abs(x[i]))
+            emax = max(emax, abs(e[i]))
+        if ok and big < 1e8 * (1.0 + emax):
+            return x
+    return np.linalg.lstsq(jac, e, rcond=1e-10)[0]
+
+
+@njit(cache=True)
+def ibvs_solve(jac, e, floor, damped):
+    """``J^+ e`` (:func:`robust_solve`): floored (or damped) singular values for ``floor > 0``,
+    the plain solve for ``floor = 0``."""
+    if floor == 0.0:
+        return plain_solve(jac, e)
+    return svd_solve(jac, e, SVD_DAMPED if damped else SVD_FLOOR, floor)
+
+
+@njit(cache=True)
+def ibvs_law(p, z, desired, interaction_desired, mode, gain, floor, damped):
+    """Features, error and twist of the law (paper eqs. (19)-(21), (39)) for checked points
+    ``p`` (4, 2) and positive depths ``z`` (4,) in one call: ``mode`` 0 / 1 / 2 for
+    ``"current"`` / ``"desired"`` / ``"mean"``, the solve of :func:`ibvs_solve` (``floor > 0``
+    with ``damped`` False / True for the ``"floor"`` / ``"damped"`` solve, ``floor = 0`` the
+    paper's plain solve)."""
     f = _features_kernel(p)
     e = f - desired
     for i in range(3):
         e[i] = _wrap(e[i])
     if mode == 1:
-        jac = interaction_desired
+        jac = interaction_desired.copy()
     elif mode == 0:
         jac = _interaction_kernel(p, z)
     else:
         jac = 0.5 * (_interaction_kernel(p, z) + interaction_desired)
-    x = svd_solve(jac, e, SVD_DAMPED if damped else SVD_FLOOR, floor)
+    x = ibvs_solve(jac, e, floor, damped)
     v = np.empty(6)
     for k in range(6):
         v[k] = -gain * x[k]
@@ -100,7 +132,7 @@ def _twist_kernel(p, z, desired, interaction_desired, mode, gain, floor, damped)
 
 
 def ibvs_twist(
-    error, interaction, *, gain: float, floor: float, solver: str = "floor"
+    error, interaction, *, gain: float, floor: float, solver: str = DEFAULT_SOLVER
 ) -> np.ndarray:
     """``v = -gain J_img^-1 e`` (paper eq. (39)); with ``floor > 0`` the well-conditioned
     solve of :func:`robust_solve`.
@@ -110,16 +142,6 @@ def ibvs_twist(
     """
     lam = C.positive("gain", gain)
     return -lam * robust_solve(interaction, error, floor, solver)
-
-
-def _solve(jac: np.ndarray, e: np.ndarray) -> np.ndarray:
-    try:
-        x = np.linalg.solve(jac, e)
-        if np.all(np.isfinite(x)) and np.abs(x).max() < 1e8 * (1.0 + np.abs(e).max()):
-            return x
-    except np.linalg.LinAlgError:
-        pass
-    return np.linalg.lstsq(jac, e, rcond=1e-10)[0]
 
 
 class IBVSController:
@@ -151,9 +173,9 @@ class IBVSController:
         *,
         gain: float,
         floor: float,
-        mode: str = "current",
+        mode: str = DEFAULT_MODE,
         order: str = "angular_first",
-        solver: str = "floor",
+        solver: str = DEFAULT_SOLVER,
     ):
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
@@ -176,12 +198,12 @@ class IBVSController:
 
     def features_error_twist(self, points, depths):
         """``(features, error, twist)`` of checked points ``(4, 2)`` and depths ``(4,)`` (the
-        predictive servo's every period; :func:`_twist_kernel` when ``floor > 0``, angular-first
+        predictive servo's every period; :func:`ibvs_law` when ``floor > 0``, angular-first
         twist)."""
-        if self.floor > 0.0 and self.order == "angular_first":
-            if _min_edge2(points) < 1e-24:
+        if self.order == "angular_first":
+            if min_edge2_of(points) < 1e-24:
                 raise ValueError("points must be four distinct corners (an edge has zero length)")
-            return _twist_kernel(
+            return ibvs_law(
                 points, depths, self.desired, self.interaction_desired, self._mode_code,
                 self.gain, self.floor, self.solver == "damped",
             )  # fmt: skip

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..lie.se3 import expmap, rotation_angle
 from . import _checks as C
-from .ibvs import IBVSController
+from .ibvs import DEFAULT_MODE, IBVSController
 from .mounts import tip_camera_pose
 
 
@@ -48,7 +48,7 @@ def free_camera_servo(
     gain: float,
     dt: float = 0.02,
     max_steps: int = 600,
-    mode: str = "current",
+    mode: str = DEFAULT_MODE,
     tol: float = 1e-6,
     camera=None,
     margin: float = 0.0,

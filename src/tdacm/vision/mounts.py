@@ -28,8 +28,13 @@ pose is ``g_F @ g_{C}^{F}``.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .. import paper_values as PV
+from ..lie.blocks import compose_rp_into, expmap_rp_into
+from ..lie.euler import rot_zyx
+from ..lie.magnus import magnus_step_into
+from ..system.kernels import chain_start, make_workspace, rod_step
 from . import _checks as C
 
 
@@ -109,6 +114,106 @@ def tip_camera_pose(system, q, mount, rod: int = 0) -> np.ndarray:
     the system's tip pose at ``q`` (of rod ``rod`` for a system with several) and the mount.
     Unchecked (called several times a period): the caller checks the mount once."""
     return (system.tip_pose(q) if rod == 0 else system.tip_pose(q, rod)) @ mount
+
+
+@njit(cache=True)
+def camera_chain(q, m, rod, want_j, g_out, j_out):
+    """The pose ``g_L(q)`` (4, 4) of the end of a camera's rod (its Magnus steps ``rod[0] <= k <
+    rod[1]`` of the model arrays ``m``, from that rod's attachment) into ``g_out`` and, when ``want_j``, its Jacobian
+    ``J_L^L(q)`` (6 x n) into ``j_out``: the recursion of
+    :func:`~tdacm.system.kernels.chain_jacobian` at zero rates without what a camera does not
+    read. The Jacobian comes from :func:`~tdacm.system.kernels.rod_step` without the
+    Jacobian rate (its columns of ``T X`` are computed one by one, so ``J`` and ``g`` are the
+    same numbers); the pose alone needs only each step's Magnus exponential and the product
+    of the poses."""
+    lo, hi = rod[0], rod[1]
+    n = q.shape[0]
+    zero = np.zeros(n)
+    off = 6 if m.floating else 0
+    att = 0  # the rod whose steps start at lo: its attachment
+    for r in range(m.rod_steps.shape[0] - 1):
+        if m.rod_steps[r] == lo:
+            att = r
+    _, _, _, g, j, jd, jdq = chain_start(q, zero, m.floating, m.g_fixed, m.g_att[att])
+    ws = make_workspace(n, m.bs.shape[3])
+    if want_j:
+        eta = np.zeros(6)
+        for k in range(lo, hi):
+            c0 = off + m.step_col[k]
+            c1 = c0 + m.step_nc[k]
+            rod_step(m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], zero[c0:c1], c0, g, j, jd, eta, jdq,
+                     False, ws)  # fmt: skip
+        j_out[:, :] = j
+    else:
+        omega, z, zdq, zd, mwork, r, p = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6]
+        gr = ws[13]
+        for k in range(lo, hi):
+            c0 = off + m.step_col[k]
+            c1 = c0 + m.step_nc[k]
+            magnus_step_into(m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], zero[c0:c1], omega, z, zdq,
+                             zd, mwork)  # fmt: skip
+            expmap_rp_into(omega, r, p)
+            compose_rp_into(g, gr, r, p)
+    g_out[:, :] = g
+
+
+@njit(cache=True)
+def mul4(a, b, out):
+    """``out = a b`` of 4 x 4 matrices."""
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = (
+                a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j] + a[i, 3] * b[3, j]
+            )
+
+
+@njit(cache=True)
+def inv4(g, out):
+    """``out = g^-1`` of a rigid 4 x 4 transform."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = g[j, i]
+        out[3, i] = 0.0
+    for i in range(3):
+        out[i, 3] = -(out[i, 0] * g[0, 3] + out[i, 1] * g[1, 3] + out[i, 2] * g[2, 3])
+    out[3, 3] = 1.0
+
+
+@njit(cache=True)
+def tip_camera_pose_into(q, m, rod, mount, out):
+    """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`tip_camera_pose`) into ``out`` (4, 4), from the
+    rod's Magnus steps ``rod`` (:func:`camera_chain`)."""
+    g = np.empty((4, 4))
+    camera_chain(q, m, rod, False, g, np.empty((0, 0)))
+    mul4(g, mount, out)
+
+
+@njit(cache=True)
+def tip_jacobian_into(q, m, rod, out):
+    """``J_L^L(q)`` (6 x n) of a camera's rod into ``out`` (:func:`camera_chain`)."""
+    camera_chain(q, m, rod, True, np.empty((4, 4)), out)
+
+
+@njit(cache=True)
+def base_pose_into(q, m, out):
+    """The drone pose ``g_b`` (eq. (1)) into ``out``; the clamp for a fixed base."""
+    if not m.floating:
+        out[:, :] = m.g_fixed
+        return
+    r = rot_zyx(q[0], q[1], q[2])
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = r[i, j]
+        out[i, 3] = q[3 + i]
+        out[3, i] = 0.0
+    out[3, 3] = 1.0
+
+
+def rod_steps(system, rod: int = 0) -> np.ndarray:
+    """``[first, end)`` of rod ``rod``'s Magnus steps in the system's model arrays (the
+    ``rod`` argument of :func:`camera_chain`)."""
+    m = system.model_arrays
+    return np.array([m.rod_steps[rod], m.rod_steps[rod + 1]], np.int64)
 
 
 def camera_pose(frame_pose, mount) -> np.ndarray:

@@ -32,21 +32,23 @@ and measured: linearized at the first frames' poor tilt it stayed 1-15 degrees o
   ``nu^T (H P H^T + R)^-1 nu <= gate`` (chi-square, 8 degrees of freedom); ``reset_after``
   consecutive rejected frames mean the estimate is wrong and restart it from the current
   frame;
-* initialization: both solutions of planar PnP (``cv2.solvePnPGeneric(...,
-  SOLVEPNP_IPPE)``, the classic two-fold ambiguity of a small planar target) are kept as
-  hypotheses and refined on the same frames until their costs differ by ``decisive`` (or
-  for ``young`` frames); the estimate is always the lower-cost one; every ``recheck`` frames
-  both PnP solutions of the latest frame are refined on the window again and adopted if
-  their cost is lower (measured: a run of paper-out-of-fov at 1 px otherwise stayed 18
-  degrees off on the wrong branch after the target entered at the image border);
+* initialization: both solutions of planar PnP (IPPE, :mod:`.ippe`: the poses of
+  ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)``, the classic two-fold ambiguity of a small
+  planar target) are kept as hypotheses and refined on the same frames until their costs
+  differ by ``decisive`` (or for ``young`` frames); the estimate is always the lower-cost
+  one; every ``recheck`` frames both PnP solutions of the latest frame are refined on the
+  window again and adopted if their cost is lower (measured: a run of paper-out-of-fov at
+  1 px otherwise stayed 18 degrees off on the wrong branch after the target entered at the
+  image border);
 * noise level: the gate and ``P`` use ``max(pixel_sigma, sigma_hat)`` with ``sigma_hat`` the
   RMS residual of the window (measured: with 2 px of noise and 1 px assumed, half of the
   frames were gated out and the resets made the prediction jump);
 * uncertain camera poses (the loop on a state estimate, docs/estimation.md): a frame may come
   with the covariance ``Sigma_c`` of its camera pose; its measurement covariance is then
   ``R_j = R + G_j Sigma_c G_j^T`` (``G_j = dz_j / d eps``, ``g_C <- g_C exp(eps^)``,
-  :meth:`TargetFilter.pose_noise`), and the frame enters the normal equations, the gate and
-  ``sigma_hat`` through its full ``8 x 8`` weight ``R_j^-1`` (``_normal_equations``).
+  :func:`pose_noise`), and the frame enters the normal equations, the gate and
+  ``sigma_hat`` through its full ``8 x 8`` weight ``R_j^-1`` (``_normal_equations``); a
+  covariance of zeros is an exact pose.
   A pose error moves the four points almost together, so the weight discounts the common
   image shift and keeps the shape (perspective) information that determines the tilt;
   frames with an exact pose keep the diagonal fast path;
@@ -61,23 +63,28 @@ and measured: linearized at the first frames' poor tilt it stayed 1-15 degrees o
   target's tilt) and leaves the yaw and the position to the images. It enters the cost, the
   Gauss-Newton step and ``P``; the self-calibrated noise scale multiplies the frames'
   information only.
+
+The block's constants are a :class:`TargetFilterParams` record and its state (the estimate,
+the hypotheses, the window's frames and their weights, the counters) a
+:class:`TargetFilterState`; :func:`filter_update` is its compiled step (one frame of one
+filter), which :class:`TargetFilter` (the Python block) and the servo's compiled step
+(:mod:`tdacm.loop.servo`, run by the block loop and the batched engine) call.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
-import cv2
 import numpy as np
 from numba import njit
 
 from .._jit import kernel
-from .._linalg import solve as _solve
 from .._linalg import solve_small
-from ..lie.se3 import expmap, skew
+from ..lie.se3 import expmap
 from . import _checks as C
 from .camera import PinholeCamera
-from .ippe import ippe_poses
+from .ippe import canonical_frame, ippe_poses
 
 #: chi-square quantile, 8 degrees of freedom (4 points x 2), p = 0.9999
 GATE_CHI2_8 = 31.83
@@ -94,30 +101,114 @@ class TargetEstimate:
     rejected: int
 
 
+class TargetFilterParams(NamedTuple):
+    """The filter's constants (the record of :func:`filter_update`; :class:`TargetFilter`'s
+    arguments): ``pixel_sigma`` (px), ``window`` (frames), ``iterations``, ``gate``,
+    ``young``, ``decisive``, ``reset_after``, ``recheck``, the level prior's weight
+    ``prior_weight`` (``1 / level_prior^2``, 0 without the prior) and normal
+    ``level_normal`` (3,), the camera's ``fx``, ``fy``, ``cx``, ``cy`` (px; its pixels are
+    normalized with them and ``R = diag(pixel_sigma / fx, pixel_sigma / fy)^2``), the target's
+    points ``object_points`` (4, 3), the same points in the target plane's canonical frame
+    ``object_2d`` (4, 2) and the target-to-canonical transform ``canon_inv`` (4, 4)
+    (:func:`~.ippe.canonical_frame`, for planar PnP)."""
+
+    pixel_sigma: float
+    window: int
+    iterations: int
+    gate: float
+    young: int
+    decisive: float
+    reset_after: int
+    recheck: int
+    prior_weight: float
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    object_points: np.ndarray
+    object_2d: np.ndarray
+    canon_inv: np.ndarray
+    level_normal: np.ndarray
+
+    def with_camera(self, camera) -> TargetFilterParams:
+        """The same filter on the pixels of ``camera`` (its ``fx``, ``fy``, ``cx``, ``cy``)."""
+        return self._replace(
+            fx=float(camera.fx), fy=float(camera.fy), cx=float(camera.cx), cy=float(camera.cy)
+        )
+
+
+class TargetFilterState(NamedTuple):
+    """The filter's state (one-element arrays for its scalars): ``initialized`` (an estimate
+    exists), ``updates`` (frames fused since the last restart), ``rejected`` (frames gated
+    out), ``switches`` (rescues adopted), ``sigma_hat`` (px, the window's RMS residual),
+    ``bad`` (consecutive rejections), ``n_hyp`` (PnP hypotheses still refined), ``count``
+    (frames in the window) and ``slot`` (the window's next slot); the estimate ``pose``
+    (4, 4) and its covariance ``cov`` (6, 6), the hypotheses ``hyp`` (2, 4, 4) and the
+    window as ring buffers (the sums do not depend on the frames' order): each frame's
+    ``R_C^T`` ``rc`` (W, 3, 3), ``p_C`` ``pc`` (W, 3), normalized points ``z`` (W, 4, 2),
+    weight (inverse covariance) ``w`` (W, 8, 8) and whether that weight is diagonal
+    ``diagonal`` (W,)."""
+
+    initialized: np.ndarray
+    updates: np.ndarray
+    rejected: np.ndarray
+    switches: np.ndarray
+    sigma_hat: np.ndarray
+    bad: np.ndarray
+    n_hyp: np.ndarray
+    count: np.ndarray
+    slot: np.ndarray
+    pose: np.ndarray
+    cov: np.ndarray
+    hyp: np.ndarray
+    rc: np.ndarray
+    pc: np.ndarray
+    z: np.ndarray
+    w: np.ndarray
+    diagonal: np.ndarray
+
+    @classmethod
+    def initial(cls, window: int) -> TargetFilterState:
+        """No estimate and an empty window of ``window`` frames."""
+        n = int(window)
+
+        def count():
+            return np.zeros(1, np.int64)
+
+        return cls(
+            np.zeros(1, np.bool_), count(), count(), count(), np.zeros(1), count(), count(),
+            count(), count(), np.zeros((4, 4)), np.zeros((6, 6)), np.zeros((2, 4, 4)),
+            np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 4, 2)), np.zeros((n, 8, 8)),
+            np.zeros(n, np.bool_),
+        )  # fmt: skip
+
+
 def planar_pnp_poses(object_points, xy, camera_pose) -> list:
     """World poses (4x4) of a planar target from one view: both solutions of planar PnP
-    (``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)`` on normalized points ``xy``, the two-fold
-    ambiguity of a small planar target) that put every point in front of the camera,
-    composed with ``camera_pose``."""
-    obj = np.asarray(object_points, float)
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-        obj, np.asarray(xy, float).reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
-    )
-    out = []
-    for rv, tv in zip(rvecs if ok else (), tvecs if ok else (), strict=True):
-        g = np.eye(4)
-        g[:3, :3] = cv2.Rodrigues(rv)[0]
-        g[:3, 3] = np.ravel(tv)
-        if np.all((obj @ g[:3, :3].T + g[:3, 3])[:, 2] > 0):
-            out.append(camera_pose @ g)
-    return out
+    (:func:`pnp_kernel`, the poses of ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)`` on
+    normalized points ``xy``: the two-fold ambiguity of a small planar target) that put every
+    point in front of the camera, composed with ``camera_pose``, the better first."""
+    obj = np.ascontiguousarray(object_points, float)
+    obj2d, canon = canonical_frame(obj)
+    out = np.empty((2, 4, 4))
+    cnt = pnp_kernel(
+        obj, obj2d, np.ascontiguousarray(np.linalg.inv(canon)),
+        np.ascontiguousarray(xy, float).reshape(-1, 2), np.ascontiguousarray(camera_pose, float),
+        out,
+    )  # fmt: skip
+    return [out[i].copy() for i in range(cnt)]
 
 
 def target_in_camera(object_points, camera_pose, target_pose) -> np.ndarray:
     """Camera coordinates ``r = g_C^-1 g_T X_k`` (k, 3) of a target's points ``X_k`` (its
-    frame) for world poses ``camera_pose`` ``g_C`` and ``target_pose`` ``g_T`` (4x4)."""
-    g = _solve(np.asarray(camera_pose, float), np.asarray(target_pose, float))
-    return object_points @ g[:3, :3].T + g[:3, 3]
+    frame) for world poses ``camera_pose`` ``g_C`` and ``target_pose`` ``g_T`` (4x4, rigid;
+    :func:`camera_points_into`)."""
+    obj = np.ascontiguousarray(object_points, float)
+    r = np.empty((obj.shape[0], 3))
+    camera_points_into(
+        obj, np.ascontiguousarray(camera_pose, float), np.ascontiguousarray(target_pose, float), r
+    )
+    return r
 
 
 def reference_from_pose(target, target_pose, camera_pose):
@@ -322,37 +413,7 @@ def _gauss_newton_kernel(pose, rc, pc, z, obj, w, diagonal, iterations, normal, 
     return pose, prior_info, 0.0, prior_info, prior_grad, 0.0, False
 
 
-# ----------------------------------------------------------------------------- compiled
-# The filter's update as compiled code over one filter's plain arrays (the batched engine,
-# :mod:`tdacm.batch.servo`): the same steps as :meth:`TargetFilter.update_checked` for frames
-# with an exact camera pose (the engine runs on the true state), the same Gauss-Newton kernels,
-# planar PnP by the compiled IPPE (:mod:`tdacm.vision.ippe`, the pose of
-# ``cv2.solvePnPGeneric``). Rows of its scalar state ``st``:
-F_INIT, F_UPDATES, F_REJECTED, F_SWITCHES, F_SIGMA_HAT, F_BAD, F_NHYP, F_COUNT, F_NEXT, N_FSTATE = (
-    range(10)
-)
-#: rows of its constants ``prm`` (:func:`filter_params`)
-(
-    FP_PIXEL_SIGMA, FP_ITERATIONS, FP_GATE, FP_YOUNG, FP_DECISIVE, FP_RESET_AFTER, FP_RECHECK,
-    FP_PRIOR_WEIGHT, FP_WINDOW, N_FPARAMS,
-) = range(10)  # fmt: skip
-
-
-def filter_params(f: TargetFilter) -> np.ndarray:
-    """The constants of a :class:`TargetFilter` as the compiled update's ``prm`` row."""
-    prm = np.zeros(N_FPARAMS)
-    prm[FP_PIXEL_SIGMA] = f.pixel_sigma
-    prm[FP_ITERATIONS] = f.iterations
-    prm[FP_GATE] = f.gate
-    prm[FP_YOUNG] = f.young
-    prm[FP_DECISIVE] = f.decisive
-    prm[FP_RESET_AFTER] = f.reset_after
-    prm[FP_RECHECK] = f.recheck
-    prm[FP_PRIOR_WEIGHT] = 1.0 / f.level_prior**2 if f.level_prior > 0.0 else 0.0
-    prm[FP_WINDOW] = f.window  # the length of the window's arrays
-    return prm
-
-
+# ----------------------------------------------------------------------------- geometry
 @njit(cache=True)
 def _rigid_between(a, b, out):
     """``out = a^-1 b`` for rigid 4x4 ``a``."""
@@ -366,26 +427,35 @@ def _rigid_between(a, b, out):
 
 
 @njit(cache=True)
-def points_in_kernel(obj, camera_pose, target_pose, xy, z):
-    """:meth:`TargetFilter.points_in`: normalized points ``xy`` (4, 2) and depths ``z`` (4,)
-    of the target's points ``obj`` (4, 3) at ``target_pose`` seen from ``camera_pose``."""
+def camera_points_into(obj, camera_pose, target_pose, r):
+    """Camera coordinates ``r = g_C^-1 g_T X_k`` (k, 3) of the target's points ``obj`` (k, 3)
+    at ``target_pose`` ``g_T`` seen from ``camera_pose`` ``g_C`` (both rigid 4x4, world)."""
     g = np.empty((4, 4))
     _rigid_between(camera_pose, target_pose, g)
     for k in range(obj.shape[0]):
-        r0 = g[0, 0] * obj[k, 0] + g[0, 1] * obj[k, 1] + g[0, 2] * obj[k, 2] + g[0, 3]
-        r1 = g[1, 0] * obj[k, 0] + g[1, 1] * obj[k, 1] + g[1, 2] * obj[k, 2] + g[1, 3]
-        r2 = g[2, 0] * obj[k, 0] + g[2, 1] * obj[k, 1] + g[2, 2] * obj[k, 2] + g[2, 3]
-        xy[k, 0] = r0 / r2
-        xy[k, 1] = r1 / r2
-        z[k] = r2
+        for i in range(3):
+            r[k, i] = g[i, 0] * obj[k, 0] + g[i, 1] * obj[k, 1] + g[i, 2] * obj[k, 2] + g[i, 3]
+
+
+@njit(cache=True)
+def points_in_kernel(obj, camera_pose, target_pose, xy, z):
+    """:meth:`TargetFilter.points_in`: normalized points ``xy`` (k, 2) and depths ``z`` (k,)
+    of the target's points ``obj`` (k, 3) at ``target_pose`` seen from ``camera_pose``
+    (:func:`camera_points_into`)."""
+    r = np.empty((obj.shape[0], 3))
+    camera_points_into(obj, camera_pose, target_pose, r)
+    for k in range(obj.shape[0]):
+        xy[k, 0] = r[k, 0] / r[k, 2]
+        xy[k, 1] = r[k, 1] / r[k, 2]
+        z[k] = r[k, 2]
 
 
 @njit(cache=True)
 def pnp_kernel(obj, obj2d, canon_inv, xy, g_c, out):
-    """:func:`planar_pnp_poses` compiled: both IPPE poses (:func:`~.ippe.ippe_poses` on the
-    canonical points ``obj2d``; ``canon_inv`` the target-to-canonical transform) that put
-    every point ``obj`` (4, 3) in front, composed with ``g_c``, into ``out`` (2, 4, 4), the
-    better first. Returns how many."""
+    """Planar PnP of one view: both IPPE poses (:func:`~.ippe.ippe_poses` on the canonical
+    points ``obj2d``; ``canon_inv`` the target-to-canonical transform) that put every point
+    ``obj`` (4, 3) in front, composed with ``g_c``, into ``out`` (2, 4, 4), the better first.
+    Returns how many."""
     rots = np.empty((2, 3, 3))
     trans = np.empty((2, 3))
     errors = np.empty(2)
@@ -412,52 +482,181 @@ def pnp_kernel(obj, obj2d, canon_inv, xy, g_c, out):
 
 
 @njit(cache=True)
-def _filter_reset(st):
-    """:meth:`TargetFilter.reset`, the rejected frames kept."""
-    rejected = st[F_REJECTED]
-    st[:] = 0.0
-    st[F_REJECTED] = rejected
+def pose_noise(points_camera, camera_cov):
+    """Covariance (8 x 8, normalized coordinates, rows ``x_1, y_1, ..., y_4``) that an
+    uncertain camera pose adds to a frame: ``G Sigma_c G^T`` with ``Sigma_c`` the 6 x 6
+    covariance ``camera_cov`` of the camera-pose error ``g_C <- g_C exp(eps^)``, ``eps = [w;
+    v]`` in the camera frame, and ``G = dpi/dr [r^, -I]`` (``r' = exp(-w^)(r - v)``) at the
+    points' camera coordinates ``points_camera`` (4, 3).
+
+    Why: with an estimated state (docs/estimation.md) the camera pose of every frame is off
+    by the estimator's error. Its effect on the image is nearly common to the four points (a
+    camera rotation shifts them all), so the filter must not read it as information on the
+    target - unweighted, a 2-5 mrad attitude error (1-3 px) was absorbed along the weakly
+    observed tilt, which ended 10-16 deg off and made the servo chase it (measured,
+    paper-in-fov, 1 px, estimated state)."""
+    g = np.zeros((8, 6))
+    dpi = np.empty((2, 3))
+    sk = np.empty((3, 3))
+    for k in range(4):
+        x, y, zk = points_camera[k, 0], points_camera[k, 1], points_camera[k, 2]
+        dpi[0, 0], dpi[0, 1], dpi[0, 2] = 1.0 / zk, 0.0, -x / zk**2
+        dpi[1, 0], dpi[1, 1], dpi[1, 2] = 0.0, 1.0 / zk, -y / zk**2
+        sk[0, 0], sk[0, 1], sk[0, 2] = 0.0, -zk, y  # r^
+        sk[1, 0], sk[1, 1], sk[1, 2] = zk, 0.0, -x
+        sk[2, 0], sk[2, 1], sk[2, 2] = -y, x, 0.0
+        for i in range(2):
+            for j in range(3):
+                g[2 * k + i, j] = dpi[i, 0] * sk[0, j] + dpi[i, 1] * sk[1, j] + dpi[i, 2] * sk[2, j]
+                g[2 * k + i, 3 + j] = -dpi[i, j]
+    return np.dot(np.dot(g, camera_cov), g.T)
+
+
+# ----------------------------------------------------------------------------- the step
+@njit(cache=True)
+def filter_reset(s):
+    """Forget the estimate, the hypotheses and the window's frames, and zero the counters."""
+    s.initialized[0] = False
+    s.updates[0] = 0
+    s.rejected[0] = 0
+    s.switches[0] = 0
+    s.sigma_hat[0] = 0.0
+    s.bad[0] = 0
+    s.n_hyp[0] = 0
+    s.count[0] = 0
+    s.slot[0] = 0
 
 
 @njit(cache=True)
-def _filter_covariance(prm, st, info, p_info, out):
-    """:meth:`TargetFilter._covariance` into ``out``."""
-    ps = prm[FP_PIXEL_SIGMA]
-    sigma = max(ps, st[F_SIGMA_HAT])
-    if prm[FP_PRIOR_WEIGHT] <= 0.0:
-        p = np.linalg.inv(info)
-        p = 0.5 * (p + p.T)
-        out[:, :] = p * (sigma / ps) ** 2
+def _restart(s):
+    """:func:`filter_reset`, the count of rejected frames kept (the filter restarts)."""
+    rejected = s.rejected[0]
+    filter_reset(s)
+    s.rejected[0] = rejected
+
+
+@njit(cache=True)
+def filter_sigma(pixel_sigma, sigma_hat):
+    """Corner noise (px) of the gate and the covariance: the assumed ``pixel_sigma``, or the
+    window's RMS residual ``sigma_hat`` if larger (self-calibrating: a camera noisier than
+    assumed would otherwise see its frames gated out)."""
+    return max(pixel_sigma, sigma_hat)
+
+
+@njit(cache=True)
+def _pixel_information(p):
+    """``(1 / sigma_x^2, 1 / sigma_y^2)``: the information of one normalized coordinate at
+    ``pixel_sigma`` px of corner noise (``sigma_x = pixel_sigma / fx``)."""
+    fx, fy = p.fx / p.pixel_sigma, p.fy / p.pixel_sigma
+    return fx * fx, fy * fy
+
+
+@njit(cache=True)
+def _is_exact(camera_cov):
+    """Whether the camera-pose covariance is all zeros: an exact pose."""
+    for i in range(camera_cov.shape[0]):
+        for j in range(camera_cov.shape[1]):
+            if camera_cov[i, j] != 0.0:
+                return False
+    return True
+
+
+@njit(cache=True)
+def _camera_noise(p, target_pose, g_c, camera_cov, exact):
+    """:func:`pose_noise` (8 x 8) of a frame taken at ``g_c`` of the target at
+    ``target_pose``; zeros for an exact pose."""
+    if exact:
+        return np.zeros((8, 8))
+    r = np.empty((4, 3))
+    camera_points_into(p.object_points, g_c, target_pose, r)
+    return pose_noise(r, camera_cov)
+
+
+@njit(cache=True)
+def _weight_into(p, extra, exact, out):
+    """The frame's weight ``R_j^-1`` (8 x 8) into ``out``: ``R_j = R + extra``, ``extra``
+    its camera-pose noise (:func:`_camera_noise`); diagonal (``R^-1``) for an exact pose."""
+    ix, iy = _pixel_information(p)
+    if exact:
+        out[:, :] = 0.0
+        for k in range(4):
+            out[2 * k, 2 * k] = ix
+            out[2 * k + 1, 2 * k + 1] = iy
+        return
+    r = extra.copy()
+    for k in range(4):
+        r[2 * k, 2 * k] += 1.0 / ix
+        r[2 * k + 1, 2 * k + 1] += 1.0 / iy
+    w = np.linalg.inv(r)
+    out[:, :] = 0.5 * (w + w.T)
+
+
+@njit(cache=True)
+def frame_weight(p, target_pose, g_c, camera_cov, out):
+    """The weight (8 x 8, inverse covariance) into ``out`` of a frame taken from ``g_c``
+    with the camera-pose covariance ``camera_cov`` (6 x 6, zeros: exact) of the target at
+    ``target_pose`` (module docstring, "uncertain camera poses")."""
+    exact = _is_exact(camera_cov)
+    _weight_into(p, _camera_noise(p, target_pose, g_c, camera_cov, exact), exact, out)
+
+
+@njit(cache=True)
+def _covariance_into(p, s, info, p_info, out):
+    """``P`` into ``out`` from the total information ``info`` of a solve and its level-prior
+    part ``p_info``: the frames' part scaled by the self-calibrated noise
+    (``(pixel_sigma / sigma)^2``, :func:`filter_sigma`), the prior's not."""
+    ps = p.pixel_sigma
+    sigma = filter_sigma(ps, s.sigma_hat[0])
+    if p.prior_weight <= 0.0:
+        c = np.linalg.inv(info)
+        c = 0.5 * (c + c.T)
+        out[:, :] = c * (sigma / ps) ** 2
         return
     k = (ps / sigma) ** 2
-    p = np.linalg.inv((info - p_info) * k + p_info)
-    out[:, :] = 0.5 * (p + p.T)
+    c = np.linalg.inv((info - p_info) * k + p_info)
+    out[:, :] = 0.5 * (c + c.T)
 
 
 @njit(cache=True)
-def _filter_append(st, rc, pc, z, g_c, xy):
-    """:meth:`TargetFilter._append` into the window's ring buffers."""
-    k = int(st[F_NEXT])
+def _append(p, s, g_c, xy, extra, exact):
+    """Store a frame in the window (overwriting the oldest once it is full) with its weight
+    (:func:`_weight_into`)."""
+    k = s.slot[0]
     for i in range(3):
         for j in range(3):
-            rc[k, i, j] = g_c[j, i]
-        pc[k, i] = g_c[i, 3]
+            s.rc[k, i, j] = g_c[j, i]
+        s.pc[k, i] = g_c[i, 3]
     for i in range(4):
-        z[k, i, 0] = xy[i, 0]
-        z[k, i, 1] = xy[i, 1]
-    st[F_NEXT] = (k + 1) % rc.shape[0]
-    st[F_COUNT] = min(st[F_COUNT] + 1, rc.shape[0])
+        s.z[k, i, 0] = xy[i, 0]
+        s.z[k, i, 1] = xy[i, 1]
+    _weight_into(p, extra, exact, s.w[k])
+    s.diagonal[k] = _diagonal_flags(s.w[k : k + 1])[0]
+    n = s.rc.shape[0]
+    s.slot[0] = (k + 1) % n
+    s.count[0] = min(s.count[0] + 1, n)
 
 
 @njit(cache=True)
-def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
-    """:meth:`TargetFilter._refine`: ``(ok, cost)``, the cost of the window (prior included)
-    at the refined ``pose``."""
-    n = int(st[F_COUNT])
-    nh = int(st[F_NHYP])
-    iters = int(prm[FP_ITERATIONS])
-    n_it = max(iters, 3) if st[F_UPDATES] < 3 else iters
-    pw = prm[FP_PRIOR_WEIGHT]
+def _solve_window(p, s, start, iterations):
+    """:func:`_gauss_newton_kernel` from ``start`` on the window's frames with the filter's
+    level prior."""
+    n = s.count[0]
+    return _gauss_newton_kernel(
+        np.ascontiguousarray(start), s.rc[:n], s.pc[:n], s.z[:n], p.object_points, s.w[:n],
+        s.diagonal[:n], iterations, p.level_normal, p.prior_weight,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _refine(p, s):
+    """Gauss-Newton on the window from each hypothesis (or the estimate): the lower-cost
+    result becomes the estimate, with ``sigma_hat`` and ``P``; the other PnP branch is kept
+    while young (module docstring). Returns ``(ok, cost)``, the cost of the window (prior
+    included) at the estimate; not ``ok`` (and the filter restarted) if every solve put a
+    point behind a camera."""
+    n = s.count[0]
+    nh = s.n_hyp[0]
+    n_it = max(p.iterations, 3) if s.updates[0] < 3 else p.iterations
     r_pose = np.empty((2, 4, 4))
     r_info = np.empty((2, 6, 6))
     r_pinfo = np.empty((2, 6, 6))
@@ -465,24 +664,24 @@ def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
     r_pcost = np.empty(2)
     cnt = 0
     for c in range(max(nh, 1)):
-        start = np.ascontiguousarray(hyp[c]) if nh > 0 else pose.copy()
-        p, info, cost, p_info, _, p_cost, ok = _gauss_newton_kernel(
-            start, rc[:n], pc[:n], z[:n], obj, w, diag, n_it, normal, pw
-        )
+        start = s.hyp[c] if nh > 0 else s.pose
+        pose, info, cost, p_info, _, p_cost, ok = _solve_window(p, s, start, n_it)
         if ok:
-            r_pose[cnt] = p
+            r_pose[cnt] = pose
             r_info[cnt] = info
             r_pinfo[cnt] = p_info
             r_cost[cnt] = cost
             r_pcost[cnt] = p_cost
             cnt += 1
     if cnt == 0:
-        _filter_reset(st)
+        _restart(s)
         return False, np.inf
     b, o = 0, 1
-    if cnt == 2 and r_cost[1] < r_cost[0]:  # the stable sort by cost
+    if cnt == 2 and r_cost[1] < r_cost[0]:  # the better first (a stable sort by cost)
         b, o = 1, 0
     if nh > 1:  # young: keep the other branch until the data decide
+        # a log-likelihood margin of `decisive` (cost difference), `young` frames at most,
+        # or the branches merged
         merged, done = True, True
         if cnt == 2:
             d = np.empty((4, 4))
@@ -493,109 +692,121 @@ def _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag):
                     e = d[i, j] - (1.0 if i == j else 0.0)
                     acc += e * e
             merged = np.sqrt(acc) < 1e-4
-            done = r_cost[o] - r_cost[b] > prm[FP_DECISIVE]
-        if merged or done or st[F_UPDATES] + 1 >= prm[FP_YOUNG]:
-            st[F_NHYP] = 0
+            done = r_cost[o] - r_cost[b] > p.decisive
+        if merged or done or s.updates[0] + 1 >= p.young:
+            s.n_hyp[0] = 0
         else:
-            hyp[0] = r_pose[b]
-            hyp[1] = r_pose[o]
-            st[F_NHYP] = 2
-    pose[:, :] = r_pose[b]
-    st[F_INIT] = 1.0
-    st[F_UPDATES] += 1
+            s.hyp[0] = r_pose[b]
+            s.hyp[1] = r_pose[o]
+            s.n_hyp[0] = 2
+    s.pose[:, :] = r_pose[b]
+    s.initialized[0] = True
+    s.updates[0] += 1
     if n >= 10:  # cost / dof = (sigma_true / pixel_sigma)^2, the frames' cost only
-        cost = r_cost[b] - (r_pcost[b] if pw > 0.0 else 0.0)
-        st[F_SIGMA_HAT] = prm[FP_PIXEL_SIGMA] * np.sqrt(max(cost, 0.0) / (8 * n - 6))
-    _filter_covariance(prm, st, r_info[b], r_pinfo[b], cov)
+        cost = r_cost[b] - (r_pcost[b] if p.prior_weight > 0.0 else 0.0)
+        s.sigma_hat[0] = p.pixel_sigma * np.sqrt(max(cost, 0.0) / (8 * n - 6))
+    _covariance_into(p, s, r_info[b], r_pinfo[b], s.cov)
     return True, r_cost[b]
 
 
 @njit(cache=True)
-def _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, normal, w, diag,
-                  xy, g_c):  # fmt: skip
-    """The first frame (or the first after a restart): both PnP hypotheses, refined."""
-    cnt = pnp_kernel(obj, obj2d, canon_inv, xy, g_c, hyp)
+def _start(p, s, xy, g_c, camera_cov, exact):
+    """The first frame (or the first after a restart): both PnP hypotheses, the frame
+    weighted at the better one, refined."""
+    cnt = pnp_kernel(p.object_points, p.object_2d, p.canon_inv, xy, g_c, s.hyp)
     if cnt == 0:
         return False
-    _filter_append(st, rc, pc, z, g_c, xy)
-    st[F_NHYP] = cnt
-    ok, _ = _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
+    _append(p, s, g_c, xy, _camera_noise(p, s.hyp[0], g_c, camera_cov, exact), exact)
+    s.n_hyp[0] = cnt
+    ok, _ = _refine(p, s)
     return ok
 
 
 @njit(cache=True)
-def filter_update(prm, cam, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, normal,
-                  pixels, g_c):  # fmt: skip
-    """:meth:`TargetFilter.update_checked` of a frame with an exact camera pose, compiled:
-    the filter's state ``st`` (:data:`F_INIT` ...), estimate ``pose`` (4, 4), covariance
-    ``cov`` (6, 6), PnP hypotheses ``hyp`` (2, 4, 4) and window ``rc`` (W, 3, 3), ``pc`` (W,
-    3), ``z`` (W, 4, 2) updated in place; ``prm`` its constants (:func:`filter_params`),
-    ``cam`` the camera ``[fx, fy, cx, cy]``, ``obj`` (4, 3) the target's points, ``obj2d``
-    and ``canon_inv`` their canonical frame (:func:`~.ippe.canonical_frame`), ``normal`` the
-    level prior's normal. Returns whether the frame was fused."""
-    xy = np.empty((4, 2))
-    for k in range(4):
-        xy[k, 0] = (pixels[k, 0] - cam[2]) / cam[0]
-        xy[k, 1] = (pixels[k, 1] - cam[3]) / cam[1]
-    ps = prm[FP_PIXEL_SIGMA]
-    fx, fy = cam[0] / ps, cam[1] / ps
-    rinv_x, rinv_y = fx * fx, fy * fy
-    w = np.zeros((1, 8, 8))  # the weight of a frame with an exact pose
-    for k in range(4):
-        w[0, 2 * k, 2 * k] = rinv_x
-        w[0, 2 * k + 1, 2 * k + 1] = rinv_y
-    diag = np.ones(1, np.bool_)
-    if st[F_INIT] == 0.0:
-        return _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv, normal,
-                             w, diag, xy, g_c)  # fmt: skip
-    rt = np.ascontiguousarray(pose[:3, :3])
-    xw = _target_points(rt, pose[:3, 3].copy(), obj)
+def _reject(p, s, xy, g_c, camera_cov, exact):
+    """A frame gated out: after ``reset_after`` in a row the estimate is taken as wrong and
+    the filter restarts from this frame."""
+    s.rejected[0] += 1
+    s.bad[0] += 1
+    if s.bad[0] >= p.reset_after:
+        _restart(s)
+        return _start(p, s, xy, g_c, camera_cov, exact)
+    return False
+
+
+@njit(cache=True)
+def _rescue(p, s, xy, g_c, cost):
+    """Escape the wrong branch of the planar ambiguity: refine both PnP solutions of the
+    latest frame on the whole window and adopt one whose cost is lower than ``cost`` (the
+    window's at the estimate) by more than 1."""
+    cand = np.empty((2, 4, 4))
+    for c in range(pnp_kernel(p.object_points, p.object_2d, p.canon_inv, xy, g_c, cand)):
+        pose, info, c_cost, p_info, _, _, ok = _solve_window(p, s, cand[c], 4)
+        if ok and c_cost < cost - 1.0:
+            cost = c_cost
+            s.pose[:, :] = pose
+            _covariance_into(p, s, info, p_info, s.cov)
+            s.switches[0] += 1
+
+
+@njit(cache=True)
+def filter_fuse(p, s, xy, g_c, camera_cov):
+    """:func:`filter_update` of the normalized points ``xy`` (4, 2) of a frame."""
+    exact = _is_exact(camera_cov)
+    if not s.initialized[0]:
+        return _start(p, s, xy, g_c, camera_cov, exact)
+    obj = p.object_points
+    rt = np.ascontiguousarray(s.pose[:3, :3])
+    xw = _target_points(rt, s.pose[:3, 3].copy(), obj)
     h8 = np.empty((8, 6))
     nu = np.empty(8)
     rcf = np.ascontiguousarray(g_c[:3, :3].T)
-    gated = not _frame_residuals(rcf, g_c[:3, 3].copy(), rt, xw, obj, xy, np.empty((3, 3)), h8,
-                                 nu)  # fmt: skip
-    if not gated:
-        scale = (max(ps, st[F_SIGMA_HAT]) / ps) ** 2
-        s = np.dot(np.dot(h8, cov), h8.T)
-        for k in range(4):
-            s[2 * k, 2 * k] += scale * (1.0 / rinv_x)
-            s[2 * k + 1, 2 * k + 1] += scale * (1.0 / rinv_y)
-        gated = np.dot(nu, np.linalg.solve(s, nu)) > prm[FP_GATE]
-    if gated:  # :meth:`TargetFilter._reject`
-        st[F_REJECTED] += 1
-        st[F_BAD] += 1
-        if st[F_BAD] >= prm[FP_RESET_AFTER]:
-            _filter_reset(st)
-            return _filter_start(prm, st, pose, cov, hyp, rc, pc, z, obj, obj2d, canon_inv,
-                                 normal, w, diag, xy, g_c)  # fmt: skip
-        return False
-    st[F_BAD] = 0.0
-    _filter_append(st, rc, pc, z, g_c, xy)
-    ok, cur = _filter_refine(prm, st, pose, cov, hyp, rc, pc, z, obj, normal, w, diag)
-    recheck = int(prm[FP_RECHECK])
-    if ok and recheck > 0 and int(st[F_UPDATES]) % recheck == 0:  # :meth:`TargetFilter._rescue`
-        n = int(st[F_COUNT])
-        pw = prm[FP_PRIOR_WEIGHT]
-        # the cost at the current pose is the refined one (the same window and pose: the
-        # same sums), so the rescue starts from it without a pass over the window
-        cand = np.empty((2, 4, 4))
-        for c in range(pnp_kernel(obj, obj2d, canon_inv, xy, g_c, cand)):
-            p, info, cost, p_info, _, _, okc = _gauss_newton_kernel(
-                np.ascontiguousarray(cand[c]), rc[:n], pc[:n], z[:n], obj, w, diag, 4,
-                normal, pw,
-            )  # fmt: skip
-            if okc and cost < cur - 1.0:
-                cur = cost
-                pose[:, :] = p
-                _filter_covariance(prm, st, info, p_info, cov)
-                st[F_SWITCHES] += 1
+    if not _frame_residuals(rcf, g_c[:3, 3].copy(), rt, xw, obj, xy, np.empty((3, 3)), h8, nu):
+        return _reject(p, s, xy, g_c, camera_cov, exact)
+    # the gate: nu^T (H P H^T + sigma-scaled R + camera-pose noise)^-1 nu
+    ps = p.pixel_sigma
+    scale = (filter_sigma(ps, s.sigma_hat[0]) / ps) ** 2
+    ix, iy = _pixel_information(p)
+    extra = _camera_noise(p, s.pose, g_c, camera_cov, exact)
+    sm = np.dot(np.dot(h8, s.cov), h8.T)
+    for k in range(4):
+        sm[2 * k, 2 * k] += scale * (1.0 / ix)
+        sm[2 * k + 1, 2 * k + 1] += scale * (1.0 / iy)
+    if not exact:
+        sm += extra
+    if np.dot(nu, np.linalg.solve(sm, nu)) > p.gate:
+        return _reject(p, s, xy, g_c, camera_cov, exact)
+    s.bad[0] = 0
+    _append(p, s, g_c, xy, extra, exact)
+    ok, cost = _refine(p, s)
+    if ok and p.recheck > 0 and s.updates[0] % p.recheck == 0:
+        # the window's cost at the estimate is the refined one (the same frames and pose)
+        _rescue(p, s, xy, g_c, cost)
     return ok
 
 
+@njit(cache=True)
+def filter_update(p, s, pixels, g_c, camera_cov):
+    """One frame of the filter (module docstring), its compiled step: the detection
+    ``pixels`` (4, 2) (paper order, an undistorted camera) captured from the camera pose
+    ``g_c`` (4x4, world, at the capture time) with that pose's error covariance
+    ``camera_cov`` (6 x 6, ``[w; v]`` in the camera frame; all zeros: an exact pose) fused
+    into the state ``s`` (a :class:`TargetFilterState`, in place) of the filter ``p`` (a
+    :class:`TargetFilterParams`). Returns whether the frame was fused (False: gated out,
+    or unusable)."""
+    xy = np.empty((4, 2))
+    for k in range(4):
+        xy[k, 0] = (pixels[k, 0] - p.cx) / p.fx
+        xy[k, 1] = (pixels[k, 1] - p.cy) / p.fy
+    return filter_fuse(p, s, xy, g_c, camera_cov)
+
+
+# ----------------------------------------------------------------------------- the block
 class TargetFilter:
     """Sliding-window maximum-likelihood estimate of a static target's world pose (module
-    docstring).
+    docstring): the Python block around :func:`filter_update`. It validates its arguments
+    once into :attr:`params` (a :class:`TargetFilterParams`) and keeps its state in
+    :attr:`state` (a :class:`TargetFilterState`); what it reports is read from the state.
 
     Parameters
     ----------
@@ -647,107 +858,163 @@ class TargetFilter:
     ):
         self.camera = camera
         self.level_prior = C.nonnegative("level_prior", level_prior)
-        self.level_normal = C.unit_vector("level_normal", level_normal)
-        self.recheck = int(recheck)
-        self.decisive = C.positive("decisive", decisive)
-        self.object_points = C.array("object_points", object_points, (4, 3))
-        self.pixel_sigma = C.positive("pixel_sigma", pixel_sigma)
-        self.window = C.positive_int("window", window)
-        self.iterations = C.positive_int("iterations", iterations)
-        self.gate = C.positive("gate", gate)
-        self.young = int(young)
-        self.reset_after = C.positive_int("reset_after", reset_after)
-        f = np.array([camera.fx, camera.fy]) / self.pixel_sigma
-        self._rinv = f * f  # 1 / sigma_normalized^2 for x, y
-        self._w_pixel = np.diag(np.tile(self._rinv, 4))  # weight of a frame with an exact pose
-        self._r_pixel = np.diag(np.tile(1.0 / self._rinv, 4))  # its covariance
-        self.reset()
+        obj = C.array("object_points", object_points, (4, 3))
+        try:
+            obj2d, canon = canonical_frame(obj)
+        except ValueError:
+            raise ValueError("object_points: the target's points are not planar") from None
+        window = C.positive_int("window", window)
+        self.params = TargetFilterParams(
+            pixel_sigma=C.positive("pixel_sigma", pixel_sigma),
+            window=window,
+            iterations=C.positive_int("iterations", iterations),
+            gate=C.positive("gate", gate),
+            young=int(young),
+            decisive=C.positive("decisive", decisive),
+            reset_after=C.positive_int("reset_after", reset_after),
+            recheck=int(recheck),
+            prior_weight=1.0 / self.level_prior**2 if self.level_prior > 0.0 else 0.0,
+            fx=0.0, fy=0.0, cx=0.0, cy=0.0,
+            object_points=np.ascontiguousarray(obj),
+            object_2d=np.ascontiguousarray(obj2d),
+            canon_inv=np.ascontiguousarray(np.linalg.inv(canon)),
+            level_normal=np.ascontiguousarray(C.unit_vector("level_normal", level_normal)),
+        ).with_camera(camera)  # fmt: skip
+        self.state = TargetFilterState.initial(window)
+        self._exact = np.zeros((6, 6))  # the camera-pose covariance of an exact pose
 
-    def pose_noise(self, points_camera, camera_cov) -> np.ndarray:
-        """Covariance (8 x 8, normalized coordinates, rows ``x_1, y_1, ..., y_4``) that an
-        uncertain camera pose adds to a frame: ``G Sigma_c G^T`` with ``Sigma_c`` the 6 x 6
-        covariance of the camera-pose error ``g_C <- g_C exp(eps^)``, ``eps = [w; v]`` in
-        the camera frame, and ``G = dpi/dr [r^, -I]`` (``r' = exp(-w^)(r - v)``) at the
-        points' camera coordinates ``points_camera`` (4, 3).
-
-        Why: with an estimated state (docs/estimation.md) the camera pose of every frame is
-        off by the estimator's error. Its effect on the image is nearly common to the four
-        points (a camera rotation shifts them all), so the filter must not read it as
-        information on the target - unweighted, a 2-5 mrad attitude error (1-3 px) was
-        absorbed along the weakly observed tilt, which ended 10-16 deg off and made the
-        servo chase it (measured, paper-in-fov, 1 px, estimated state)."""
-        r = np.asarray(points_camera, float)
-        g = np.zeros((8, 6))
-        for k in range(4):
-            x, y, zk = r[k]
-            dpi = np.array([[1.0 / zk, 0.0, -x / zk**2], [0.0, 1.0 / zk, -y / zk**2]])
-            g[2 * k : 2 * k + 2, :3] = dpi @ skew(r[k])
-            g[2 * k : 2 * k + 2, 3:] = -dpi
-        return g @ np.asarray(camera_cov, float) @ g.T
+    # ------------------------------------------------------------------ constants
+    @property
+    def pixel_sigma(self) -> float:
+        return self.params.pixel_sigma
 
     @property
-    def sigma(self) -> float:
-        """Corner noise (px) used by the gate and the covariance: the assumed
-        ``pixel_sigma``, or the RMS residual of the window if larger (self-calibrating:
-        a camera noisier than assumed would otherwise see its frames gated out)."""
-        return max(self.pixel_sigma, self.sigma_hat)
+    def window(self) -> int:
+        return self.params.window
+
+    @property
+    def iterations(self) -> int:
+        return self.params.iterations
+
+    @property
+    def gate(self) -> float:
+        return self.params.gate
+
+    @property
+    def young(self) -> int:
+        return self.params.young
+
+    @property
+    def decisive(self) -> float:
+        return self.params.decisive
+
+    @property
+    def reset_after(self) -> int:
+        return self.params.reset_after
+
+    @property
+    def recheck(self) -> int:
+        return self.params.recheck
+
+    @property
+    def object_points(self) -> np.ndarray:
+        return self.params.object_points
+
+    @property
+    def level_normal(self) -> np.ndarray:
+        return self.params.level_normal
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Forget the estimate and the stored frames."""
-        self.pose = None
-        self.P = None
-        self.updates = 0
-        self.rejected = 0
-        self.switches = 0
-        self.sigma_hat = 0.0  # RMS residual of the window (px), once >= 10 frames
-        self._bad = 0
-        self._hyp = []
-        # the window as ring buffers (the sums do not depend on the frames' order)
-        n = self.window
-        self._rc = np.empty((n, 3, 3))  # R_C^T of each frame
-        self._pc = np.empty((n, 3))  # p_C of each frame
-        self._z = np.empty((n, 4, 2))  # normalized points
-        self._w = np.empty((n, 8, 8))  # weight (inverse covariance) of each frame
-        self._diag = np.empty(n, np.bool_)  # whether that weight is diagonal
-        self._count = 0  # frames in the window
-        self._next = 0  # slot of the next frame
+        """Forget the estimate and the stored frames (:func:`filter_reset`)."""
+        filter_reset(self.state)
 
     @property
     def initialized(self) -> bool:
-        return self.pose is not None
+        return bool(self.state.initialized[0])
+
+    @property
+    def pose(self) -> np.ndarray | None:
+        """The estimate ``g_T`` (4x4, world; a copy), ``None`` before the first frame."""
+        return self.state.pose.copy() if self.state.initialized[0] else None
+
+    @pose.setter
+    def pose(self, value) -> None:
+        """Correct the estimate (its covariance and the window stay)."""
+        if not self.state.initialized[0]:
+            raise ValueError("pose: the filter has no estimate to correct yet")
+        self.state.pose[:, :] = C.transform("pose", value)
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """Covariance (6x6, ``[w; v]`` in the target frame; a copy) of the estimate."""
+        return self.state.cov.copy() if self.state.initialized[0] else None
+
+    @property
+    def updates(self) -> int:
+        """Frames fused since the filter last (re)started."""
+        return int(self.state.updates[0])
+
+    @property
+    def rejected(self) -> int:
+        """Frames gated out since the last :meth:`reset`."""
+        return int(self.state.rejected[0])
+
+    @property
+    def switches(self) -> int:
+        """Rescues of the other branch of the planar ambiguity adopted."""
+        return int(self.state.switches[0])
+
+    @property
+    def sigma_hat(self) -> float:
+        """RMS residual of the window (px), once it holds 10 frames (0 before)."""
+        return float(self.state.sigma_hat[0])
+
+    @property
+    def sigma(self) -> float:
+        """Corner noise (px) used by the gate and the covariance (:func:`filter_sigma`)."""
+        return float(filter_sigma(self.params.pixel_sigma, float(self.state.sigma_hat[0])))
 
     @property
     def estimate(self) -> TargetEstimate | None:
-        if self.pose is None:
+        if not self.initialized:
             return None
-        return TargetEstimate(self.pose.copy(), self.P.copy(), self.updates, self.rejected)
+        return TargetEstimate(self.pose, self.P, self.updates, self.rejected)
 
     def predict(self, dt: float) -> None:
         """Nothing to propagate: the target is static (the window does the forgetting)."""
 
     # ------------------------------------------------------------------ model
+    def pose_noise(self, points_camera, camera_cov) -> np.ndarray:
+        """:func:`pose_noise`: the covariance (8 x 8) that a camera pose uncertain by
+        ``camera_cov`` (6 x 6) adds to a frame whose points are at ``points_camera`` (4, 3,
+        camera coordinates)."""
+        r = C.array("points_camera", points_camera, (4, 3))
+        return pose_noise(r, C.array("camera_cov", camera_cov, (6, 6)))
+
     def information(
         self, target_pose, camera_poses, camera_covs=None, with_prior: bool = False
     ) -> np.ndarray:
         """Fisher information (6 x 6, ``[w; v]`` in the target frame) on ``g_T`` of one frame
         from each of ``camera_poses`` (4x4, world) with this filter's pixel noise (and the
-        optional camera-pose covariances): ``sum_j H_j^T R_j^-1 H_j`` at ``target_pose``. Its
-        inverse is the Cramer-Rao bound of any unbiased estimate from those frames (the
-        filter's ``P`` reaches it once the window has converged); used to tell what a camera
-        trajectory can reveal about the target (docs/campaigns.md)."""
+        optional camera-pose covariances, :func:`frame_weight`): ``sum_j H_j^T R_j^-1 H_j`` at
+        ``target_pose``. Its inverse is the Cramer-Rao bound of any unbiased estimate from
+        those frames (the filter's ``P`` reaches it once the window has converged); used to
+        tell what a camera trajectory can reveal about the target (docs/campaigns.md)."""
         g_t = C.transform("target_pose", target_pose)
         poses = [C.transform("camera_poses", g) for g in camera_poses]
         covs = [None] * len(poses) if camera_covs is None else list(camera_covs)
         if len(covs) != len(poses):
             raise ValueError("camera_covs must have one entry per camera pose")
-        rc = np.array([g[:3, :3].T for g in poses])
-        pc = np.array([g[:3, 3] for g in poses])
-        z = np.empty((len(poses), 4, 2))
-        for j, g in enumerate(poses):  # noise-free measurements: the residuals vanish
-            x = target_in_camera(self.object_points, g, g_t)
-            z[j] = x[:, :2] / x[:, 2:3]
-        w = np.array([self._frame_weight(g_t, g, c) for g, c in zip(poses, covs, strict=True)])
+        n = len(poses)
+        rc = np.array([g[:3, :3].T for g in poses]).reshape(n, 3, 3)
+        pc = np.array([g[:3, 3] for g in poses]).reshape(n, 3)
+        z = np.empty((n, 4, 2))
+        w = np.empty((n, 8, 8))
+        for j, (g, c) in enumerate(zip(poses, covs, strict=True)):
+            z[j] = self.points_in(g, g_t)[0]  # noise-free measurements: the residuals vanish
+            cov = self._exact if c is None else C.array("camera_covs", c, (6, 6))
+            frame_weight(self.params, g_t, g, cov, w[j])
         rt = np.ascontiguousarray(g_t[:3, :3])
         info, _, _, ok = _normal_equations(
             rt, g_t[:3, 3].copy(), rc, pc, z, self.object_points, w, _diagonal_flags(w)
@@ -760,60 +1027,35 @@ class TargetFilter:
     def _prior_terms(self, pose):
         """``(information, gradient, cost)`` of the level prior at the target pose ``pose``
         (module docstring), or ``None`` without a prior."""
-        if self.level_prior <= 0.0:
+        if self.params.prior_weight <= 0.0:
             return None
         info, grad = np.zeros((6, 6)), np.zeros(6)
-        rt = np.ascontiguousarray(pose[:3, :3])
-        cost = _level_prior_into(rt, self.level_normal, 1.0 / self.level_prior**2, info, grad)
+        rt = np.ascontiguousarray(np.asarray(pose, float)[:3, :3])
+        cost = _level_prior_into(rt, self.level_normal, self.params.prior_weight, info, grad)
         return info, grad, cost
-
-    def _covariance(self, info, prior) -> np.ndarray:
-        """``P`` from the total information of a solve and its level-prior terms ``prior``
-        (:meth:`_prior_terms` at the solution, or ``None``): the frames' part scaled by the
-        self-calibrated noise (``(pixel_sigma / sigma)^2``), the prior's not."""
-        if prior is None:
-            p = np.linalg.inv(info)
-            p = 0.5 * (p + p.T)
-            return p * (self.sigma / self.pixel_sigma) ** 2
-        k = (self.pixel_sigma / self.sigma) ** 2
-        p = np.linalg.inv((info - prior[0]) * k + prior[0])
-        return 0.5 * (p + p.T)
 
     def points_in(self, camera_pose, target_pose=None):
         """Predicted normalized points ``(4, 2)`` and depths ``(4,)`` of the target at
-        ``target_pose`` (default: the estimate) in a camera at ``camera_pose`` (4x4, world);
-        ``None`` before the first frame."""
-        target_pose = self.pose if target_pose is None else target_pose
+        ``target_pose`` (default: the estimate) in a camera at ``camera_pose`` (4x4, world;
+        :func:`points_in_kernel`); ``None`` before the first frame."""
         if target_pose is None:
-            return None
-        r = target_in_camera(self.object_points, camera_pose, target_pose)
-        return r[:, :2] / r[:, 2:3], r[:, 2].copy()
-
-    def _gauss_newton(self, pose, rc, pc, z, iterations, weights):
-        """``iterations`` GN steps on the frames ``rc, pc, z`` with their ``weights``
-        ``(w, diagonal)`` (N, 8, 8 and N, :meth:`_frames`): ``(pose, information, cost,
-        prior)``, the level prior's terms included in the information and the cost,
-        ``prior`` its :meth:`_prior_terms` at the result (``None`` without a prior); ``None``
-        if the target falls behind a camera (:func:`_gauss_newton_kernel`)."""
-        w_prior = 1.0 / self.level_prior**2 if self.level_prior > 0.0 else 0.0
-        pose, info, cost, p_info, p_grad, p_cost, ok = _gauss_newton_kernel(
-            np.ascontiguousarray(pose), rc, pc, z, self.object_points, *weights, iterations,
-            self.level_normal, w_prior,
+            if not self.state.initialized[0]:
+                return None
+            target_pose = self.state.pose
+        xy, z = np.empty((4, 2)), np.empty(4)
+        points_in_kernel(
+            self.params.object_points, np.ascontiguousarray(camera_pose, float),
+            np.ascontiguousarray(target_pose, float), xy, z,
         )  # fmt: skip
-        if not ok:
-            return None
-        return pose, info, cost, ((p_info, p_grad, p_cost) if w_prior > 0.0 else None)
-
-    def _pnp_hypotheses(self, xy, g_c):
-        return planar_pnp_poses(self.object_points, xy, g_c)
+        return xy, z
 
     # ------------------------------------------------------------------ filter
     def update(self, pixels, camera_pose, camera_cov=None) -> bool:
         """Fuse one detection: ``pixels`` ``(4, 2)`` (paper order) captured with the camera
         at ``camera_pose`` (4x4, world, *at the capture time*). ``camera_cov`` (6 x 6,
-        optional) is the covariance of that pose's error (:meth:`pose_noise`; from the
-        state estimator); ``None`` means the pose is exact. Returns True if fused, False if
-        the frame was gated out (or unusable)."""
+        optional) is the covariance of that pose's error (:func:`pose_noise`; from the
+        state estimator); ``None`` (or zeros) means the pose is exact. Returns True if fused,
+        False if the frame was gated out (or unusable)."""
         pixels = C.array("pixels", pixels, (4, 2))
         g_c = C.transform("camera_pose", camera_pose)
         if camera_cov is not None:
@@ -823,123 +1065,12 @@ class TargetFilter:
     def update_checked(self, pixels, g_c, camera_cov=None) -> bool:
         """:meth:`update` of checked inputs: float ``(4, 2)`` pixels, a rigid 4x4 pose and
         a float ``(6, 6)`` covariance or ``None`` (the servo's per-period call: its inputs
-        come from the perception block and the model)."""
-        xy = self.camera.normalize_checked(pixels)
-        if camera_cov is not None and not np.any(camera_cov):
-            camera_cov = None
-        if self.pose is None:
-            hyp = self._pnp_hypotheses(xy, g_c)
-            if not hyp:
-                return False
-            self._append(g_c, xy, self._frame_weight(hyp[0], g_c, camera_cov))
-            self._hyp = hyp
-            return self._refine()
-        rt = np.ascontiguousarray(self.pose[:3, :3])
-        xw = _target_points(rt, self.pose[:3, 3].copy(), self.object_points)
-        h8, nu = np.empty((8, 6)), np.empty(8)
-        rcf = np.ascontiguousarray(g_c[:3, :3].T)
-        if not _frame_residuals(
-            rcf, g_c[:3, 3].copy(), rt, xw, self.object_points, xy, np.empty((3, 3)), h8, nu
-        ):
-            return self._reject(pixels, g_c, camera_cov)
-        scale = (self.sigma / self.pixel_sigma) ** 2
-        extra = self._camera_noise(self.pose, g_c, camera_cov)
-        s = h8 @ self.P @ h8.T + scale * self._r_pixel + extra
-        if float(nu @ _solve(s, nu)) > self.gate:
-            return self._reject(pixels, g_c, camera_cov)
-        self._bad = 0
-        self._append(g_c, xy, self._frame_weight(self.pose, g_c, camera_cov, extra))
-        ok = self._refine()
-        if ok and self.recheck > 0 and self.updates % self.recheck == 0:
-            self._rescue(xy, g_c)
-        return ok
-
-    def _rescue(self, xy, g_c) -> None:
-        """Escape the wrong branch of the planar ambiguity: refine both PnP solutions of the
-        latest frame on the whole window and adopt one whose cost is lower."""
-        rc, pc, z, w = self._frames()
-        cur = self._gauss_newton(self.pose, rc, pc, z, 0, w)
-        if cur is None:
-            return
-        for pose in self._pnp_hypotheses(xy, g_c):
-            r = self._gauss_newton(pose, rc, pc, z, 4, w)
-            if r is not None and r[2] < cur[2] - 1.0:
-                cur = r
-                self.pose = r[0]
-                self.P = self._covariance(r[1], r[3])
-                self.switches += 1
-
-    def _camera_noise(self, target_pose, g_c, camera_cov):
-        """:meth:`pose_noise` of a frame at the target estimate ``target_pose`` (0 if exact)."""
-        if camera_cov is None:
-            return 0.0
-        return self.pose_noise(target_in_camera(self.object_points, g_c, target_pose), camera_cov)
-
-    def _frame_weight(self, target_pose, g_c, camera_cov, extra=None):
-        """8 x 8 weight (inverse covariance) of a frame: the pixel noise's for an exact pose."""
-        if camera_cov is None:
-            return self._w_pixel
-        if extra is None:
-            extra = self._camera_noise(target_pose, g_c, camera_cov)
-        w = np.linalg.inv(self._r_pixel + extra)
-        return 0.5 * (w + w.T)
-
-    def _append(self, g_c, xy, weight):
-        """Store a frame in the window (overwriting the oldest once it is full)."""
-        k = self._next
-        self._rc[k] = g_c[:3, :3].T
-        self._pc[k] = g_c[:3, 3]
-        self._z[k] = xy
-        self._w[k] = weight
-        self._diag[k] = _diagonal_flags(self._w[k : k + 1])[0]
-        self._next = (k + 1) % self.window
-        self._count = min(self._count + 1, self.window)
-
-    def _reject(self, pixels, g_c, camera_cov=None) -> bool:
-        self.rejected += 1
-        self._bad += 1
-        if self._bad >= self.reset_after:
-            rejected = self.rejected
-            self.reset()
-            self.rejected = rejected
-            return self.update_checked(pixels, g_c, camera_cov)
-        return False
-
-    def _frames(self):
-        """Views of the window: ``R_C^T``, ``p_C``, points and ``(weights, diagonal)`` of its
-        frames."""
-        n = self._count
-        return self._rc[:n], self._pc[:n], self._z[:n], (self._w[:n], self._diag[:n])
-
-    def _refine(self) -> bool:
-        rc, pc, z, w = self._frames()
-        young = len(self._hyp) > 1
-        cands = self._hyp if self._hyp else [self.pose]
-        n_it = max(self.iterations, 3) if self.updates < 3 else self.iterations
-        results = [r for r in (self._gauss_newton(p, rc, pc, z, n_it, w) for p in cands) if r]
-        if not results:
-            rejected = self.rejected
-            self.reset()
-            self.rejected = rejected
-            return False
-        results.sort(key=lambda r: r[2])
-        best = results[0]
-        if young:
-            # keep the other PnP branch until the data decide: a log-likelihood margin of
-            # `decisive` (cost difference), `young` frames at most, or the branches merged
-            other = results[1] if len(results) > 1 else None
-            merged = other is None or np.linalg.norm(_solve(best[0], other[0]) - np.eye(4)) < 1e-4
-            done = other is None or other[2] - best[2] > self.decisive
-            if merged or done or self.updates + 1 >= self.young:
-                self._hyp = []
-            else:
-                self._hyp = [r[0] for r in results]
-        self.pose, info = best[0], best[1]
-        self.updates += 1
-        n = self._count
-        prior = best[3]
-        if n >= 10:  # cost / dof = (sigma_true / pixel_sigma)^2, the frames' cost only
-            cost = best[2] - (prior[2] if prior is not None else 0.0)
-            self.sigma_hat = self.pixel_sigma * float(np.sqrt(max(cost, 0.0) / (8 * n - 6)))
-        self.P = self._covariance(info, prior)
-        return True
+        come from the perception block and the model): :func:`filter_update` (the pixels
+        normalized first for a camera with lens distortion, :func:`filter_fuse`)."""
+        g_c = np.ascontiguousarray(g_c, float)
+        cov = self._exact if camera_cov is None else np.ascontiguousarray(camera_cov, float)
+        if self.camera.has_distortion:
+            xy = np.ascontiguousarray(self.camera.normalize_checked(pixels), float)
+            return bool(filter_fuse(self.params, self.state, xy, g_c, cov))
+        pixels = np.ascontiguousarray(pixels, float)
+        return bool(filter_update(self.params, self.state, pixels, g_c, cov))

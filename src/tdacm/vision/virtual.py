@@ -31,11 +31,15 @@ Three mappings of normalized points ``p^{C_L} -> p^{C_V}`` are therefore provide
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from ..lie.se3 import inv_se3
 from . import _checks as C
+from .mounts import inv4, mul4
 
 METHODS = ("exact", "rotation", "approx")
+#: the codes of :data:`METHODS` in the compiled steps
+EXACT, ROTATION, APPROX = range(3)
 
 
 def _rz(psi: float) -> np.ndarray:
@@ -82,8 +86,55 @@ def virtual_camera_transform(base_pose, camera_pose) -> np.ndarray:
 
 def virtual_transform(g_b: np.ndarray, g_c: np.ndarray) -> np.ndarray:
     """:func:`virtual_camera_transform` of transforms already known to be rigid (the model's
-    poses; no checks: the closed loop's per-period path)."""
+    poses; no checks)."""
     return inv_se3(virtual_pose(g_b, g_c)) @ g_c
+
+
+@njit(cache=True)
+def virtual_transform_into(g_b, g_c, out):
+    """``g_{C_L}^{C_V} = g_{C_V}^-1 g_{C_L}`` with ``g_{C_V} = g_psi g_b^-1 g_{C_L}`` (eq. (18),
+    :func:`virtual_transform`) into ``out``: the compiled steps' form."""
+    psi = np.arctan2(g_b[1, 0], g_b[0, 0])
+    c, s = np.cos(psi), np.sin(psi)
+    gy = np.eye(4)
+    gy[0, 0], gy[0, 1], gy[1, 0], gy[1, 1] = c, -s, s, c
+    for i in range(3):
+        gy[i, 3] = g_b[i, 3]
+    ib = np.empty((4, 4))
+    inv4(g_b, ib)
+    a = np.empty((4, 4))
+    mul4(gy, ib, a)
+    v = np.empty((4, 4))
+    mul4(a, g_c, v)
+    iv = np.empty((4, 4))
+    inv4(v, iv)
+    mul4(iv, g_c, out)
+
+
+@njit(cache=True)
+def virtual_points_into(p, z, g, method, out_p, out_z):
+    """Points ``p`` (N, 2) with depths ``z`` of C_L in C_V (eq. (18), the module docstring's
+    forms by :data:`EXACT`, :data:`ROTATION`, :data:`APPROX`): ``out_z`` the depths in C_V for
+    ``EXACT``, the ratio ``z^{C_V} / z^{C_L}`` for ``ROTATION`` (ones for ``APPROX``). False
+    when a point maps behind the virtual camera."""
+    for k in range(p.shape[0]):
+        x, y = p[k, 0], p[k, 1]
+        if method == EXACT:
+            zk = z[k]
+            r0 = (x * zk) * g[0, 0] + (y * zk) * g[0, 1] + zk * g[0, 2] + g[0, 3]
+            r1 = (x * zk) * g[1, 0] + (y * zk) * g[1, 1] + zk * g[1, 2] + g[1, 3]
+            r2 = (x * zk) * g[2, 0] + (y * zk) * g[2, 1] + zk * g[2, 2] + g[2, 3]
+        else:
+            r0 = x * g[0, 0] + y * g[0, 1] + g[0, 2]
+            r1 = x * g[1, 0] + y * g[1, 1] + g[1, 2]
+            r2 = x * g[2, 0] + y * g[2, 1] + g[2, 2]
+        if method == APPROX:
+            out_p[k, 0], out_p[k, 1], out_z[k] = r0, r1, 1.0
+            continue
+        if not r2 > 0.0:
+            return False
+        out_p[k, 0], out_p[k, 1], out_z[k] = r0 / r2, r1 / r2, r2
+    return True
 
 
 def virtual_camera_points(
@@ -134,20 +185,15 @@ class BehindVirtualCamera(ValueError):
 
 def virtual_points(p, g, z, method: str = "exact", return_depths: bool = False):
     """:func:`virtual_camera_points` on checked inputs (``(N, 2)`` points, a rigid 4x4
-    ``g_{C_L}^{C_V}``, positive depths for ``"exact"``); the closed loop's per-period path."""
-    r, tr = g[:3, :3], g[:3, 3]
-    h = np.column_stack((p, np.ones(p.shape[0])))
-    if method == "exact":
-        rv = (h * z[:, None]) @ r.T + tr
-        if np.any(rv[:, 2] <= 0.0):
-            raise BehindVirtualCamera("a point lies behind the virtual camera")
-        out = rv[:, :2] / rv[:, 2:3]
-        return (out, rv[:, 2]) if return_depths else out
-    rp = h @ r.T
-    if method == "rotation":
-        if np.any(rp[:, 2] <= 0.0):
-            raise BehindVirtualCamera("a point lies behind the virtual camera")
-        out = rp[:, :2] / rp[:, 2:3]
-        return (out, rp[:, 2]) if return_depths else out
-    out = rp[:, :2].copy()
-    return (out, np.ones(p.shape[0])) if return_depths else out
+    ``g_{C_L}^{C_V}``, positive depths for ``"exact"``; :func:`virtual_points_into`)."""
+    n = p.shape[0]
+    out, zv = np.empty((n, 2)), np.empty(n)
+    zz = np.ones(n) if z is None else np.ascontiguousarray(z, dtype=float)
+    code = METHODS.index(method)
+    ok = virtual_points_into(
+        np.ascontiguousarray(p, dtype=float), zz, np.ascontiguousarray(g, dtype=float), code,
+        out, zv,
+    )  # fmt: skip
+    if not ok:
+        raise BehindVirtualCamera("a point lies behind the virtual camera")
+    return (out, zv) if return_depths else out

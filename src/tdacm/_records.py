@@ -1,0 +1,111 @@
+"""Records: a block's typed parameters and state, for one world or many.
+
+A block of the closed loop keeps its parameters and its state as *records*: NamedTuples of
+numpy arrays and scalars with named fields (a scalar that the block's compiled step changes
+is a one-element array, since a tuple's fields cannot be reassigned). The block's compiled
+step takes its records as arguments, so the same function runs one world (the block loop,
+:mod:`tdacm.loop`) and every world of a batch (:mod:`tdacm.batch`).
+
+Many worlds' records are the same NamedTuple with a leading world axis on every field
+(:func:`stack`). :func:`take` gives world ``w``'s record of such a stack, in Python and inside
+compiled code; there the row has exactly the numba type of one world's record (a field
+stacked from C-contiguous arrays is a C-contiguous array again, a stacked scalar a scalar), so
+the engine calls the block's step as compiled once for the block loop: no second
+specialization, no second truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import types
+from numba.extending import overload
+
+__all__ = ["take", "stack", "put", "replicate", "copy_into"]
+
+
+def take(records, w: int):
+    """World ``w``'s record of the stacked ``records`` (module docstring): the NamedTuple of
+    ``field[w]`` (views of the stacked arrays; a nested record is taken in turn)."""
+    return type(records)(
+        *(take(f, w) if _is_record(f) else f[w] for f in records)  # type: ignore[arg-type]
+    )
+
+
+def _is_record(value) -> bool:
+    return isinstance(value, tuple) and hasattr(value, "_fields")
+
+
+@overload(take)
+def _take_compiled(records, w):
+    """:func:`take` in compiled code: a constructor call over the record's fields, generated
+    once per record type (the calling function is what numba caches)."""
+    if not isinstance(records, types.BaseNamedTuple):
+        return None
+    args = ", ".join(
+        f"take(records[{i}], w)" if isinstance(t, types.BaseNamedTuple) else f"records[{i}][w]"
+        for i, t in enumerate(records.types)
+    )
+    src = f"def impl(records, w):\n    return cls({args})\n"
+    scope = {"cls": records.instance_class, "take": take}
+    exec(src, scope)  # noqa: S102 - the source is the field list above
+    return scope["impl"]
+
+
+def copy_into(src, dst) -> None:
+    """Copy every array field of the record ``src`` into the same field of ``dst`` (in place;
+    records of one type, e.g. one world's outputs into another's)."""
+    for a, b in zip(src, dst, strict=True):
+        if _is_record(a):
+            copy_into(a, b)
+        else:
+            b[...] = a
+
+
+@overload(copy_into)
+def _copy_into_compiled(src, dst):
+    """:func:`copy_into` in compiled code: one assignment per field, generated once per record
+    type."""
+    if not isinstance(src, types.BaseNamedTuple):
+        return None
+    body = "\n".join(
+        f"    copy_into(src[{i}], dst[{i}])"
+        if isinstance(t, types.BaseNamedTuple)
+        else f"    dst[{i}][...] = src[{i}]"
+        for i, t in enumerate(src.types)
+    )
+    scope = {"copy_into": copy_into}
+    exec(f"def impl(src, dst):\n{body}\n", scope)  # noqa: S102 - the source is the field list
+    return scope["impl"]
+
+
+def stack(records: list):
+    """The stacked record of a list of records of one type (one per world): every field with
+    a leading world axis, C-contiguous (``numpy.stack`` of the arrays; scalars become arrays
+    of their type)."""
+    if not records:
+        raise ValueError("stack: at least one record")
+    first = records[0]
+    if not _is_record(first):  # a plain array or scalar: one row a world
+        return np.ascontiguousarray(np.stack([np.asarray(r) for r in records]))
+    out = []
+    for i, f in enumerate(first):
+        column = [r[i] for r in records]
+        if _is_record(f):
+            out.append(stack(column))
+        else:
+            out.append(np.ascontiguousarray(np.stack([np.asarray(c) for c in column])))
+    return type(first)(*out)
+
+
+def replicate(record, n: int):
+    """``n`` worlds of one record (:func:`stack` of ``n`` copies)."""
+    return stack([record] * int(n))
+
+
+def put(records, w: int, record) -> None:
+    """Write ``record`` into world ``w``'s row of the stacked ``records`` (in place)."""
+    for f, v in zip(records, record, strict=True):
+        if _is_record(f):
+            put(f, w, v)
+        else:
+            f[w] = v
