@@ -123,9 +123,10 @@ def _touch(**touch):
     sc = load_scenario("touch-target")
     q0 = list(sc.data["initial"]["q"])
     q0[5] = 2.0  # C_L 0.18 m above the standoff view
-    # 14 s: the momentum observer reads the first light contact (0.09 N at touch_speed) below
-    # detect_force, so the touch counts 1.8 s later than with the noisier differenced estimate
-    return sc.with_overrides({"initial": {"q": q0}, "touch": touch, "duration": 14.0})
+    # 15.5 s: the momentum observer reads the first light contact (0.09 N at touch_speed) below
+    # detect_force, so the touch counts 1.8 s later than with the noisier differenced estimate;
+    # the release leaves the surface at approach_speed (1.6 s after the hold here)
+    return sc.with_overrides({"initial": {"q": q0}, "touch": touch, "duration": 15.5})
 
 
 def test_touch_target_touches_holds_and_releases(tmp_path):
