@@ -52,7 +52,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..estimation.contact_force import MomentumObserver, TipForceEstimator
-from ..vision.features import _min_edge2
+from ..vision.features import min_edge2_of
 from ..vision.ibvs import IBVSController
 from .config import TouchConfig
 from .data import PHASES, ForceReading, LocalView, StateEstimate
@@ -279,7 +279,7 @@ class TouchServo(RobustServo):
         if self.target_pose is None:
             return PredictedView()
         xy, z = self.target_filter.points_in(self.local_camera_pose(q), self.target_pose)
-        if np.any(z <= 0) or _min_edge2(xy) < 1e-24:
+        if np.any(z <= 0) or min_edge2_of(xy) < 1e-24:
             return PredictedView()
         f, e, v = self.local_ibvs.features_error_twist(xy, z)
         return PredictedView(xy, z, f, e, v)
