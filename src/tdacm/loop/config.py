@@ -281,6 +281,11 @@ class TouchConfig(ConfigModel):
         "the reference in C_L, low-pass filtered over land_filter) at which a landing is kept "
         "when the hold would start; above it the probe is lifted and lands again",
     )
+    land_correction: bool = Field(
+        True,
+        description="aim each new landing off by the offset the lifted ones repeated (their "
+        "detected C_L centroids, docs/contact.md)",
+    )
     land_filter: float = Field(
         0.2, ge=0, description="s, time constant of that task image error's low-pass filter"
     )

@@ -169,6 +169,22 @@ def release_twist(twist, tc: TouchConfig) -> np.ndarray:
     return v
 
 
+def aim_shift(samples) -> np.ndarray:
+    """The shift ``(2,)`` of the moving-in aim (normalized image coordinates, subtracted from
+    the C_V reference's points) from the landings lifted so far: ``k / (k + 1)`` times the
+    mean of ``samples``, each landing's measured C_L centroid offset plus the shift it was
+    aimed with (the offset it would have had without a shift), ``k`` of them. What a run
+    repeats from landing to landing (the drone's trim tilt and the model's bias, 1-2 mm at the
+    probe's end) is removed, and the landings' scatter, of about the same size, is not
+    followed: ``k / (k + 1)`` is the weight of the mean in the estimate of a bias whose spread
+    is taken equal to the scatter (docs/contact.md, "Landing on the marker"); zero before any
+    landing."""
+    if not samples:
+        return np.zeros(2)
+    k = len(samples)
+    return k / (k + 1.0) * np.mean(np.asarray(samples, float), axis=0)
+
+
 def landing_kept(task_error: float | None, landings: int, tc: TouchConfig) -> bool:
     """Whether the probe's landing is held (the hold starts) or lifted to land again, when the
     hold would start (``settle`` s after the touch): kept if the filtered task image error
@@ -261,6 +277,9 @@ class TouchServo(RobustServo):
         self._lifting = False  # lifting the probe off the surface to land again
         self._lift_end = None  # ... until then (set once the force estimate has dropped)
         self._task_err = None  # the measured task image error, filtered (land_filter)
+        self._cent_err = None  # the detected C_L centroid's offset, filtered (land_filter)
+        self._aim_samples = []  # each lifted landing's offset as aimed without a shift
+        self._aim = np.zeros(2)  # the moving-in aim's shift (aim_shift)
 
     def reset(self, q0, first_view: LocalView | None = None) -> None:
         super().reset(q0, first_view)
@@ -323,6 +342,10 @@ class TouchServo(RobustServo):
                     self.phase = HOLD
                     self._hold_end = t + tc.hold_time
                 else:  # lift the probe and land again; the force loop starts over
+                    if tc.land_correction and self._cent_err is not None:
+                        self._aim_samples.append(self._cent_err + self._aim)
+                        self._aim = aim_shift(self._aim_samples)
+                    self._cent_err = None
                     self._touch_t = None
                     self._lifting = True
                     self._integral = 0.0
@@ -347,6 +370,8 @@ class TouchServo(RobustServo):
         if self._touch_t is not None and view.found:  # where the landed probe aims (pixels)
             err = task_image_error(view.points, self.local_points)
             self._task_err = low_pass(self._task_err, err, dt, tc.land_filter)
+            c = np.mean(np.asarray(view.points, float) - self.local_points, axis=0)
+            self._cent_err = low_pass(self._cent_err, c, dt, tc.land_filter)
         tare = self._transition(t, ps if valid else None, f)
         if tare:  # the force loop starts from the tared estimate
             self._f = None
@@ -368,6 +393,9 @@ class TouchServo(RobustServo):
                 twist = self.pinned_twist(lv, ps)
             elif pressing:
                 e = ps.error.copy()
+                # aimed at the reference's points less the aim's shift: the centroid rows
+                # (p_x, p_y, the points' mean) by the shift, the rest unchanged
+                e[3:5] += self._aim
                 e[5] = 0.0  # p_z (the perimeter: the distance) is the force loop's
                 v = self.ibvs.twist(ps.points, ps.depths, error=e)
                 if self._lifting:
