@@ -36,10 +36,11 @@ def _touch(servo, loop, q, t):
     raise AssertionError("no touch")
 
 
-def _landed(dx, **over):
-    """The probe landed ``dx`` m beside the contact pose along the drone's x (noise-free);
-    returns the loop, the servo, the pose and the time of the touch."""
-    a = build_loop(_noise_free(**over))
+def _landed(dx, correction=True):
+    """The probe landed ``dx`` m beside the contact pose along the drone's x (noise-free,
+    ``touch.land_correction`` as given); returns the loop, the servo, the pose and the time of
+    the touch."""
+    a = build_loop(_noise_free(touch={"land_correction": correction}))
     loop, servo = a.loop, a.loop.servo
     q = a.world.q_star.copy()
     q[3] += dx
@@ -93,10 +94,45 @@ def test_a_lifted_landing_shifts_the_next_aim_by_half_its_offset():
 
 
 def test_without_the_correction_the_aim_stays():
-    """``touch.land_correction = false``: a lifted landing leaves the aim where it was."""
-    loop, servo, q, t0 = _landed(0.003, touch={"land_correction": False})
+    """``touch.land_correction = false`` (the default): a lifted landing leaves the aim where
+    it was."""
+    loop, servo, q, t0 = _landed(0.003, correction=False)
     t = t0
     while not servo._lifting:
         t += 0.02
         _drive(servo, loop, q, t, 0.3)
     assert servo._aim.tolist() == [0.0, 0.0] and servo._aim_samples == []
+
+
+def test_force_settled_band_and_wait():
+    """The hold may start when the filtered estimate is within settle_band (10 %) of the
+    desired force, or settle_wait (1 s) after settle whatever it reads."""
+    from tdacm.loop.config import TouchConfig
+    from tdacm.loop.touch import force_settled
+
+    tc = TouchConfig(enabled=True)
+    assert force_settled(0.32, tc.settle, tc) and force_settled(0.28, tc.settle, tc)
+    assert not force_settled(0.34, tc.settle, tc) and not force_settled(0.26, tc.settle, tc)
+    assert not force_settled(0.45, tc.settle + 0.98, tc)
+    assert force_settled(0.45, tc.settle + tc.settle_wait, tc)
+
+
+def test_the_hold_waits_for_the_force_to_settle():
+    """A landing kept at settle with the estimate still at 0.45 N (the impact's overshoot):
+    no hold until the filtered estimate is within 10 % of 0.3 N; held at 0.45 N throughout,
+    the hold starts settle + settle_wait after the touch."""
+    for late, expect_wait in ((0.3, None), (0.45, 1.0)):
+        loop, servo, q, t0 = _landed(0.001)
+        tc = servo.touch
+        t = t0
+        while servo.phase == CONTACT:
+            t += 0.02
+            reading = 0.45 if t - t0 < tc.settle + 0.2 - 1e-9 else late
+            _drive(servo, loop, q, t, reading)
+            assert t - t0 < tc.settle + tc.settle_wait + 0.01
+        assert servo.phase == HOLD and servo._landings == 1
+        if expect_wait is None:  # the estimate back at 0.3 N from settle + 0.2 s
+            assert tc.settle + 0.2 < t - t0 < tc.settle + 0.5
+            assert abs(servo._f - tc.force) <= tc.settle_band * tc.force
+        else:
+            assert t - t0 == pytest.approx(tc.settle + expect_wait, abs=1e-9)

@@ -255,6 +255,17 @@ class TouchConfig(ConfigModel):
     settle: float = Field(
         1.0, ge=0, description="s, from the first touch to the start of the hold (the impact)"
     )
+    settle_band: float = Field(
+        0.1,
+        ge=0,
+        description="relative: the hold starts once the filtered force estimate is within this "
+        "share of force (settle s after the touch at the earliest) ...",
+    )
+    settle_wait: float = Field(
+        1.0,
+        ge=0,
+        description="s, ... or this long after settle whatever it reads",
+    )
     standoff: float = Field(
         0.1, gt=0, description="m, distance along the camera axis of the approach view"
     )
@@ -282,9 +293,10 @@ class TouchConfig(ConfigModel):
         "when the hold would start; above it the probe is lifted and lands again",
     )
     land_correction: bool = Field(
-        True,
+        False,
         description="aim each new landing off by the offset the lifted ones repeated (their "
-        "detected C_L centroids, docs/contact.md)",
+        "detected C_L centroids; off: the landings' scatter is larger than what they repeat, "
+        "docs/contact.md)",
     )
     land_filter: float = Field(
         0.2, ge=0, description="s, time constant of that task image error's low-pass filter"
