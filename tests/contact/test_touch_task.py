@@ -193,22 +193,23 @@ def test_touch_target_on_estimates_holds_within_the_task_rule():
     """On the EKF's state (default sensors, the scenario's 10 % model error), started 0.19 m
     above the contact pose: the probe lands on the marker, the servo switches to C_L at the
     touch, and the 2 s hold meets the campaigns' rule (the true force within 20 % RMS, the
-    task's image error at or below 0.01 throughout, not ended). Measured (seed 4): hold from
-    11.98 s, force RMS error 15.0 %, task image error 0.0069 (the servo's own, C_L's
-    prediction from the estimate, 0.0083), largest force 0.46 N."""
+    task's image error at or below 0.01 throughout, not ended). The hold starts once the force
+    estimate has settled (``force_settled``). Measured (seed 4): hold from 12.98 s, force RMS
+    error 3.2 % (15.0 % with the hold from ``settle``, 11.98 s), task image error 0.0064 (the
+    servo's own, C_L's prediction from the estimate, 0.0074), largest force 0.46 N."""
     from tdacm.sim import Simulation
 
     sc = load_scenario("touch-target")
     q0 = list(sc.data["initial"]["q"])
     q0[5] = 2.0
     sc = sc.with_overrides(
-        {"initial": {"q": q0}, "touch": {"hold_time": 2.0}, "duration": 14.5,
+        {"initial": {"q": q0}, "touch": {"hold_time": 2.0}, "duration": 15.5,
          "estimation": {"source": "estimated"}}
     )  # fmt: skip
     arrays, s = Simulation(sc, seed=4).run(None)
     assert not s["terminated"], s["termination_reason"]
     assert s["hold_duration"] == pytest.approx(2.0, abs=0.011)
-    assert s["hold_force_rms_rel"] <= 0.2
+    assert s["hold_force_rms_rel"] <= 0.1  # the settled force (0.15 from settle)
     assert s["hold_image_error_max"] <= 0.01
     assert s["hold_image_error_true_max"] <= 0.01
     assert s["landings"] >= 1 and s["max_contact_force"] < sc.config.scene.contact.force_limit

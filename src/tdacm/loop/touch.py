@@ -27,9 +27,11 @@ Two blocks, used when ``[touch] enabled`` (:class:`~.config.TouchConfig`, docs/c
      camera C_L against the reference snapshot in C_L, with the pinned law
      (:func:`pinned_error`: C_L's attitude features, the drone's lean), and the axis is the
      admittance law's (below); ``settle`` s after the touch the landing is checked
-     (:func:`landing_kept`): a probe off the marker is lifted and lands again, aimed off by
-     the offset the lifted landings repeated (:func:`aim_shift`);
-  3. ``hold``: the same, from the kept landing's check, for ``hold_time`` s;
+     (:func:`landing_kept`): a probe off the marker is lifted and lands again (with
+     ``land_correction``, aimed off by the offset the lifted landings repeated,
+     :func:`aim_shift`);
+  3. ``hold``: the same, once the kept landing's force estimate has settled
+     (:func:`force_settled`), for ``hold_time`` s;
   4. ``release``: IBVS of C_V back to the standoff view (the probe leaves the surface).
 
 The hold is judged on the task: :func:`task_image_error`, the detected C_L points' normalized
