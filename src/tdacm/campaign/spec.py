@@ -11,7 +11,7 @@ A spec is a TOML file::
                                   # last 1 s is at or below success_rmse (unset: the last sample)
     success_hold_force_rms = 0.2  # optional, servoing into contact ([touch]): ... if it held
                                   # the force for touch.hold_time within 20 % RMS with the
-                                  # normalized RMSE <= success_rmse throughout the hold
+                                  # task's image error (C_L) <= success_rmse throughout it
     batched = "auto"              # optional: true | false | "auto" (default): the batched
                                   # engine where it runs the scenario and the sampled keys
 
@@ -144,8 +144,8 @@ class CampaignSpecConfig(ConfigModel):
         None,
         gt=0,
         description="servoing into contact: a run succeeds if it held the force for "
-        "touch.hold_time within this fraction RMS, the normalized RMSE <= success_rmse "
-        "throughout the hold",
+        "touch.hold_time within this fraction RMS, the task's image error (the tip camera's "
+        "points to the reference in C_L) <= success_rmse throughout the hold",
     )
     distributions: dict[str, DistributionConfig] = Field(
         {}, description="dotted scenario key -> its distribution"
@@ -188,8 +188,9 @@ class CampaignSpec:
     success_window: float | None = None
     #: servoing into contact: a run succeeds when it held the force for the scenario's
     #: ``touch.hold_time`` with the true force's RMS error at most this fraction of the
-    #: desired force and the normalized RMSE at most ``success_rmse`` throughout the hold
-    #: (the summary's ``hold_force_rms_rel``, ``hold_image_error_max``); ``None``: the RMSE rule
+    #: desired force and the task's image error (the detected tip-camera points to the
+    #: reference snapshot in C_L) at most ``success_rmse`` throughout the hold (the summary's
+    #: ``hold_force_rms_rel``, ``hold_image_error_max``); ``None``: the RMSE rule
     success_hold_force_rms: float | None = None
     #: the engine: ``True`` the batched engine (:mod:`tdacm.campaign.batched`), ``False`` the
     #: block loop, ``"auto"`` batched where supported; how the runs execute, not what they

@@ -55,7 +55,15 @@ from ..vision.tip import rates_from_jacobian
 from .arms import ArmServoState, ArmsLog, ArmsServo
 from .data import PHASES, ForceReading, ServoCommand
 from .servo import normalized_rmse
-from .touch import _AXIAL, observer_step
+from .touch import (
+    _AXIAL,
+    approach_speed,
+    is_pinned,
+    low_pass,
+    observer_step,
+    release_twist,
+    task_image_error,
+)
 
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
 
@@ -65,7 +73,10 @@ APPROACH, CONTACT, HOLD, RELEASE = PHASES
 AXIAL_WEIGHT = 10.0
 
 #: Per-arm series of :class:`ArmsTouchLog` (one column per arm).
-TOUCH_ARM_SERIES = ("force_true_arms", "force_hat_arms", "touch_phase_arms", "contact_force_arms")
+TOUCH_ARM_SERIES = (
+    "force_true_arms", "force_hat_arms", "touch_phase_arms", "contact_force_arms",
+    "rmse_local_arms", "rmse_local_true_arms",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -178,6 +189,7 @@ class ArmsTouchServo(ArmsServo):
         self._qd = None
         self._balance = None  # the balance loop's last correction
         self._rate = None  # its filtered rates
+        self._pinned = [False] * k  # each arm's servo on its task view (tdacm.loop.touch)
 
     def reset(self, q0, first_view=None) -> None:
         super().reset(q0, first_view)
@@ -192,8 +204,7 @@ class ArmsTouchServo(ArmsServo):
         tc = self.touch
         f_hat = reading.force if reading is not None and reading.valid else math.nan
         if math.isfinite(f_hat):
-            a = min(1.0, dt / tc.force_filter) if tc.force_filter > 0 else 1.0
-            self._f[k] = f_hat if self._f[k] is None else self._f[k] + a * (f_hat - self._f[k])
+            self._f[k] = low_pass(self._f[k], f_hat, dt, tc.force_filter)
         return self._f[k] if self._f[k] is not None else 0.0
 
     def _transitions(self, t: float, pss, forces) -> bool:
@@ -243,31 +254,51 @@ class ArmsTouchServo(ArmsServo):
         seen_all = all(p[2] for p in per) and all(valid)
         external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
         states, twists, weights = [], [], []
-        for k, (arm, p, ps) in enumerate(zip(self.arms, per, pss, strict=True)):
-            mode, rmse, extra = p[0], p[7], p[8]
+        pinned = [is_pinned(ph, tt is not None, tc.contact_view)
+                  for ph, tt in zip(self.phases, self._touch_t, strict=True)]  # fmt: skip
+        switched = any(p and not was for p, was in zip(pinned, self._pinned, strict=True))
+        self._pinned = pinned
+        lvs = [arm.local_view(q) if p else None for arm, p in zip(self.arms, pinned, strict=True)]
+        if any(pinned):  # a pinned arm reads its C_L view (the task's)
+            valid = [lv.valid if lv is not None else v for lv, v in zip(lvs, valid, strict=True)]
+            seen_all = all(p[2] for p in per) and all(valid)
+        all_touched = all(tt is not None for tt in self._touch_t)
+        for k, (arm, p, ps, lv) in enumerate(zip(self.arms, per, pss, lvs, strict=True)):
+            mode, points, rmse, measured = p[0], p[4], p[7], p[8].get("rmse_measured", math.nan)
             v = np.zeros(6)
             phase = self.phases[k]
+            view_k, law = ps, arm.standoff_ibvs
+            if phase in (CONTACT, HOLD):
+                law = arm.ibvs
+            if lv is not None:
+                view_k, law = lv, arm.local_ibvs
+                points = lv.points
+                rmse = task_image_error(lv.points, arm.local_points) if lv.valid else math.nan
+                pts = view.arms[k].points if view.arms[k].found else None
+                measured = task_image_error(pts, arm.local_points)
             if mode == Mode.IBVS and seen_all:
                 if external is not None:
                     v = external[k].copy()
+                elif lv is not None:
+                    v = arm.pinned_twist(lv, ps)
                 elif phase in (CONTACT, HOLD):
                     e = ps.error.copy()
                     e[5] = 0.0  # p_z (the distance) is the force loop's
                     v = arm.ibvs.twist(ps.points, ps.depths, error=e)
                     v[5] = 0.0  # after the touch the axis is the admittance's (below)
-                    if not all(tt is not None for tt in self._touch_t):
-                        dist = arm._depth * max(0.0, -ps.error[5]) / ps.features[5]
-                        v[5] = min(tc.approach_speed, max(tc.touch_speed, tc.approach_gain * dist))
                 else:
                     v = arm.standoff_ibvs.features_error_twist(ps.points, ps.depths)[2]
+                    if phase == RELEASE:
+                        v = release_twist(v, tc)
+                if phase in (CONTACT, HOLD) and external is None and not all_touched:
+                    v[5] = approach_speed(arm._depth, view_k.error[5], view_k.features[5], tc)
             if phase in (APPROACH, RELEASE) and ps is not None and ps.valid:
                 rmse = normalized_rmse(ps.points, arm.standoff_points)
-            if ps is not None and ps.valid:
-                law = arm.ibvs if phase in (CONTACT, HOLD) else arm.standoff_ibvs
-                weights.append(law.interaction(ps.points, ps.depths))
+            if view_k is not None and view_k.valid:
+                weights.append(law.interaction(view_k.points, view_k.depths))
             twists.append(v)
-            states.append(ArmTouchState(p[4], rmse, extra.get("rmse_measured", math.nan), v,
-                                        bool(p[2]), phase, forces[k]))  # fmt: skip
+            states.append(ArmTouchState(points, rmse, measured, v, bool(p[2]), phase,
+                                        forces[k]))  # fmt: skip
         self._weights = weights if len(weights) == len(self.arms) else None
         self._pressing = {k for k, p in enumerate(self.phases) if p in (CONTACT, HOLD)}
         qdd_d, request, failure, plan, event, following = self._joint_command(
@@ -280,7 +311,7 @@ class ArmsTouchServo(ArmsServo):
             event = f"touch: {self.phase}"
         return self._command(
             per, states, twists, qdd_d, event, failure, request, plan, phase=self.phase,
-            tare_force=tare, phase_changed=prev_arms != self.phases,
+            tare_force=tare, phase_changed=prev_arms != self.phases or switched,
         )  # fmt: skip
 
     def joint_rates(self, q, twists, pressing=None, separate: bool = False) -> np.ndarray:
@@ -387,6 +418,13 @@ class ArmsTouchServo(ArmsServo):
         self._balance = corr
 
 
+def _worst(x) -> float:
+    """The largest finite entry of ``x`` (NaN if there is none)."""
+    x = np.asarray(x, float)
+    f = np.isfinite(x)
+    return float(x[f].max()) if f.any() else math.nan
+
+
 def arm_contact_forces(system, contact):
     """``(q, qd) -> (k, 3)``: the obstacles' total force on each arm (its rod's capsules and
     its tip sphere, inertial, N), from the contact kernel's per-node forces."""
@@ -416,9 +454,14 @@ class ArmsTouchLog(ArmsLog):
     (the summary judges each arm, :func:`tdacm.sim.runner.touch_summary`). ``arm_forces``:
     :func:`arm_contact_forces`."""
 
-    def __init__(self, desired, frame_composer=None, truths=None, arm_forces=None):
+    def __init__(self, desired, frame_composer=None, truths=None, arm_forces=None,
+                 local_references=None, truths_local=None):  # fmt: skip
         super().__init__(desired, frame_composer, truths)
         self.arm_forces = arm_forces
+        #: each arm's reference snapshot in its C_L and ``q -> (true points in its C_L, pose)``
+        #: (the task's image errors ``rmse_local_arms``, ``rmse_local_true_arms``)
+        self.local_references = None if local_references is None else list(local_references)
+        self.truths_local = None if truths_local is None else list(truths_local)
 
     def record(self, plant, readings, view, estimate, cmd, act, force=None) -> None:
         super().record(plant, readings, view, estimate, cmd, act, force)
@@ -441,6 +484,18 @@ class ArmsTouchLog(ArmsLog):
         r.setdefault("force_hat_arms", []).append(hat)
         r.setdefault("touch_phase_arms", []).append(phases)
         r.setdefault("contact_force_arms", []).append(np.linalg.norm(per, axis=1))
+        measured, truth = np.full(k, np.nan), np.full(k, np.nan)
+        views = getattr(view, "arms", ())
+        for i, ref in enumerate(self.local_references or ()):
+            if len(views) == k and views[i].found:
+                measured[i] = task_image_error(views[i].points, ref)
+            if self.truths_local is not None:
+                truth[i] = task_image_error(self.truths_local[i](plant.q)[0], ref)
+        r.setdefault("rmse_local_arms", []).append(measured)
+        r.setdefault("rmse_local_true_arms", []).append(truth)
+        if "rmse_local" in r:  # the single-arm series: the worse arm's
+            r["rmse_local"][-1] = _worst(measured)
+            r["rmse_local_true"][-1] = _worst(truth)
         if "force_true" in r:
             r["force_true"][-1] = float(np.mean(true))
             r["force_hat"][-1] = float(np.mean(hat))
