@@ -290,6 +290,12 @@ class TouchConfig(ConfigModel):
     lift_time: float = Field(
         0.5, gt=0, description="s, a lift: away from the surface at approach_speed for this long"
     )
+    unload_time: float = Field(
+        3.0,
+        gt=0,
+        description="s, several arms: a landing off the marker has its force ramped to zero "
+        "over this before every probe is lifted (the balance loop on)",
+    )
     force_gain: float = Field(
         0.03, ge=0, description="m per N, admittance: axial reference offset per force error"
     )
