@@ -293,8 +293,8 @@ class TouchConfig(ConfigModel):
     unload_time: float = Field(
         3.0,
         gt=0,
-        description="s, several arms: a landing off the marker has its force ramped to zero "
-        "over this before every probe is lifted (the balance loop on)",
+        description="s, several arms: a landing off a marker has its force ramped to zero "
+        "over this (the balance loop on) before every arm goes back to its standoff view",
     )
     force_gain: float = Field(
         0.03, ge=0, description="m per N, admittance: axial reference offset per force error"
