@@ -168,7 +168,7 @@ def test_squeeze_refusals():
 def test_dual_squeeze_campaign_holds_in_90_percent(tmp_path):
     """The shipped held-out spec (docs/contact.md, "The squeeze"): at least 45 of 50 runs
     hold both arms' force within 20 % RMS with both image errors at or below 0.01, none over
-    the force limit. Slow: a 50-run campaign of 18 s runs."""
+    the force limit. Slow: a 50-run campaign of 20 s runs."""
     from tdacm.campaign import read_results, run_campaign
 
     report = run_campaign(SPECS / "dual-squeeze-50.toml", tmp_path / "c", workers=2,
