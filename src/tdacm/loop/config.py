@@ -307,6 +307,12 @@ class TouchConfig(ConfigModel):
     lift_time: float = Field(
         0.5, gt=0, description="s, a lift: away from the surface at approach_speed for this long"
     )
+    unload_time: float = Field(
+        3.0,
+        gt=0,
+        description="s, several arms: a landing off a marker has its force ramped to zero "
+        "over this (the balance loop on) before every arm goes back to its standoff view",
+    )
     force_gain: float = Field(
         0.03, ge=0, description="m per N, admittance: axial reference offset per force error"
     )

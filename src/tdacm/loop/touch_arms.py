@@ -11,9 +11,12 @@ from its own arm's tendons (``[touch] enabled`` with ``[[robot.arms]]``, docs/co
   :class:`~.touch.TouchServo` per arm. Each arm has its own phase (approach, contact, hold,
   release), its own twist and its own force estimate; the steps that need every side wait
   for the others: moving in starts once every arm has held its standoff view for ``dwell``
-  s (all estimators tared then), every arm moves in until all have touched, the hold starts
-  ``settle`` s after the last arm's first touch and ends for all after ``hold_time`` s, then
-  all release. The run's phase (``touch_phase``) is the least advanced arm's.
+  s (all estimators tared then), every arm moves in until all have touched; ``settle`` s
+  after the last arm's first touch every landing is checked on its arm's task view
+  (:func:`~.touch.landing_kept`): if all are kept the hold starts for all and ends after
+  ``hold_time`` s, then all release; otherwise the force is unloaded on every arm (the mean
+  loop's desired force ramped to zero over ``unload_time``) and every arm goes back to its
+  approach to land again. The run's phase (``touch_phase``) is the least advanced arm's.
 * :class:`ArmsTouchLog`: the log of several arms with the per-arm touch series
   :data:`TOUCH_ARM_SERIES`.
 
@@ -33,8 +36,9 @@ The balance loop, on the arms' difference (for two arms the drone's x and the sa
 bend of both rods, a weakly damped mode of the views' loop): along each balance direction
 ``b_j`` (:meth:`ArmsTouchServo.balance_directions`, made orthogonal to ``a``), the correction
 ``balance_gain (mean_i f_i - f_j) - balance_damping s_j`` (``s_j`` the mode's velocity
-``b_j . qdot / |b_j|^2``, low-pass filtered over ``balance_filter``) added to the reference
-the views set, replacing the last period's (docs/contact.md, "The balance loop").
+``b_j . qdot / |b_j|^2`` over the drone's coordinates on a floating base, low-pass filtered
+over ``balance_filter`` from rest) added to the reference the views set, replacing the last
+period's (docs/contact.md, "The balance loop", "The squeeze on estimates").
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ from .touch import (
     _AXIAL,
     approach_speed,
     is_pinned,
+    landing_kept,
     low_pass,
     observer_step,
     release_twist,
@@ -190,6 +195,9 @@ class ArmsTouchServo(ArmsServo):
         self._balance = None  # the balance loop's last correction
         self._rate = None  # its filtered rates
         self._pinned = [False] * k  # each arm's servo on its task view (tdacm.loop.touch)
+        self._landings = 0  # the squeeze's landings so far (every arm touched once each)
+        self._task_err = [None] * k  # each arm's measured task image error, filtered
+        self._unload_t = None  # a landing off the marker: when the force began to ramp down
 
     def reset(self, q0, first_view=None) -> None:
         super().reset(q0, first_view)
@@ -223,18 +231,53 @@ class ArmsTouchServo(ArmsServo):
                 self._f = [None] * k
                 return True
             return False
+        if self._unload_t is not None:  # the force ramped down on every arm, then back off
+            if t - self._unload_t >= tc.unload_time - 1e-9:
+                self._land_again()
+            return False
         for i in range(k):
             if self.phases[i] == CONTACT and self._touch_t[i] is None:
                 if forces[i] >= tc.detect_force:
                     self._touch_t[i] = t
-            if self.phases[i] == CONTACT and self._touch_t[i] is not None:
-                if t - self._touch_t[i] >= tc.settle:
-                    self.phases[i] = HOLD
-        if self._hold_end is None and all(p == HOLD for p in self.phases):
-            self._hold_end = t + tc.hold_time
+                    if all(tt is not None for tt in self._touch_t):
+                        self._landings += 1  # every probe down: one landing of the squeeze
+        if self._hold_end is None and all(tt is not None for tt in self._touch_t):
+            if t - max(self._touch_t) >= tc.settle:
+                kept = [landing_kept(e, self._landings, tc) for e in self._task_err]
+                if all(kept):
+                    self.phases = [HOLD] * k
+                    self._hold_end = t + tc.hold_time
+                else:  # unload every probe, then land again from the standoff views
+                    self._unload_t = t
         elif self._hold_end is not None and t >= self._hold_end - 1e-9:
             self.phases = [RELEASE] * k
         return False
+
+    def _land_again(self) -> None:
+        """After the unloading of a landing off the marker (docs/contact.md, "The squeeze on
+        estimates"): every arm goes back to its approach (the standoff view, leaving the
+        surface at no more than ``approach_speed``), the force and balance loops disengaged;
+        the squeeze moves in again once every arm has held its standoff view for ``dwell`` s
+        (the estimators tared again then)."""
+        k = len(self.arms)
+        self.phases = [APPROACH] * k
+        self._below_since = [None] * k
+        self._unload_t = None
+        self._touch_t = [None] * k
+        self._task_err = [None] * k
+        self._engaged = False
+        self._integral = 0.0
+        self._balance = None
+        self._rate = None
+
+    def desired_force(self, t: float) -> float:
+        """The mean loop's desired force at ``t``: ``touch.force``, ramped linearly to zero
+        over ``unload_time`` once a landing off the marker is unloaded (both arms together,
+        the balance loop still on: a probe leaving first would push the drone sideways)."""
+        tc = self.touch
+        if self._unload_t is None:
+            return tc.force
+        return tc.force * max(0.0, 1.0 - (t - self._unload_t) / tc.unload_time)
 
     def step(self, t: float, dt: float, view, gview, est, twist=None, force=None) -> ServoCommand:
         q = est.q
@@ -246,6 +289,10 @@ class ArmsTouchServo(ArmsServo):
         readings = getattr(force, "arms", ()) or (None,) * len(self.arms)
         forces = [self._filter(k, r, dt) for k, r in enumerate(readings)]
         prev_phase, prev_arms = self.phase, list(self.phases)
+        for k, (arm, v) in enumerate(zip(self.arms, view.arms, strict=True)):
+            if self._touch_t[k] is not None and v.found:  # where the landed probe aims
+                err = task_image_error(v.points, arm.local_points)
+                self._task_err[k] = low_pass(self._task_err[k], err, dt, tc.land_filter)
         tare = self._transitions(t, pss, forces)
         if tare:
             forces = [0.0] * len(self.arms)
@@ -256,7 +303,7 @@ class ArmsTouchServo(ArmsServo):
         states, twists, weights = [], [], []
         pinned = [is_pinned(ph, tt is not None, tc.contact_view)
                   for ph, tt in zip(self.phases, self._touch_t, strict=True)]  # fmt: skip
-        switched = any(p and not was for p, was in zip(pinned, self._pinned, strict=True))
+        switched = pinned != self._pinned  # a view changes: the safety monitor re-arms
         self._pinned = pinned
         lvs = [arm.local_view(q) if p else None for arm, p in zip(self.arms, pinned, strict=True)]
         if any(pinned):  # a pinned arm reads its C_L view (the task's)
@@ -288,7 +335,7 @@ class ArmsTouchServo(ArmsServo):
                     v[5] = 0.0  # after the touch the axis is the admittance's (below)
                 else:
                     v = arm.standoff_ibvs.features_error_twist(ps.points, ps.depths)[2]
-                    if phase == RELEASE:
+                    if phase == RELEASE or self._landings:  # leaving the surface
                         v = release_twist(v, tc)
                 if phase in (CONTACT, HOLD) and external is None and not all_touched:
                     v[5] = approach_speed(arm._depth, view_k.error[5], view_k.features[5], tc)
@@ -306,12 +353,13 @@ class ArmsTouchServo(ArmsServo):
         )
         if following:
             self._qd = est.qd
-            self._admittance(q, forces, dt)
+            self._admittance(q, forces, dt, self.desired_force(t))
         if prev_phase != self.phase:
             event = f"touch: {self.phase}"
         return self._command(
             per, states, twists, qdd_d, event, failure, request, plan, phase=self.phase,
             tare_force=tare, phase_changed=prev_arms != self.phases or switched,
+            landing=self._landings,
         )  # fmt: skip
 
     def joint_rates(self, q, twists, pressing=None, separate: bool = False) -> np.ndarray:
@@ -366,9 +414,10 @@ class ArmsTouchServo(ArmsServo):
             out.append(self.joint_rates(q, d, set(range(k)), separate=True))
         return out
 
-    def _admittance(self, q, forces, dt: float) -> None:
+    def _admittance(self, q, forces, dt: float, force: float) -> None:
         """The squeeze's force loops (module docstring), once every arm has touched: the
-        mean loop along ``a``, then the balance loop (:meth:`_balance_step`)."""
+        mean loop along ``a`` to the desired ``force``, then the balance loop
+        (:meth:`_balance_step`)."""
         tc = self.touch
         lead = self.arms[0]
         if not all(p in (CONTACT, HOLD) for p in self.phases):
@@ -379,7 +428,7 @@ class ArmsTouchServo(ArmsServo):
         aa = float(a @ a)
         if aa == 0.0:
             return
-        err = tc.force - float(np.mean(forces))
+        err = force - float(np.mean(forces))
         now = float(a @ (lead.q_d - q)) / aa
         if not self._engaged:  # bumpless: the PI starts from the offset it finds
             self._engaged = True
@@ -402,11 +451,15 @@ class ArmsTouchServo(ArmsServo):
         aa = float(a @ a)
         dirs = [b - a * (float(a @ b) / aa) for b in self.balance_directions(q)]
         qd = np.zeros(self.n) if self._qd is None else np.asarray(self._qd, float)
-        rate = np.array([float(b @ qd) / float(b @ b) for b in dirs])
-        if self._rate is None or tc.balance_filter <= 0:
+        # the mode's velocity read from the drone's coordinates on a floating base (the rods'
+        # strain rates are the estimate's noisiest, differenced encoders: docs/contact.md)
+        m = slice(0, 6) if lead._flying else slice(None)
+        rate = np.array([float(b[m] @ qd[m]) / float(b[m] @ b[m]) for b in dirs])
+        if tc.balance_filter <= 0:
             self._rate = rate
-        else:
-            self._rate = self._rate + min(1.0, dt / tc.balance_filter) * (rate - self._rate)
+        else:  # from rest when the loop engages: one period's rate is mostly noise on estimates
+            prev = np.zeros(len(dirs)) if self._rate is None else self._rate
+            self._rate = prev + min(1.0, dt / tc.balance_filter) * (rate - prev)
         mean = float(np.mean(forces))
         corr = np.array([tc.balance_gain * (mean - forces[j]) for j in range(len(dirs))])
         corr = corr - tc.balance_damping * self._rate
