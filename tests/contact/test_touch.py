@@ -186,8 +186,8 @@ def test_touch_target_on_estimates_no_false_touch(tmp_path):
     """On the EKF's state (estimation.source = "estimated", the default sensors) with the
     momentum observer's force: the servo reaches the standoff, tares and moves in; until the
     probe touches, the force estimate (true force 0) stays below the touch threshold
-    (``detect_force`` 0.1 N), its RMS within half of it. Measured (seed 3): RMS 0.004 N, at
-    most 0.010 N over the 1.7 s of moving in."""
+    (``detect_force`` 0.1 N), its RMS within half of it. The moving in without contact lasts
+    0.9 s on seed 3 with the shipped law (45 periods): at least 0.8 s is asked."""
     sc = _touch().with_overrides({"estimation": {"source": "estimated"}, "duration": 6.0})
     assert sc.config.touch.force_estimator == "momentum"
     arrays, s = Simulation(sc, seed=3).run(None)
@@ -195,7 +195,7 @@ def test_touch_target_on_estimates_no_false_touch(tmp_path):
     ph = arrays["touch_phase"]
     # moving in, untouched; from the period after the tare (the tare's own reading is untared)
     free = (ph == 1) & (np.r_[-1, ph[:-1]] == 1) & (np.cumsum(arrays["force_true"] > 0) == 0)
-    assert free.sum() > 50  # > 1 s of moving in without contact
+    assert free.sum() >= 40  # >= 0.8 s of moving in without contact
     f = arrays["force_hat"][free]
     assert np.abs(f).max() < sc.config.touch.detect_force
     assert np.sqrt(np.mean(f**2)) < 0.5 * sc.config.touch.detect_force
