@@ -1,9 +1,10 @@
 """Servoing into contact leaves the free flight alone: the paper's five scenarios give these
-values (0.1 s of each, six periods: the reference snapshot, the first views,
-the controller's first commands and the plant's integration), taken on the code without the
-contact-hold changes and reproduced bit for bit with them on the same machine (numba and
-numpy as in the project's venv; held to 1e-12 relative, see the test). Any change in those paths, the touch servo's task view and its
-reference snapshot in C_L included (docs/contact.md), changes them."""
+values (0.1 s of each, six periods: the reference snapshot, the first views, the controller's
+first commands and the plant's integration), taken on the code without the contact-hold
+changes and reproduced bit for bit with them on the same machine (numba and numpy as in the
+project's venv; held to 1e-12 relative, see the test). A change in those paths, the touch
+servo's task view and its reference snapshot in C_L included (docs/contact.md), changes
+them."""
 
 import math
 
