@@ -206,7 +206,7 @@ def test_the_private_read_check_finds_one(tmp_path):
 #: logic never lives in tdacm.batch (docs/architecture.md)
 ENGINE_FUNCTIONS = {
     "engine": {"_end", "reset_worlds", "sense", "act", "step_worlds", "sense_worlds",
-               "act_worlds", "act_sense", "run_worlds", "parallel",
+               "act_worlds", "act_sense", "run_worlds", "parallel", "worlds", "_no_log", "_all",
                # the estimator's sensors polled with the world's own random stream (the draws
                # are the sensor steps' inputs), the filter's reset and period called per world
                "_draws", "_poll_pose", "_poll_imu", "_poll_encoders", "_estimate_of",
