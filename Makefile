@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+ENGINE_STAMP := $(VENV)/.engine-cached
 
 .PHONY: demo test docs lint bench clean
 
@@ -16,7 +17,13 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/tdacm run paper-in-fov --out out/paper-in-fov
 
-test: $(STAMP)
+# the batched engine's, the vector env's and identification's kernels: the tests use them,
+# the demo does not (so `make demo` does not wait for them)
+$(ENGINE_STAMP): $(STAMP)
+	$(PY) -m tdacm.loop.precompile --install-engine
+	touch $(ENGINE_STAMP)
+
+test: $(ENGINE_STAMP)
 	$(VENV)/bin/lint-imports --no-cache   # the layers of [tool.importlinter] in pyproject.toml
 	$(PY) -m pytest -q --durations=15   # includes the strict docs build (tests/test_docs.py) and the layers; lists the slowest tests (the 10-minute budget)
 

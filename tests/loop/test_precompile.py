@@ -161,3 +161,30 @@ def test_fill_cache_runs_the_readme_command_once(monkeypatch, capsys):
     assert precompile.fill_cache() == 3  # a failed warm-up reports, the install goes on
     out = capsys.readouterr().out
     assert "failed" in out and "boom" in out
+
+
+def test_fill_engine_cache_compiles_the_engine_and_identification_at_once(monkeypatch, capsys):
+    class Proc:
+        started: list = []
+
+        def __init__(self, args, **kwargs):
+            self.args = args
+            self.returncode = 0 if "build_batch" in args[-1] else 2
+            Proc.started.append(self)
+
+        def communicate(self, timeout=None):
+            return "", "identification broke"
+
+    monkeypatch.setattr(precompile.subprocess, "Popen", Proc)
+    assert precompile.fill_engine_cache() == 1  # a failure is reported, the install goes on
+    codes = [p.args[-1] for p in Proc.started]
+    assert codes == [precompile.WARM_UP_ENGINE, precompile.WARM_UP_IDENTIFY]
+    out = capsys.readouterr().out
+    assert "compiling identification failed" in out and "identification broke" in out
+    Proc.started = []
+    monkeypatch.setattr(Proc, "communicate", lambda self, timeout=None: ("", ""))
+    monkeypatch.setattr(precompile, "WARM_UP_IDENTIFY", "build_batch")  # both succeed
+    assert precompile.fill_engine_cache() == 0
+    assert "kernels cached" in capsys.readouterr().out
+    # the run's warm-up starts no second process: `make demo` waits for its own kernels only
+    assert "build_batch" not in precompile.WARM_UP_RUN

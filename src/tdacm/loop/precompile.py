@@ -160,29 +160,26 @@ def compile_second_half() -> None:
 
 #: What :func:`fill_cache` runs: the README's first command, on one simulated second.
 WARM_UP_RUN = ("run", "paper-in-fov", "--duration", "1")
-#: ... and, in a second process at the same time, a batch of the engine's configuration
-#: (:mod:`tdacm.batch`, whose kernels compile apart from the block loop's), the vector env with
-#: the imitation teacher and a one-step identification (explicit and stiff shooting), so that
-#: their first use loads rather than compiles too
-WARM_UP_BATCH = (
+#: What :func:`fill_engine_cache` runs (``make test``'s extra install step), two processes at
+#: once: a batch of the engine (:mod:`tdacm.batch`: its one compiled entry, over the block
+#: loop's steps :func:`fill_cache` cached) and the vector env with the imitation teacher ...
+WARM_UP_ENGINE = (
     "from tdacm.sim.batch import build_batch\n"
     "from tdacm.sim.scenario import load_scenario\n"
     "sc = load_scenario('paper-out-of-fov').with_overrides({'cameras': {'local_renderer': "
     "'analytic', 'global_renderer': 'planar'}, 'ibvs': {'features': 'measured'}}, 'warm-up')\n"
     "b = build_batch(sc, [0, 1], duration=0.2, threads=2)\n"
     "b.run(); b.step(); b.reset()\n"
-    # the period in halves with a view between them (the vector env's kernels, one at a time)
-    "import numpy as np\n"
-    "from tdacm.batch import engine as E\n"
-    "E.sense_worlds(b.model, b.data, 0, 2)\n"
-    "E.act_worlds(b.model, b.data, np.full((2, 6), np.nan), 0, 2)\n"
     # the vector env and the imitation teacher on the robust servo (tdacm.envs)
     "import gymnasium as gym\n"
     "import tdacm.envs\n"
     "from tdacm.envs.teacher import teacher_twists\n"
     "v = gym.make_vec('tdacm/TipServo-v0', num_envs=2, vectorization_mode='vector_entry_point')\n"
     "v.reset(seed=0); teacher_twists(v); v.step(v.action_space.sample()); v.close()\n"
-    # identification's shooting on the explicit (RK4) and the stiff path (tdacm.identify)
+)
+#: ... and a one-step identification on the explicit (RK4) and the stiff shooting path
+#: (:mod:`tdacm.identify`, kernels of its own)
+WARM_UP_IDENTIFY = (
     "from tdacm.identify import identify, synthesize\n"
     "for basis in ('bending:0', 'bending:2'):\n"
     "    rec = synthesize('tendon-steps-loaded', seed=3, duration=3.0).decimated(2)\n"
@@ -194,10 +191,10 @@ def fill_cache(timeout: float = 1800.0) -> int:
     """Fill numba's on-disk cache at install time (the Makefile's install step runs
     ``python -m tdacm.loop.precompile --install``): one ``tdacm run paper-in-fov --duration 1``
     into a temporary folder, which compiles every kernel the scenario runs (in two processes,
-    as any cold run) and caches them, so that the user's first run loads them; meanwhile a
-    third process runs a small batch of the batched engine, the vector env and a one-step
-    identification (:data:`WARM_UP_BATCH`).  Returns the
-    run's exit code; a failure only costs the user that compile at the first run."""
+    as any cold run) and caches them, so that the user's first run loads them. The batched
+    engine, the vector env and identification compile apart (:func:`fill_engine_cache`,
+    ``make test``'s step), so that ``make demo`` waits for the demo's kernels only. Returns
+    the run's exit code; a failure only costs the user that compile at the first run."""
     import tempfile
 
     t0 = time.perf_counter()
@@ -206,12 +203,6 @@ def fill_cache(timeout: float = 1800.0) -> int:
         "(once; a minute or more on two cores)...",
         flush=True,
     )
-    batch = subprocess.Popen(
-        [sys.executable, "-c", WARM_UP_BATCH],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "tdacm.cli", "-q", *WARM_UP_RUN, "--out", out]
         try:
@@ -219,13 +210,8 @@ def fill_cache(timeout: float = 1800.0) -> int:
                 cmd, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout
             )
         except subprocess.TimeoutExpired:
-            batch.kill()
             print(f"tdacm: the warm-up run took over {timeout:.0f} s; stopped", flush=True)
             return 1
-    try:  # the batched engine's kernels (a failure only costs their compile at first use)
-        batch.wait(timeout=max(1.0, timeout - (time.perf_counter() - t0)))
-    except subprocess.TimeoutExpired:
-        batch.kill()
     if proc.returncode != 0:
         print(f"tdacm: the warm-up run failed:\n{proc.stderr[-2000:]}", flush=True)
     else:
@@ -233,8 +219,50 @@ def fill_cache(timeout: float = 1800.0) -> int:
     return proc.returncode
 
 
+def fill_engine_cache(timeout: float = 3600.0) -> int:
+    """Fill numba's cache with the batched engine's, the vector env's and identification's
+    kernels (``python -m tdacm.loop.precompile --install-engine``, ``make test``'s step after
+    :func:`fill_cache`): :data:`WARM_UP_ENGINE` and :data:`WARM_UP_IDENTIFY` in two processes
+    at once, so that the tests and a user's first batch load them. Returns 0, or 1 if either
+    failed or ran out of time (which only costs that compile at the first use)."""
+    t0 = time.perf_counter()
+    print(
+        "tdacm: compiling the batched engine's, the vector env's and identification's numba "
+        "kernels into numba's cache (once; ten minutes or more on two cores)...",
+        flush=True,
+    )
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", code],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for code in (WARM_UP_ENGINE, WARM_UP_IDENTIFY)
+    ]
+    failed = False
+    for proc, what in zip(procs, ("the engine and the vector env", "identification"), strict=True):
+        try:
+            _, err = proc.communicate(timeout=max(1.0, timeout - (time.perf_counter() - t0)))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            print(f"tdacm: compiling {what} took over {timeout:.0f} s; stopped", flush=True)
+            failed = True
+            continue
+        if proc.returncode != 0:
+            print(f"tdacm: compiling {what} failed:\n{err[-2000:]}", flush=True)
+            failed = True
+    if not failed:
+        print(f"tdacm: kernels cached in {time.perf_counter() - t0:.0f} s", flush=True)
+    return int(failed)
+
+
 if __name__ == "__main__":  # pragma: no cover - run as a subprocess by start() and make
     if sys.argv[1:] == ["--install"]:
         fill_cache()  # never fails the install: the kernels then compile at the first run
+    elif sys.argv[1:] == ["--install-engine"]:
+        fill_engine_cache()  # nor this one
     else:
         compile_second_half()
