@@ -188,3 +188,31 @@ def test_fill_engine_cache_compiles_the_engine_and_identification_at_once(monkey
     assert "kernels cached" in capsys.readouterr().out
     # the run's warm-up starts no second process: `make demo` waits for its own kernels only
     assert "build_batch" not in precompile.WARM_UP_RUN
+
+
+def test_kernels_are_cold_reads_numba_s_own_cache_index(tmp_path, monkeypatch):
+    import importlib
+
+    (tmp_path / "cold_kernel_probe.py").write_text(
+        "from numba import njit\n\n@njit(cache=True)\ndef twice(x):\n    return 2 * x\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    probe = importlib.import_module("cold_kernel_probe")
+    assert precompile.kernels_are_cold([probe.twice])  # never compiled: its first call will
+    assert probe.twice(2.0) == 4.0
+    assert not precompile.kernels_are_cold([probe.twice])  # cached on disk now
+
+
+def test_the_engine_says_it_compiles_before_it_does(monkeypatch, caplog):
+    from tdacm.sim import batch
+
+    monkeypatch.setattr(precompile, "kernels_are_cold", lambda kernels: True)
+    with caplog.at_level("WARNING", logger="tdacm"):
+        batch._compile_notice()
+    assert "compiling the batched engine's numba kernels" in caplog.text
+    caplog.clear()
+    monkeypatch.setattr(precompile, "kernels_are_cold", lambda kernels: False)
+    with caplog.at_level("WARNING", logger="tdacm"):
+        batch._compile_notice()
+    assert caplog.text == ""  # cached: nothing said

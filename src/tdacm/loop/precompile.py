@@ -76,6 +76,21 @@ def numba_cache_is_cold() -> bool:
         return _index_files_missing()
 
 
+def kernels_are_cold(kernels) -> bool:
+    """True when any of the numba dispatchers ``kernels`` has no entry in numba's on-disk cache
+    for this source and this CPU (its first call will compile), read from numba's own cache
+    index; False when that cannot be read (another numba version's internals)."""
+    try:
+        for kernel in kernels:
+            index = kernel._cache._cache_file._load_index()  # {} if stale or missing
+            magic = kernel.targetctx.codegen().magic_tuple()
+            if not any(key[1] == magic for key in index):
+                return True
+    except Exception:  # pragma: no cover - another numba version's internals
+        return False
+    return False
+
+
 def _index_files_missing() -> bool:
     from importlib.util import find_spec
 

@@ -13,6 +13,7 @@ world the rows the block loop built on that world's scenario has (tested equal).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -39,6 +40,8 @@ from ..vision.features import advanced_features, feature_interaction_matrix
 from .assemble import build_loop, reference_snapshot
 from .blocks import startup_sensors
 from .scenario import Scenario, ScenarioError, load_scenario
+
+log = logging.getLogger(__name__)
 
 #: the model arrays a world's robot replaces (:class:`~tdacm.system.worlds.RobotRows`)
 _ROBOT_FIELDS = ("stiffness", "damping", "step_mass", "mb6", "tendon_d", "tendon_dd")
@@ -366,6 +369,20 @@ def _gains_of(a, f):
     return default_gains(_Robot(s, m), q_star, c.config)
 
 
+def _compile_notice() -> None:
+    """One line on stderr (the ``tdacm`` logger's warning) before the engine's first use
+    compiles its entries (about ten minutes of one core on an empty cache,
+    docs/benchmarks.md, "What compiles"), instead of a silent wait; nothing once cached."""
+    from ..batch import engine as E
+    from ..loop.precompile import kernels_are_cold
+
+    if kernels_are_cold((E.worlds, E.reset_worlds)):
+        log.warning(
+            "tdacm: compiling the batched engine's numba kernels on first use (about ten "
+            "minutes of one core on an empty cache; cached after, and by `make test`)..."
+        )
+
+
 def build_batch(
     scenario, seeds, duration=None, q0=None, threads=None, assembly=None, params=None
 ) -> Batch:
@@ -397,6 +414,7 @@ def build_batch(
             params = None
         elif params.latency is not None and np.any(params.latency > MAX_LATENCY):
             raise ScenarioError(f"params.latency: the engine buffers {MAX_LATENCY} frames")
+    _compile_notice()
     a = build_loop(sc, int(seeds[0])) if assembly is None else assembly
     loop = a.loop
     try:
