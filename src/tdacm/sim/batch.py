@@ -371,15 +371,16 @@ def _gains_of(a, f):
 
 def _compile_notice() -> None:
     """One line on stderr (the ``tdacm`` logger's warning) before the engine's first use
-    compiles its entries (about ten minutes of one core on an empty cache,
-    docs/benchmarks.md, "What compiles"), instead of a silent wait; nothing once cached."""
+    compiles its entries (7 minutes of one core with the block loop's kernels cached, 17 on
+    an empty cache: docs/benchmarks.md, "What compiles"), instead of a silent wait; nothing
+    once cached."""
     from ..batch import engine as E
     from ..loop.precompile import kernels_are_cold
 
     if kernels_are_cold((E.worlds, E.reset_worlds)):
         log.warning(
-            "tdacm: compiling the batched engine's numba kernels on first use (about ten "
-            "minutes of one core on an empty cache; cached after, and by `make test`)..."
+            "tdacm: compiling the batched engine's numba kernels on first use (7 to 17 "
+            "minutes of one core, once; cached after)..."
         )
 
 
