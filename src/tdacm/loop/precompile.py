@@ -66,14 +66,20 @@ def numba_cache_is_cold() -> bool:
     try:
         from ..system import kernels as K
 
-        for kernel in (K.rk4_run, K.coupled_terms):
-            index = kernel._cache._cache_file._load_index()  # {} if stale or missing
-            magic = kernel.targetctx.codegen().magic_tuple()
-            if not any(key[1] == magic for key in index):
-                return True
-        return False
+        return _uncached((K.rk4_run, K.coupled_terms))
     except Exception:  # pragma: no cover - another numba version's internals
         return _index_files_missing()
+
+
+def _uncached(kernels) -> bool:
+    """Whether any of the dispatchers ``kernels`` lacks an entry for this CPU in numba's cache
+    index (raises on another numba version's internals)."""
+    for kernel in kernels:
+        index = kernel._cache._cache_file._load_index()  # {} if stale or missing
+        magic = kernel.targetctx.codegen().magic_tuple()
+        if not any(key[1] == magic for key in index):
+            return True
+    return False
 
 
 def kernels_are_cold(kernels) -> bool:
@@ -81,14 +87,9 @@ def kernels_are_cold(kernels) -> bool:
     for this source and this CPU (its first call will compile), read from numba's own cache
     index; False when that cannot be read (another numba version's internals)."""
     try:
-        for kernel in kernels:
-            index = kernel._cache._cache_file._load_index()  # {} if stale or missing
-            magic = kernel.targetctx.codegen().magic_tuple()
-            if not any(key[1] == magic for key in index):
-                return True
+        return _uncached(kernels)
     except Exception:  # pragma: no cover - another numba version's internals
         return False
-    return False
 
 
 def _index_files_missing() -> bool:
