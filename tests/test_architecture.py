@@ -163,10 +163,33 @@ def private_reads(root: Path) -> list[str]:
     return hits
 
 
+#: reads of underscore names that are not another tdacm package's, each with its reason: a
+#: third-party library's internals the project needs and the library has no public API for,
+#: or names defined in generated code (the check reads Python sources, not generated ones)
+NOT_TDACM = {
+    # mcap_ros2's Writer cannot set a channel's metadata (the latched QoS of /tf_static)
+    ("recording/export.py", "w._channel_ids"): "mcap_ros2",
+    ("recording/export.py", "w._writer"): "mcap_ros2",
+    # numba has no public API to list a dispatcher's cached signatures
+    ("loop/precompile.py", "kernel._cache._cache_file._load_index"): "numba",
+    ("loop/precompile.py", "kernel._cache._cache_file"): "numba",
+    ("loop/precompile.py", "kernel._cache"): "numba",
+    # the functions of the module that tdacm.baselines.codegen generates (same package)
+    ("baselines/cc.py", "self.module._evaluate"): "generated",
+    ("baselines/cc.py", "self.module._energy"): "generated",
+}
+
+
 def test_no_module_reads_another_packages_underscore_names():
     """A package's underscore names are its own: another package reads a block's parameters
     from its records and public attributes (``params``, ``state``), never its internals."""
-    assert private_reads(ROOT) == []
+    hits = []
+    for hit in private_reads(ROOT):
+        where, _, expr = hit.partition(": ")
+        rel = where.split(":")[0].removeprefix("src/tdacm/")
+        if (rel, expr) not in NOT_TDACM:
+            hits.append(hit)
+    assert hits == []
 
 
 def test_the_private_read_check_finds_one(tmp_path):
@@ -183,7 +206,11 @@ def test_the_private_read_check_finds_one(tmp_path):
 #: logic never lives in tdacm.batch (docs/architecture.md)
 ENGINE_FUNCTIONS = {
     "engine": {"_end", "reset_worlds", "sense", "act", "step_worlds", "sense_worlds",
-               "act_worlds", "act_sense", "run_worlds", "parallel"},
+               "act_worlds", "act_sense", "run_worlds", "parallel", "worlds", "_no_log", "_all",
+               # the estimator's sensors polled with the world's own random stream (the draws
+               # are the sensor steps' inputs), the filter's reset and period called per world
+               "_draws", "_poll_pose", "_poll_imu", "_poll_encoders", "_estimate_of",
+               "_start_estimation", "_estimate"},
     "random": {"_mix", "_mix_py", "stream_state", "uniform", "normal"},
 }  # fmt: skip
 

@@ -114,3 +114,27 @@ def test_bench_compile_rejects_an_unknown_job(capsys):
         code = exc.code
     err = capsys.readouterr().err
     assert code == 2 and "--compile" in err and "everything" in err and "Traceback" not in err
+
+
+def test_fill_compiles_the_blocks_before_the_engine_that_loads_them(monkeypatch, tmp_path):
+    """``make test``'s warm-up: the run's and identification's jobs at once, then the engine
+    with the vector env (which loads the blocks' steps the first phase cached); a failing
+    process is reported and counted, the others still run."""
+    started, waited = [], []
+
+    class Proc:
+        def __init__(self, cmd, **kwargs):
+            self.jobs = tuple(cmd[cmd.index("run-jobs") + 1 : cmd.index("--work")])
+            started.append((self.jobs, len(waited)))
+
+        def wait(self, timeout=None):
+            waited.append(self.jobs)
+            return 3 if self.jobs == ("identify",) else 0
+
+    monkeypatch.setattr(C.subprocess, "Popen", Proc)
+    lines = []
+    assert C.fill(progress=lines.append) == 1
+    # both first-phase processes start before either is waited for; the engine's after both
+    assert started == [(("run",), 0), (("identify",), 0), (("engine", "vector-env"), 2)]
+    assert any("compiling identify failed" in line for line in lines)
+    assert sorted(j for phase in C.PHASES for group in phase for j in group) == sorted(C.JOBS)

@@ -8,11 +8,13 @@ from tdacm.bench.loop import LOOP_CASES, compiled_share
 def test_compiled_share_finds_the_kernels_and_bounds_the_real_time_factor():
     c = compiled_share(LOOP_CASES["analytic"], duration=0.4, top=20)
     top = c["top"]
-    # the plant integrates once per period; the servo's filter and the perception's planar
-    # pose (the compiled IPPE) run too
-    assert abs(top["tdacm.system.kernels.rk4_run"]["calls_per_period"] - 1.0) < 0.1
-    assert "tdacm.vision.target_filter._gauss_newton_kernel" in top
-    assert "tdacm.vision.ippe.point_depths" in top
+    # each block's compiled step once per period: the plant's (its substeps inside), the
+    # perception's (the compiled IPPE inside), the servo's (the target filter inside) and the
+    # controller's
+    assert abs(top["tdacm.loop.plant.plant_step"]["calls_per_period"] - 1.0) < 0.1
+    for step in ("loop.perception.perceive", "loop.servo.servo_perceive",
+                 "loop.servo.servo_command", "control.hierarchical.controller_step"):  # fmt: skip
+        assert abs(top[f"tdacm.{step}"]["calls_per_period"] - 1.0) < 0.1, step
     assert not any("numpy" in k or "builtins" in k for k in top)  # no Python-level entries
     assert 0.0 < c["compiled_ms"] < c["period_ms"]
     assert abs(c["cap_real_time_factor"] - 20.0 / c["compiled_ms"]) < 1e-9  # dt = 20 ms

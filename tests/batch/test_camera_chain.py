@@ -19,7 +19,7 @@ def test_pose_and_jacobian_equal_the_full_recursion_bit_for_bit():
     sc = load_scenario("paper-in-fov").with_overrides(ENGINE, "t")
     b = build_batch(sc, [0], duration=0.1)
     m = b.model.plant_model
-    rod = b.model.servo.rod[0]
+    rod = b.model.servo.rod[0, 0]  # world 0, arm 0
     lo, hi = rod
     rng = np.random.default_rng(3)
     q0 = b.q0[0]

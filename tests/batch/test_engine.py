@@ -92,14 +92,41 @@ def test_a_world_does_not_depend_on_the_batch_size_its_index_or_threads(features
     assert not np.array_equal(runs[0].q[:, 0], runs[0].q[:, 4])  # other seeds, other noise
 
 
+#: the proprioceptive sensors and the tip camera without noise or bias (the EKF's equality)
+QUIET_SENSORS = {
+    "pixel_noise": 0.0, "accel_bias": 0.0, "accel_noise": 0.0, "gyro_bias": 0.0,
+    "gyro_noise": 0.0, "encoder_noise": 0.0, "encoder_resolution": 0.0,
+    "pose_attitude_noise": 0.0, "pose_position_noise": 0.0,
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "name, extra, duration",
+    [
+        # on the EKF's estimates: each world's filter, its sensors and start-up reading
+        ("paper-in-fov", {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS}, 1.0),
+        ("dual-in-fov", None, 0.6),  # two arms on one drone, the arms' stacked step
+    ],
+)
+def test_each_world_equals_the_block_loop_on_estimates_and_two_arms(name, extra, duration):
+    """The scenarios the engine runs beyond one arm on the true state: the same numbers as
+    the block loop of each seed at every sample (both call the same compiled steps)."""
+    sc = _scenario(name, extra, duration)
+    seeds = [0, 5]
+    res = build_batch(sc, seeds, threads=1).run(log_states=True)
+    for w, seed in enumerate(seeds):
+        r = build_loop(sc, seed).loop.run(duration)
+        assert res.termination[w] is None and r.termination is None
+        np.testing.assert_array_equal(res.q[:, w], r.arrays["q"])
+        np.testing.assert_array_equal(res.rmse[:, w], r.arrays["rmse"])
+
+
 def test_unsupported_scenarios_are_refused_naming_the_key():
     with pytest.raises(ScenarioError, match="cameras.local_renderer"):
         build_batch(load_scenario("paper-in-fov"), [0])
-    sc = load_scenario("paper-in-fov").with_overrides(
-        {"cameras": ENGINE["cameras"], "estimation": {"source": "estimated"}}, "t"
-    )
-    with pytest.raises(ScenarioError, match="estimation.source|ibvs.features"):
-        build_batch(sc, [0])
+    touch = load_scenario("touch-target").with_overrides({"cameras": ENGINE["cameras"]}, "t")
+    with pytest.raises(ScenarioError, match="touch.enabled"):
+        build_batch(touch, [0])
     user = load_scenario("paper-in-fov").with_overrides(
         {"cameras": ENGINE["cameras"], "controller": {"class": f"{__name__}:UserController"}},
         "t",
@@ -169,13 +196,13 @@ def test_a_period_in_halves_is_the_period(features):
         active = d.active.copy()
         E.sense_worlds(halves.model, d, 0, N)
         out = d.servo_out
-        seen = active & out.seen[:, 0] & (out.mode[:, 0] == 0)
-        points = out.points.copy()
+        seen = active & out.seen[:, 0, 0] & (out.mode[:, 0, 0] == 0)  # arm 0, IBVS
+        points = out.points[:, 0].copy()  # arm 0's
         E.act_worlds(halves.model, d, nan, 0, N)
         np.testing.assert_array_equal(halves.data.q, plain.data.q)
         for a, b in zip(halves.data.servo.filter, plain.data.servo.filter, strict=True):
             np.testing.assert_array_equal(a, b)  # the filter's state
         views += int(seen.sum())
         for w in np.flatnonzero(seen):  # the step servoed on the observed points
-            np.testing.assert_array_equal(out.features[w], advanced_features(points[w]))
+            np.testing.assert_array_equal(out.features[w, 0], advanced_features(points[w]))
     assert views > 10

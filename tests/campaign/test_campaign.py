@@ -266,7 +266,7 @@ def test_spec_samples_nested_robot_keys_and_fixes_text_keys():
 def test_success_window_criterion(scenario_data):
     """success_window judges the RMS of the last seconds, not the last sample; unset keeps
     the last-sample criterion and the fingerprint of older specs."""
-    from tdacm.campaign.runner import succeeded
+    from tdacm.campaign.spec import succeeded
     from tdacm.sim.runner import late_rmse
 
     base = 'scenario = "paper-in-fov"\nruns = 2\nduration = 3.0\n'

@@ -106,9 +106,9 @@ def test_lyapunov_non_increasing_with_constant_uncertainty():
 
 
 def test_law_kernel_matches_the_matrix_form():
-    """``_law_kernel`` (the law's per-period numba core) = the paper's law written with
+    """``law_kernel`` (the law's per-period numba core) = the paper's law written with
     matrix products, for full (non-diagonal) gains and a random state."""
-    from tdacm.control.adaptive import _law_kernel
+    from tdacm.control.adaptive import law_kernel
 
     rng = np.random.default_rng(9)
     n = 8
@@ -120,7 +120,7 @@ def test_law_kernel_matches_the_matrix_form():
     beta = rng.uniform(1.0, 5.0, n)
     a_d = m * 2.0
     a_p = a_d * beta[None, :] + np.eye(n)
-    tau, e, edot, s, qd_r, qdd_r, v = _law_kernel(
+    tau, e, edot, s, qd_r, qdd_r, v = law_kernel(
         m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta
     )
     e_ref, edot_ref = q - q_d, qd - qd_d

@@ -29,7 +29,7 @@ def test_teacher_is_the_twist_the_servo_then_applies():
         stepping = ~u._autoreset.copy()
         env.step(nan)
         ok = stepping & np.isfinite(label).all(axis=1)
-        np.testing.assert_array_equal(label[ok], u.batch.data.twist[ok])
+        np.testing.assert_array_equal(label[ok], u.batch.data.robot_out.twist[ok])
         compared += ok.sum()
     assert compared > 200
     env.close()

@@ -146,7 +146,8 @@ def test_batched_engine_runs_several_arms_as_the_block_loop():
     bit for bit (both call the servo of several arms' compiled step)."""
     from tdacm.sim.batch import build_batch
 
-    sc = _mirrored({"ibvs": {"features": "measured"}, "duration": 0.6})
+    engine_cameras = {"local_renderer": "analytic", "global_renderer": "planar"}
+    sc = _mirrored({"ibvs": {"features": "measured"}, "duration": 0.6, "cameras": engine_cameras})
     refuse(build_loop(sc).loop)  # nothing refused
     res = build_batch(sc, [0, 2]).run(log_states=True)
     for w, seed in enumerate([0, 2]):

@@ -8,6 +8,7 @@ from tdacm.loop.data import PlantState
 from tdacm.loop.sensors import CameraSensor, SensorModel, perturbed_camera
 from tdacm.sim import ScenarioError, load_scenario
 from tdacm.sim.runner import Simulation
+from tdacm.system.paper import paper_system
 from tdacm.vision import LOCAL_CAMERA, Detection
 
 POINTS = np.array([[100.0, 100.0], [100.0, 200.0], [200.0, 200.0], [200.0, 100.0]])
@@ -25,21 +26,19 @@ class FixedFrontEnd:
         pass
 
 
-class Still:
-    """A carrier that does not move."""
-
-    def tip_pose(self, q):
-        return np.eye(4)
+#: the carrier: the paper's robot held at rest (the front end above ignores the pose)
+SYSTEM = paper_system()
+REST = np.zeros(SYSTEM.n)
 
 
 def sensor(model: SensorModel, seed=0) -> CameraSensor:
-    return CameraSensor(Still(), "tip", np.eye(4), FixedFrontEnd(), model,
+    return CameraSensor(SYSTEM, "tip", np.eye(4), FixedFrontEnd(), model,
                         np.random.default_rng(seed))  # fmt: skip
 
 
 def test_noise_and_dropout_statistics():
     cam = sensor(SensorModel(pixel_noise=1.0, dropout=0.2))
-    results = [cam.measure(PlantState(0.01 * k, None, None)).detection for k in range(4000)]
+    results = [cam.measure(PlantState(0.01 * k, REST, REST)).detection for k in range(4000)]
     found = [r for r in results if r.found]
     assert abs(1 - len(found) / 4000 - 0.2) < 0.03  # binomial std 0.006
     err = np.array([r.points - POINTS for r in found])
@@ -48,7 +47,7 @@ def test_noise_and_dropout_statistics():
 
 def test_latency_and_intrinsics():
     late = sensor(SensorModel(latency_steps=2))
-    seen = [late.measure(PlantState(float(k), None, None)).t_capture for k in range(5)]
+    seen = [late.measure(PlantState(float(k), REST, REST)).t_capture for k in range(5)]
     assert seen == [0.0, 0.0, 0.0, 1.0, 2.0]  # the first frame until the FIFO is full
     cam = perturbed_camera(LOCAL_CAMERA, 0.01, np.random.default_rng(1))
     assert cam.fx != LOCAL_CAMERA.fx and abs(cam.fx / LOCAL_CAMERA.fx - 1) < 0.05

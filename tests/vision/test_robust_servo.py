@@ -9,6 +9,7 @@ import pytest
 from tdacm.lie.se3 import expmap, rotation_angle
 from tdacm.loop.config import IbvsConfig
 from tdacm.loop.servo import RobustServo
+from tdacm.system.paper import paper_system
 from tdacm.vision import (
     GLOBAL_CAMERA,
     LOCAL_CAMERA,
@@ -258,21 +259,12 @@ def test_exact_pose_covariance_is_the_unweighted_filter():
 
 
 # ---------------------------------------------------------------------- predictive servo
-class _HeldCamera:
-    """A held base whose tip carries the camera (identity mount); the prediction takes the
-    camera pose as an argument, so the tip pose is never asked for."""
-
-    floating = False
-    n = 1
-    n_s = 1
-    n_rods = 1
-
-
 def _servo(smoothing=0.0):
     g_des = _camera(1.5)
     xd, zd = project_points(PAPER_MARKER.feature_points, g_des)
+    # the prediction takes the camera pose as an argument: the robot (the paper's) is not asked
     return RobustServo(
-        _HeldCamera(), LOCAL_CAMERA, GLOBAL_CAMERA, PAPER_MARKER, np.eye(4), np.eye(4), xd, zd,
+        paper_system(), LOCAL_CAMERA, GLOBAL_CAMERA, PAPER_MARKER, np.eye(4), np.eye(4), xd, zd,
         config=IbvsConfig(
             gain=1.0, mode="mean", filter_smoothing=smoothing, target_level_prior_deg=0.0
         ),

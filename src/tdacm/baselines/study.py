@@ -52,13 +52,13 @@ def _stats(samples) -> dict:
 # ---------------------------------------------------------------------------------- timing
 def _paper_controller(gvs, model, q0, duration):
     """The project's low-level controller (:class:`tdacm.control.TDACMController`, 10 %
-    perturbed estimated model) tracking a cubic joint trajectory ``PAPER_Q0 -> PAPER_QD``;
-    for the CC run the estimated model's terms come from the CC baseline."""
+    perturbed estimated model) tracking a cubic joint trajectory ``PAPER_Q0 -> PAPER_QD``.
+    Its estimated model is the GVS one for either plant: the controller's step is compiled
+    over the GVS model's arrays (:func:`tdacm.control.hierarchical.controller_step`), so the
+    CC run differs from the GVS run in its plant only."""
     est = EstimatedModel(gvs, level=0.1, seed=0)
     gains = default_gains(gvs, q0)
-    if model is not gvs:
-        est.system = model  # duck-typed: terms(q, qd) with M, C, D, K, tau_ext
-    ctl = TDACMController(model, model=est, gains=gains)
+    ctl = TDACMController(gvs, model=est, gains=gains)
     ctl.reset(q0)
     traj = CubicTrajectory(q0, PAPER_QD, 0.0, duration)
     return ctl, traj

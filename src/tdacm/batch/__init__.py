@@ -4,7 +4,8 @@ every world.
 :class:`Batch` holds a :class:`~tdacm.batch.engine.BatchModel` (the blocks' records stacked
 over the worlds, from the blocks of an assembled :class:`~tdacm.loop.ClosedLoop`) and a
 :class:`~tdacm.batch.engine.BatchData` (the state of every world) and steps them with
-:func:`~tdacm.batch.engine.step_worlds` / :func:`~tdacm.batch.engine.run_worlds`.
+:func:`~tdacm.batch.engine.step_worlds` / :func:`~tdacm.batch.engine.run_worlds` (both
+calls of the engine's one compiled entry, :func:`~tdacm.batch.engine.worlds`).
 :func:`tdacm.sim.batch.build_batch` builds one from a scenario and seeds; the engine is tested
 equal to the block loop (``tests/batch``). docs/batch.md: what runs batched, the speed.
 """

@@ -5,7 +5,8 @@ steps as the block loop's blocks (:class:`tdacm.loop.ClosedLoop`), in the same o
 world's records (:func:`tdacm._records.take` of the stacked ones). It owns the threads, one
 random stream per world, the terminations and the logging; no block's logic lives here.
 
-One period of world ``w`` (:func:`sense` then :func:`act`)::
+The engine's one compiled entry is :func:`worlds` (:func:`step_worlds`, :func:`run_worlds`,
+:func:`act_sense` call it). One period of world ``w`` (:func:`sense` then :func:`act`)::
 
     sense   the tip camera at the true state      loop.sensors: camera_pose_into,
             (analytic detection, dropped frames,  analytic_detect, frame_dropped,
@@ -224,7 +225,9 @@ class BatchData(NamedTuple):
     qdd_next: np.ndarray
 
 
-@njit(cache=True)
+# inlined: a compiled function of ``data`` costs seconds of compile for its argument alone,
+# and a call with a constant ``code`` would compile one specialization per code
+@njit(cache=True, inline="always")
 def _end(data, w, code):
     data.active[w] = False
     data.termination[w] = code
@@ -283,7 +286,7 @@ def _estimate_of(e, d, n):
             d.p_qq[i, j] = d.ekf.p[s, i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # a function of ``model`` and ``data``: see _end
 def _start_estimation(model, data, w, mw, mc):
     """The estimator's start at time 0 (:meth:`~tdacm.estimation.block.FilterBlock.reset`):
     the sensors' schedules and turn-on biases (the world's estimation stream), the start-up
@@ -326,12 +329,13 @@ def _start_estimation(model, data, w, mw, mc):
     EK.ekf_reset(ep, d.ekf, 0.0, x0, ep.p0)
     d.status[0] = EK.OK
     if e.measured:
-        d.status[0] = EK.ekf_step(ep, d.ekf, mc, 0.0, data.u[w], False, meas)
+        applied = data.k[w] > 0  # False (time 0), not a constant: the period's signature
+        d.status[0] = EK.ekf_step(ep, d.ekf, mc, 0.0, data.u[w], applied, meas)
     _estimate_of(e, d, n)
     d.has_qdd[0] = False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # a function of ``model`` and ``data``: see _end
 def _estimate(model, data, w, mw, mc, k, dt):
     """The estimator's period (:meth:`~tdacm.estimation.block.FilterBlock.step`): the
     proprioceptive sensors polled on the true state (the pose, the IMU, the encoders), C_L's
@@ -586,78 +590,122 @@ def act(model, data, w, twist_in):
         _end(data, w, FORCE_LIMIT)
 
 
-@njit(cache=True, nogil=True)
-def step_worlds(model, data, twist, lo, hi):
-    """One control period (:func:`sense`, :func:`act`) of every active world of
-    ``lo <= w < hi`` (``twist`` (N, 6): an external twist per world, NaN rows for the IBVS
-    twist). Releases the GIL: :func:`parallel` runs disjoint ranges of worlds in threads."""
-    for w in range(lo, hi):
-        if data.active[w]:
-            sense(model, data, w)
-            act(model, data, w, twist[w])
+#: What a call of :func:`worlds` does with each world of its range: ``PERIODS`` control periods
+#: (:func:`sense` then :func:`act`, logged), or ``ACT_SENSE``: :func:`act` then :func:`sense`
+#: (the vector env's step: the second half of a period, then the next view)
+PERIODS, ACT_SENSE = 0, 1
 
 
 @njit(cache=True, nogil=True)
-def sense_worlds(model, data, lo, hi):
-    """:func:`sense` of the active worlds ``lo <= w < hi``: what an agent observes before it
-    acts (the Gymnasium vector env)."""
-    for w in range(lo, hi):
-        if data.active[w]:
-            sense(model, data, w)
+def worlds(model, data, what, twist, acting, sensing, log_q, log_rmse, log_mode, log_u, lo, hi):
+    """The engine's one compiled entry: the worlds ``lo <= w < hi``, each in one pass.
 
+    ``what == PERIODS``: ``log_rmse.shape[0]`` control periods of every active world with the
+    external twist ``twist[w]`` (NaN: the IBVS twist), logging its state at the start of each
+    period (``log_q`` (periods, N, n), or (0, N, n): not logged), the servo's normalized RMSE
+    and mode (``log_rmse``, ``log_mode`` (periods, N); NaN / -1 once the world has ended) and
+    the inputs (``log_u`` (periods, N, n_u) or (0, ...)).
 
-@njit(cache=True, nogil=True)
-def act_worlds(model, data, twist, lo, hi):
-    """:func:`act` of the active worlds ``lo <= w < hi`` with the external twists ``twist``
-    (N, 6; NaN rows: the IBVS twist)."""
-    for w in range(lo, hi):
-        if data.active[w]:
-            act(model, data, w, twist[w])
+    ``what == ACT_SENSE``: :func:`act` (twist ``twist[w]``) of the active worlds of ``acting``
+    (bool, N), then :func:`sense` of the worlds of ``sensing`` whose state is finite, whether
+    the engine still runs them or not (equal to acting on every world, then sensing them: the
+    worlds are independent).
 
-
-@njit(cache=True, nogil=True)
-def act_sense(model, data, twist, acting, sensing, lo, hi):
-    """The vector env's step of the worlds ``lo <= w < hi`` in one pass a world: :func:`act`
-    (twist ``twist[w]``) of the active worlds of ``acting`` (bool, N), then :func:`sense` of
-    the worlds of ``sensing`` whose state is finite, whether the engine still runs them or
-    not. Equal to :func:`act_worlds` then :func:`sense_worlds` (the worlds are independent),
-    with one meeting of the threads instead of two."""
+    One entry, not one per use: numba links every callee's code into each compiled entry and
+    optimizes and compiles it again there, so each entry holding :func:`sense` and
+    :func:`act` cost their whole compile once more (docs/benchmarks.md, "What compiles"). Releases the GIL:
+    :func:`parallel` runs disjoint ranges of worlds in threads."""
     n = data.q.shape[1]
+    periods = log_rmse.shape[0] if what == PERIODS else 1
+    first_acts = what == ACT_SENSE
     for w in range(lo, hi):
-        if acting[w] and data.active[w]:
-            act(model, data, w, twist[w])
-        if sensing[w]:
-            finite = True
-            for i in range(n):
-                finite = finite and np.isfinite(data.q[w, i])
-            if finite:
+        live = False  # PERIODS: the world ran this period (it was active at its start)
+        # the halves of the periods in order: sense, act, sense, act, ... (ACT_SENSE: act,
+        # sense)
+        for h in range(2 * periods):
+            p = h // 2
+            if (h % 2 == 1) != first_acts:  # the act half
+                if first_acts:
+                    if acting[w] and data.active[w]:
+                        act(model, data, w, twist[w])
+                    continue
+                if not live:  # ended before this period
+                    log_rmse[p, w] = np.nan
+                    log_mode[p, w] = -1
+                    continue
+                act(model, data, w, twist[w])
+                log_rmse[p, w] = data.robot_out.rmse[w, 0]
+                log_mode[p, w] = data.robot_out.mode[w, 0]
+                if log_u.shape[0] > 0:
+                    for i in range(data.u.shape[1]):
+                        log_u[p, w, i] = data.u[w, i]
+                continue
+            if first_acts:  # the view after the act, of a world whose state is finite
+                go = sensing[w]
+                for i in range(n):
+                    go = go and np.isfinite(data.q[w, i])
+            else:
+                go = live = data.active[w]
+                if go and log_q.shape[0] > 0:
+                    for i in range(n):
+                        log_q[p, w, i] = data.q[w, i]
+            if go:
                 sense(model, data, w)
 
 
-@njit(cache=True, nogil=True)
+def _no_log(data, periods: int):
+    """Logs of ``periods`` periods that keep nothing but the RMSE and mode (of :func:`worlds`,
+    with the argument types of every call: one compiled signature)."""
+    nw, n = data.q.shape
+    return (
+        np.zeros((0, nw, n)),
+        np.full((periods, nw), np.nan),
+        np.full((periods, nw), -1, np.int64),
+        np.zeros((0, nw, data.u.shape[1])),
+    )
+
+
+def _all(data, value: bool):
+    return np.full(data.q.shape[0], value, np.bool_)
+
+
+def step_worlds(model, data, twist, lo, hi):
+    """One control period (:func:`sense`, :func:`act`) of every active world of
+    ``lo <= w < hi`` (``twist`` (N, k 6): an external twist per world, NaN rows for the IBVS
+    twist)."""
+    worlds(model, data, PERIODS, twist, _all(data, True), _all(data, False), *_no_log(data, 1),
+           lo, hi)  # fmt: skip
+
+
 def run_worlds(model, data, periods, log_q, log_rmse, log_mode, log_u, lo, hi):
-    """``periods`` control periods of every world with the IBVS twist, logging each world's
-    state at the start of each period (``log_q`` (periods, N, n), or (0, N, n): not logged),
-    the servo's normalized RMSE and mode (``log_rmse``, ``log_mode`` (periods, N); NaN / -1
-    once a world has ended) and the inputs (``log_u`` (periods, N, n_u) or (0, ...)), for the
-    worlds ``lo <= w < hi``. Each world runs all its periods in one call; releases the GIL."""
-    for w in range(lo, hi):
-        nan6 = np.full(6, np.nan)
-        for p in range(periods):
-            if not data.active[w]:
-                log_rmse[p, w] = np.nan
-                log_mode[p, w] = -1
-                continue
-            if log_q.shape[0] > 0:
-                for i in range(data.q.shape[1]):
-                    log_q[p, w, i] = data.q[w, i]
-            sense(model, data, w)
-            act(model, data, w, nan6)
-            log_rmse[p, w] = data.robot_out.rmse[w, 0]
-            log_mode[p, w] = data.robot_out.mode[w, 0]
-            if log_u.shape[0] > 0:
-                for i in range(data.u.shape[1]):
-                    log_u[p, w, i] = data.u[w, i]
+    """``periods`` control periods of every world with the IBVS twist, logged (:func:`worlds`,
+    ``PERIODS``); ``log_rmse`` has ``periods`` rows."""
+    nan = np.full((data.q.shape[0], 6 * data.servo_out.rmse.shape[1]), np.nan)
+    worlds(model, data, PERIODS, nan, _all(data, True), _all(data, False), log_q,
+           log_rmse[:periods], log_mode[:periods], log_u, lo, hi)  # fmt: skip
+
+
+def act_sense(model, data, twist, acting, sensing, lo, hi):
+    """The vector env's step (:func:`worlds`, ``ACT_SENSE``): :func:`act` of the active
+    worlds of ``acting``, then :func:`sense` of the worlds of ``sensing`` whose state is
+    finite."""
+    acting = np.ascontiguousarray(acting, np.bool_)  # the argument types of every call
+    sensing = np.ascontiguousarray(sensing, np.bool_)
+    twist = np.ascontiguousarray(twist, np.float64)
+    worlds(model, data, ACT_SENSE, twist, acting, sensing, *_no_log(data, 0), lo, hi)
+
+
+def sense_worlds(model, data, lo, hi):
+    """:func:`sense` of the active worlds ``lo <= w < hi``: what an agent observes before it
+    acts."""
+    act_sense(model, data, np.full((data.q.shape[0], 6), np.nan), _all(data, False),
+              data.active.copy(), lo, hi)  # fmt: skip
+
+
+def act_worlds(model, data, twist, lo, hi):
+    """:func:`act` of the active worlds ``lo <= w < hi`` with the external twists ``twist``
+    (N, k 6; NaN rows: the IBVS twist)."""
+    act_sense(model, data, twist, _all(data, True), _all(data, False), lo, hi)
 
 
 _POOLS = {}  # a pool per thread count: never more threads than asked

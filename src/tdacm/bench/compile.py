@@ -336,8 +336,11 @@ def write_estimates(results: dict, path: Path | None = None) -> Path:
 
 
 # ------------------------------------------------------------------ the shipped cache
-#: the jobs compiled into a wheel's cache, split over two processes (about equal halves)
-SHIP_SPLIT = (("run",), ("engine", "vector-env", "identify"))
+#: the jobs compiled into a wheel's cache and by ``make test``'s warm-up, in two phases of at most
+#: two processes each (one group of jobs per process): ``tdacm run`` beside identification,
+#: then the engine with the vector env, which loads the blocks' compiled steps the first phase
+#: cached instead of compiling them again (the engine calls the same steps as the block loop)
+PHASES = ((("run",), ("identify",)), (("engine", "vector-env"),))
 
 
 def _merge(src: Path, dst: Path) -> int:
@@ -365,35 +368,67 @@ def _merge(src: Path, dst: Path) -> int:
     return added
 
 
+def _run_phase(k: int, env_of, tmp: Path, t0: float, timeout: float | None, progress) -> list:
+    """Run phase ``k`` of :data:`PHASES`: its process groups at once (``python -m
+    tdacm.bench.compile run-jobs JOB ...``, the environment ``env_of(k, process)``); returns
+    the failures' messages (empty: all compiled). ``timeout`` counts from ``t0``."""
+    failures = []
+    procs = []
+    for i, jobs in enumerate(PHASES[k]):
+        cmd = [sys.executable, "-m", "tdacm.bench.compile", "run-jobs", *jobs,
+               "--work", str(tmp / f"work{k}-{i}")]  # fmt: skip
+        log = open(tmp / f"log{k}-{i}", "w")
+        proc = subprocess.Popen(cmd, env=env_of(k, i), stdin=subprocess.DEVNULL, stdout=log,
+                                stderr=log)  # fmt: skip
+        procs.append((jobs, log, proc))
+    for jobs, log, proc in procs:
+        try:
+            left = None if timeout is None else max(1.0, timeout - (time.perf_counter() - t0))
+            rc = proc.wait(timeout=left)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            rc = proc.wait()
+        log.close()
+        if rc != 0:
+            text = Path(log.name).read_text()[-3000:]
+            failures.append(f"compiling {', '.join(jobs)} failed:\n{text}")
+        else:
+            progress(f"tdacm: compiled {', '.join(jobs)} ({time.perf_counter() - t0:.0f} s)")
+    return failures
+
+
 def ship(folder: Path, timeout: float | None = None, progress=print) -> dict:
-    """Compile every job for the portable target into ``folder`` (module docstring): the
-    halves of :data:`SHIP_SPLIT` in two processes, each into its own folder, merged, then the
-    manifest. Returns the manifest."""
+    """Compile every job for the portable target into ``folder`` (module docstring), phase by
+    phase (:data:`PHASES`): a phase's processes each compile into a copy of ``folder``, merged
+    back before the next phase, so that no two processes write one index. Then the manifest.
+    Returns the manifest."""
+    import shutil
+
     from .. import __version__
     from .._jitcache import ENV_BUILD
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    procs = []
     with tempfile.TemporaryDirectory(prefix="tdacm-ship-") as tmp:
-        for i, jobs in enumerate(SHIP_SPLIT):
-            part = Path(tmp) / f"part{i}"
-            env = _child_env(str(Path(tmp) / "unused"), {ENV_BUILD: str(part)})
+        tmp = Path(tmp)
+
+        def env_of(k, i):
+            part = tmp / f"part{k}-{i}"
+            if len(PHASES[k]) > 1:  # its own copy of what the earlier phases compiled
+                shutil.copytree(folder, part)
+            env = _child_env(str(tmp / "unused"),
+                             {ENV_BUILD: str(part if len(PHASES[k]) > 1 else folder)})  # fmt: skip
             env.pop("TDACM_KERNEL_CACHE")
-            cmd = [sys.executable, "-m", "tdacm.bench.compile", "run-jobs", *jobs,
-                   "--work", str(Path(tmp) / f"work{i}")]  # fmt: skip
-            log = open(Path(tmp) / f"log{i}", "w")
-            procs.append((jobs, part, log, subprocess.Popen(cmd, env=env, stdout=log, stderr=log)))
-        for jobs, _part, log, proc in procs:
-            rc = proc.wait(timeout=timeout)
-            log.close()
-            if rc != 0:
-                text = Path(log.name).read_text()[-3000:]
-                raise RuntimeError(f"compiling {', '.join(jobs)} failed:\n{text}")
-            progress(f"compiled {', '.join(jobs)} ({time.perf_counter() - t0:.0f} s)")
-        for _, part, _, _ in procs:
-            _merge(part, folder)
+            return env
+
+        for k, phase in enumerate(PHASES):
+            failures = _run_phase(k, env_of, tmp, t0, timeout, progress)
+            if failures:
+                raise RuntimeError("\n".join(failures))
+            if len(phase) > 1:
+                for i in range(len(phase)):
+                    _merge(tmp / f"part{k}-{i}", folder)
     # the manifest, written by a build-mode process (its numba, Python and target)
     env = _child_env(str(folder / "unused"), {ENV_BUILD: str(folder)})
     env.pop("TDACM_KERNEL_CACHE")
@@ -412,46 +447,20 @@ def ship(folder: Path, timeout: float | None = None, progress=print) -> dict:
 
 def fill(timeout: float | None = None, progress=print) -> int:
     """Compile every job into numba's cache as this process finds it (a checkout's
-    ``__pycache__`` folders, or ``NUMBA_CACHE_DIR``): the halves of :data:`SHIP_SPLIT` in two
-    processes (``make test``'s warm-up, so that the suite loads the kernels). Returns the
-    number of halves that failed (a failure only leaves kernels to compile at first use)."""
+    ``__pycache__`` folders, or ``NUMBA_CACHE_DIR``), phase by phase (:data:`PHASES`;
+    ``make test``'s warm-up, so that the suite loads the kernels). Returns the number of
+    process groups that failed (a failure only leaves kernels to compile at first use)."""
     t0 = time.perf_counter()
     env = dict(os.environ, TDACM_PARALLEL_COMPILE="0")
     progress("tdacm: compiling the kernels of " + ", ".join(JOBS) + " (once; minutes) ...")
     with tempfile.TemporaryDirectory(prefix="tdacm-fill-") as tmp:
-        procs = [
-            subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "tdacm.bench.compile",
-                    "run-jobs",
-                    *jobs,
-                    "--work",
-                    str(Path(tmp) / str(i)),
-                ],  # fmt: skip
-                env=env,
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.PIPE,
-                text=True,
-            )  # fmt: skip
-            for i, jobs in enumerate(SHIP_SPLIT)
-        ]
-        failed = 0
-        for jobs, proc in zip(SHIP_SPLIT, procs, strict=True):
-            try:
-                left = None if timeout is None else max(1.0, timeout - (time.perf_counter() - t0))
-                _, err = proc.communicate(timeout=left)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.communicate()
-                err = "timed out"
-            if proc.returncode != 0:
-                failed += 1
-                progress(f"tdacm: compiling {', '.join(jobs)} failed:\n{err[-2000:]}")
+        failures = []
+        for k in range(len(PHASES)):
+            failures += _run_phase(k, lambda k, i: env, Path(tmp), t0, timeout, progress)
+    for text in failures:
+        progress(f"tdacm: {text}")
     progress(f"tdacm: kernels cached in {time.perf_counter() - t0:.0f} s")
-    return failed
+    return len(failures)
 
 
 def verify(timeout: float | None = None) -> dict:

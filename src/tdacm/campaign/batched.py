@@ -177,6 +177,9 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
     found = np.zeros((periods, nw), np.bool_)
     recorded = np.zeros((periods, nw), np.bool_)
     q_log = np.zeros((periods, nw, n))
+    # the EKF's estimate at each sample (the period's, as the block loop logs it)
+    on_estimates = bool(model.estimation.on)
+    q_hat_log = np.zeros((periods if on_estimates else 0, nw, n))
     u_log = np.zeros((periods, nw, d.u.shape[1]))
     sat = np.zeros((periods, nw, 2), np.bool_)
     # the block loop records no sample for a period that ends before the controller's output
@@ -193,6 +196,8 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
         rec = active & ~(~d.active & np.isin(d.termination, unrecorded))
         recorded[p] = rec
         rmse[p] = d.robot_out.rmse[:, 0]
+        if on_estimates:
+            q_hat_log[p] = d.estimation.q_hat
         rmse_meas[p] = d.robot_out.rmse_measured[:, 0]
         rmse_arms[p] = d.servo_out.rmse[:, :, 0]
         mode[p] = d.robot_out.mode[:, 0]
@@ -209,6 +214,8 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
             "thrust_saturated": sat[sel, w, 0], "tension_saturated": sat[sel, w, 1],
             "rmse_measured": rmse_meas[sel, w],
         }  # fmt: skip
+        if on_estimates:
+            arrays["q_hat"] = q_hat_log[sel, w]
         arrays["rmse_true"] = _true_rmse(a, params, w, model, arrays["q"])
         if k > 1:
             arrays["rmse_arms"] = rmse_arms[sel, w]
@@ -219,7 +226,7 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
 
 
 def _fill(spec, row, summary, t, rmse) -> None:
-    from .runner import succeeded
+    from .spec import succeeded
     from .store import ROW_FIELDS
 
     for k in ROW_FIELDS:

@@ -54,6 +54,53 @@ def replay_command(spec, out, run: int, seed: int) -> str:
     return shlex.join(cmd)
 
 
+def hold_outcome(row, spec) -> str:
+    """A contact run's outcome in words (``spec.success_hold_force_rms`` set): ``held``, the
+    termination that ended it (``ended: safety``, ...), ``no hold``, or the rule the hold
+    broke (``force``: its RMS error over the limit; ``image``: the task's image error over
+    ``success_rmse``; ``short``: cut short), several joined by ``+``."""
+
+    def num(k):
+        v = row.get(k)
+        return float(v) if v is not None and np.isfinite(float(v)) else float("nan")
+
+    if bool(row.get("success")):
+        return "held"
+    if row.get("status") == "error":
+        return "error"
+    if bool(row.get("terminated")):
+        return f"ended: {row.get('termination') or 'early'}"
+    if not num("hold_duration") > 0:
+        return "no hold"
+    broke = []
+    if not num("hold_force_rms_rel") <= spec.success_hold_force_rms:
+        broke.append("force")
+    if not num("hold_image_error_max") <= spec.success_rmse:
+        broke.append("image")
+    return "+".join(broke) or "short"
+
+
+def hold_runs(df, spec) -> list[dict]:
+    """Per run of a contact campaign: its outcome (:func:`hold_outcome`), the hold's length,
+    the true force's RMS error (relative), the force estimate's RMS error (N), the task's image
+    error (measured and true C_L, max over the hold) and the largest contact force."""
+    keys = ("landings", "hold_duration", "hold_force_rms_rel", "hold_force_estimate_error_rms",
+            "hold_image_error_max", "hold_image_error_true_max", "max_contact_force")  # fmt: skip
+    out = []
+    for _, r in df.iterrows():
+        row = r.to_dict()
+        item = {
+            "run": int(row["run"]),
+            "seed": int(row["seed"]),
+            "outcome": hold_outcome(row, spec),
+        }
+        for k in keys:
+            v = row.get(k)
+            item[k] = None if v is None or not np.isfinite(float(v)) else float(v)
+        out.append(item)
+    return out
+
+
 def write_report(spec, out, n_worst: int = 5) -> dict:
     """Write ``report.json``, ``report.md`` and ``report.png`` and return the report dict."""
     out = Path(out)
@@ -101,11 +148,19 @@ def write_report(spec, out, n_worst: int = 5) -> dict:
         # servoing into contact: only when the runs hold a force
         **{
             k: _stats(df[k])
-            for k in ("hold_force_rms_rel", "hold_image_error_max", "max_contact_force")
+            for k in (
+                "hold_force_rms_rel",
+                "hold_force_estimate_error_rms",
+                "hold_image_error_max",
+                "hold_image_error_true_max",
+                "max_contact_force",
+            )
             if n and k in df and not df[k].isna().all()
         },
         "worst_runs": [],
     }
+    if n and spec.success_hold_force_rms is not None:
+        report["runs"] = hold_runs(df, spec)
     if n:
         key = (
             df["final_rmse"].astype(float).fillna(np.inf)
@@ -263,7 +318,7 @@ def _write_markdown(report, out: Path):
         if spec_hold := report.get("success_hold_force_rms"):
             what = (
                 f"force held for touch.hold_time within {100 * spec_hold:g} % RMS, "
-                "normalized RMSE during the hold"
+                "the task's image error (detected C_L points to the reference in C_L) during the hold"
             )
         lines.append(
             f"- success ({what} <= {report['success_rmse']}, not terminated): "
@@ -283,7 +338,9 @@ def _write_markdown(report, out: Path):
         "strain_estimation_rms",
         "drone_position_estimation_rms",
         "hold_force_rms_rel",
+        "hold_force_estimate_error_rms",
         "hold_image_error_max",
+        "hold_image_error_true_max",
         "max_contact_force",
     ):
         s = report.get(key)
@@ -304,6 +361,31 @@ def _write_markdown(report, out: Path):
             f"{'-' if w['final_rmse'] is None else format(w['final_rmse'], '.4g')} | "
             f"`{w['replay']}` |"
         )
+    if report.get("runs"):
+        lines += [
+            "",
+            "## Runs",
+            "",
+            "| run | seed | outcome | landings | hold (s) | force RMS error "
+            "| force estimate RMS error (N) | image error (C_L, measured) "
+            "| image error (C_L, true) | largest force (N) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+
+        def fmt(v, f):
+            return "-" if v is None else format(v, f)
+
+        for r in report["runs"]:
+            rms = r["hold_force_rms_rel"]
+            lines.append(
+                f"| {r['run']} | {r['seed']} | {r['outcome']} | {fmt(r['landings'], '.0f')} "
+                f"| {fmt(r['hold_duration'], '.2f')} "
+                f"| {'-' if rms is None else f'{100 * rms:.1f} %'} "
+                f"| {fmt(r['hold_force_estimate_error_rms'], '.4f')} "
+                f"| {fmt(r['hold_image_error_max'], '.4f')} "
+                f"| {fmt(r['hold_image_error_true_max'], '.4f')} "
+                f"| {fmt(r['max_contact_force'], '.3f')} |"
+            )
     if report.get("sensitivity"):
         lines += ["", "## Sensitivity to the sampled parameters", ""]
         lines += [f"- [{Path(p).stem}]({p})" for p in report["sensitivity"]]

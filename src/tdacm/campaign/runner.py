@@ -28,12 +28,17 @@ import time
 import traceback
 from pathlib import Path
 
-import numpy as np
-
 from .._extras import require
 from .batched import CHUNK, execute_chunk, refusal
 from .report import write_report
-from .spec import CampaignSpec, CampaignSpecError, load_spec, sample_overrides, to_toml
+from .spec import (
+    CampaignSpec,
+    CampaignSpecError,
+    load_spec,
+    sample_overrides,
+    succeeded,
+    to_toml,
+)
 from .store import ROW_FIELDS, completed_runs, write_row
 
 
@@ -61,41 +66,6 @@ def execute_run(spec_dict: dict, index: int, seed: int) -> dict:
         row.setdefault("overrides", "")
     row["run_wall_s"] = time.perf_counter() - t0
     return row
-
-
-def succeeded(spec: CampaignSpec, arrays: dict, summary: dict) -> bool:
-    """A run's success: not terminated (safety monitor, force limit, ...) and, with
-    ``spec.success_hold_force_rms``, the hold criterion of :func:`held`; else its normalized RMSE at or
-    below ``spec.success_rmse``, either its last sample or, with ``spec.success_window``, the
-    RMS of the samples of its last ``success_window`` seconds (a criterion that the wandering
-    of the RMSE after convergence does not decide by one sample)."""
-    if summary.get("terminated"):
-        return False
-    if spec.success_hold_force_rms is not None:
-        return held(spec, summary)
-    if spec.success_window is None:
-        value = summary.get("final_rmse")
-    else:
-        from ..sim.runner import late_rmse
-
-        value = late_rmse(arrays["t"], arrays["rmse"], spec.success_window)
-    return bool(value is not None and np.isfinite(value) and value <= spec.success_rmse)
-
-
-def held(spec: CampaignSpec, summary: dict) -> bool:
-    """Servoing into contact (``spec.success_hold_force_rms``): the hold lasted the
-    scenario's ``touch.hold_time`` (to half a period), the true force's RMS error over it is
-    at most that fraction of the desired force and the normalized RMSE stayed at or below
-    ``spec.success_rmse`` (:func:`tdacm.sim.runner.touch_summary`)."""
-    dur, hold_time = summary.get("hold_duration"), summary.get("touch_hold_time")
-    rms, img = summary.get("hold_force_rms_rel"), summary.get("hold_image_error_max")
-    if None in (dur, hold_time, rms, img):
-        return False
-    return bool(
-        dur >= hold_time - 0.5 * summary["dt"]
-        and rms <= spec.success_hold_force_rms
-        and img <= spec.success_rmse
-    )
 
 
 def use_batched(spec: CampaignSpec) -> bool:

@@ -11,7 +11,7 @@ A spec is a TOML file::
                                   # last 1 s is at or below success_rmse (unset: the last sample)
     success_hold_force_rms = 0.2  # optional, servoing into contact ([touch]): ... if it held
                                   # the force for touch.hold_time within 20 % RMS with the
-                                  # normalized RMSE <= success_rmse throughout the hold
+                                  # task's image error (C_L) <= success_rmse throughout it
     batched = "auto"              # optional: true | false | "auto" (default): the batched
                                   # engine where it runs the scenario and the sampled keys
 
@@ -144,8 +144,8 @@ class CampaignSpecConfig(ConfigModel):
         None,
         gt=0,
         description="servoing into contact: a run succeeds if it held the force for "
-        "touch.hold_time within this fraction RMS, the normalized RMSE <= success_rmse "
-        "throughout the hold",
+        "touch.hold_time within this fraction RMS, the task's image error (the tip camera's "
+        "points to the reference in C_L) <= success_rmse throughout the hold",
     )
     distributions: dict[str, DistributionConfig] = Field(
         {}, description="dotted scenario key -> its distribution"
@@ -188,8 +188,9 @@ class CampaignSpec:
     success_window: float | None = None
     #: servoing into contact: a run succeeds when it held the force for the scenario's
     #: ``touch.hold_time`` with the true force's RMS error at most this fraction of the
-    #: desired force and the normalized RMSE at most ``success_rmse`` throughout the hold
-    #: (the summary's ``hold_force_rms_rel``, ``hold_image_error_max``); ``None``: the RMSE rule
+    #: desired force and the task's image error (the detected tip-camera points to the
+    #: reference snapshot in C_L) at most ``success_rmse`` throughout the hold (the summary's
+    #: ``hold_force_rms_rel``, ``hold_image_error_max``); ``None``: the RMSE rule
     success_hold_force_rms: float | None = None
     #: the engine: ``True`` the batched engine (:mod:`tdacm.campaign.batched`), ``False`` the
     #: block loop, ``"auto"`` batched where supported; how the runs execute, not what they
@@ -555,3 +556,38 @@ def to_toml(data: dict) -> str:
     from ..sim.scenario import dict_to_toml
 
     return dict_to_toml(data)
+
+
+def succeeded(spec: CampaignSpec, arrays: dict, summary: dict) -> bool:
+    """A run's success: not terminated (safety monitor, force limit, ...) and, with
+    ``spec.success_hold_force_rms``, the hold criterion of :func:`held`; else its normalized RMSE at or
+    below ``spec.success_rmse``, either its last sample or, with ``spec.success_window``, the
+    RMS of the samples of its last ``success_window`` seconds (a criterion that the wandering
+    of the RMSE after convergence does not decide by one sample)."""
+    if summary.get("terminated"):
+        return False
+    if spec.success_hold_force_rms is not None:
+        return held(spec, summary)
+    if spec.success_window is None:
+        value = summary.get("final_rmse")
+    else:
+        from ..sim.runner import late_rmse
+
+        value = late_rmse(arrays["t"], arrays["rmse"], spec.success_window)
+    return bool(value is not None and np.isfinite(value) and value <= spec.success_rmse)
+
+
+def held(spec: CampaignSpec, summary: dict) -> bool:
+    """Servoing into contact (``spec.success_hold_force_rms``): the hold lasted the
+    scenario's ``touch.hold_time`` (to half a period), the true force's RMS error over it is
+    at most that fraction of the desired force and the normalized RMSE stayed at or below
+    ``spec.success_rmse`` (:func:`tdacm.sim.runner.touch_summary`)."""
+    dur, hold_time = summary.get("hold_duration"), summary.get("touch_hold_time")
+    rms, img = summary.get("hold_force_rms_rel"), summary.get("hold_image_error_max")
+    if None in (dur, hold_time, rms, img):
+        return False
+    return bool(
+        dur >= hold_time - 0.5 * summary["dt"]
+        and rms <= spec.success_hold_force_rms
+        and img <= spec.success_rmse
+    )

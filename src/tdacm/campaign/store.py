@@ -37,9 +37,13 @@ ROW_FIELDS = (
     "final_target_estimate_sigma_deg",
     # servoing into contact ([touch]; NaN for the other scenarios)
     "hold_duration",
+    "landings",
     "hold_force_rms_rel",
     "hold_force_estimate_error_rms",
     "hold_image_error_max",
+    "hold_image_error_true_max",
+    "hold_image_error_servo_max",
+    "hold_force_mean",
     "max_contact_force",
 )
 

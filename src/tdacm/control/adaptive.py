@@ -180,7 +180,7 @@ def law_into(m, cd, k, e, edot, qd_d, qdd_d, beta, a_d, a_p, delta_hat, qd_r, qd
 
 
 @njit(cache=True)
-def _law_kernel(m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta_hat):
+def law_kernel(m, c, d, k, q, qd, q_d, qd_d, qdd_d, beta, a_d, a_p, delta_hat):
     """:func:`law_into` on fresh arrays from the state and the reference."""
     n = q.shape[0]
     e = q - q_d
@@ -214,11 +214,11 @@ class AdaptiveController:
 
     def law(self, q, qd, q_d, qd_d, qdd_d, terms=None) -> AdaptiveOutput:
         """``tau_a`` and the sliding variables at ``(q, qdot)`` for the reference ``q_d``,
-        ``qdot_d``, ``qddot_d`` (module docstring; :func:`_law_kernel`)."""
+        ``qdot_d``, ``qddot_d`` (module docstring; :func:`law_kernel`)."""
         g = self.gains
         q, qd = np.asarray(q, float), np.asarray(qd, float)
         t = self.model.terms(q, qd) if terms is None else terms
-        tau, e, edot, s, qd_r, qdd_r, v = _law_kernel(
+        tau, e, edot, s, qd_r, qdd_r, v = law_kernel(
             t.M, t.C, t.D, t.K, q, qd, np.asarray(q_d, float), np.asarray(qd_d, float),
             np.asarray(qdd_d, float), g.beta, g.A_d, g.A_p, self.delta_hat,
         )  # fmt: skip

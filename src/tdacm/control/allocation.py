@@ -148,7 +148,7 @@ def allocate_tensions(
         raise ValueError(f"B_s must be (n_s, n_a) and tau_s (n_s,), got {b.shape}, {tau.shape}")
     if max_tension <= 0 or pretension < 0 or pretension > max_tension:
         raise ValueError("need 0 <= pretension <= max_tension and max_tension > 0")
-    t, resid, at_max, at_zero = _allocate_tensions_kernel(
+    t, resid, at_max, at_zero = allocate_tensions_kernel(
         np.ascontiguousarray(b), np.ascontiguousarray(tau), float(max_tension),
         float(pretension), float(weight),
     )  # fmt: skip
@@ -158,7 +158,7 @@ def allocate_tensions(
 
 
 @njit(cache=True)
-def _allocate_tensions_kernel(b, tau, max_tension, pretension, weight):
+def allocate_tensions_kernel(b, tau, max_tension, pretension, weight):
     """The bounded least squares of :func:`allocate_tensions` on checked arrays:
     ``(T, |B_s T - tau_s|, any T at T_max, any T at 0)``."""
     ns, na = b.shape

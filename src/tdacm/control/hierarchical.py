@@ -41,7 +41,7 @@ from .._linalg import lu_factor, lu_solve_into
 from ..system.kernels import tendon_matrix
 from ..system.tdacm import TDACM
 from .adaptive import AdaptiveController, AdaptiveGains, law_into
-from .allocation import _allocate_tensions_kernel
+from .allocation import allocate_tensions_kernel
 from .config import LAW_DEFAULTS, ControlLawConfig
 from .model import EstimatedModel, estimated_terms
 
@@ -341,7 +341,7 @@ def controller_step(p, st, m, q, qd, q_d, qd_d, qdd_d, dt, u, tau, q_ref, work):
         r0, r1 = p.arm_rows[k, 0], p.arm_rows[k, 1]
         c0, c1 = p.arm_cols[k, 0], p.arm_cols[k, 1]
         tau_k = tau[off + r0 : off + r1]
-        tens, resid, at_max, at_zero = _allocate_tensions_kernel(
+        tens, resid, at_max, at_zero = allocate_tensions_kernel(
             np.ascontiguousarray(b_s[r0:r1, c0:c1]), tau_k, p.max_tension[k], p.pretension, 1e-3
         )
         nrm = 0.0

@@ -188,7 +188,7 @@ def estimated_terms(q, qd, m, loads, mass_scale, damping, stiffness_scale, gravi
     With ``add_damping``, ``c_hat`` receives ``C_hat + D_hat`` (what the adaptive law
     multiplies ``qdot_r`` by) and ``d_hat`` is left alone."""
     n = q.shape[0]
-    mm, cc, _, tau_ext, _, _, _ = coupled_terms(q, qd, m, loads, True)
+    mm, cc, _, tau_ext, _, _, _ = coupled_terms(q, qd, m, loads, bool(1))  # a variable: one compile
     for i in range(n):
         for j in range(n):
             m_hat[i, j] = mass_scale[i] * mm[i, j] * mass_scale[j]

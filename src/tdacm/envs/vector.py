@@ -39,8 +39,9 @@ parameters of the engine (:class:`~tdacm.batch.params.WorldParams`): its rod's s
 damping, the drone's and the rod's masses, the tendons' moment arms, C_L's pixel noise,
 dropout and latency. Still a function of ``s + i`` only (tested).
 
-What differs from the single env: the twist action only; the engine's scenario support (the
-EKF, contact and the multi-arm robots are refused naming the key). The observation holds the
+What differs from the single env: the twist action only; the engine's scenario support
+(contact is refused naming the key; the EKF's estimates and several arms run). The state in
+the observation is the controller's (the EKF's estimate on estimates). The observation holds the
 features the servo works on, as the single env's: with the robust servo (the shipped
 ``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame, else
 the detected points. The recovery with the global camera runs batched as in the single env's loop (its
@@ -263,10 +264,15 @@ class TipServoVectorEnv(VectorEnv):
         self._status = np.where(behind, BEHIND, np.where(seen, SEEN, NOT_SEEN))
         self._points[:] = out.points[:, 0]
         self._error[:] = out.error[:, 0]
+        # the state in the observation is the controller's: the EKF's estimate where the
+        # scenario runs on estimates (as the single env's), else the true state
+        on_estimates = self.batch.model.estimation.on
+        q = d.estimation.q_hat if on_estimates else d.q
+        qd = d.estimation.qd_hat if on_estimates else d.qd
         blocks = []
         for a in range(self.n_arms):
             obs_a = observation(
-                out.error[:, a], out.points[:, a], seen_arm[:, a], d.q, d.qd, self.q_star,
+                out.error[:, a], out.points[:, a], seen_arm[:, a], q, qd, self.q_star,
                 self.q_scale, self.point_scales[a],
             )  # fmt: skip
             blocks.append(obs_a[:, :15])

@@ -106,7 +106,7 @@ class TipForceEstimator:
             return j[3:6].T @ g[:3, :3].T
         return (j[3:6].T + j[0:3].T @ self.offset_skew) @ g[:3, :3].T
 
-    def _r_cov(self, q, qd, u, qdd, state_cov) -> np.ndarray:
+    def residual_covariance(self, q, qd, u, qdd, state_cov) -> np.ndarray:
         """Covariance of ``r`` from the inputs and, if given, the state ``[q, qd]``."""
         cov = self.input_cov(q)
         if state_cov is not None:
@@ -128,14 +128,16 @@ class TipForceEstimator:
         r = (self.residual(q, qd, u, qdd) - self.bias)[self.rows]
         a = self._a(q)[self.rows]
         pinv = np.linalg.pinv(a)
-        cov = self._r_cov(q, qd, u, qdd, state_cov)[np.ix_(self.rows, self.rows)]
+        cov = self.residual_covariance(q, qd, u, qdd, state_cov)[np.ix_(self.rows, self.rows)]
         return ForceEstimate(pinv @ r, pinv @ cov @ pinv.T)
 
     def normal_force(self, q, qd, u, normal, qdd=None, state_cov=None):
         """``(f, sigma)``: the force along the unit ``normal`` (inertial), the only unknown,
         and its standard deviation."""
         r = self.residual(q, qd, u, qdd)
-        return self.normal_force_of(q, r, normal, self._r_cov(q, qd, u, qdd, state_cov))
+        return self.normal_force_of(
+            q, r, normal, self.residual_covariance(q, qd, u, qdd, state_cov)
+        )
 
     def normal_force_of(self, q, residual, normal, residual_cov):
         """``(f, sigma)`` along the unit ``normal`` from a given residual (n,) (the tare

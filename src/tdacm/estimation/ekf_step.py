@@ -708,7 +708,7 @@ def ekf_step(p, st, m, t, u, has_u, meas):
             s = _slot(st, i)
             if not _repropagate(p, st, m, _slot(st, i - 1), s):
                 return MASS_NOT_PD
-            status = _update_tick(p, st, m, s, 0)
+            status = _update_tick(p, st, m, s, np.int64(0))
             if status != OK:
                 return status
     if new_tick:
@@ -728,7 +728,7 @@ def ekf_step(p, st, m, t, u, has_u, meas):
                 st.m_data[s, c] = meas.data[i]
                 c += 1
         st.m_count[s] = c
-        status = _update_tick(p, st, m, s, 0)
+        status = _update_tick(p, st, m, s, np.int64(0))
         if status != OK:
             return status
         st.kept[0] = cnt + 1

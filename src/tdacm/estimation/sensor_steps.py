@@ -90,8 +90,8 @@ class ImuParams(NamedTuple):
     gyro_bias_walk: float
     accel_bias_walk: float
     gravity: np.ndarray
-    gyro_bias: float = 0.0
-    accel_bias: float = 0.0
+    gyro_bias: float
+    accel_bias: float
 
 
 class ImuState(NamedTuple):

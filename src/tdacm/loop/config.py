@@ -239,13 +239,32 @@ class TouchConfig(ConfigModel):
     docs/contact.md): IBVS to a standoff view, then along the camera's axis onto the target
     until the estimated force reaches ``detect_force``, an admittance law holding ``force``
     for ``hold_time``, then back to the standoff. The reference snapshot (``[desired] q``) is
-    the view at the contact pose."""
+    the view at the contact pose; once the probe has touched, the servo reads it in the tip
+    camera C_L (``contact_view``)."""
 
     enabled: bool = Field(False, description="servo into contact (the phases below)")
     force: float = Field(0.3, gt=0, description="N, desired normal force of the hold")
+    contact_view: Literal["local", "virtual"] = Field(
+        "local",
+        description="the camera the servo reads once the probe has touched (the rest of the "
+        "contact phase and the hold): 'local': the tip camera C_L against the reference "
+        "snapshot in C_L (the task: where the probe presses on the marker; the pinned law, "
+        "docs/contact.md); 'virtual': the virtual camera C_V, as in free flight",
+    )
     hold_time: float = Field(3.0, gt=0, description="s, how long the force is held")
     settle: float = Field(
         1.0, ge=0, description="s, from the first touch to the start of the hold (the impact)"
+    )
+    settle_band: float = Field(
+        0.1,
+        ge=0,
+        description="relative: the hold starts once the filtered force estimate is within this "
+        "share of force (settle s after the touch at the earliest) ...",
+    )
+    settle_wait: float = Field(
+        1.0,
+        ge=0,
+        description="s, ... or this long after settle whatever it reads",
     )
     standoff: float = Field(
         0.1, gt=0, description="m, distance along the camera axis of the approach view"
@@ -265,6 +284,34 @@ class TouchConfig(ConfigModel):
     )
     detect_force: float = Field(
         0.1, gt=0, description="N, estimated force that counts as the first touch"
+    )
+    land_rmse: float = Field(
+        0.007,
+        gt=0,
+        description="normalized, the largest task image error (the detected C_L points' RMSE to "
+        "the reference in C_L, low-pass filtered over land_filter) at which a landing is kept "
+        "when the hold would start; above it the probe is lifted and lands again",
+    )
+    land_correction: bool = Field(
+        False,
+        description="aim each new landing off by the offset the lifted ones repeated (their "
+        "detected C_L centroids; off: the landings' scatter is larger than what they repeat, "
+        "docs/contact.md)",
+    )
+    land_filter: float = Field(
+        0.2, ge=0, description="s, time constant of that task image error's low-pass filter"
+    )
+    max_landings: int = Field(
+        4, ge=1, description="landings tried; the last one is held wherever it is (1: no lift)"
+    )
+    lift_time: float = Field(
+        0.5, gt=0, description="s, a lift: away from the surface at approach_speed for this long"
+    )
+    unload_time: float = Field(
+        3.0,
+        gt=0,
+        description="s, several arms: a landing off a marker has its force ramped to zero "
+        "over this (the balance loop on) before every arm goes back to its standoff view",
     )
     force_gain: float = Field(
         0.03, ge=0, description="m per N, admittance: axial reference offset per force error"

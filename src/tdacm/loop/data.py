@@ -253,6 +253,7 @@ class ServoCommand:
     phase: str | None = None  # servoing into contact: the phase (tdacm.loop.touch.PHASES)
     phase_changed: bool = False  # ... entered this period (the safety monitor re-arms)
     tare_force: bool = False  # ask the tip force block to tare (contact-free) this period
+    landing: int = 0  # servoing into contact: landings so far (0 before the first touch)
     arms: tuple | None = None  # several arms: one ArmServoState per arm (tdacm.loop.arms)
 
 

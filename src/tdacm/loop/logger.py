@@ -22,6 +22,7 @@ from .data import (
     StateEstimate,
 )
 from .servo import MODE_CODES, normalized_rmse
+from .touch import task_image_error
 
 #: One value per control step (written as single CSV columns).
 SCALAR_SERIES = (
@@ -61,7 +62,10 @@ LOG_KEYS = VECTOR_SERIES + SCALAR_SERIES
 #: Logged only when the plant has obstacles (:attr:`RunLog.contact` set).
 CONTACT_SERIES = ("contact_tip", "contact_rod")
 #: Logged only when the loop estimates the tip force (servoing into contact, ``[touch]``).
-TOUCH_SERIES = ("force_true", "force_hat", "force_sigma", "touch_phase")
+TOUCH_SERIES = (
+    "force_true", "force_hat", "force_sigma", "touch_phase", "touch_landing", "rmse_local",
+    "rmse_local_true",
+)  # fmt: skip
 
 #: series -> (unit, meaning). Units of configuration-space series depend on the coordinate:
 #: "q" means rad (angles), m (positions), 1/m (strains); "qd" their rates; "tau" N m, N, N m^2.
@@ -105,6 +109,18 @@ SERIES_INFO = {
     "force_hat": ("N", "estimated normal force on the probe (tendons, thrusts, model)"),
     "force_sigma": ("N", "standard deviation of the estimated normal force"),
     "touch_phase": ("-", "0 = approach, 1 = contact, 2 = hold, 3 = release ([touch])"),
+    "touch_landing": (
+        "-",
+        "[touch]: the probe's landings so far (a landing off the marker is lifted)",
+    ),
+    "rmse_local": (
+        "-",
+        "[touch]: the task's image error, the detected C_L points' normalized RMSE to the "
+        "reference snapshot in C_L (NaN without a detection)",
+    ),
+    "rmse_local_true": ("-", "[touch]: the same for the true C_L points (the simulator's)"),
+    "rmse_local_arms": ("-", "several arms, [touch]: each arm's rmse_local"),
+    "rmse_local_true_arms": ("-", "several arms, [touch]: each arm's rmse_local_true"),
     "rmse_arms": ("-", "several arms: each arm's normalized RMSE of the points its servo used"),
     "rmse_true_arms": ("-", "several arms: each arm's RMSE of the true points in its C_V"),
     "detected_arms": ("-", "several arms: 1 if the arm's target was detected in its C_L"),
@@ -130,6 +146,10 @@ class RunLog:
         self.frame_composer = frame_composer
         #: ``(q, qd) -> (tip force, rod force)`` of the obstacles: adds :data:`CONTACT_SERIES`
         self.contact = None
+        #: servoing into contact: the reference snapshot in C_L ``(4, 2)`` and ``q -> (true
+        #: points in C_L, target pose)``, for the task's image error (``rmse_local``)
+        self.local_reference = None
+        self.truth_local = None
 
     def __len__(self) -> int:
         return len(self.rows["t"])
@@ -204,6 +224,15 @@ class RunLog:
             r.setdefault("force_sigma", []).append(force.sigma)
             phase = PHASES.index(cmd.phase) if cmd.phase in PHASES else -1
             r.setdefault("touch_phase", []).append(phase)
+            r.setdefault("touch_landing", []).append(cmd.landing)
+            ref = self.local_reference
+            measured = truth = np.nan
+            if ref is not None:
+                measured = task_image_error(raw, ref) if raw is not None else np.nan
+                if self.truth_local is not None:
+                    truth = task_image_error(self.truth_local(plant.q)[0], ref)
+            r.setdefault("rmse_local", []).append(measured)
+            r.setdefault("rmse_local_true", []).append(truth)
         if self.frame_composer is not None:
             self.frames.append(self.frame_composer(readings, view, cmd, plant.t))
 

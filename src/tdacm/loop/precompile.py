@@ -12,12 +12,10 @@ The split follows the order in which the main process needs the kernels:
   reference view compiles the model's ``coupled_terms`` and its callees, ``input_matrix``,
   ``chain_jacobian``, the corner refinement and the image features (about 30 s);
 * meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
-  compiles what the loop needs only from :func:`~tdacm.sim.assemble.warm_up` on: the plant's
-  ``rk4_run`` with ``forward_dynamics``, the backbone poses, the target filter's
-  Gauss-Newton kernel, the servo's twist and joint-rate kernels and the SE(3)/SO(3) maps
-  (about 30 s; ``rk4_run`` comes last, when the main
-  process has cached the rod callees it shares), while the main process also compiles the
-  tension allocation;
+  compiles what the loop calls from Python only from :func:`~tdacm.sim.assemble.warm_up` on:
+  the plant's ``rk4_run`` with ``forward_dynamics`` and the backbone poses (``rk4_run`` last,
+  when the main process has cached the rod callees it shares), while the main process
+  compiles the blocks' steps;
 * :func:`wait` (called by ``warm_up``) waits for the second process before the first of
   those kernels is called, so they load from the cache.
 
@@ -68,14 +66,20 @@ def numba_cache_is_cold() -> bool:
     try:
         from ..system import kernels as K
 
-        for kernel in (K.rk4_run, K.coupled_terms):
-            index = kernel._cache._cache_file._load_index()  # {} if stale or missing
-            magic = kernel.targetctx.codegen().magic_tuple()
-            if not any(key[1] == magic for key in index):
-                return True
-        return False
+        return _uncached((K.rk4_run, K.coupled_terms))
     except Exception:  # pragma: no cover - another numba version's internals
         return _index_files_missing()
+
+
+def _uncached(kernels) -> bool:
+    """Whether any of the dispatchers ``kernels`` lacks an entry for this CPU in numba's cache
+    index (raises on another numba version's internals)."""
+    for kernel in kernels:
+        index = kernel._cache._cache_file._load_index()  # {} if stale or missing
+        magic = kernel.targetctx.codegen().magic_tuple()
+        if not any(key[1] == magic for key in index):
+            return True
+    return False
 
 
 def _index_files_missing() -> bool:
@@ -140,48 +144,23 @@ def stop() -> None:
 
 
 def compile_second_half() -> None:
-    """Call once each kernel that the loop first needs in ``warm_up`` and in its first
-    periods, with the argument types of the loop's own calls (module docstring)."""
-    from .._linalg import SVD_PINV, svd_solve
-    from ..control.adaptive import _law_kernel
-    from ..control.allocation import _allocate_tensions_kernel
-    from ..lie.se3 import expmap, so3_log
+    """Call once each kernel that the loop first calls from Python in ``warm_up``, with the
+    argument types of the loop's own calls (module docstring): the plant's ``rk4_run`` (the
+    warm-up's integration) and the backbone poses. The kernels that the blocks' compiled
+    steps call (the IBVS law, the controller's law and allocation, the target filter, the
+    SE(3) maps) are compiled into those steps, not called through their own entries, so
+    compiling them here would be work no run loads."""
     from ..system.kernels import rk4_run
     from ..system.paper import paper_system
-    from ..vision.camera import PinholeCamera
-    from ..vision.ibvs import ibvs_law
-    from ..vision.target_filter import TargetFilter
 
-    # rk4_run last: by then the main process has cached the model callees it shares with
-    # coupled_terms (tdacm.system.forward, the Lie-group blocks), which load instead of
-    # compiling twice
-    # the target filter's step with the argument types of the servo's step (which then loads
-    # it from the cache), one frame of a target 1 m ahead
-    obj = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
-    cam = PinholeCamera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
-    filt = TargetFilter(cam, obj, level_prior=0.01, window=2)
-    target = np.eye(4)
-    target[2, 3] = 1.0
-    xy, _ = filt.points_in(np.eye(4), target)
-    filt.update_checked(np.column_stack((500.0 * xy[:, 0] + 320.0, 500.0 * xy[:, 1] + 240.0)),
-                        np.eye(4))  # fmt: skip
-    # the servo's twist (mode "mean", floor solve) and joint rates
-    xy, depths = np.ascontiguousarray(obj[:, :2]), np.ones(4)
-    ibvs_law(xy, depths, np.zeros(6), np.eye(6), 2, 1.0, 0.05, False)
-    svd_solve(np.eye(6), np.zeros(6), SVD_PINV, 1e-8)
-    # the low-level controller's law and tension allocation
-    v8, m8 = np.zeros(8), np.eye(8)
-    _law_kernel(m8, m8, m8, v8, v8, v8, v8, v8, v8, np.ones(8), m8, m8, v8)
-    _allocate_tensions_kernel(np.ones((2, 4)), np.zeros(2), 10.0, 0.5, 1e-3)
-    expmap(np.zeros(6))
-    so3_log(np.eye(3))
     system = paper_system()
     q = np.zeros(system.n)
     if system.floating:
         q[5] = 1.0
     qd = np.zeros(system.n)
     system.backbone(q)
-    # Plant.advance and warm_up: (q, qd, u, h, substeps, substeps, model arrays, loads)
+    # Plant.advance and warm_up: (q, qd, u, h, substeps, substeps, model arrays, loads); last,
+    # when the main process has cached the model callees it shares with coupled_terms
     rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 

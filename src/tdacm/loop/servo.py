@@ -215,7 +215,7 @@ class VisualServo:
         return ServoParams(
             gain=float(ib.gain), interaction=MODES.index(ib.mode), floor=float(ib.floor),
             damped=ib.solver == "damped", compensation=METHODS.index(self.compensation),
-            desired_points=c(self.desired_points), desired_depths=c(np.broadcast_to(
+            desired_points=c(self.desired_points), desired_depths=np.array(np.broadcast_to(  # writable: the engine's type
                 np.asarray(self.desired_depths, float), (4,))),
             desired_features=c(ib.desired), desired_interaction=c(ib.interaction_desired),
             camera=self.local_camera.params(), mount=c(self.tip_mount),

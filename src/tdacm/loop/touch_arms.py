@@ -11,9 +11,12 @@ from its own arm's tendons (``[touch] enabled`` with ``[[robot.arms]]``, docs/co
   :class:`~.touch.TouchServo` per arm. Each arm has its own phase (approach, contact, hold,
   release), its own twist and its own force estimate; the steps that need every side wait
   for the others: moving in starts once every arm has held its standoff view for ``dwell``
-  s (all estimators tared then), every arm moves in until all have touched, the hold starts
-  ``settle`` s after the last arm's first touch and ends for all after ``hold_time`` s, then
-  all release. The run's phase (``touch_phase``) is the least advanced arm's.
+  s (all estimators tared then), every arm moves in until all have touched; ``settle`` s
+  after the last arm's first touch every landing is checked on its arm's task view
+  (:func:`~.touch.landing_kept`): if all are kept the hold starts for all and ends after
+  ``hold_time`` s, then all release; otherwise the force is unloaded on every arm (the mean
+  loop's desired force ramped to zero over ``unload_time``) and every arm goes back to its
+  approach to land again. The run's phase (``touch_phase``) is the least advanced arm's.
 * :class:`ArmsTouchLog`: the log of several arms with the per-arm touch series
   :data:`TOUCH_ARM_SERIES`.
 
@@ -33,8 +36,9 @@ The balance loop, on the arms' difference (for two arms the drone's x and the sa
 bend of both rods, a weakly damped mode of the views' loop): along each balance direction
 ``b_j`` (:meth:`ArmsTouchServo.balance_directions`, made orthogonal to ``a``), the correction
 ``balance_gain (mean_i f_i - f_j) - balance_damping s_j`` (``s_j`` the mode's velocity
-``b_j . qdot / |b_j|^2``, low-pass filtered over ``balance_filter``) added to the reference
-the views set, replacing the last period's (docs/contact.md, "The balance loop").
+``b_j . qdot / |b_j|^2`` over the drone's coordinates on a floating base, low-pass filtered
+over ``balance_filter`` from rest) added to the reference the views set, replacing the last
+period's (docs/contact.md, "The balance loop", "The squeeze on estimates").
 """
 
 from __future__ import annotations
@@ -55,7 +59,16 @@ from ..vision.tip import rates_from_jacobian
 from .arms import ArmServoState, ArmsLog, ArmsServo
 from .data import PHASES, ForceReading, ServoCommand
 from .servo import normalized_rmse
-from .touch import _AXIAL, observer_step
+from .touch import (
+    _AXIAL,
+    approach_speed,
+    is_pinned,
+    landing_kept,
+    low_pass,
+    observer_step,
+    release_twist,
+    task_image_error,
+)
 
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
 
@@ -65,7 +78,10 @@ APPROACH, CONTACT, HOLD, RELEASE = PHASES
 AXIAL_WEIGHT = 10.0
 
 #: Per-arm series of :class:`ArmsTouchLog` (one column per arm).
-TOUCH_ARM_SERIES = ("force_true_arms", "force_hat_arms", "touch_phase_arms", "contact_force_arms")
+TOUCH_ARM_SERIES = (
+    "force_true_arms", "force_hat_arms", "touch_phase_arms", "contact_force_arms",
+    "rmse_local_arms", "rmse_local_true_arms",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -144,7 +160,7 @@ class ArmsForceBlock:
         u = np.asarray(u_applied, float)
         r = e0.residual(q, qd, u, qdd)
         self._last = r
-        return self._reading(est.t, q, r, e0._r_cov(q, qd, u, qdd, est.P))
+        return self._reading(est.t, q, r, e0.residual_covariance(q, qd, u, qdd, est.P))
 
     def tare(self) -> None:
         """Every arm's estimator takes the last period's residual as the model's bias."""
@@ -178,6 +194,10 @@ class ArmsTouchServo(ArmsServo):
         self._qd = None
         self._balance = None  # the balance loop's last correction
         self._rate = None  # its filtered rates
+        self._pinned = [False] * k  # each arm's servo on its task view (tdacm.loop.touch)
+        self._landings = 0  # the squeeze's landings so far (every arm touched once each)
+        self._task_err = [None] * k  # each arm's measured task image error, filtered
+        self._unload_t = None  # a landing off the marker: when the force began to ramp down
 
     def reset(self, q0, first_view=None) -> None:
         super().reset(q0, first_view)
@@ -192,8 +212,7 @@ class ArmsTouchServo(ArmsServo):
         tc = self.touch
         f_hat = reading.force if reading is not None and reading.valid else math.nan
         if math.isfinite(f_hat):
-            a = min(1.0, dt / tc.force_filter) if tc.force_filter > 0 else 1.0
-            self._f[k] = f_hat if self._f[k] is None else self._f[k] + a * (f_hat - self._f[k])
+            self._f[k] = low_pass(self._f[k], f_hat, dt, tc.force_filter)
         return self._f[k] if self._f[k] is not None else 0.0
 
     def _transitions(self, t: float, pss, forces) -> bool:
@@ -212,18 +231,53 @@ class ArmsTouchServo(ArmsServo):
                 self._f = [None] * k
                 return True
             return False
+        if self._unload_t is not None:  # the force ramped down on every arm, then back off
+            if t - self._unload_t >= tc.unload_time - 1e-9:
+                self._land_again()
+            return False
         for i in range(k):
             if self.phases[i] == CONTACT and self._touch_t[i] is None:
                 if forces[i] >= tc.detect_force:
                     self._touch_t[i] = t
-            if self.phases[i] == CONTACT and self._touch_t[i] is not None:
-                if t - self._touch_t[i] >= tc.settle:
-                    self.phases[i] = HOLD
-        if self._hold_end is None and all(p == HOLD for p in self.phases):
-            self._hold_end = t + tc.hold_time
+                    if all(tt is not None for tt in self._touch_t):
+                        self._landings += 1  # every probe down: one landing of the squeeze
+        if self._hold_end is None and all(tt is not None for tt in self._touch_t):
+            if t - max(self._touch_t) >= tc.settle:
+                kept = [landing_kept(e, self._landings, tc) for e in self._task_err]
+                if all(kept):
+                    self.phases = [HOLD] * k
+                    self._hold_end = t + tc.hold_time
+                else:  # unload every probe, then land again from the standoff views
+                    self._unload_t = t
         elif self._hold_end is not None and t >= self._hold_end - 1e-9:
             self.phases = [RELEASE] * k
         return False
+
+    def _land_again(self) -> None:
+        """After the unloading of a landing off the marker (docs/contact.md, "The squeeze on
+        estimates"): every arm goes back to its approach (the standoff view, leaving the
+        surface at no more than ``approach_speed``), the force and balance loops disengaged;
+        the squeeze moves in again once every arm has held its standoff view for ``dwell`` s
+        (the estimators tared again then)."""
+        k = len(self.arms)
+        self.phases = [APPROACH] * k
+        self._below_since = [None] * k
+        self._unload_t = None
+        self._touch_t = [None] * k
+        self._task_err = [None] * k
+        self._engaged = False
+        self._integral = 0.0
+        self._balance = None
+        self._rate = None
+
+    def desired_force(self, t: float) -> float:
+        """The mean loop's desired force at ``t``: ``touch.force``, ramped linearly to zero
+        over ``unload_time`` once a landing off the marker is unloaded (both arms together,
+        the balance loop still on: a probe leaving first would push the drone sideways)."""
+        tc = self.touch
+        if self._unload_t is None:
+            return tc.force
+        return tc.force * max(0.0, 1.0 - (t - self._unload_t) / tc.unload_time)
 
     def step(self, t: float, dt: float, view, gview, est, twist=None, force=None) -> ServoCommand:
         q = est.q
@@ -235,6 +289,10 @@ class ArmsTouchServo(ArmsServo):
         readings = getattr(force, "arms", ()) or (None,) * len(self.arms)
         forces = [self._filter(k, r, dt) for k, r in enumerate(readings)]
         prev_phase, prev_arms = self.phase, list(self.phases)
+        for k, (arm, v) in enumerate(zip(self.arms, view.arms, strict=True)):
+            if self._touch_t[k] is not None and v.found:  # where the landed probe aims
+                err = task_image_error(v.points, arm.local_points)
+                self._task_err[k] = low_pass(self._task_err[k], err, dt, tc.land_filter)
         tare = self._transitions(t, pss, forces)
         if tare:
             forces = [0.0] * len(self.arms)
@@ -243,31 +301,51 @@ class ArmsTouchServo(ArmsServo):
         seen_all = all(p[2] for p in per) and all(valid)
         external = None if twist is None else np.asarray(twist, float).reshape(len(per), 6)
         states, twists, weights = [], [], []
-        for k, (arm, p, ps) in enumerate(zip(self.arms, per, pss, strict=True)):
-            mode, rmse, extra = p[0], p[7], p[8]
+        pinned = [is_pinned(ph, tt is not None, tc.contact_view)
+                  for ph, tt in zip(self.phases, self._touch_t, strict=True)]  # fmt: skip
+        switched = pinned != self._pinned  # a view changes: the safety monitor re-arms
+        self._pinned = pinned
+        lvs = [arm.local_view(q) if p else None for arm, p in zip(self.arms, pinned, strict=True)]
+        if any(pinned):  # a pinned arm reads its C_L view (the task's)
+            valid = [lv.valid if lv is not None else v for lv, v in zip(lvs, valid, strict=True)]
+            seen_all = all(p[2] for p in per) and all(valid)
+        all_touched = all(tt is not None for tt in self._touch_t)
+        for k, (arm, p, ps, lv) in enumerate(zip(self.arms, per, pss, lvs, strict=True)):
+            mode, points, rmse, measured = p[0], p[4], p[7], p[8].get("rmse_measured", math.nan)
             v = np.zeros(6)
             phase = self.phases[k]
+            view_k, law = ps, arm.standoff_ibvs
+            if phase in (CONTACT, HOLD):
+                law = arm.ibvs
+            if lv is not None:
+                view_k, law = lv, arm.local_ibvs
+                points = lv.points
+                rmse = task_image_error(lv.points, arm.local_points) if lv.valid else math.nan
+                pts = view.arms[k].points if view.arms[k].found else None
+                measured = task_image_error(pts, arm.local_points)
             if mode == Mode.IBVS and seen_all:
                 if external is not None:
                     v = external[k].copy()
+                elif lv is not None:
+                    v = arm.pinned_twist(lv, ps)
                 elif phase in (CONTACT, HOLD):
                     e = ps.error.copy()
                     e[5] = 0.0  # p_z (the distance) is the force loop's
                     v = arm.ibvs.twist(ps.points, ps.depths, error=e)
                     v[5] = 0.0  # after the touch the axis is the admittance's (below)
-                    if not all(tt is not None for tt in self._touch_t):
-                        dist = arm._depth * max(0.0, -ps.error[5]) / ps.features[5]
-                        v[5] = min(tc.approach_speed, max(tc.touch_speed, tc.approach_gain * dist))
                 else:
                     v = arm.standoff_ibvs.features_error_twist(ps.points, ps.depths)[2]
+                    if phase == RELEASE or self._landings:  # leaving the surface
+                        v = release_twist(v, tc)
+                if phase in (CONTACT, HOLD) and external is None and not all_touched:
+                    v[5] = approach_speed(arm._depth, view_k.error[5], view_k.features[5], tc)
             if phase in (APPROACH, RELEASE) and ps is not None and ps.valid:
                 rmse = normalized_rmse(ps.points, arm.standoff_points)
-            if ps is not None and ps.valid:
-                law = arm.ibvs if phase in (CONTACT, HOLD) else arm.standoff_ibvs
-                weights.append(law.interaction(ps.points, ps.depths))
+            if view_k is not None and view_k.valid:
+                weights.append(law.interaction(view_k.points, view_k.depths))
             twists.append(v)
-            states.append(ArmTouchState(p[4], rmse, extra.get("rmse_measured", math.nan), v,
-                                        bool(p[2]), phase, forces[k]))  # fmt: skip
+            states.append(ArmTouchState(points, rmse, measured, v, bool(p[2]), phase,
+                                        forces[k]))  # fmt: skip
         self._weights = weights if len(weights) == len(self.arms) else None
         self._pressing = {k for k, p in enumerate(self.phases) if p in (CONTACT, HOLD)}
         qdd_d, request, failure, plan, event, following = self._joint_command(
@@ -275,12 +353,13 @@ class ArmsTouchServo(ArmsServo):
         )
         if following:
             self._qd = est.qd
-            self._admittance(q, forces, dt)
+            self._admittance(q, forces, dt, self.desired_force(t))
         if prev_phase != self.phase:
             event = f"touch: {self.phase}"
         return self._command(
             per, states, twists, qdd_d, event, failure, request, plan, phase=self.phase,
-            tare_force=tare, phase_changed=prev_arms != self.phases,
+            tare_force=tare, phase_changed=prev_arms != self.phases or switched,
+            landing=self._landings,
         )  # fmt: skip
 
     def joint_rates(self, q, twists, pressing=None, separate: bool = False) -> np.ndarray:
@@ -335,9 +414,10 @@ class ArmsTouchServo(ArmsServo):
             out.append(self.joint_rates(q, d, set(range(k)), separate=True))
         return out
 
-    def _admittance(self, q, forces, dt: float) -> None:
+    def _admittance(self, q, forces, dt: float, force: float) -> None:
         """The squeeze's force loops (module docstring), once every arm has touched: the
-        mean loop along ``a``, then the balance loop (:meth:`_balance_step`)."""
+        mean loop along ``a`` to the desired ``force``, then the balance loop
+        (:meth:`_balance_step`)."""
         tc = self.touch
         lead = self.arms[0]
         if not all(p in (CONTACT, HOLD) for p in self.phases):
@@ -348,7 +428,7 @@ class ArmsTouchServo(ArmsServo):
         aa = float(a @ a)
         if aa == 0.0:
             return
-        err = tc.force - float(np.mean(forces))
+        err = force - float(np.mean(forces))
         now = float(a @ (lead.q_d - q)) / aa
         if not self._engaged:  # bumpless: the PI starts from the offset it finds
             self._engaged = True
@@ -371,11 +451,15 @@ class ArmsTouchServo(ArmsServo):
         aa = float(a @ a)
         dirs = [b - a * (float(a @ b) / aa) for b in self.balance_directions(q)]
         qd = np.zeros(self.n) if self._qd is None else np.asarray(self._qd, float)
-        rate = np.array([float(b @ qd) / float(b @ b) for b in dirs])
-        if self._rate is None or tc.balance_filter <= 0:
+        # the mode's velocity read from the drone's coordinates on a floating base (the rods'
+        # strain rates are the estimate's noisiest, differenced encoders: docs/contact.md)
+        m = slice(0, 6) if lead._flying else slice(None)
+        rate = np.array([float(b[m] @ qd[m]) / float(b[m] @ b[m]) for b in dirs])
+        if tc.balance_filter <= 0:
             self._rate = rate
-        else:
-            self._rate = self._rate + min(1.0, dt / tc.balance_filter) * (rate - self._rate)
+        else:  # from rest when the loop engages: one period's rate is mostly noise on estimates
+            prev = np.zeros(len(dirs)) if self._rate is None else self._rate
+            self._rate = prev + min(1.0, dt / tc.balance_filter) * (rate - prev)
         mean = float(np.mean(forces))
         corr = np.array([tc.balance_gain * (mean - forces[j]) for j in range(len(dirs))])
         corr = corr - tc.balance_damping * self._rate
@@ -385,6 +469,13 @@ class ArmsTouchServo(ArmsServo):
         prev = np.zeros(len(dirs)) if self._balance is None else keep * self._balance
         lead.q_d = lead.q_d + np.column_stack(dirs) @ (corr - prev)
         self._balance = corr
+
+
+def _worst(x) -> float:
+    """The largest finite entry of ``x`` (NaN if there is none)."""
+    x = np.asarray(x, float)
+    f = np.isfinite(x)
+    return float(x[f].max()) if f.any() else math.nan
 
 
 def arm_contact_forces(system, contact):
@@ -416,9 +507,14 @@ class ArmsTouchLog(ArmsLog):
     (the summary judges each arm, :func:`tdacm.sim.runner.touch_summary`). ``arm_forces``:
     :func:`arm_contact_forces`."""
 
-    def __init__(self, desired, frame_composer=None, truths=None, arm_forces=None):
+    def __init__(self, desired, frame_composer=None, truths=None, arm_forces=None,
+                 local_references=None, truths_local=None):  # fmt: skip
         super().__init__(desired, frame_composer, truths)
         self.arm_forces = arm_forces
+        #: each arm's reference snapshot in its C_L and ``q -> (true points in its C_L, pose)``
+        #: (the task's image errors ``rmse_local_arms``, ``rmse_local_true_arms``)
+        self.local_references = None if local_references is None else list(local_references)
+        self.truths_local = None if truths_local is None else list(truths_local)
 
     def record(self, plant, readings, view, estimate, cmd, act, force=None) -> None:
         super().record(plant, readings, view, estimate, cmd, act, force)
@@ -441,6 +537,18 @@ class ArmsTouchLog(ArmsLog):
         r.setdefault("force_hat_arms", []).append(hat)
         r.setdefault("touch_phase_arms", []).append(phases)
         r.setdefault("contact_force_arms", []).append(np.linalg.norm(per, axis=1))
+        measured, truth = np.full(k, np.nan), np.full(k, np.nan)
+        views = getattr(view, "arms", ())
+        for i, ref in enumerate(self.local_references or ()):
+            if len(views) == k and views[i].found:
+                measured[i] = task_image_error(views[i].points, ref)
+            if self.truths_local is not None:
+                truth[i] = task_image_error(self.truths_local[i](plant.q)[0], ref)
+        r.setdefault("rmse_local_arms", []).append(measured)
+        r.setdefault("rmse_local_true_arms", []).append(truth)
+        if "rmse_local" in r:  # the single-arm series: the worse arm's
+            r["rmse_local"][-1] = _worst(measured)
+            r["rmse_local_true"][-1] = _worst(truth)
         if "force_true" in r:
             r["force_true"][-1] = float(np.mean(true))
             r["force_hat"][-1] = float(np.mean(hat))

@@ -44,6 +44,7 @@ from .blocks import (
     policy_block,
     proprioceptive_sensors,
     reference_snapshot,
+    reference_views,
     search_folders,
     servo_block,
     truth_ablation,
@@ -68,6 +69,7 @@ __all__ = [
     "known_rotor_drag",
     "proprioceptive_sensors",
     "reference_snapshot",
+    "reference_views",
     "reseed",
     "warm_up",
 ]
@@ -231,7 +233,7 @@ def build_loop(
     imperfections = camera_imperfections(cfg.sensors)
     sensors, ctl_camera = camera_sensors(cfg.cameras, imperfections, world, seed, video, suite)
     perception = perception_block(ctl_camera, world)
-    desired = reference_snapshot(
+    local_ref, desired = reference_views(
         sensors.local, robot, world.target, world.scene, world.q_star, ctl_camera
     )
     touch = cfg.touch
@@ -241,7 +243,8 @@ def build_loop(
             "scene.contact.target_box = true or [[scene.obstacles]]"
         )
     if servo is None:
-        servo = servo_block(cfg.ibvs, cfg.recovery, touch, paper, world, ctl_camera, desired, src)
+        servo = servo_block(cfg.ibvs, cfg.recovery, touch, paper, world, ctl_camera, desired, src,
+                            local_reference=local_ref)  # fmt: skip
         servo = policy_block(cfg, servo, world, ctl_camera, src, scenario.folder)
     model, controller, plant = _controller_and_plant(scenario, world, seed, controller, suite)
     force = force_block(touch, servo, model, robot)
@@ -251,6 +254,9 @@ def build_loop(
             model, robot.tip_mount, world.target, ctl_camera,
         )  # fmt: skip
     log = RunLog(servo.desired_points, frame_composer, truth_of(world, sensors.local))
+    if force is not None:  # servoing into contact: the task's image error, in C_L
+        log.local_reference = local_ref[0]
+        log.truth_local = truth_of(world, sensors.local, virtual=False)
     blocks = (plant, sensors, perception, servo, controller)
     return _assembly(scenario, world, seed, model, blocks, estimator, log, force)
 
@@ -326,17 +332,18 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
     imperfections = camera_imperfections(cfg.sensors)
     sensors, cams = arms_camera_sensors(cfg.cameras, imperfections, world, seed, video, suite)
     perception = ArmsPerception([perception_block(c, world.arm(k)) for k, c in enumerate(cams)])
-    desired = [
-        reference_snapshot(sensors.locals_[k], robot, world.target, world.scenes[k],
-                           world.q_star, cams[k])
+    views = [
+        reference_views(sensors.locals_[k], robot, world.target, world.scenes[k],
+                        world.q_star, cams[k])
         for k in range(len(robot.arms))
     ]  # fmt: skip
+    desired = [v[1] for v in views]
     paper = cfg.controller.profile == "paper"
     touch = cfg.touch.enabled
     if servo is None:
         servo = [
             servo_block(cfg.ibvs, cfg.recovery, cfg.touch, paper, world.arm(k), cams[k],
-                        desired[k], src, arm=arm)
+                        desired[k], src, arm=arm, local_reference=views[k][0])
             for k, arm in enumerate(robot.arms)
         ]  # fmt: skip
         servo = ArmsTouchServo(servo, cfg.touch) if touch else ArmsServo(servo)
@@ -354,8 +361,11 @@ def _build_arms_loop(scenario, world, seed, video, controller, servo, estimator,
         offset = probe_offset(robot.tip_mount, robot.probe_length)
         force = ArmsForceBlock(model, [a.tip_mount for a in robot.arms], offset,
                                tc.input_sigma, tc.force_estimator, tc.observer_gain)  # fmt: skip
+        truths_local = [truth_of(world.arm(k), sensors.locals_[k], virtual=False)
+                        for k in range(len(robot.arms))]  # fmt: skip
         log = ArmsTouchLog([p for p, _ in desired], composer, truths,
-                           arm_contact_forces(robot.system, plant.contact))  # fmt: skip
+                           arm_contact_forces(robot.system, plant.contact),
+                           [v[0][0] for v in views], truths_local)  # fmt: skip
     else:
         log = ArmsLog([p for p, _ in desired], composer, truths)
     blocks = (plant, sensors, perception, servo, controller)

@@ -13,6 +13,7 @@ world the rows the block loop built on that world's scenario has (tested equal).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -40,6 +41,8 @@ from ..vision.features import advanced_features, feature_interaction_matrix
 from .assemble import build_loop, reference_snapshot
 from .blocks import startup_sensors
 from .scenario import Scenario, ScenarioError, load_scenario
+
+log = logging.getLogger(__name__)
 
 #: the model arrays a world's robot replaces (:class:`~tdacm.system.worlds.RobotRows`)
 _ROBOT_FIELDS = ("stiffness", "damping", "step_mass", "mb6", "tendon_d", "tendon_dd")
@@ -399,6 +402,7 @@ def build_batch(
             params = None
         elif params.latency is not None and np.any(params.latency > MAX_LATENCY):
             raise ScenarioError(f"params.latency: the engine buffers {MAX_LATENCY} frames")
+    _compile_notice()
     a = build_loop(sc, int(seeds[0])) if assembly is None else assembly
     loop = a.loop
     try:

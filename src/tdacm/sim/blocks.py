@@ -187,10 +187,14 @@ def camera_imperfections(sensors) -> SensorModel:
     return SensorModel(**{k: getattr(sensors, k) for k in SensorModel.model_fields})
 
 
-def reference_snapshot(local: CameraSensor, robot, target, scene, q_star, controller_camera):
-    """The paper's reference snapshot: C_L's view at the desired configuration (detected;
-    the analytic projection if the detector misses it or its corners admit no pose in front
-    of the camera), in C_V for a floating base."""
+def reference_views(local: CameraSensor, robot, target, scene, q_star, controller_camera):
+    """The paper's reference snapshot, C_L's view at the desired configuration ``q_star``
+    (detected; the analytic projection if the detector misses it or its corners admit no pose
+    in front of the camera), in both cameras: ``((points, depths) in C_L, (points, depths) in
+    the servo camera)``, the servo camera's being C_V for a floating base (eq. (18) at
+    ``q_star``'s roll and pitch) and C_L itself for a fixed one. The C_L view is the touch
+    servo's reference while its probe presses (docs/contact.md, "The hold judged on the
+    task"); with a level ``q_star`` (zero roll and pitch) both views are the same."""
     s = robot.system
     g_c = local.pose(q_star)
     try:
@@ -207,10 +211,17 @@ def reference_snapshot(local: CameraSensor, robot, target, scene, q_star, contro
             pts = detected
         except ValueError:  # corners no pose explains (a grazing view): as a missed detection
             pass
+    in_local = (pts, z)
     if s.floating:
         gv = virtual_camera_transform(s.base_pose(q_star), g_c)
         pts, z = virtual_camera_points(pts, gv, z, "exact", return_depths=True)
-    return pts, z
+    return in_local, (pts, z)
+
+
+def reference_snapshot(local: CameraSensor, robot, target, scene, q_star, controller_camera):
+    """The paper's reference snapshot in the servo camera (C_V for a floating base):
+    :func:`reference_views`' second view."""
+    return reference_views(local, robot, target, scene, q_star, controller_camera)[1]
 
 
 def perception_block(controller_camera, world) -> Perception:
@@ -229,13 +240,15 @@ def servo_block(
     desired,
     source: str,
     arm=None,
+    local_reference=None,
 ) -> VisualServo:
     """The servo of ``[ibvs]`` and ``[recovery]``: the touch servo with ``touch.enabled``, the
     robust servo on predicted features, or the servo on the measured points; the paper
     profile's (``paper``) without command shaping. ``camera``: the controller's model of C_L;
     ``desired``: the reference snapshot ``(points, depths)``; ``arm``: the
     :class:`~tdacm.sim.robot.ArmRobot` whose C_L servoes (``[[robot.arms]]``; ``None``: the
-    single arm)."""
+    single arm); ``local_reference``: the reference snapshot in C_L ``(points, depths)``
+    (:func:`reference_views`), the touch servo's while pressing."""
     robot = world.robot
     config = ibvs.model_copy(update=PLAIN_SHAPING) if paper else ibvs
     args = (
@@ -254,7 +267,8 @@ def servo_block(
                 f"{source}: touch.enabled needs the robust servo "
                 "(ibvs.features = 'predicted', controller.profile = 'default')"
             )
-        return TouchServo(*args, config=config, recovery=recovery, touch=touch, **rod)
+        return TouchServo(*args, config=config, recovery=recovery, touch=touch,
+                          local_reference=local_reference, **rod)  # fmt: skip
     if ibvs.features == "predicted":
         return RobustServo(*args, config=config, recovery=recovery, **rod)
     return VisualServo(*args, config=config, recovery=recovery, **rod)
@@ -450,16 +464,18 @@ def contact_logger(system, contact):
     return forces
 
 
-def truth_of(world, local: CameraSensor):
+def truth_of(world, local: CameraSensor, virtual: bool = True):
     """``q -> (true points of the target in the servo camera, true target pose)`` for the
-    logger (C_V for a floating base, C_L for a fixed one)."""
+    logger (C_V for a floating base, C_L for a fixed one; ``virtual = False``: C_L always,
+    the touch servo's task camera)."""
     system = world.robot.system
     g_t = world.scene.target_pose
     obj = world.target.feature_points
+    to_virtual = virtual and system.floating
 
     def truth(q):
         g = local.pose(q)
-        if system.floating:
+        if to_virtual:
             g = virtual_pose(system.base_pose(q), g)
         r = _solve(g, g_t)
         pc = obj @ r[:3, :3].T + r[:3, 3]

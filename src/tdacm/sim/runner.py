@@ -289,8 +289,13 @@ def touch_summary(a: dict, cfg) -> dict:
     """Servoing into contact (``[touch]``, :mod:`tdacm.loop.touch`): the hold's figures from
     the log (empty without ``[touch] enabled``). ``hold_force_rms_rel``: RMS of the TRUE
     normal force minus the desired one over the hold, relative to the desired one;
-    ``hold_image_error_max``: the largest normalized RMSE (the servo's, to the reference view
-    at the contact pose) during the hold; ``hold_duration``: how long the hold lasted (s);
+    ``hold_image_error_max``: the task's image error over the hold, the largest normalized
+    RMSE of the DETECTED C_L points to the reference snapshot in C_L (``rmse_local``,
+    :func:`~tdacm.loop.touch.task_image_error`; periods without a detection skipped, ``None``
+    if the hold has none); ``hold_image_error_true_max``: the same for the true C_L points;
+    ``hold_image_error_servo_max``: the largest of the servo's own error (``rmse``: the
+    predicted view in the camera it servoes, ``touch.contact_view``); ``hold_duration``: how
+    long the hold lasted (s);
     ``max_contact_force``: the largest total contact force of the run (N). With several arms
     (a squeeze, :mod:`tdacm.loop.touch_arms`) every arm's force is judged over the hold (all
     arms holding) and the worst kept: ``hold_force_rms_rel`` is the largest of the arms'
@@ -311,6 +316,7 @@ def touch_summary(a: dict, cfg) -> dict:
         if phase.size and phase.max() >= 0
         else None,
         "hold_duration": float(hold.sum() * dt),
+        "landings": int(a["touch_landing"].max()) if "touch_landing" in a and t.size else 0,
         "hold_force_rms_rel": None,
         "hold_force_mean": None,
         "hold_force_max": None,
@@ -318,6 +324,7 @@ def touch_summary(a: dict, cfg) -> dict:
         "hold_force_estimate_error_rms": None,
         "hold_image_error_max": None,
         "hold_image_error_true_max": None,
+        "hold_image_error_servo_max": None,
     }
     arms = "force_true_arms" in a  # several arms (a squeeze): every arm judged, the worst kept
     if hold.any():
@@ -331,10 +338,14 @@ def touch_summary(a: dict, cfg) -> dict:
         out["hold_force_max"] = float(np.max(f))
         out["hold_force_estimate_error_max"] = float(np.nanmax(np.abs(fh - f)))
         out["hold_force_estimate_error_rms"] = float(np.sqrt(np.nanmean((fh - f) ** 2)))
+        out["hold_image_error_max"] = _finite_max(a["rmse_local"][hold])
+        out["hold_image_error_true_max"] = _finite_max(a["rmse_local_true"][hold])
         r = a["rmse"][hold]
-        out["hold_image_error_max"] = float(np.max(np.where(np.isfinite(r), r, np.inf)))
-        rt = a["rmse_true"][hold]
-        out["hold_image_error_true_max"] = float(np.nanmax(rt)) if np.isfinite(rt).any() else None
+        out["hold_image_error_servo_max"] = float(np.max(np.where(np.isfinite(r), r, np.inf)))
+        if arms:
+            out["hold_image_error_max_arms"] = [
+                _finite_max(x) for x in np.asarray(a["rmse_local_arms"])[hold].T
+            ]
     if arms and t.size:  # the force on each arm (the vector sum over the arms cancels)
         total = np.max(a["contact_force_arms"], axis=1)
         out["max_contact_force"] = float(total.max())
@@ -346,6 +357,13 @@ def touch_summary(a: dict, cfg) -> dict:
         rel = phase == PHASES.index("release")
         out["released"] = bool(rel.any() and total[rel][-1] == 0.0)
     return out
+
+
+def _finite_max(x) -> float | None:
+    """The largest finite value of ``x`` (``None`` if there is none)."""
+    x = np.asarray(x, float)
+    f = np.isfinite(x)
+    return float(x[f].max()) if f.any() else None
 
 
 def arms_summary(a: dict) -> dict:

@@ -247,7 +247,7 @@ def tendon_lengths_and_matrix(qs, m):
     na = m.tendon_d.shape[1]
     lengths = np.zeros(na)
     out = np.zeros((qs.shape[0], na))
-    tendon_accumulate(qs, m, np.empty(6), np.empty(6), out, lengths, True)
+    tendon_accumulate(qs, m, np.empty(6), np.empty(6), out, lengths, bool(1))
     return lengths, out
 
 

@@ -656,7 +656,7 @@ def _input_force(q, u, m, ws, out):
     for c in range(n - off):
         for i in range(na):
             bs_t[c, i] = 0.0
-    K.tendon_accumulate(q[off:], m, ws[10][0], ws[10][1], bs_t, ws[10][0], False)
+    K.tendon_accumulate(q[off:], m, ws[10][0], ws[10][1], bs_t, ws[10][0], bool(0))
     if m.floating:
         r = m33[3]
         t = m33[4]

@@ -527,7 +527,8 @@ def chain_frames(q, qd, m, rod):
     for k in range(lo, hi):
         c0 = off + m.step_col[k]
         c1 = c0 + m.step_nc[k]
-        rod_step(m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, jd, eta, jdq, False, ws)
+        rod_step(m.h[k], m.xi0s[k], m.bs[k], q[c0:c1], qd[c0:c1], c0, g, j, jd, eta, jdq, bool(0),
+                 ws)  # fmt: skip
         poses[k - lo] = g
         twists[k - lo] = eta
     return poses, twists

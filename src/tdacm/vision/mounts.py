@@ -184,14 +184,14 @@ def tip_camera_pose_into(q, m, rod, mount, out):
     """``g_{C_L} = g_L(q) g_{C_L}^L`` (:func:`tip_camera_pose`) into ``out`` (4, 4), from the
     rod's Magnus steps ``rod`` (:func:`camera_chain`)."""
     g = np.empty((4, 4))
-    camera_chain(q, m, rod, False, g, np.empty((0, 0)))
+    camera_chain(q, m, rod, bool(0), g, np.empty((0, 0)))  # a variable: one specialization
     mul4(g, mount, out)
 
 
 @njit(cache=True)
 def tip_jacobian_into(q, m, rod, out):
     """``J_L^L(q)`` (6 x n) of a camera's rod into ``out`` (:func:`camera_chain`)."""
-    camera_chain(q, m, rod, True, np.empty((4, 4)), out)
+    camera_chain(q, m, rod, bool(1), np.empty((4, 4)), out)  # a variable: one specialization
 
 
 @njit(cache=True)

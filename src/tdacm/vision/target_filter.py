@@ -741,7 +741,7 @@ def _rescue(p, s, xy, g_c, cost):
     window's at the estimate) by more than 1."""
     cand = np.empty((2, 4, 4))
     for c in range(pnp_kernel(p.object_points, p.object_2d, p.canon_inv, xy, g_c, cand)):
-        pose, info, c_cost, p_info, _, _, ok = _solve_window(p, s, cand[c], 4)
+        pose, info, c_cost, p_info, _, _, ok = _solve_window(p, s, cand[c], np.int64(4))
         if ok and c_cost < cost - 1.0:
             cost = c_cost
             s.pose[:, :] = pose

@@ -637,7 +637,13 @@ def fig_contact(rd: RunData, out, formats):
     shade(ax)
     r = np.asarray(rd.arrays["rmse"], float)[sl]
     ax.semilogy(tt, r, "C0", label="servo (to the active view)")
-    if rd.has("rmse_true"):
+    if rd.has("rmse_local"):  # the task's: where the probe aims in C_L (the hold's rule)
+        ax.semilogy(tt, np.asarray(rd.arrays["rmse_local"], float)[sl], "C3", lw=0.8,
+                    label="task (C_L, detected)")  # fmt: skip
+    if rd.has("rmse_local_true"):
+        ax.semilogy(tt, np.asarray(rd.arrays["rmse_local_true"], float)[sl], "C2--", lw=1.0,
+                    label="task (C_L, true)")  # fmt: skip
+    elif rd.has("rmse_true"):
         ax.semilogy(tt, np.asarray(rd.arrays["rmse_true"], float)[sl], "C2--", lw=1.0,
                     label="true (to the contact view)")  # fmt: skip
     ax.axhline(0.01, color="k", ls=":", lw=0.8)
@@ -664,8 +670,10 @@ def fig_contact(rd: RunData, out, formats):
     s = rd.summary
     what = "servoing into contact"
     if s.get("hold_force_rms_rel") is not None:
-        what += (f" (hold: force RMS error {100 * s['hold_force_rms_rel']:.1f} %, image error "
-                 f"max {s['hold_image_error_max']:.4f})")  # fmt: skip
+        img = s.get("hold_image_error_max")
+        img = "-" if img is None else f"{img:.4f}"
+        what += (f" (hold: force RMS error {100 * s['hold_force_rms_rel']:.1f} %, task image "
+                 f"error max {img})")  # fmt: skip
     return _finish(fig, rd, what, out, "contact", formats)
 
 
