@@ -402,7 +402,6 @@ def build_batch(
             params = None
         elif params.latency is not None and np.any(params.latency > MAX_LATENCY):
             raise ScenarioError(f"params.latency: the engine buffers {MAX_LATENCY} frames")
-    _compile_notice()
     a = build_loop(sc, int(seeds[0])) if assembly is None else assembly
     loop = a.loop
     try:
