@@ -303,7 +303,7 @@ def estimates_of(results: dict) -> dict:
             "kernels": [
                 [r["module"], r["qualname"], r["types"], round(r["exclusive_cpu_s"], 3)]
                 for r in res["records"]  # a failed attempt costs its time at every first use too
-                if r["module"].startswith("tdacm")
+                if (r["module"] or "").startswith("tdacm")
             ],
         }
     return {

@@ -1,7 +1,7 @@
-"""Compile half of the closed loop's numba kernels in a second process on a cold cache.
+"""Compile part of the closed loop's numba kernels in a second process on a cold cache.
 
 Why: a first run in a fresh environment spends most of its time compiling numba kernels
-(docs/benchmarks.md, "Cold start": about 56 s of a 61 s ``tdacm run paper-in-fov --duration 1``).
+(docs/benchmarks.md, "Compile time").
 Numba compiles one kernel at a time and holds the GIL while doing it, so a second thread does
 not help. A second *process* does. Every kernel compiled with ``cache=True`` is written to
 numba's on-disk cache, and the main process then loads it from there instead of compiling it.
@@ -19,9 +19,9 @@ The split follows the order in which the main process needs the kernels:
 * :func:`wait` (called by ``warm_up``) waits for the second process before the first of
   those kernels is called, so they load from the cache.
 
-Measured (2 cores, ``tdacm run paper-in-fov --duration 1`` with an empty cache): 62-67 s in one
-process, 42-43 s with the second one; 88.5 s against 60.1 s in a bench run at a slower moment
-of the machine (docs/benchmarks.md, "Cold start").
+Since the blocks became compiled steps, most of a run's compile is those steps, in the main
+process; the second process takes the plant's integrator only (docs/benchmarks.md, "What
+compiles").
 
 Before a first run the kernels can instead be in the cache already: a wheel carries them
 compiled (:mod:`tdacm._jitcache`), and ``make test`` fills the checkout's cache with the jobs
