@@ -174,6 +174,15 @@ NOT_TDACM = {
     ("loop/precompile.py", "kernel._cache._cache_file._load_index"): "numba",
     ("loop/precompile.py", "kernel._cache._cache_file"): "numba",
     ("loop/precompile.py", "kernel._cache"): "numba",
+    ("_compiling.py", "disp._cache._cache_file._load_index"): "numba",
+    ("_compiling.py", "disp._cache._cache_file"): "numba",
+    ("_compiling.py", "disp._cache"): "numba",
+    # numba's cache locators are a class list with no registration API (tdacm._jitcache)
+    ("_jitcache.py", "CacheImpl._locator_classes"): "numba",
+    # numba's index-and-data cache file has no public reading API (merging two caches)
+    ("bench/compile.py", "a._load_index"): "numba",
+    ("bench/compile.py", "b._load_index"): "numba",
+    ("bench/compile.py", "a._load_data"): "numba",
     # the functions of the module that tdacm.baselines.codegen generates (same package)
     ("baselines/cc.py", "self.module._evaluate"): "generated",
     ("baselines/cc.py", "self.module._energy"): "generated",

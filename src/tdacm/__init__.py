@@ -8,13 +8,13 @@ Aerial Continuum Manipulators".
 
 # Before any kernel is defined: where numba caches the package's kernels and for which CPU (a
 # wheel's shipped kernels, tdacm._jitcache), and the notice of what compiles (tdacm._compiling).
-from . import _jitcache
+from ._jitcache import activate as _activate_kernel_cache
 
-_jitcache.activate()
+_activate_kernel_cache()
 
-from . import _compiling  # noqa: E402
+from ._compiling import install as _install_compile_notice  # noqa: E402
 
-_compiling.install()
+_install_compile_notice()
 
 from .base import FixedBase, Quadrotor  # noqa: E402
 from .rod import Rod, SectionedRod, StrainBasis, Tendons  # noqa: E402

@@ -29,7 +29,7 @@ import json
 import sys
 from pathlib import Path
 
-from . import _jitcache
+from ._jitcache import status as kernel_cache
 from ._log import progress_enabled
 
 #: what each job compiles, in the notice
@@ -120,7 +120,7 @@ def notice_line(job: str | None) -> tuple[str, int | None]:
         parts.append(f"{total} kernels, {_about(left[1])}")
     parts += _state["notes"]
     parts.append("cached afterwards")
-    reason = _jitcache.status.get("reason")
+    reason = kernel_cache.get("reason")
     if reason:
         parts.append(reason)
     return f"tdacm: compiling {what} ({'; '.join(parts)}) ...", total
