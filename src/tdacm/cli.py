@@ -153,15 +153,16 @@ def numba_cache_is_cold() -> bool:
     return cold()
 
 
-def _compile_notice(parallel: bool = False) -> None:
-    """With ``parallel``, when the kernels will compile: half of them compile in a second
-    process meanwhile (:mod:`tdacm.loop.precompile`), which the compile notice says. The
-    notice itself comes with the first compile (:mod:`tdacm._compiling`)."""
+def _compile_notice(parallel: bool = False, scenario=None) -> None:
+    """With ``parallel``, when the kernels will compile: part of them compile in a second
+    process meanwhile (:mod:`tdacm.loop.precompile`; with the run's ``scenario``, its
+    plant's and controller's steps too), which the compile notice says. The notice itself
+    comes with the first compile (:mod:`tdacm._compiling`)."""
     if parallel and numba_cache_is_cold():
         from ._compiling import add_note
         from .loop.precompile import start
 
-        if start():
+        if start(scenario):
             add_note("in two processes")
 
 
@@ -352,7 +353,7 @@ def _cmd_run(args) -> int:
     if problem is not None:
         return _err(problem)
     # before the checks that build the robot: building it is the first compilation
-    _compile_notice(parallel=True)
+    _compile_notice(parallel=True, scenario=sc)
     from .loop.precompile import stop
 
     try:

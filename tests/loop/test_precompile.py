@@ -25,6 +25,9 @@ class FakeChild:
         self.waited = True
         return 0
 
+    def poll(self):
+        return None  # still compiling
+
     def kill(self):
         self.killed = True
 
@@ -56,6 +59,55 @@ def test_started_only_on_a_cold_cache_and_two_cores(monkeypatch, fake_child):
     precompile.wait()
     assert fake_child.started[0].waited and precompile._child is None
     precompile.wait()  # no child: a no-op
+
+
+def test_with_the_scenario_the_child_builds_its_loop_and_the_main_waits_for_rk4_only(
+    monkeypatch, fake_child
+):
+    import pickle
+
+    monkeypatch.setattr(precompile.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(precompile, "numba_cache_is_cold", lambda: True)
+    sc = load_scenario("paper-in-fov")
+    assert precompile.start(sc)
+    args = fake_child.started[0].args
+    assert args[1:3] == ["-m", precompile.AHEAD_MODULE]
+    with open(args[3], "rb") as f:  # the run's scenario, handed over
+        assert pickle.load(f).config == sc.config
+    precompile.os.unlink(args[3])
+    # the warm-up waits until the integrator is cached, not for the child's end
+    answers = iter([True, True, False])  # uncached twice, then cached
+    monkeypatch.setattr(precompile, "_uncached", lambda kernels: next(answers))
+    monkeypatch.setattr(precompile, "POLL", 0.0)
+    precompile.wait(("rk4_run",))
+    child = fake_child.started[0]
+    assert not child.waited and not child.killed and precompile._child is child
+    precompile.stop()  # the run's end stops it, whatever it still compiles
+    assert child.killed and precompile._child is None
+
+
+def test_compile_ahead_uses_the_loops_signatures():
+    """The child that knows the scenario compiles the plant's and the controller's steps with
+    the argument types of the run's own calls: after a short run, it adds no signature."""
+    from tdacm.control import hierarchical
+    from tdacm.loop import plant
+    from tdacm.sim import build_loop
+    from tdacm.sim.compile_ahead import compile_ahead
+    from tdacm.system import kernels as K
+
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {"cameras": {"local_renderer": "analytic", "global_every": 0}}
+    )
+    loop = build_loop(sc, 0).loop
+    loop.run(0.1)
+    loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
+    loop.close()
+    kernels = (K.rk4_run, K.chain_poses, plant.plant_step, hierarchical.controller_step)
+    before = {k.py_func.__name__: list(k.signatures) for k in kernels}
+    assert all(before.values()), before
+    compile_ahead(sc)
+    after = {k.py_func.__name__: list(k.signatures) for k in kernels}
+    assert after == before
 
 
 def test_stop_kills_the_child(monkeypatch, fake_child):

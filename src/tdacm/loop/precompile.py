@@ -101,9 +101,19 @@ def _index_files_missing() -> bool:
     return False
 
 
-def start() -> bool:
+#: The second process's module when the run's scenario is known: the plant's integrator, then
+#: the loop's plant and controller steps (:mod:`tdacm.sim.compile_ahead`, a layer above).
+AHEAD_MODULE = "tdacm.sim.compile_ahead"
+#: How often (s) :func:`wait` looks in numba's cache for the kernels it waits for.
+POLL = 0.2
+
+
+def start(scenario=None) -> bool:
     """Start the second compiling process if the cache is cold and there are >= 2 cores;
-    True if it was started (at most one per process)."""
+    True if it was started (at most one per process). With ``scenario`` (the run's
+    :class:`~tdacm.sim.scenario.Scenario`, handed over in a temporary pickle) it goes on after
+    the plant's integrator with the loop's plant and controller steps, which the main process
+    needs last in a period (:data:`AHEAD_MODULE`)."""
     global _child, _started_at
     if _child is not None or (os.cpu_count() or 1) < 2 or not numba_cache_is_cold():
         return False
@@ -111,8 +121,17 @@ def start() -> bool:
         return False
     if os.environ.get("TDACM_PARALLEL_COMPILE", "1") == "0":  # the user's opt-out
         return False
+    args = [sys.executable, "-m", "tdacm.loop.precompile"]
+    if scenario is not None:
+        import pickle
+        import tempfile
+
+        fd, path = tempfile.mkstemp(prefix="tdacm-scenario-", suffix=".pickle")
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump(scenario, f)
+        args = [sys.executable, "-m", AHEAD_MODULE, path]  # the child removes the file
     _child = subprocess.Popen(
-        [sys.executable, "-m", "tdacm.loop.precompile"],
+        args,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -121,13 +140,27 @@ def start() -> bool:
     return True
 
 
-def wait() -> None:
-    """Wait for the second process, if one was started (no-op otherwise)."""
+def wait(kernels=()) -> None:
+    """Wait for the second process, if one was started (no-op otherwise): until each numba
+    dispatcher of ``kernels`` has an entry in numba's cache (the child then goes on with what
+    it compiles next, and :func:`stop` ends it with the run), or with no ``kernels`` until it
+    ends. At most :data:`WAIT_LIMIT` s from its start; then it is stopped and the main process
+    compiles what is missing itself."""
     global _child
     if _child is None:
         return
+    left = WAIT_LIMIT - (time.perf_counter() - _started_at)
+    if kernels:
+        while _child.poll() is None and left > 0:
+            try:
+                if not _uncached(kernels):
+                    return
+            except Exception:  # pragma: no cover - another numba version's internals
+                break
+            time.sleep(POLL)
+            left = WAIT_LIMIT - (time.perf_counter() - _started_at)
     try:
-        _child.wait(timeout=max(1.0, WAIT_LIMIT - (time.perf_counter() - _started_at)))
+        _child.wait(timeout=max(1.0, left))
     except subprocess.TimeoutExpired:
         _child.kill()
         _child.wait()

@@ -573,7 +573,7 @@ def warm_up(system, q) -> None:
     system.terms(q, qd)
     system.tip_kinematics(q, qd)
     box_least_squares(np.eye(3), np.ones(3), 0.0, 1.0)
-    wait()  # rk4_run may be compiling in a second process (cold cache only)
+    wait((rk4_run,))  # rk4_run may be compiling in a second process (cold cache only)
     rk4_run(q, qd, np.zeros(system.n_u), 1e-4, 1, 1, system.model_arrays, system.loads.packed())
 
 
