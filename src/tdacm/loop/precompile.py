@@ -14,14 +14,16 @@ The split follows the order in which the main process needs the kernels:
 * meanwhile the second process (this module run as ``python -m tdacm.loop.precompile``)
   compiles what the loop calls from Python only from :func:`~tdacm.sim.assemble.warm_up` on:
   the plant's ``rk4_run`` with ``forward_dynamics`` and the backbone poses (``rk4_run`` last,
-  when the main process has cached the rod callees it shares), while the main process
-  compiles the blocks' steps;
-* :func:`wait` (called by ``warm_up``) waits for the second process before the first of
-  those kernels is called, so they load from the cache.
-
-Since the blocks became compiled steps, most of a run's compile is those steps, in the main
-process; the second process takes the plant's integrator only (docs/benchmarks.md, "What
-compiles").
+  when the main process has cached the rod callees it shares);
+* :func:`wait` (called by ``warm_up``) waits until ``rk4_run`` is in the cache, so that it
+  loads;
+* given the run's scenario (:func:`start`, from ``tdacm run``) the second process is
+  :mod:`tdacm.sim.compile_ahead`: after the integrator it builds the same loop and compiles
+  its plant's and controller's steps, which the main process reaches last in the first
+  period, after the sensors, perception and the servo (the largest share of a run's
+  compile). Measured on 2 quiet cores, ``tdacm run paper-in-fov --duration 1`` on an empty
+  cache: 220 and 221 s, against 353 and 292 s with the integrator alone, alternated
+  (docs/benchmarks.md, "Cold start").
 
 Before a first run the kernels can instead be in the cache already: a wheel carries them
 compiled (:mod:`tdacm._jitcache`), and ``make test`` fills the checkout's cache with the jobs
