@@ -87,10 +87,11 @@ def test_with_the_scenario_the_child_builds_its_loop_and_the_main_waits_for_rk4_
 
 
 def test_compile_ahead_uses_the_loops_signatures():
-    """The child that knows the scenario compiles the plant's and the controller's steps with
-    the argument types of the run's own calls: after a short run, it adds no signature."""
+    """The child that knows the scenario compiles the servo's command step and the plant's and
+    the controller's steps with the argument types of the run's own calls: after a short run,
+    it adds no signature."""
     from tdacm.control import hierarchical
-    from tdacm.loop import plant
+    from tdacm.loop import plant, servo
     from tdacm.sim import build_loop
     from tdacm.sim.compile_ahead import compile_ahead
     from tdacm.system import kernels as K
@@ -102,7 +103,8 @@ def test_compile_ahead_uses_the_loops_signatures():
     loop.run(0.1)
     loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
     loop.close()
-    kernels = (K.rk4_run, K.chain_poses, plant.plant_step, hierarchical.controller_step)
+    kernels = (K.rk4_run, K.chain_poses, plant.plant_step, hierarchical.controller_step,
+               servo.servo_command)  # fmt: skip
     before = {k.py_func.__name__: list(k.signatures) for k in kernels}
     assert all(before.values()), before
     compile_ahead(sc)
