@@ -19,11 +19,11 @@ The split follows the order in which the main process needs the kernels:
   loads;
 * given the run's scenario (:func:`start`, from ``tdacm run``) the second process is
   :mod:`tdacm.sim.compile_ahead`: after the integrator it builds the same loop and compiles
-  its plant's and controller's steps, which the main process reaches last in the first
-  period, after the sensors, perception and the servo (the largest share of a run's
-  compile). Measured on 2 quiet cores, ``tdacm run paper-in-fov --duration 1`` on an empty
-  cache: 220 and 221 s, against 353 and 292 s with the integrator alone, alternated
-  (docs/benchmarks.md, "Cold start").
+  its servo's command step and its plant's and controller's steps, which the main process
+  reaches last in the first period, after the sensors, perception and the servo's perception.
+  Measured on 2 quiet cores, ``tdacm run paper-in-fov --duration 1`` on an empty cache: 162
+  and 179 s, against 353 and 292 s with the integrator alone (docs/benchmarks.md, "Cold
+  start").
 
 Before a first run the kernels can instead be in the cache already: a wheel carries them
 compiled (:mod:`tdacm._jitcache`), and ``make test`` fills the checkout's cache with the jobs
