@@ -87,9 +87,10 @@ def test_with_the_scenario_the_child_builds_its_loop_and_the_main_waits_for_rk4_
 
 
 def test_compile_ahead_uses_the_loops_signatures():
-    """The child that knows the scenario compiles the servo's command step and the plant's and
-    the controller's steps with the argument types of the run's own calls: after a short run,
-    it adds no signature."""
+    """The second process must compile the signatures the loop calls, or its cache entries
+    would go unused: the integrator and the backbone poses (:func:`compile_second_half`, its
+    first part) and, knowing the scenario, the servo's command step and the plant's and the
+    controller's steps. After a short run, it adds no signature."""
     from tdacm.control import hierarchical
     from tdacm.loop import plant, servo
     from tdacm.sim import build_loop
@@ -139,27 +140,6 @@ def test_cli_run_kills_the_child_when_the_scenario_is_rejected(
     assert "RK4 step limit" in err
     assert fake_child.started and fake_child.started[0].killed
     assert notes == ["in two processes"]
-
-
-def test_second_half_uses_the_loops_signatures():
-    """The second process must compile the signatures the loop calls, or its cache entries
-    would go unused: after a short loop, calling it adds no new signature."""
-    from tdacm.sim import build_loop
-    from tdacm.system import kernels as K
-
-    sc = load_scenario("paper-in-fov").with_overrides(
-        {"cameras": {"local_renderer": "analytic", "global_every": 0}}
-    )
-    loop = build_loop(sc, 0).loop
-    loop.run(0.1)
-    loop.plant.system.backbone(loop.plant.state.q)  # the scene picture's call
-    loop.close()
-    kernels = (K.rk4_run, K.chain_poses)
-    before = {k.py_func.__name__: list(k.signatures) for k in kernels}
-    assert all(before.values()), before
-    precompile.compile_second_half()
-    after = {k.py_func.__name__: list(k.signatures) for k in kernels}
-    assert after == before
 
 
 def test_entry_point_runs_on_a_warm_cache():
