@@ -171,9 +171,6 @@ NOT_TDACM = {
     ("recording/export.py", "w._channel_ids"): "mcap_ros2",
     ("recording/export.py", "w._writer"): "mcap_ros2",
     # numba has no public API to list a dispatcher's cached signatures
-    ("loop/precompile.py", "kernel._cache._cache_file._load_index"): "numba",
-    ("loop/precompile.py", "kernel._cache._cache_file"): "numba",
-    ("loop/precompile.py", "kernel._cache"): "numba",
     ("_compiling.py", "disp._cache._cache_file._load_index"): "numba",
     ("_compiling.py", "disp._cache._cache_file"): "numba",
     ("_compiling.py", "disp._cache"): "numba",

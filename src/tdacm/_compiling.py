@@ -67,6 +67,15 @@ def _dispatcher(module: str, qualname: str):
     return obj if hasattr(obj, "overloads") else None
 
 
+def cached_signatures(disp) -> list:
+    """The argument types of the numba dispatcher ``disp`` in numba's on-disk cache for this
+    target (source stamp and CPU), read from numba's own index (``[]`` when stale or missing;
+    raises on a function without a cache or another numba version's internals)."""
+    index = disp._cache._cache_file._load_index()
+    magic = disp.targetctx.codegen().magic_tuple()
+    return [k[0] for k in index if k[1] == magic]
+
+
 def is_cached(module: str, qualname: str, types: str, _indexes: dict | None = None) -> bool:
     """Whether the kernel ``module.qualname`` for the argument types ``types`` (their
     ``str``) is compiled in this process or in numba's cache for this target; ``False`` when
@@ -79,15 +88,14 @@ def is_cached(module: str, qualname: str, types: str, _indexes: dict | None = No
     try:
         key = (module, qualname)
         if _indexes is not None and key in _indexes:
-            index = _indexes[key]
+            signatures = _indexes[key]
         else:
-            index = disp._cache._cache_file._load_index()
+            signatures = cached_signatures(disp)
             if _indexes is not None:
-                _indexes[key] = index
-        magic = disp.targetctx.codegen().magic_tuple()
+                _indexes[key] = signatures
     except Exception:  # a function without a cache, another numba's internals
         return False
-    return any(k[1] == magic and str(k[0]) == types for k in index)
+    return any(str(sig) == types for sig in signatures)
 
 
 def remaining(job: str) -> tuple[int, float] | None:

@@ -76,12 +76,9 @@ def numba_cache_is_cold() -> bool:
 def _uncached(kernels) -> bool:
     """Whether any of the dispatchers ``kernels`` lacks an entry for this CPU in numba's cache
     index (raises on another numba version's internals)."""
-    for kernel in kernels:
-        index = kernel._cache._cache_file._load_index()  # {} if stale or missing
-        magic = kernel.targetctx.codegen().magic_tuple()
-        if not any(key[1] == magic for key in index):
-            return True
-    return False
+    from .._compiling import cached_signatures
+
+    return any(not cached_signatures(kernel) for kernel in kernels)
 
 
 def _index_files_missing() -> bool:
