@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._records import copy_into, take
+from .._records import borrow, copy_into, take
 from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
 from ..estimation import ekf_step as EK
@@ -614,7 +614,12 @@ def worlds(model, data, what, twist, acting, sensing, log_q, log_rmse, log_mode,
     One entry, not one per use: numba links every callee's code into each compiled entry and
     optimizes and compiles it again there, so each entry holding :func:`sense` and
     :func:`act` cost their whole compile once more (docs/benchmarks.md, "What compiles"). Releases the GIL:
-    :func:`parallel` runs disjoint ranges of worlds in threads."""
+    :func:`parallel` runs disjoint ranges of worlds in threads.
+
+    The model's and data's arrays are borrowed (:func:`~tdacm._records.borrow`: the caller
+    holds them), so the steps below pass them on without counting references: a third of
+    the compiled time before, and the threads' contention on the stacked arrays' owners."""
+    model, data = borrow(model), borrow(data)
     n = data.q.shape[1]
     periods = log_rmse.shape[0] if what == PERIODS else 1
     first_acts = what == ACT_SENSE
