@@ -3,19 +3,25 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+DEV := $(VENV)/.installed-dev
 WARM := $(VENV)/.kernels
 
 .PHONY: demo test docs lint bench wheel clean
 
+# the package and what `tdacm run` needs (the demo); the extras and the tools come with DEV
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[all,dev]"
+	$(PY) -m pip install --quiet -e .
 	touch $(STAMP)
+
+# every extra (campaigns, env, RL, recording, live view) and the dev tools: the test suite
+$(DEV): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[all,dev]"
+	touch $(DEV)
 
 # numba's cache of the checkout for the test suite: the kernels of `tdacm run`, the engine, the
 # vector env and identification, compiled in two processes (tdacm.bench.compile.fill)
-$(WARM): $(STAMP)
+$(WARM): $(DEV)
 	$(PY) -m tdacm.bench.compile fill
 	touch $(WARM)
 
@@ -30,17 +36,17 @@ test: $(WARM)
 
 # the wheel with its kernels compiled for a portable CPU (buildsys/tdacm_build.py): installing
 # it needs no compiling on an x86-64 machine with the same Python and numba (docs/index.md)
-wheel: $(STAMP)
+wheel: $(DEV)
 	$(PY) -m build --wheel --outdir dist
 
-docs: $(STAMP)
+docs: $(DEV)
 	$(PY) -m mkdocs build --strict -d site
 
-lint: $(STAMP)
+lint: $(DEV)
 	$(VENV)/bin/ruff check src tests benchmarks examples buildsys
 	$(VENV)/bin/ruff format --check src tests benchmarks examples buildsys
 
-bench: $(STAMP)
+bench: $(DEV)
 	$(VENV)/bin/tdacm bench
 
 clean:
