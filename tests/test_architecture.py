@@ -180,9 +180,6 @@ NOT_TDACM = {
     ("bench/compile.py", "a._load_index"): "numba",
     ("bench/compile.py", "b._load_index"): "numba",
     ("bench/compile.py", "a._load_data"): "numba",
-    # numba's struct proxies give their LLVM value by _getvalue (its extending API's idiom:
-    # an intrinsic building an array without an owner, tdacm._records.borrow)
-    ("_records.py", "dst._getvalue"): "numba",
     # the functions of the module that tdacm.baselines.codegen generates (same package)
     ("baselines/cc.py", "self.module._evaluate"): "generated",
     ("baselines/cc.py", "self.module._energy"): "generated",
