@@ -92,10 +92,11 @@ def _without_owners(context, builder, ty, value):
 
 @intrinsic
 def _unowned(typingctx, records):
-    """:func:`borrow` as one intrinsic over the whole record: two field insertions per array,
-    so the caller's compile grows by nothing measurable. (A generated function per record
-    type, calling one intrinsic per array, made a function of the engine's model and data
-    take about 60 s more to compile.)"""
+    """:func:`borrow` as one intrinsic over the whole record: two field insertions per array
+    (a generated function per record type, calling one intrinsic per array, made a function
+    of the engine's model and data take about 60 s more to compile). The engine's entry still
+    compiles about 47 s longer with its records borrowed (docs/benchmarks.md, "Borrowed
+    arrays"), once per machine."""
 
     def codegen(context, builder, signature, args):
         return _without_owners(context, builder, signature.args[0], args[0])
