@@ -43,7 +43,7 @@ from ..system.tdacm import TDACM
 from .adaptive import AdaptiveController, AdaptiveGains, law_into
 from .allocation import allocate_tensions_kernel
 from .config import LAW_DEFAULTS, ControlLawConfig
-from .model import EstimatedModel, estimated_terms
+from .model import EstimatedModel, estimated_terms, model_params
 
 #: the laws of :func:`controller_step`: the adaptive sliding-mode law (paper eqs. S2-S10) and
 #: PD + gravity (:mod:`.pd`)
@@ -398,14 +398,7 @@ def controller_params(
     c = np.ascontiguousarray
     return ControllerParams(
         law=int(kind),
-        loads=model.system.loads.packed().copy(),
-        mass_scale=c(model.mass_scale, float),
-        damping=model.damping_hat,
-        stiffness_scale=c(1.0 + model.d_k),
-        gravity_scale=c(1.0 + model.d_g),
-        gravity_feedforward=bool(model.gravity_feedforward),
-        rotor_drag=model.knows_rotor_drag,
-        rotor_drag_k=c(model.rotor_drag, float),
+        **model_params(model)._asdict(),
         beta=c(gains.beta, float),
         a_d=c(gains.A_d, float),
         a_p=c(gains.A_p, float),

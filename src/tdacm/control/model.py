@@ -31,6 +31,7 @@ plant's loads (disturbances) never leak into the controller.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -162,6 +163,48 @@ class EstimatedModel:
     def true_terms(self, q, qd):
         """The nominal (unperturbed) terms of the private model."""
         return self.system.terms(q, qd)
+
+
+class ModelParams(NamedTuple):
+    """The estimated model as a record for compiled steps (:func:`model_params`), besides the
+    model arrays of its private gravity-only system (passed apart, shared by a batch): its
+    packed ``loads`` (27,), ``mass_scale`` ``S_M`` (n,), ``damping`` ``D_hat = S_D D S_D``
+    (n, n), ``stiffness_scale`` ``1 + d_K`` and ``gravity_scale`` ``1 + d_g`` (n,),
+    ``gravity_feedforward``, ``rotor_drag`` (whether it knows the drone's rotor drag) and
+    ``rotor_drag_k`` ``k_r_hat`` (3,)."""
+
+    loads: np.ndarray
+    mass_scale: np.ndarray
+    damping: np.ndarray
+    stiffness_scale: np.ndarray
+    gravity_scale: np.ndarray
+    gravity_feedforward: bool
+    rotor_drag: bool
+    rotor_drag_k: np.ndarray
+
+
+def model_params(model: EstimatedModel) -> ModelParams:
+    """The record of ``model``'s current draw (after ``reseed``, take it again: ``revision``)."""
+    c = np.ascontiguousarray
+    return ModelParams(
+        loads=model.system.loads.packed().copy(),
+        mass_scale=c(model.mass_scale, float),
+        damping=model.damping_hat,
+        stiffness_scale=c(1.0 + model.d_k),
+        gravity_scale=c(1.0 + model.d_g),
+        gravity_feedforward=bool(model.gravity_feedforward),
+        rotor_drag=model.knows_rotor_drag,
+        rotor_drag_k=c(model.rotor_drag, float),
+    )
+
+
+@njit(cache=True)
+def model_terms_into(mp, m, q, qd, m_hat, c_hat, d_hat, k_hat):
+    """``M_hat, C_hat, D_hat, K_hat`` at ``(q, qdot)`` (:meth:`EstimatedModel.terms`) of the
+    record ``mp`` (:class:`ModelParams`) on the private model's arrays ``m``."""
+    estimated_terms(q, qd, m, mp.loads, mp.mass_scale, mp.damping, mp.stiffness_scale,
+                    mp.gravity_scale, mp.gravity_feedforward, mp.rotor_drag, mp.rotor_drag_k,
+                    False, m_hat, c_hat, d_hat, k_hat)  # fmt: skip
 
 
 @njit(cache=True)

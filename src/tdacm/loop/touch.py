@@ -4,13 +4,14 @@ Two blocks, used when ``[touch] enabled`` (:class:`~.config.TouchConfig`, docs/c
 
 * :class:`TipForceBlock` estimates the normal force on the arm's contact sphere along the
   tip camera's optical axis every period, with no force sensor: the controller's model, the
-  applied inputs and the state estimate (:class:`~tdacm.estimation.contact_force.TipForceEstimator`
-  on all rows, so the drone's balance sees a force along the rod's axis), tared when the servo
-  asks for it (``ServoCommand.tare_force``, once hovering at the standoff, before touching);
-  the residual of the model's balance from a generalized-momentum observer
-  (:class:`~tdacm.estimation.contact_force.MomentumObserver`, ``force_estimator =
-  "momentum"``, no accelerations) or with accelerations from differenced velocities
-  (``"differenced"``);
+  applied inputs and the state estimate on all rows (so the drone's balance sees a force
+  along the rod's axis), tared when the servo asks for it (``ServoCommand.tare_force``, once
+  hovering at the standoff, before touching); the residual of the model's balance from a
+  generalized-momentum observer (``force_estimator = "momentum"``, no accelerations) or with
+  accelerations from differenced velocities (``"differenced"``). Its step is the compiled
+  :func:`~tdacm.estimation.contact_force.force_step` over the record
+  :func:`~tdacm.estimation.contact_force.force_params` (the same least squares as
+  :class:`~tdacm.estimation.contact_force.TipForceEstimator`, tested equal);
 * :class:`TouchServo`, the robust servo (:class:`~.servo.RobustServo`) with four phases:
 
   1. ``approach``: IBVS (all six features) to the *standoff* view, the reference snapshot
@@ -55,7 +56,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimation.contact_force import MomentumObserver, TipForceEstimator
+from ..estimation.contact_force import (
+    DIFFERENCED,
+    MOMENTUM,
+    ForceOut,
+    ForceState,
+    force_params,
+    force_reset,
+    force_step,
+    force_tare,
+)
 from ..vision.features import min_edge2_of
 from ..vision.ibvs import IBVSController
 from .config import TouchConfig
@@ -65,82 +75,67 @@ from .servo import PredictedView, RobustServo, normalized_rmse
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
 
 
-def observer_step(block, q, qd, u_applied, dt):
-    """One period of a force block's momentum observer (``block.observer``, its last
-    residual kept in ``block._last``): the residual, or None while there is no applied input
-    (the observer restarts) or it is starting."""
-    if u_applied is None:
-        block.observer.reset()
-        block._last = None
-        return None
-    started = block.observer.started
-    r = block.observer.step(q, qd, u_applied, dt)
-    block._last = r
-    return r if started else None
-
-
 class TipForceBlock:
-    """Estimated normal force on the probe along the tip camera's axis (module docstring).
+    """Estimated normal force on the probe along the tip camera's axis (module docstring), on
+    every arm's probe with several (:class:`~tdacm.loop.touch_arms.ArmsForceBlock`): the
+    record :func:`~tdacm.estimation.contact_force.force_params` validated once and the
+    compiled :func:`~tdacm.estimation.contact_force.force_step` each period (the engine calls
+    the same step).
 
     ``model``: the controller's :class:`~tdacm.control.EstimatedModel`; ``tip_mount``:
-    ``g_{C_L}^L``; ``offset``: the contact sphere's centre in the tip frame; ``kind``:
-    ``"momentum"`` (the generalized force from a
-    :class:`~tdacm.estimation.contact_force.MomentumObserver` of gain ``gain``, no
-    accelerations) or ``"differenced"`` (the model's balance with ``qdd`` the finite
-    difference of ``qd_hat``)."""
+    ``g_{C_L}^L`` (several: one per arm); ``offset``: the contact sphere's centre in the tip
+    frame; ``kind``: ``"momentum"`` (the generalized force from a momentum observer of gain
+    ``gain``, no accelerations) or ``"differenced"`` (the model's balance with ``qdd`` the
+    finite difference of ``qd_hat``)."""
 
     def __init__(self, model, tip_mount, offset, input_sigma: float, kind: str, gain: float):
-        if kind not in ("momentum", "differenced"):
-            raise ValueError(f"kind must be 'momentum' or 'differenced', got {kind!r}")
         self.kind = kind
-        self.estimator = TipForceEstimator(model, "all", input_sigma=input_sigma, offset=offset)
-        self.observer = MomentumObserver(model, gain) if kind == "momentum" else None
-        self.system = model.system
-        self.tip_mount = np.asarray(tip_mount, float)
-        self.reset()
+        self.model = model
+        self._args = (tip_mount, offset, input_sigma, kind, gain)
+        self.params = force_params(model, *self._args)
+        self._revision = model.revision
+        s = model.system
+        self.state = ForceState.initial(s.n, s.n_u)
+        self.out = ForceOut.empty(self.params.rods.shape[0])
+        self._no_cov = np.zeros((0, 0))
+        self._no_u = np.zeros(s.n_u)
+
+    @property
+    def arms(self) -> int:
+        return self.params.rods.shape[0]
 
     def reset(self) -> None:
-        self.estimator.clear_tare()
-        if self.observer is not None:
-            self.observer.reset()
-        self._qd_prev = None
-        self._last = None
+        force_reset(self.state)
+
+    def compute(self, est: StateEstimate, u_applied, dt: float) -> bool:
+        """One period of :func:`~tdacm.estimation.contact_force.force_step` into
+        :attr:`out`; whether the estimate is valid."""
+        if self._revision != self.model.revision:  # the model was drawn again
+            self.params = force_params(self.model, *self._args)
+            self._revision = self.model.revision
+        k = self.params.gain * dt
+        if self.params.kind == MOMENTUM and not 0.0 < k < 2.0:
+            raise ValueError(f"observer gain x period must be in (0, 2), got {k!r}")
+        c = np.ascontiguousarray
+        has_u = u_applied is not None
+        u = c(u_applied, dtype=float) if has_u else self._no_u
+        cov = self._no_cov
+        if self.params.kind == DIFFERENCED and est.P is not None:
+            cov = c(est.P, dtype=float)
+        force_step(self.params, self.state, self.model.system.model_arrays,
+                   c(est.q, dtype=float), c(est.qd, dtype=float), u, has_u, cov, float(dt),
+                   self.out)  # fmt: skip
+        return bool(self.out.valid[0])
 
     def step(self, est: StateEstimate, u_applied, dt: float) -> ForceReading:
-        q, qd = np.asarray(est.q, float), np.asarray(est.qd, float)
-        if self.observer is not None:
-            return self._step_momentum(est, q, qd, u_applied, dt)
-        qdd = None if self._qd_prev is None else (qd - self._qd_prev) / dt
-        self._qd_prev = qd.copy()
-        if u_applied is None or qdd is None:
-            self._last = None
+        if not self.compute(est, u_applied, dt):
             return ForceReading(est.t)
-        normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
-        u = np.asarray(u_applied, float)
-        self._last = (q, qd, u, qdd)
-        f, sigma = self.estimator.normal_force(q, qd, u, normal, qdd, est.P)
-        return ForceReading(est.t, f, sigma, normal, True)
-
-    def _step_momentum(self, est, q, qd, u_applied, dt) -> ForceReading:
-        r = observer_step(self, q, qd, u_applied, dt)
-        if r is None:
-            return ForceReading(est.t)
-        normal = -(self.system.tip_pose(q) @ self.tip_mount)[:3, 2]
-        # the inputs' white noise through the observer's first-order lag: the steady variance
-        # of x_k = (1 - k) x_{k-1} + k w_k is k / (2 - k) that of w (k = K_o dt)
-        k = self.observer.gain * dt
-        cov = self.estimator.input_cov(q) * (k / (2.0 - k))
-        f, sigma = self.estimator.normal_force_of(q, r, normal, cov)
-        return ForceReading(est.t, f, sigma, normal, True)
+        o = self.out
+        return ForceReading(est.t, float(o.force[0]), float(o.sigma[0]), o.normals[0].copy(), True)
 
     def tare(self) -> None:
         """Take the last period's residual as the model's bias (contact-free: before touching)."""
-        if self._last is None:
-            return
-        if self.observer is not None:
-            self.estimator.bias = self._last.copy()
-        else:
-            self.estimator.tare(*self._last)
+        force_tare(self.state)
 
 
 def low_pass(prev: float | None, x: float, dt: float, tau: float) -> float:

@@ -2,11 +2,12 @@
 from its own arm's tendons (``[touch] enabled`` with ``[[robot.arms]]``, docs/contact.md,
 "The squeeze").
 
-* :class:`ArmsForceBlock`: one :class:`~tdacm.estimation.contact_force.TipForceEstimator` per
-  arm (its rod's tip, its probe, along its camera's optical axis), tared together; the
-  residual of the model's balance (the momentum observer's, or with differenced velocities)
-  is one for the whole system, and the drone's rows see every arm's force, so the arms'
-  normal forces are solved together (:func:`~tdacm.estimation.contact_force.normal_forces_of`).
+* :class:`ArmsForceBlock`: the force block of every arm (its rod's tip, its probe, along its
+  camera's optical axis), tared together; the residual of the model's balance (the momentum
+  observer's, or with differenced velocities) is one for the whole system, and the drone's
+  rows see every arm's force, so the arms' normal forces are solved together by least squares
+  (the compiled :func:`~tdacm.estimation.contact_force.force_step`, as
+  :func:`~tdacm.estimation.contact_force.normal_forces_of` solves them).
 * :class:`ArmsTouchServo`: the servo of several arms (:class:`~.arms.ArmsServo`) over one
   :class:`~.touch.TouchServo` per arm. Each arm has its own phase (approach, contact, hold,
   release), its own twist and its own force estimate; the steps that need every side wait
@@ -49,11 +50,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control import Mode
-from ..estimation.contact_force import (
-    MomentumObserver,
-    TipForceEstimator,
-    normal_forces_of,
-)
 from ..system import kernels as K
 from ..vision.tip import rates_from_jacobian
 from .arms import ArmServoState, ArmsLog, ArmsServo
@@ -61,11 +57,11 @@ from .data import PHASES, ForceReading, ServoCommand
 from .servo import normalized_rmse
 from .touch import (
     _AXIAL,
+    TipForceBlock,
     approach_speed,
     is_pinned,
     landing_kept,
     low_pass,
-    observer_step,
     release_twist,
     task_image_error,
 )
@@ -100,74 +96,26 @@ class ArmTouchState(ArmServoState):
     force: float = math.nan
 
 
-class ArmsForceBlock:
+class ArmsForceBlock(TipForceBlock):
     """The estimated normal force on every arm's probe along its tip camera's optical axis
-    (module docstring). ``model``: the controller's
+    (module docstring), solved together from one residual. ``model``: the controller's
     :class:`~tdacm.control.EstimatedModel`; ``mounts``: each arm's ``g_{C_L}^L``;
     ``offset``: the contact sphere's centre in the tip frame (the same for every arm: the
     kernels carry one probe); ``kind``, ``gain``: as :class:`~.touch.TipForceBlock`."""
 
     def __init__(self, model, mounts, offset, input_sigma: float, kind: str, gain: float):
-        if kind not in ("momentum", "differenced"):
-            raise ValueError(f"kind must be 'momentum' or 'differenced', got {kind!r}")
-        self.kind = kind
-        self.mounts = [np.asarray(m, float) for m in mounts]
-        self.estimators = [
-            TipForceEstimator(model, "all", input_sigma=input_sigma, offset=offset, rod=k)
-            for k in range(len(self.mounts))
-        ]
-        self.observer = MomentumObserver(model, gain) if kind == "momentum" else None
-        self.system = model.system
-        self.reset()
-
-    def reset(self) -> None:
-        for e in self.estimators:
-            e.clear_tare()
-        if self.observer is not None:
-            self.observer.reset()
-        self._qd_prev = None
-        self._last = None
-
-    def normals(self, q) -> list:
-        """Each arm's direction the surface pushes its probe: minus its camera's axis."""
-        s = self.system
-        return [-(s.tip_pose(q, k) @ m)[:3, 2] for k, m in enumerate(self.mounts)]
-
-    def _reading(self, t, q, r, cov) -> ArmsForceReading:
-        normals = self.normals(q)
-        f, sigma = normal_forces_of(self.estimators, q, r, normals, cov)
-        arms = tuple(
-            ForceReading(t, float(fk), float(sk), nk, True)
-            for fk, sk, nk in zip(f, sigma, normals, strict=True)
-        )
-        a0 = arms[0]
-        return ArmsForceReading(t, a0.force, a0.sigma, a0.normal, True, arms)
+        super().__init__(model, np.asarray(mounts, float), offset, input_sigma, kind, gain)
 
     def step(self, est, u_applied, dt: float) -> ArmsForceReading:
-        q, qd = np.asarray(est.q, float), np.asarray(est.qd, float)
-        e0 = self.estimators[0]
-        if self.observer is not None:
-            r = observer_step(self, q, qd, u_applied, dt)
-            if r is None:
-                return ArmsForceReading(est.t)
-            k = self.observer.gain * dt  # the inputs' noise through the observer's lag
-            return self._reading(est.t, q, r, e0.input_cov(q) * (k / (2.0 - k)))
-        qdd = None if self._qd_prev is None else (qd - self._qd_prev) / dt
-        self._qd_prev = qd.copy()
-        if u_applied is None or qdd is None:
-            self._last = None
+        if not self.compute(est, u_applied, dt):
             return ArmsForceReading(est.t)
-        u = np.asarray(u_applied, float)
-        r = e0.residual(q, qd, u, qdd)
-        self._last = r
-        return self._reading(est.t, q, r, e0.residual_covariance(q, qd, u, qdd, est.P))
-
-    def tare(self) -> None:
-        """Every arm's estimator takes the last period's residual as the model's bias."""
-        if self._last is None:
-            return
-        for e in self.estimators:
-            e.bias = self._last.copy()
+        o = self.out
+        arms = tuple(
+            ForceReading(est.t, float(o.force[k]), float(o.sigma[k]), o.normals[k].copy(), True)
+            for k in range(self.arms)
+        )
+        a0 = arms[0]
+        return ArmsForceReading(est.t, a0.force, a0.sigma, a0.normal, True, arms)
 
 
 class ArmsTouchServo(ArmsServo):
