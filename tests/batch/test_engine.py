@@ -121,12 +121,48 @@ def test_each_world_equals_the_block_loop_on_estimates_and_two_arms(name, extra,
         np.testing.assert_array_equal(res.rmse[:, w], r.arrays["rmse"])
 
 
+def _near_standoff(extra=None, duration=14.0):
+    """touch-target started 0.18 m above its standoff view (as tests/contact/test_touch.py):
+    it moves in, touches, settles and holds within ``duration``."""
+    sc = load_scenario("touch-target")
+    q0 = list(sc.data["initial"]["q"])
+    q0[5] = 2.0
+    ov = {"cameras": ENGINE["cameras"], "initial": {"q": q0}, "duration": duration}
+    return sc.with_overrides({**ov, **(extra or {})}, "engine configuration")
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        None,  # the true state
+        {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS},  # the EKF's
+    ],
+)
+def test_touch_target_worlds_equal_the_block_loop(extra):
+    """Servoing into contact: each world's force estimate (the momentum observer), the touch
+    law's phases, the pinned view and the admittance are the block loop's compiled steps, so
+    the plant states, the servo's RMSE (the monitor's: the standoff view, then the task's)
+    are the same numbers at every sample, through the touch and into the hold."""
+    sc = _near_standoff(extra)
+    seeds = [0, 5]
+    res = build_batch(sc, seeds, threads=1).run(log_states=True)
+    for w, seed in enumerate(seeds):
+        r = build_loop(sc, seed).loop.run(sc.data["duration"])
+        assert res.termination[w] is None and r.termination is None
+        assert r.arrays["touch_phase"].max() >= 2  # held: the touch, the pinned view, the force
+        np.testing.assert_array_equal(res.q[:, w], r.arrays["q"])
+        np.testing.assert_array_equal(res.rmse[:, w], r.arrays["rmse"])
+
+
 def test_unsupported_scenarios_are_refused_naming_the_key():
     with pytest.raises(ScenarioError, match="cameras.local_renderer"):
         build_batch(load_scenario("paper-in-fov"), [0])
-    touch = load_scenario("touch-target").with_overrides({"cameras": ENGINE["cameras"]}, "t")
-    with pytest.raises(ScenarioError, match="touch.enabled"):
-        build_batch(touch, [0])
+    squeeze = load_scenario("dual-squeeze").with_overrides({"cameras": ENGINE["cameras"]}, "t")
+    with pytest.raises(ScenarioError, match="touch.enabled with robot.arms"):
+        build_batch(squeeze, [0])
+    differenced = _near_standoff({"touch": {"force_estimator": "differenced"}})
+    with pytest.raises(ScenarioError, match="touch.force_estimator"):
+        build_batch(differenced, [0])
     user = load_scenario("paper-in-fov").with_overrides(
         {"cameras": ENGINE["cameras"], "controller": {"class": f"{__name__}:UserController"}},
         "t",

@@ -89,6 +89,23 @@ ON_ESTIMATES = SPEC.replace("runs = 8", "runs = 3") + "".join(
 )  # fmt: skip
 
 
+#: servoing into contact from 0.18 m above the standoff view (the touch, the settled force and
+#: the 3 s hold within 18 s): the hold's figures and the force columns too
+TOUCH = """
+scenario = "touch-target"
+runs = 2
+seed = 4
+duration = 18.0
+success_rmse = 0.01
+success_hold_force_rms = 0.2
+[distributions]
+"initial.q" = { kind = "fixed", value = [0.0, 0.0, 0.1, 0.1, -0.1, 2.0, 0.1, -0.1] }
+"model.perturbation" = { kind = "fixed", value = 0.1 }
+"cameras.local_renderer" = { kind = "fixed", value = "analytic" }
+"cameras.global_renderer" = { kind = "fixed", value = "planar" }
+"""
+
+
 @pytest.mark.parametrize(
     "text, scenario",
     [
@@ -96,8 +113,9 @@ ON_ESTIMATES = SPEC.replace("runs = 8", "runs = 3") + "".join(
         (OUT_OF_FOV, "paper-out-of-fov"),
         (PER_WORLD, "paper-in-fov"),
         (ON_ESTIMATES, "paper-in-fov"),
+        (TOUCH, "touch-target"),
     ],
-    ids=["in-fov", "recovery-then-safety-stop", "per-world-parameters", "on-estimates"],
+    ids=["in-fov", "recovery-then-safety-stop", "per-world-parameters", "on-estimates", "touch"],
 )
 def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
     """Runs with sampled initial states and seeded model errors (in-FoV: 8 runs to their
@@ -118,6 +136,8 @@ def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
                 assert _same(b.get(k), r.get(k)), (b["run"], k, b.get(k), r.get(k))
     if "estimated" in text:
         assert all(np.isfinite(r["strain_estimation_rms"]) for r in rows)
+    if scenario == "touch-target":  # held, judged on the true force and the task's view
+        assert all(r["success"] and r["hold_force_rms_rel"] < 0.2 for r in rows)
     finals = [r["final_rmse"] for r in rows]
     assert len(set(np.round(finals, 9))) == spec.runs  # the runs differ (q0, model error)
     if scenario == "paper-out-of-fov":

@@ -31,7 +31,7 @@ def _touch(servo, loop, q, t):
     for _ in range(20):
         t += 0.02
         _drive(servo, loop, q, t, 0.3)
-        if servo._touch_t is not None:
+        if servo.touched:
             return t
     raise AssertionError("no touch")
 
@@ -57,10 +57,10 @@ def test_landing_on_the_marker_is_held_without_an_aim_shift():
     while servo.phase == CONTACT:
         t += 0.02
         _drive(servo, loop, q, t, 0.3)
-        assert not servo._lifting
+        assert not servo.lifting
     assert servo.phase == HOLD and t - t0 == pytest.approx(servo.touch.settle, abs=1e-9)
-    assert servo._task_err == pytest.approx(0.001 / 0.305, rel=0.02)
-    assert servo._aim.tolist() == [0.0, 0.0] and servo._landings == 1
+    assert servo.touch_state.task_err[0] == pytest.approx(0.001 / 0.305, rel=0.02)
+    assert servo.aim.tolist() == [0.0, 0.0] and servo.landings == 1
 
 
 def test_a_lifted_landing_shifts_the_next_aim_by_half_its_offset():
@@ -71,23 +71,24 @@ def test_a_lifted_landing_shifts_the_next_aim_by_half_its_offset():
     independent IBVS law on the shifted points gives the same twist)."""
     loop, servo, q, t0 = _landed(0.003)
     t = t0
-    while not servo._lifting:
+    while not servo.lifting:
         t += 0.02
         _drive(servo, loop, q, t, 0.3)
     assert t - t0 == pytest.approx(servo.touch.settle, abs=1e-9)
-    (sample,) = servo._aim_samples
+    assert servo.touch_state.aim_count[0] == 1
+    sample = servo.touch_state.aim_total.copy()
     assert np.hypot(*sample) == pytest.approx(0.003 / 0.305, rel=0.02)
     assert min(abs(sample)) < 1e-4  # along one image axis
-    assert servo._aim == pytest.approx(0.5 * sample, abs=1e-15)
+    assert servo.aim == pytest.approx(0.5 * sample, abs=1e-15)
     q[3] -= 0.003  # back over the marker's centre, moving in (the estimate still pressed)
     t += 0.02
     cmd, _ = _drive(servo, loop, q, t, 0.3)
-    ps = servo._ps
+    ps = servo.predicted()
     law = {"gain": servo.ibvs.gain, "floor": servo.ibvs.floor}
-    shifted = IBVSController(servo.desired_points - servo._aim, servo.desired_depths, **law)
+    shifted = IBVSController(servo.desired_points - servo.aim, servo.desired_depths, **law)
     e = shifted.error(ps.points)
     e[5] = 0.0
-    assert e[3:5] == pytest.approx(ps.error[3:5] + servo._aim, abs=1e-12)
+    assert e[3:5] == pytest.approx(ps.error[3:5] + servo.aim, abs=1e-12)
     v = servo.ibvs.twist(ps.points, ps.depths, error=e)
     assert cmd.twist[:5] == pytest.approx(v[:5], abs=1e-12)
     assert cmd.twist[5] == -servo.touch.approach_speed  # lifting
@@ -98,19 +99,19 @@ def test_without_the_correction_the_aim_stays():
     it was."""
     loop, servo, q, t0 = _landed(0.003, correction=False)
     t = t0
-    while not servo._lifting:
+    while not servo.lifting:
         t += 0.02
         _drive(servo, loop, q, t, 0.3)
-    assert servo._aim.tolist() == [0.0, 0.0] and servo._aim_samples == []
+    assert servo.aim.tolist() == [0.0, 0.0] and servo.touch_state.aim_count[0] == 0
 
 
 def test_force_settled_band_and_wait():
     """The hold may start when the filtered estimate is within settle_band (10 %) of the
     desired force, or settle_wait (1 s) after settle whatever it reads."""
     from tdacm.loop.config import TouchConfig
-    from tdacm.loop.touch import force_settled
+    from tdacm.loop.touch import TouchLaw, force_settled
 
-    tc = TouchConfig(enabled=True)
+    tc = TouchLaw.from_config(TouchConfig(enabled=True))
     assert force_settled(0.32, tc.settle, tc) and force_settled(0.28, tc.settle, tc)
     assert not force_settled(0.34, tc.settle, tc) and not force_settled(0.26, tc.settle, tc)
     assert not force_settled(0.45, tc.settle + 0.98, tc)
@@ -130,9 +131,9 @@ def test_the_hold_waits_for_the_force_to_settle():
             reading = 0.45 if t - t0 < tc.settle + 0.2 - 1e-9 else late
             _drive(servo, loop, q, t, reading)
             assert t - t0 < tc.settle + tc.settle_wait + 0.01
-        assert servo.phase == HOLD and servo._landings == 1
+        assert servo.phase == HOLD and servo.landings == 1
         if expect_wait is None:  # the estimate back at 0.3 N from settle + 0.2 s
             assert tc.settle + 0.2 < t - t0 < tc.settle + 0.5
-            assert abs(servo._f - tc.force) <= tc.settle_band * tc.force
+            assert abs(servo.touch_state.f[0] - tc.force) <= tc.settle_band * tc.force
         else:
             assert t - t0 == pytest.approx(tc.settle + expect_wait, abs=1e-9)

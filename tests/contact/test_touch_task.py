@@ -124,7 +124,7 @@ def test_switch_into_and_out_of_the_task_view():
     t = _settle_target(loop, servo, a.world.q_star)
     servo.phase = CONTACT  # moving in (the standoff dwell is the approach's, tested elsewhere)
     cmd, view = _drive(servo, loop, q, t, 0.0)
-    ps = servo._ps
+    ps = servo.predicted()
     assert cmd.points == pytest.approx(ps.points, abs=1e-15)
     assert cmd.rmse == pytest.approx(normalized_rmse(ps.points, servo.desired_points), abs=1e-15)
     assert cmd.twist[5] == pytest.approx(tc.touch_speed, rel=1e-9)  # moving in at touch speed
@@ -133,9 +133,9 @@ def test_switch_into_and_out_of_the_task_view():
         t += 0.02
         cmd, view = _drive(servo, loop, q, t, 0.3)
         switched.append(cmd.phase_changed)
-        if servo._touch_t is not None:
+        if servo.touched:
             break
-    assert servo._touch_t is not None and switched[-1] and not any(switched[:-1])
+    assert servo.touched and switched[-1] and not any(switched[:-1])
     lv = servo.local_view(q)
     assert cmd.points == pytest.approx(lv.points, abs=1e-15)
     assert cmd.rmse == pytest.approx(task_image_error(lv.points, servo.local_points), abs=1e-15)
@@ -143,21 +143,21 @@ def test_switch_into_and_out_of_the_task_view():
         task_image_error(view.points, servo.local_points), abs=1e-15
     )
     assert cmd.rmse == pytest.approx(cmd.rmse_measured, abs=1e-9)  # noise-free
-    e = pinned_error(lv.error, servo._ps.error)
+    e = pinned_error(lv.error, servo.predicted().error)
     v = servo.local_ibvs.twist(lv.points, lv.depths, error=e)
     assert cmd.twist[:5] == pytest.approx(v[:5], abs=1e-15) and cmd.twist[5] == 0.0
-    c_v = normalized_rmse(servo._ps.points, servo.desired_points)
+    c_v = normalized_rmse(servo.predicted().points, servo.desired_points)
     assert abs(c_v - cmd.rmse) > 0.01  # the tilt's image: C_V moved, C_L did not
     t += 0.02
     cmd, _ = _drive(servo, loop, q, t, 0.3)
     assert not cmd.phase_changed and cmd.phase == CONTACT
-    t_end = servo._touch_t + tc.settle + tc.hold_time
+    t_end = servo.touch_state.touch_t[0] + tc.settle + tc.hold_time
     while servo.phase != RELEASE:
         t += 0.02
         cmd, _ = _drive(servo, loop, q, t, 0.3)
         assert t < t_end + 0.1
     assert cmd.phase_changed
-    ps = servo._ps
+    ps = servo.predicted()
     assert cmd.points == pytest.approx(ps.points, abs=1e-15)
     assert cmd.rmse == pytest.approx(normalized_rmse(ps.points, servo.standoff_points), abs=1e-15)
 
@@ -174,8 +174,8 @@ def test_virtual_contact_view_never_switches():
         t += 0.02
         cmd, _ = _drive(servo, loop, q, t, 0.3)
         assert not cmd.phase_changed
-    assert servo._touch_t is not None
-    assert cmd.points == pytest.approx(servo._ps.points, abs=1e-15)
+    assert servo.touched
+    assert cmd.points == pytest.approx(servo.predicted().points, abs=1e-15)
 
 
 def test_target_in_camera_matches_the_truth():

@@ -75,11 +75,12 @@ class BatchResult:
         return out
 
 
-def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int, estimation) -> BatchData:
+def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int, estimation,
+               touch) -> BatchData:  # fmt: skip
     """The state of ``n_worlds`` worlds of ``n`` coordinates and ``n_u`` inputs, each block's
-    state as its block makes it (the arms' with an arm axis; ``estimation`` one world's
-    :class:`~tdacm.batch.engine.EstimationData`; then
-    :func:`~tdacm.batch.engine.reset_worlds`)."""
+    state as its block makes it (the arms' with an arm axis; ``estimation`` and ``touch`` one
+    world's :class:`~tdacm.estimation.block.EstimationData` and
+    :class:`~tdacm.loop.touch.TouchData`; then :func:`~tdacm.batch.engine.reset_worlds`)."""
     k = int(model.n_arms)
     sensors = take(model.sensor, 0)
     latency = int(np.max(model.sensor.latency))
@@ -106,6 +107,7 @@ def empty_data(model: BatchModel, n_worlds: int, n: int, n_u: int, estimation) -
         robot_out=replicate(ServoOut.empty(n, ns), n_worlds),
         memo=replicate(ArmsMemo.initial(), n_worlds),
         estimation=replicate(estimation, n_worlds),
+        touch=replicate(touch, n_worlds),
         controller=replicate(ControllerState.initial(n), n_worlds),
         work=replicate(ControllerWork.empty(n), n_worlds),
         safety=replicate(SafetyState.initial(), n_worlds),
@@ -145,13 +147,17 @@ class Batch:
         Threads stepping disjoint ranges of worlds (default: the machine's cores); the
         results do not depend on it.
     estimation:
-        One world's :class:`~tdacm.batch.engine.EstimationData` (the filter's and the
+        One world's :class:`~tdacm.estimation.block.EstimationData` (the filter's and the
         sensors' state records, replicated over the worlds).
+    touch:
+        One world's :class:`~tdacm.loop.touch.TouchData` (the touch law's and the force
+        estimate's state records).
     """
 
     def __init__(
-        self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None, estimation=None
-    ):
+        self, model: BatchModel, seeds, q0, qd0=None, n_u: int = 0, threads=None,
+        estimation=None, touch=None,
+    ):  # fmt: skip
         self.model = model
         self.threads = threads
         self.seeds = np.asarray(seeds, np.int64).ravel()
@@ -166,7 +172,7 @@ class Batch:
         self.n_worlds = n_worlds
         #: the per-world parameters the batch was built with (``None``: the scenario's)
         self.params = None
-        self.data = empty_data(model, n_worlds, q0.shape[1], n_u, estimation)
+        self.data = empty_data(model, n_worlds, q0.shape[1], n_u, estimation, touch)
         self.reset()
 
     @property

@@ -12,16 +12,19 @@ The engine's one compiled entry is :func:`worlds` (:func:`step_worlds`, :func:`r
             (analytic detection, dropped frames,  analytic_detect, frame_dropped,
             pixel noise, latency)                 add_pixel_noise, latency_push
             perception (normalized points, IPPE)  loop.perception.perceive
+            the estimate (the EKF's period)       estimation.ekf_step, sensor_steps
             the servo's view, target filter and   loop.servo.servo_perceive
             mode switch
+            (into contact: the tip force          estimation.contact_force.force_step,
+            estimate, the touch law's view)       loop.touch.touch_perceive
     act     C_G's snapshot when the recovery      loop.servo.needs_global, servo_command
-            needs one; IBVS or recovery
+            needs one; IBVS or recovery           (into contact: loop.touch.touch_command)
             the low-level controller              control.hierarchical.controller_step
             the safety monitor                    loop.safety.safety_arm, safety_check
             the plant over the period             loop.plant.plant_step
 
-The estimate is the true state. A world that ends (a termination, or its last sample) stops;
-the others go on. The constants of all worlds are a :class:`BatchModel` (the blocks' records
+The estimate is the true state or each world's EKF (:func:`_estimate`). A world that ends
+(a termination, or its last sample) stops; the others go on. The constants of all worlds are a :class:`BatchModel` (the blocks' records
 stacked with a leading world axis, and the model arrays the worlds share), their state a
 :class:`BatchData`. A world's result depends only on its seed and its rows, not on the batch
 size, its index or the thread count (every draw comes from its own counter-based stream,
@@ -40,6 +43,7 @@ from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
 from ..estimation import ekf_step as EK
 from ..estimation import sensor_steps as SS
+from ..estimation.contact_force import force_reset, force_step, force_tare
 from ..loop.arms import arms_command
 from ..loop.data import Termination
 from ..loop.perception import perceive
@@ -64,6 +68,7 @@ from ..loop.servo import (
     servo_perceive,
     servo_reset,
 )
+from ..loop.touch import touch_command, touch_perceive, touch_reset
 from ..system.worlds import model_of_world
 from ..vision.camera import normalize_into
 from .random import normal, uniform
@@ -95,7 +100,9 @@ class BatchModel(NamedTuple):
     (:class:`~tdacm.control.hierarchical.ControllerParams`), ``safety``
     (:class:`~tdacm.loop.safety.SafetyParams`), ``plant``
     (:class:`~tdacm.loop.plant.PlantParams`) and ``robot`` each world's robot
-    (:class:`~tdacm.system.worlds.RobotRows`, the plant's and the controller model's alike);
+    (:class:`~tdacm.system.worlds.RobotRows`, the plant's and the controller model's alike),
+    ``estimation`` (:class:`~tdacm.estimation.block.Estimation`) and ``touch``
+    (:class:`~tdacm.loop.touch.TouchRecords`);
     the shared model arrays of the plant's system ``plant_model`` and of the controller's
     private model ``control_model``; the control period ``dt``, the periods of a run
     ``steps`` (``steps + 1`` samples, the last without a plant step, as
@@ -118,57 +125,7 @@ class BatchModel(NamedTuple):
     global_every: int
     n_arms: int
     estimation: object
-
-
-class Estimation(NamedTuple):
-    """The estimation of a batch's worlds (records stacked over the worlds): whether the
-    worlds run on the EKF's estimates (``on``; else on the true state, the records below
-    unused), the filter's :class:`~tdacm.estimation.ekf_step.EkfParams` ``ekf``, the
-    proprioceptive sensors' (``pose``, ``imu``, ``encoders``,
-    :mod:`tdacm.estimation.sensor_steps`; disabled where the robot has none) and the start-up
-    reading's (``start_pose``, ``start_encoders``: no latency, no dropout), whether the start
-    is measured (``measured``: else the nominal configuration) from ``nominal`` (n,) with the
-    encoders' zero ``q_ref`` (n_s,), the configured start errors ``strain_error``,
-    ``position_error`` and whether the filter fuses C_L's view of the target (``fuse_view``)."""
-
-    on: bool
-    ekf: object
-    pose: object
-    imu: object
-    encoders: object
-    start_pose: object
-    start_encoders: object
-    measured: bool
-    nominal: np.ndarray
-    q_ref: np.ndarray
-    strain_error: float
-    position_error: float
-    fuse_view: bool
-
-
-class EstimationData(NamedTuple):
-    """The estimation's state of a batch's worlds (stacked): the filter's
-    :class:`~tdacm.estimation.ekf_step.EkfState` ``ekf`` and its period's measurements
-    ``meas``, the sensors' states (``pose``, ``imu``, ``encoders``, ``start_pose``,
-    ``start_encoders``), the estimate ``q_hat``, ``qd_hat`` (n,) and its ``p_qq`` (n, n), the
-    filter's status of the period ``status`` (1,), the plant's accelerations at the period's
-    start ``qdd`` (n,) with ``has_qdd`` (1,) (what the IMU senses) and a sensor's reading
-    ``out`` (scratch)."""
-
-    ekf: object
-    meas: object
-    pose: object
-    imu: object
-    encoders: object
-    start_pose: object
-    start_encoders: object
-    q_hat: np.ndarray
-    qd_hat: np.ndarray
-    p_qq: np.ndarray
-    status: np.ndarray
-    qdd: np.ndarray
-    has_qdd: np.ndarray
-    out: np.ndarray
+    touch: object
 
 
 class Frame(NamedTuple):
@@ -192,7 +149,8 @@ class BatchData(NamedTuple):
     ``controller``, ``safety``, ``plant``; the arms' with a second axis), the period's frames
     (``frame``, one per arm), each arm's servo outputs (``servo_out``) and the robot's
     (``robot_out``, arm 0's for one arm; ``memo`` the servo of several arms' own,
-    :class:`~tdacm.loop.arms.ArmsMemo`), the controller's scratch (``work``) and outputs (``u``,
+    :class:`~tdacm.loop.arms.ArmsMemo`), the estimation's (``estimation``) and the touch
+    servo's (``touch``, :class:`~tdacm.loop.touch.TouchData`), the controller's scratch (``work``) and outputs (``u``,
     ``tau``, ``q_ref``), and the plant step's scratch ``q_next``, ``qd_next``, ``qdd_next``."""
 
     q: np.ndarray
@@ -211,6 +169,7 @@ class BatchData(NamedTuple):
     robot_out: object
     memo: object
     estimation: object
+    touch: object
     controller: object
     work: object
     safety: object
@@ -428,6 +387,9 @@ def reset_worlds(model, data, which, q0, qd0):
         data.robot_out.rmse[w, 0] = np.nan
         for a in range(model.n_arms):
             data.servo_out.rmse[w, a, 0] = np.nan
+        if model.touch.on:
+            touch_reset(take(data.touch.state, w))
+            force_reset(take(data.touch.force, w))
 
 
 @njit(cache=True)
@@ -474,6 +436,20 @@ def sense(model, data, w):
             return
         q_est = data.estimation.q_hat[w]
         p_qq = data.estimation.p_qq[w]
+    if model.touch.on:  # the tip force estimate, then the touch servo's view (one arm)
+        tm, td = model.touch, data.touch
+        qd_est = data.estimation.qd_hat[w] if model.estimation.on else data.qd[w]
+        mc = model_of_world(model.control_model, take(model.robot, w))
+        fo = take(td.force_out, w)
+        force_step(take(tm.force, w), take(td.force, w), mc, q_est, qd_est, data.u[w], k > 0,
+                   np.zeros((0, 0)), dt, fo)  # fmt: skip
+        f_hat = fo.force[0] if fo.valid[0] else np.nan
+        f = take(take(data.frame, w), 0)
+        touch_perceive(take(tm.law, w), take(tm.refs, w), take(td.state, w),
+                       take(take(model.servo, w), 0), take(take(data.servo, w), 0), mw, k * dt,
+                       dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0], f_hat,
+                       take(take(data.servo_out, w), 0), take(td.out, w))  # fmt: skip
+        return
     for a in range(model.n_arms):
         f = take(take(data.frame, w), a)
         servo_perceive(take(take(model.servo, w), a), take(take(data.servo, w), a), mw, k * dt,
@@ -523,7 +499,17 @@ def act(model, data, w, twist_in):
             g_found[a] = analytic_detect(gp, g_c, uv, corners[a], seen[a])
             for i in range(m_count):
                 g_found[a] = g_found[a] or seen[a, i]
-    if karms == 1:
+    if model.touch.on:  # the touch servo (one arm); a new phase or view re-arms the monitor
+        out = take(outs, 0)
+        ts, tout = take(data.touch.state, w), take(data.touch.out, w)
+        touch_command(take(model.touch.law, w), ts, take(servos, 0), take(states, 0), mw, t,
+                      dt, q_est, offered, twist_in, g_found[0], corners[0], seen[0], out)  # fmt: skip
+        copy_into(out, robot)
+        if tout.phase_changed[0] or tout.switched[0]:
+            safety_arm(take(data.safety, w), t)
+        if tout.tare[0]:
+            force_tare(take(data.touch.force, w))
+    elif karms == 1:
         out = take(outs, 0)
         servo_command(take(servos, 0), take(states, 0), mw, t, dt, q_est, offered, twist_in,
                       g_found[0], corners[0], seen[0], out)  # fmt: skip

@@ -80,8 +80,6 @@ def refusal(spec: CampaignSpec) -> str | None:
     from ..sim.batch import build_batch
     from ..sim.scenario import ScenarioError, load_scenario
 
-    if spec.success_hold_force_rms is not None:
-        return "success_hold_force_rms: servoing into contact is not batched"
     for key in varying_keys(spec):
         if key not in PER_WORLD:
             return (
@@ -187,12 +185,17 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
     # non-finite command
     unrecorded = np.array([E.BEHIND_CAMERA, E.RECOVERY_FAILED, E.NON_FINITE])
     nan_twist = np.full((nw, 6 * k), np.nan)
+    touch = _TouchLog(periods, d) if model.touch.on else None
     for p in range(periods):
         active = d.active.copy()
         if not active.any():
             break
         q_log[p] = d.q
+        if touch is not None:
+            touch.qd[p] = d.qd
         E.parallel(E.step_worlds, (model, d, nan_twist), nw, threads)
+        if touch is not None:
+            touch.record(p, d, model)
         rec = active & ~(~d.active & np.isin(d.termination, unrecorded))
         recorded[p] = rec
         rmse[p] = d.robot_out.rmse[:, 0]
@@ -220,9 +223,72 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
         if k > 1:
             arrays["rmse_arms"] = rmse_arms[sel, w]
             arrays["rmse_true_arms"] = np.full((int(sel.sum()), k), np.nan)
+        if touch is not None:
+            arrays.update(touch.arrays(a, params, w, sel, arrays["q"], model))
         summary = _summary(a, arrays, d, w, wall, spec, row)
         _fill(spec, row, summary, arrays["t"], arrays["rmse"])
     return rows
+
+
+class _TouchLog:
+    """The touch servo's series of a batch's worlds, as the block loop's logger records them
+    (:class:`~tdacm.loop.logger.RunLog`): per period the phase, the landings, the force
+    estimate with its normal and the task's image error of the detected C_L points; per
+    sample afterwards the contact forces and the true force along the normal, and the true
+    C_L points' task error."""
+
+    def __init__(self, periods: int, d):
+        nw, n = d.q.shape
+        self.qd = np.zeros((periods, nw, n))
+        self.phase = np.full((periods, nw), -1, np.int64)
+        self.landing = np.zeros((periods, nw), np.int64)
+        self.force = np.full((periods, nw), np.nan)
+        self.sigma = np.full((periods, nw), np.nan)
+        self.normal = np.full((periods, nw, 3), np.nan)
+        self.valid = np.zeros((periods, nw), np.bool_)
+        self.local = np.full((periods, nw), np.nan)
+
+    def record(self, p: int, d, model) -> None:
+        from ..loop.servo import normalized_rmse
+
+        td = d.touch
+        self.phase[p] = td.state.phase[:, 0]
+        self.landing[p] = td.state.landings[:, 0]
+        ok = td.force_out.valid[:, 0]
+        self.valid[p] = ok
+        self.force[p] = np.where(ok, td.force_out.force[:, 0], np.nan)
+        self.sigma[p] = np.where(ok, td.force_out.sigma[:, 0], np.nan)
+        self.normal[p] = td.force_out.normals[:, 0]
+        found = d.frame.found[:, 0, 0]
+        for w in np.flatnonzero(found):
+            self.local[p, w] = normalized_rmse(d.frame.xy[w, 0], model.touch.refs.local_points[w])
+
+    def arrays(self, a, params, w, sel, q, model) -> dict:
+        """World ``w``'s series at its recorded samples ``sel``, at the states ``q``."""
+        from ..loop.touch import task_image_error
+
+        contact = a.loop.log.contact
+        qd = self.qd[sel, w]
+        tip = np.zeros((q.shape[0], 3))
+        rod = np.zeros((q.shape[0], 3))
+        for i in range(q.shape[0]):
+            tip[i], rod[i] = contact(q[i], qd[i])
+        total = tip + rod
+        valid = self.valid[sel, w]
+        true = np.where(valid, np.einsum("ij,ij->i", total, self.normal[sel, w]),
+                        np.linalg.norm(total, axis=1))  # fmt: skip
+        truth = _truth(a, params, w, virtual=False)
+        ref = model.touch.refs.local_points[w]
+        local_true = np.full(q.shape[0], np.nan)
+        if truth is not None:
+            for i in range(q.shape[0]):
+                local_true[i] = task_image_error(truth(q[i])[0], ref)
+        return {
+            "contact_tip": tip, "contact_rod": rod, "force_true": true,
+            "force_hat": self.force[sel, w], "force_sigma": self.sigma[sel, w],
+            "touch_phase": self.phase[sel, w], "touch_landing": self.landing[sel, w],
+            "rmse_local": self.local[sel, w], "rmse_local_true": local_true,
+        }  # fmt: skip
 
 
 def _fill(spec, row, summary, t, rmse) -> None:
@@ -270,9 +336,10 @@ def _true_rmse(a, params, w, model, q) -> np.ndarray:
     return out
 
 
-def _truth(a, params, w):
-    """World ``w``'s true points (``q -> points``, :func:`~tdacm.sim.blocks.truth_of`): the
-    loop's own unless the world has its own target pose."""
+def _truth(a, params, w, virtual: bool = True):
+    """World ``w``'s true points (``q -> points``, :func:`~tdacm.sim.blocks.truth_of`) in the
+    servo camera (``virtual``) or in C_L (the touch servo's task view): the loop's own unless
+    the world has its own target pose."""
     from dataclasses import replace
 
     from ..batch.params import TARGET_FIELDS
@@ -280,10 +347,11 @@ def _truth(a, params, w):
     from ..sim.blocks import truth_of
 
     loop = a.loop
-    if loop.log.truth is None or params is None or not params.given(TARGET_FIELDS):
-        return loop.log.truth
+    own = loop.log.truth if virtual else loop.log.truth_local
+    if own is None or params is None or not params.given(TARGET_FIELDS):
+        return own
     world = replace(a.world, scene=world_scene(a.world, params, w))
-    return truth_of(world, loop.sensors.local)
+    return truth_of(world, loop.sensors.local, virtual=virtual)
 
 
 def _summary(a, arrays, d, w, wall, spec, row) -> dict:

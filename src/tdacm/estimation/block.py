@@ -12,6 +12,8 @@ tendon lengths by least squares) or from the scenario's nominal initial configur
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .camera import TargetViewMeasurement
@@ -111,3 +113,54 @@ class FilterBlock:
     @property
     def timings(self):
         return self.filter.timings
+
+
+class Estimation(NamedTuple):
+    """The estimation of a batch's worlds (the engine's records, stacked over the worlds): whether the
+    worlds run on the EKF's estimates (``on``; else on the true state, the records below
+    unused), the filter's :class:`~tdacm.estimation.ekf_step.EkfParams` ``ekf``, the
+    proprioceptive sensors' (``pose``, ``imu``, ``encoders``,
+    :mod:`tdacm.estimation.sensor_steps`; disabled where the robot has none) and the start-up
+    reading's (``start_pose``, ``start_encoders``: no latency, no dropout), whether the start
+    is measured (``measured``: else the nominal configuration) from ``nominal`` (n,) with the
+    encoders' zero ``q_ref`` (n_s,), the configured start errors ``strain_error``,
+    ``position_error`` and whether the filter fuses C_L's view of the target (``fuse_view``)."""
+
+    on: bool
+    ekf: object
+    pose: object
+    imu: object
+    encoders: object
+    start_pose: object
+    start_encoders: object
+    measured: bool
+    nominal: np.ndarray
+    q_ref: np.ndarray
+    strain_error: float
+    position_error: float
+    fuse_view: bool
+
+
+class EstimationData(NamedTuple):
+    """The estimation's state of a batch's worlds (stacked): the filter's
+    :class:`~tdacm.estimation.ekf_step.EkfState` ``ekf`` and its period's measurements
+    ``meas``, the sensors' states (``pose``, ``imu``, ``encoders``, ``start_pose``,
+    ``start_encoders``), the estimate ``q_hat``, ``qd_hat`` (n,) and its ``p_qq`` (n, n), the
+    filter's status of the period ``status`` (1,), the plant's accelerations at the period's
+    start ``qdd`` (n,) with ``has_qdd`` (1,) (what the IMU senses) and a sensor's reading
+    ``out`` (scratch)."""
+
+    ekf: object
+    meas: object
+    pose: object
+    imu: object
+    encoders: object
+    start_pose: object
+    start_encoders: object
+    q_hat: np.ndarray
+    qd_hat: np.ndarray
+    p_qq: np.ndarray
+    status: np.ndarray
+    qdd: np.ndarray
+    has_qdd: np.ndarray
+    out: np.ndarray

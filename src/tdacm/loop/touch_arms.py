@@ -58,6 +58,7 @@ from .servo import normalized_rmse
 from .touch import (
     _AXIAL,
     TipForceBlock,
+    TouchLaw,
     approach_speed,
     is_pinned,
     landing_kept,
@@ -125,7 +126,10 @@ class ArmsTouchServo(ArmsServo):
 
     def __init__(self, arms, touch):
         super().__init__(arms)
+        for a in self.arms:  # each arm's servo runs its Python methods here, not its own step
+            a._compiled = False
         self.touch = touch
+        self.law = TouchLaw.from_config(touch)
         self._reset_squeeze()
 
     def _reset_squeeze(self) -> None:
@@ -191,7 +195,7 @@ class ArmsTouchServo(ArmsServo):
                         self._landings += 1  # every probe down: one landing of the squeeze
         if self._hold_end is None and all(tt is not None for tt in self._touch_t):
             if t - max(self._touch_t) >= tc.settle:
-                kept = [landing_kept(e, self._landings, tc) for e in self._task_err]
+                kept = [landing_kept(e, self._landings, self.law) for e in self._task_err]
                 if all(kept):
                     self.phases = [HOLD] * k
                     self._hold_end = t + tc.hold_time
@@ -284,9 +288,9 @@ class ArmsTouchServo(ArmsServo):
                 else:
                     v = arm.standoff_ibvs.features_error_twist(ps.points, ps.depths)[2]
                     if phase == RELEASE or self._landings:  # leaving the surface
-                        v = release_twist(v, tc)
+                        v = release_twist(np.asarray(v, float), self.law)
                 if phase in (CONTACT, HOLD) and external is None and not all_touched:
-                    v[5] = approach_speed(arm._depth, view_k.error[5], view_k.features[5], tc)
+                    v[5] = approach_speed(arm._depth, view_k.error[5], view_k.features[5], self.law)
             if phase in (APPROACH, RELEASE) and ps is not None and ps.valid:
                 rmse = normalized_rmse(ps.points, arm.standoff_points)
             if view_k is not None and view_k.valid:

@@ -22,23 +22,35 @@ import numpy as np
 from .._compiling import compiling
 from .._records import put, replicate, stack, take
 from ..batch import Batch, BatchResult
-from ..batch.engine import BatchModel, Estimation, EstimationData
+from ..batch.engine import BatchModel
 from ..batch.params import MAX_LATENCY, ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams
 from ..control.hierarchical import TDACMController, controller_params, default_gains
 from ..estimation import ekf_step as EK
-from ..estimation.block import FilterBlock
+from ..estimation.block import Estimation, EstimationData, FilterBlock
 from ..estimation.config import EstimatorConfig, SensorSuiteConfig
+from ..estimation.contact_force import ForceOut, ForceState
 from ..estimation.ekf import ExtendedKalmanFilter, ekf_params
 from ..estimation.proprioception import SensorSuite
 from ..loop.arms import ArmsServo
+from ..loop.config import TouchConfig
 from ..loop.estimation import TrueState
 from ..loop.lowlevel import AdaptiveLowLevel, PDGravityController
 from ..loop.sensors import AnalyticFrontEnd, perturbed_camera
 from ..loop.servo import RobustServo, VisualServo
+from ..loop.touch import (
+    TipForceBlock,
+    TouchData,
+    TouchLaw,
+    TouchOut,
+    TouchRecords,
+    TouchServo,
+    TouchState,
+    touch_views,
+)
 from ..system.kernels import coupled_terms
 from ..system.worlds import robot_rows
 from ..vision.features import advanced_features, feature_interaction_matrix
-from .assemble import build_loop, reference_snapshot
+from .assemble import build_loop, reference_views
 from .blocks import startup_sensors
 from .scenario import Scenario, ScenarioError, load_scenario
 
@@ -153,17 +165,23 @@ def refuse(loop) -> None:
             "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"
         )
     several = isinstance(loop.servo, ArmsServo)
-    if (several and type(loop.servo) is not ArmsServo) or any(
-        type(s) not in (VisualServo, RobustServo) for s in servos
-    ):
-        raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched (touch.enabled)")
+    if several and type(loop.servo) is not ArmsServo:
+        raise Unsupported(
+            "touch.enabled with robot.arms: the squeeze is not batched (it runs in the block loop)"
+        )
+    if any(type(s) not in (VisualServo, RobustServo, TouchServo) for s in servos):
+        raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched")
     if not isinstance(loop.estimator, TrueState | FilterBlock):
         raise Unsupported(
             f"estimation: the engine runs the true state or the shipped EKF, got "
             f"{type(loop.estimator).__name__}"
         )
-    if loop.force is not None:
-        raise Unsupported("servoing into contact is not batched (touch.enabled)")
+    if loop.force is not None and type(loop.force) is not TipForceBlock:
+        raise Unsupported(f"the force block {type(loop.force).__name__} is not batched")
+    if loop.force is not None and loop.force.kind != "momentum":
+        raise Unsupported(
+            f"touch.force_estimator: the engine runs the momentum observer, got {loop.force.kind!r}"
+        )
     if any(g is None for g in globals_):
         raise Unsupported("the engine needs the global camera C_G")
     if not all(isinstance(g.front_end, AnalyticFrontEnd) for g in globals_):
@@ -224,6 +242,11 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
     several = len(locals_) > 1
     out = {"controller": ctl, "factors": f, "sensor": [], "global_sensor": [], "servo": [],
            "perception": [], "ekf": _ekf_params(a)}  # fmt: skip
+    servo0 = arm_blocks(loop)[3][0]
+    if isinstance(loop.force, TipForceBlock) and isinstance(servo0, TouchServo):
+        fp = loop.force.record(a.model)  # the seed's model error; the world's damping
+        out["force"] = fp._replace(model=fp.model._replace(damping=ctl.damping))
+        out["touch_refs"] = servo0.refs
     for k, (local, glob, perception, servo) in enumerate(
         zip(locals_, globals_, perceptions, servos, strict=True)
     ):
@@ -248,9 +271,11 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
                 rng = np.random.default_rng([seed, 1, k] if k else [seed, 1])
                 cam = perturbed_camera(nominal, err, rng)
             snap = local if scene is base_scene else local.seeing(world.target, scene.target_pose)
-            pts, z, feats, inter = _reference(
-                *reference_snapshot(snap, world.robot, world.target, scene, world.q_star, cam)
-            )
+            views = reference_views(snap, world.robot, world.target, scene, world.q_star, cam)
+            pts, z, feats, inter = _reference(*views[1])
+            if isinstance(servo, TouchServo):  # the touch law's views from the same snapshot
+                out["touch_refs"] = touch_views(servo.ibvs, views[1], views[0],
+                                                servo.touch.standoff)[2]  # fmt: skip
             cp = cam.params()
             s_rec = s_rec._replace(
                 camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
@@ -262,6 +287,35 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
         out["servo"].append(s_rec)
         out["perception"].append(p_rec)
     return out
+
+
+def touch_records(a, rows) -> tuple[TouchRecords, TouchData]:
+    """The engine's touch records of the worlds of ``rows`` (:func:`world_records`): the
+    loop's touch law, each world's views and force estimate when it servoes into contact
+    (one arm), else records of the default law that the engine does not read (``on``
+    false); and one world's state records."""
+    loop = a.loop
+    s = loop.plant.system
+    n = len(rows)
+    servo = arm_blocks(loop)[3][0]
+    on = isinstance(servo, TouchServo) and isinstance(loop.force, TipForceBlock)
+    if on:
+        law = servo.law
+        refs = stack([r["touch_refs"] for r in rows])
+        force = stack([r["force"] for r in rows])
+    else:
+        tc = TouchConfig()
+        law = TouchLaw.from_config(tc)
+        reference = (servo.desired_points, servo.desired_depths)
+        refs = replicate(touch_views(servo.ibvs, reference, reference, tc.standoff)[2], n)
+        unused = TipForceBlock(a.model, servo.tip_mount, None, tc.input_sigma, "momentum",
+                               tc.observer_gain)  # fmt: skip
+        force = replicate(unused.params, n)
+    touch = TouchRecords(on=on, law=replicate(law, n), refs=refs, force=force)
+    k = take(force, 0).rods.shape[0]
+    data = TouchData(TouchState.initial(), TouchOut.empty(), ForceState.initial(s.n, s.n_u),
+                     ForceOut.empty(k))  # fmt: skip
+    return touch, data
 
 
 def _ekf_params(a):
@@ -413,6 +467,7 @@ def build_batch(
         rows = [world_records(a, int(s), params, w) for w, s in enumerate(seeds)]
         a.model.reseed(int(seeds[0]))
         estimation, estimation_data = estimation_records(a, seeds, rows, float(loop.dt))
+        touch, touch_data = touch_records(a, rows)
     except (Unsupported, ValueError) as exc:
         raise ScenarioError(f"{sc.source}: the batched engine: {exc}") from None
     dur = float(sc.data["duration"] if duration is None else duration)
@@ -434,9 +489,11 @@ def build_batch(
         global_every=int(loop.sensors.global_every),
         n_arms=len(loop.plant.system.arms),
         estimation=estimation,
+        touch=touch,
     )
     q0 = a.world.q0 if q0 is None else q0
-    batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads, estimation_data)
+    batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads, estimation_data,
+                  touch_data)  # fmt: skip
     batch.params = params
     return batch
 
@@ -472,5 +529,8 @@ def reseed_world(batch: Batch, assembly, w: int, seed: int, params=None) -> None
         put(getattr(model, key), w, stack(r[key]))
     put(model.controller, w, r["controller"])
     put(model.estimation.ekf, w, r["ekf"])
+    if model.touch.on:
+        put(model.touch.refs, w, r["touch_refs"])
+        put(model.touch.force, w, r["force"])
     put(model.robot, w, take(robot_rows(model.plant_model, r["factors"][None, :]), 0))
     batch.seeds[w] = seed

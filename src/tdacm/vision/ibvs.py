@@ -118,6 +118,14 @@ def ibvs_law(p, z, desired, interaction_desired, mode, gain, floor, damped):
     e = f - desired
     for i in range(3):
         e[i] = _wrap(e[i])
+    return f, e, ibvs_twist_of(p, z, e, interaction_desired, mode, gain, floor, damped)
+
+
+@njit(cache=True)
+def ibvs_twist_of(p, z, e, interaction_desired, mode, gain, floor, damped):
+    """The law's twist ``v = -gain J_img^+ e`` (paper eq. (39)) for a given feature error
+    ``e`` (6,) at the checked points ``p`` (4, 2) and depths ``z`` (4,) (:func:`ibvs_law`'s
+    ``mode``, ``floor`` and ``damped``): the servo's twist on an error it composed itself."""
     if mode == 1:
         jac = interaction_desired.copy()
     elif mode == 0:
@@ -128,7 +136,7 @@ def ibvs_law(p, z, desired, interaction_desired, mode, gain, floor, damped):
     v = np.empty(6)
     for k in range(6):
         v[k] = -gain * x[k]
-    return f, e, v
+    return v
 
 
 def ibvs_twist(
