@@ -283,6 +283,8 @@ def test_refusals_name_the_option():
         TipServoVectorEnv(2, action_type="actuators")
     with pytest.raises(ValueError, match="render_mode"):
         TipServoVectorEnv(2, render_mode="rgb_array")
+    with pytest.raises(ValueError, match="touch.enabled"):  # runs in the single env
+        TipServoVectorEnv(2, scenario="touch-target")
     env = _vec(2)
     try:
         env.reset(seed=0)

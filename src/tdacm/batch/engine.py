@@ -445,10 +445,15 @@ def sense(model, data, w):
                    np.zeros((0, 0)), dt, fo)  # fmt: skip
         f_hat = fo.force[0] if fo.valid[0] else np.nan
         f = take(take(data.frame, w), 0)
-        touch_perceive(take(tm.law, w), take(tm.refs, w), take(td.state, w),
-                       take(take(model.servo, w), 0), take(take(data.servo, w), 0), mw, k * dt,
-                       dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0], f_hat,
-                       take(take(data.servo_out, w), 0), take(td.out, w))  # fmt: skip
+        sp, ss, out = (
+            take(take(model.servo, w), 0),
+            take(take(data.servo, w), 0),
+            take(take(data.servo_out, w), 0),
+        )
+        servo_perceive(sp, ss, mw, k * dt, dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z,
+                       f.capture[0], out)  # fmt: skip
+        touch_perceive(take(tm.law, w), take(tm.refs, w), take(td.state, w), sp, ss, mw, k * dt,
+                       dt, q_est, f.found[0], f.xy, f_hat, out, take(td.out, w))  # fmt: skip
         return
     for a in range(model.n_arms):
         f = take(take(data.frame, w), a)

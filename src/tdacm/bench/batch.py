@@ -60,6 +60,38 @@ def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repea
     return statistics.median(rates)
 
 
+def touch_rate(n_worlds: int = 16, threads: int = 2, repeats: int = 1, estimated: bool = False,
+               progress=print) -> dict:  # fmt: skip
+    """World-periods per second and CPU per world-period of whole runs of ``touch-target``
+    (40 s: the approach, the touch, the hold, the release) on the engine, analytic cameras,
+    1 px of pixel noise, the scenario's model error, on the true state or the EKF's estimates
+    (``estimated``); medians of ``repeats`` runs after a warm-up, the machine's load before
+    and after."""
+    from ..sim.batch import build_batch
+    from ..sim.scenario import load_scenario
+
+    ov = {"cameras": ENGINE["cameras"], "sensors": ENGINE["sensors"]}
+    if estimated:
+        ov["estimation"] = {"source": "estimated"}
+    sc = load_scenario("touch-target").with_overrides(ov, "touch benchmark")
+    out = {"n_worlds": n_worlds, "threads": threads, "estimated": estimated,
+           "load": os.getloadavg()}  # fmt: skip
+    build_batch(sc, [0, 1], duration=0.1, threads=1).run()  # warm-up (compiles on a cold cache)
+    b = build_batch(sc, np.arange(n_worlds), threads=threads)
+    rates, cpus = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = b.run()
+        wall, c = time.perf_counter() - t0, time.process_time() - c0
+        rates.append(float(res.samples.sum()) / wall)
+        cpus.append(1e3 * c / float(res.samples.sum()))
+    out.update(rate=statistics.median(rates), cpu_ms=statistics.median(cpus),
+               load_after=os.getloadavg())  # fmt: skip
+    progress(f"touch-target N={n_worlds} threads={threads}: {out['rate']:.0f} world-periods/s, "
+             f"{out['cpu_ms']:.2f} ms CPU a world-period")  # fmt: skip
+    return out
+
+
 def filter_cost(n_worlds: int = 256, threads: int = 2, duration: float = 1.0, repeats: int = 3,
                 progress=print) -> dict:  # fmt: skip
     """World-periods (env steps) per second of ``n_worlds`` worlds with the servo on the

@@ -147,6 +147,12 @@ class TipServoVectorEnv(VectorEnv):
         self.render_mode = None
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
 
+        if sc.config.touch.enabled:
+            raise ValueError(
+                "scenario: touch.enabled: the vector env observes the servo's view before the "
+                "touch law's (the single env's observation, not yet the same); servoing into "
+                "contact runs in the single env (gym.make) and in batched campaigns"
+            )
         seed0 = int(sc.config.seed)
         self.assembly = a = build_loop(sc, seed0)
         loop = a.loop

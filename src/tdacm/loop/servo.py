@@ -101,6 +101,32 @@ def normalized_rmse(points, desired) -> float:
     return math.sqrt(s.sum() / s.shape[0]) if s.shape[0] else float("nan")
 
 
+def frame_arguments(view: LocalView, est: StateEstimate, dt: float, robust: bool) -> tuple:
+    """The period's arguments of :func:`servo_perceive` from the perceived C_L ``view`` and
+    the estimate ``est``: ``(q, p_qq, found, uv, xy, z, capture)`` (``p_qq`` the estimate's
+    covariance of ``q`` for the robust servo, zeros on the true state; a frame not found as
+    placeholders)."""
+    c = np.ascontiguousarray
+    q = c(est.q, dtype=float)
+    n = q.shape[0]
+    found = bool(view.found)
+    if found:
+        uv, xy = c(view.pixels, dtype=float), c(view.points, dtype=float)
+        z = c(view.depths, dtype=float)
+        capture = int(round(view.t_capture / dt))
+    else:
+        uv, xy, z, capture = _NO_UV, _NO_UV, _NO_Z, -1
+    est_p = getattr(est, "P", None)
+    p_qq = np.zeros((n, n)) if est_p is None or not robust else c(np.asarray(est_p)[:n, :n])
+    return q, p_qq, found, uv, xy, z, capture
+
+
+def twist_argument(twist) -> np.ndarray:
+    """The external twist argument of :func:`servo_command`: ``twist`` (6,), or NaNs for the
+    servo's own."""
+    return _NO_TWIST if twist is None else np.ascontiguousarray(twist, dtype=float)
+
+
 class VisualServo:
     """The paper's dual-camera servo (module docstring).
 
@@ -420,18 +446,7 @@ class VisualServo:
         if memo is not None and memo[0] is view and memo[1] is est:
             return self._out
         p, st, out = self.params, self.state, self._out
-        c = np.ascontiguousarray
-        q = c(est.q, dtype=float)
-        n = q.shape[0]
-        found = bool(view.found)
-        if found:
-            uv, xy = c(view.pixels, dtype=float), c(view.points, dtype=float)
-            z = c(view.depths, dtype=float)
-            capture = int(round(view.t_capture / dt))
-        else:
-            uv, xy, z, capture = _NO_UV, _NO_UV, _NO_Z, -1
-        est_p = getattr(est, "P", None)
-        p_qq = np.zeros((n, n)) if est_p is None or not p.robust else c(np.asarray(est_p)[:n, :n])
+        q, p_qq, found, uv, xy, z, capture = frame_arguments(view, est, dt, p.robust)
         k = int(round(t / dt))
         servo_perceive(p, st, self._m, float(t), float(dt), k, q, p_qq, found, uv, xy, z, capture,
                        out)  # fmt: skip
@@ -453,7 +468,7 @@ class VisualServo:
         g_found, corners, seen = False, np.zeros((m_count, 4, 2)), np.zeros(m_count, np.bool_)
         if needs_global(st, out, offered):
             g_found, corners, seen = self._global_corners(gview)
-        tw = _NO_TWIST if twist is None else c(twist, dtype=float)
+        tw = twist_argument(twist)
         servo_command(p, st, self._m, float(t), float(dt), q, offered, tw, g_found, corners, seen,
                       out)  # fmt: skip
         return self._command_of(out)

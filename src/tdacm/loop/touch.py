@@ -77,17 +77,15 @@ from ..vision.target_filter import points_in_kernel
 from .config import TouchConfig
 from .data import PHASES, ForceReading, LocalView, StateEstimate
 from .servo import (
-    _NO_TWIST,
-    _NO_UV,
-    _NO_Z,
     PredictedView,
     RobustServo,
+    frame_arguments,
     joint_rates,
     needs_global,
     normalized_rmse,
     rmse_to,
     servo_command,
-    servo_perceive,
+    twist_argument,
 )
 
 APPROACH, CONTACT, HOLD, RELEASE = PHASES
@@ -550,16 +548,14 @@ def _local_view(sp, ss, m, q, tr, xy, z, f, e):
 
 
 @njit(cache=True)
-def touch_perceive(tl, tr, ts, sp, ss, m, t, dt, k, q, p_qq, found, uv, xy, z, capture, f_hat,
-                   out, tout):  # fmt: skip
+def touch_perceive(tl, tr, ts, sp, ss, m, t, dt, q, found, xy, f_hat, out, tout):
     """The first part of a period of the touch servo (:class:`TouchServo`, module
-    docstring): the robust servo's view (:func:`~.servo.servo_perceive`, the frame ``found``,
-    ``uv``, ``xy``, ``z`` captured at period ``capture``), the force estimate ``f_hat`` (NaN:
-    none) filtered, the landed probe's task error from the measured C_L points ``xy``, the
-    phase change, and the view the servo reads (the pinned view in C_L once touched) with its
-    twist into ``out.ibvs_twist`` (``out.seen``: a view to servo on), ``out.rmse`` the RMSE
-    the safety monitor watches; what changed into ``tout``."""
-    servo_perceive(sp, ss, m, t, dt, k, q, p_qq, found, uv, xy, z, capture, out)
+    docstring), after the robust servo's (:func:`~.servo.servo_perceive` into ``out``, on
+    the frame ``found`` with its normalized points ``xy``): the force estimate ``f_hat``
+    (NaN: none) filtered, the landed probe's task error from the measured C_L points ``xy``,
+    the phase change, and the view the servo reads (the pinned view in C_L once touched) with
+    its twist into ``out.ibvs_twist`` (``out.seen``: a view to servo on), ``out.rmse`` the
+    RMSE the safety monitor watches; what changed into ``tout``."""
     prev = ts.phase[0]
     valid = out.seen[0]
     tout.ps_valid[0] = valid
@@ -807,31 +803,20 @@ class TouchServo(RobustServo):
                              o.ps_error.copy(), None)  # fmt: skip
 
     def step(self, t, dt, view, gview, est, twist=None, force: ForceReading | None = None):
-        p, st, out, ts, tout = self.params, self.state, self._out, self.touch_state, self._touch_out
-        c = np.ascontiguousarray
-        q = c(est.q, dtype=float)
-        n = q.shape[0]
-        found = bool(view.found)
-        if found:
-            uv, xy = c(view.pixels, dtype=float), c(view.points, dtype=float)
-            z = c(view.depths, dtype=float)
-            capture = int(round(view.t_capture / dt))
-        else:
-            uv, xy, z, capture = _NO_UV, _NO_UV, _NO_Z, -1
-        est_p = getattr(est, "P", None)
-        p_qq = np.zeros((n, n)) if est_p is None else c(np.asarray(est_p)[:n, :n])
+        p, st, ts, tout = self.params, self.state, self.touch_state, self._touch_out
+        q, _, found, _, xy, _, _ = frame_arguments(view, est, dt, True)
         f_hat = force.force if force is not None and force.valid else math.nan
         prev = self.phase
-        touch_perceive(self.law, self.refs, ts, p, st, self._m, float(t), float(dt),
-                       int(round(t / dt)), q, p_qq, found, uv, xy, z, capture, float(f_hat),
-                       out, tout)  # fmt: skip
+        out = self.perceive_period(t, dt, view, est)  # the servo's first part, once a period
         self._memo = None
+        touch_perceive(self.law, self.refs, ts, p, st, self._m, float(t), float(dt), q, found,
+                       xy, float(f_hat), out, tout)  # fmt: skip
         offered = gview is not None
         m_count = p.marker_centres.shape[0]
         g_found, corners, seen = False, np.zeros((m_count, 4, 2)), np.zeros(m_count, np.bool_)
         if needs_global(st, out, offered):
             g_found, corners, seen = self._global_corners(gview)
-        tw = _NO_TWIST if twist is None else c(twist, dtype=float)
+        tw = twist_argument(twist)
         touch_command(self.law, ts, p, st, self._m, float(t), float(dt), q, offered, tw,
                       g_found, corners, seen, out)  # fmt: skip
         cmd = self._command_of(out)
