@@ -47,7 +47,14 @@ def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repea
     default :data:`ENGINE`'s). ``cpu``: also the median CPU time of this process per
     world-period (ms; the threads' included), a figure the machine's load changes less."""
     _batch(min(n_worlds, 2), 1, 0.1, features).run()  # warm-up (compiles on a cold cache)
-    b = _batch(n_worlds, threads, duration, features)
+    rate, cpu_ms = _timed_runs(_batch(n_worlds, threads, duration, features), repeats)
+    return (rate, cpu_ms) if cpu else rate
+
+
+def _timed_runs(b, repeats: int) -> tuple[float, float]:
+    """Medians over ``repeats`` whole runs of the batch ``b``: world-periods per second (the
+    runs that end early count the periods they ran) and this process's CPU time per
+    world-period (ms; the threads' included)."""
     rates, cpus = [], []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
@@ -55,9 +62,7 @@ def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repea
         wall, c = time.perf_counter() - t0, time.process_time() - c0
         rates.append(float(res.samples.sum()) / wall)
         cpus.append(1e3 * c / float(res.samples.sum()))
-    if cpu:
-        return statistics.median(rates), statistics.median(cpus)
-    return statistics.median(rates)
+    return statistics.median(rates), statistics.median(cpus)
 
 
 def touch_rate(n_worlds: int = 16, threads: int = 2, repeats: int = 1, estimated: bool = False,
@@ -77,16 +82,8 @@ def touch_rate(n_worlds: int = 16, threads: int = 2, repeats: int = 1, estimated
     out = {"n_worlds": n_worlds, "threads": threads, "estimated": estimated,
            "load": os.getloadavg()}  # fmt: skip
     build_batch(sc, [0, 1], duration=0.1, threads=1).run()  # warm-up (compiles on a cold cache)
-    b = build_batch(sc, np.arange(n_worlds), threads=threads)
-    rates, cpus = [], []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        res = b.run()
-        wall, c = time.perf_counter() - t0, time.process_time() - c0
-        rates.append(float(res.samples.sum()) / wall)
-        cpus.append(1e3 * c / float(res.samples.sum()))
-    out.update(rate=statistics.median(rates), cpu_ms=statistics.median(cpus),
-               load_after=os.getloadavg())  # fmt: skip
+    rate, cpu_ms = _timed_runs(build_batch(sc, np.arange(n_worlds), threads=threads), repeats)
+    out.update(rate=rate, cpu_ms=cpu_ms, load_after=os.getloadavg())
     progress(f"touch-target N={n_worlds} threads={threads}: {out['rate']:.0f} world-periods/s, "
              f"{out['cpu_ms']:.2f} ms CPU a world-period")  # fmt: skip
     return out

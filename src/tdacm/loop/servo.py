@@ -463,15 +463,22 @@ class VisualServo:
         self._memo = None
         if out.failure[0] == BEHIND:  # eq. (18) undefined: the loop ends the run, as an outcome
             raise BehindVirtualCamera(FAILURE_REASONS[BEHIND].removeprefix("servo: "))
-        offered = gview is not None
-        m_count = p.marker_centres.shape[0]
-        g_found, corners, seen = False, np.zeros((m_count, 4, 2)), np.zeros(m_count, np.bool_)
-        if needs_global(st, out, offered):
-            g_found, corners, seen = self._global_corners(gview)
+        offered, g_found, corners, seen = self.global_arguments(gview, out)
         tw = twist_argument(twist)
         servo_command(p, st, self._m, float(t), float(dt), q, offered, tw, g_found, corners, seen,
                       out)  # fmt: skip
         return self._command_of(out)
+
+    def global_arguments(self, gview, out: ServoOut) -> tuple:
+        """The C_G arguments of :func:`servo_command` after this period's first part ``out``:
+        ``(offered, found, corners (M, 4, 2), seen (M,))``, C_G's snapshot read only when the
+        step needs it (:func:`needs_global`)."""
+        offered = gview is not None
+        m_count = self.params.marker_centres.shape[0]
+        g_found, corners, seen = False, np.zeros((m_count, 4, 2)), np.zeros(m_count, np.bool_)
+        if needs_global(self.state, out, offered):
+            g_found, corners, seen = self._global_corners(gview)
+        return offered, g_found, corners, seen
 
     def _global_corners(self, gview):
         """``(found, corners (M, 4, 2), seen (M,))`` of C_G's view for :func:`servo_command`:

@@ -81,7 +81,6 @@ from .servo import (
     RobustServo,
     frame_arguments,
     joint_rates,
-    needs_global,
     normalized_rmse,
     rmse_to,
     servo_command,
@@ -811,11 +810,7 @@ class TouchServo(RobustServo):
         self._memo = None
         touch_perceive(self.law, self.refs, ts, p, st, self._m, float(t), float(dt), q, found,
                        xy, float(f_hat), out, tout)  # fmt: skip
-        offered = gview is not None
-        m_count = p.marker_centres.shape[0]
-        g_found, corners, seen = False, np.zeros((m_count, 4, 2)), np.zeros(m_count, np.bool_)
-        if needs_global(st, out, offered):
-            g_found, corners, seen = self._global_corners(gview)
+        offered, g_found, corners, seen = self.global_arguments(gview, out)
         tw = twist_argument(twist)
         touch_command(self.law, ts, p, st, self._m, float(t), float(dt), q, offered, tw,
                       g_found, corners, seen, out)  # fmt: skip
