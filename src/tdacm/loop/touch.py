@@ -765,6 +765,12 @@ class TouchServo(RobustServo):
         super().reset(q0, first_view)
         touch_reset(self.touch_state)
 
+    def as_arm(self) -> None:
+        """This servo is one arm of the squeeze (:class:`~.touch_arms.ArmsTouchServo`), which
+        runs its Python methods (:meth:`perceive`, :meth:`local_view`, :meth:`pinned_twist`),
+        not its compiled period."""
+        self._compiled = False
+
     def predicted_view(self, servo_pose, camera_pose=None):
         ps = super().predicted_view(servo_pose, camera_pose)
         self._ps = ps

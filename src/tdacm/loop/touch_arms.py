@@ -127,7 +127,7 @@ class ArmsTouchServo(ArmsServo):
     def __init__(self, arms, touch):
         super().__init__(arms)
         for a in self.arms:  # each arm's servo runs its Python methods here, not its own step
-            a._compiled = False
+            a.as_arm()
         self.touch = touch
         self.law = TouchLaw.from_config(touch)
         self._reset_squeeze()
