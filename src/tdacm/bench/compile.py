@@ -89,6 +89,29 @@ def _job_identify(work: Path) -> None:
         identify(rec.with_basis(basis), ["E"], segment=1.0, max_nfev=1)
 
 
+def _job_touch(work: Path) -> None:
+    """Servoing into contact on the block loop: ``touch-target`` on the true state and on the
+    EKF's estimates (0.5 s each: the touch servo's and the force estimate's steps compile at
+    their first call, whatever the phase), and ``dual-squeeze`` started 1 cm above its contact
+    pose until both probes press (2.5 s: the arms' Python law calls its compiled helpers only
+    in contact)."""
+    from ..sim import Simulation
+    from ..sim.scenario import load_scenario
+
+    sc = load_scenario("touch-target")
+    q0 = list(sc.data["initial"]["q"])
+    q0[5] = 2.0  # 0.18 m above the standoff view
+    for source in ("true", "estimated"):
+        over = {"initial": {"q": q0}, "duration": 0.5, "estimation": {"source": source}}
+        Simulation(sc.with_overrides(over), seed=1).run(None)
+    sc = load_scenario("dual-squeeze")
+    q0 = list(sc.config.desired.q)
+    q0[5] += 0.01
+    over = {"initial": {"q": q0}, "duration": 2.5, "model": {"perturbation": 0.0},
+            "touch": {"standoff": 0.01, "dwell": 0.1}}  # fmt: skip
+    Simulation(sc.with_overrides(over), seed=1).run(None)
+
+
 #: name -> (what it is, the function running it in this process)
 JOBS = {
     "run": ("tdacm run paper-in-fov --duration 1", _job_run),
@@ -96,6 +119,14 @@ JOBS = {
     "vector-env": ("gym.make_vec(..., num_envs=64): reset and 100 steps", _job_vector_env),
     "identify": ("identify: one iteration, explicit and stiff shooting", _job_identify),
 }
+#: what the warm-up and the wheel compile besides the jobs (not a first use the bench times:
+#: ``tdacm run touch-target`` is a ``run``): the contact scenarios' kernels, which the test
+#: suite would otherwise compile
+EXTRAS = {
+    "touch": ("touch-target (true, estimated) and dual-squeeze on the block loop", _job_touch),
+}
+#: every job the warm-up and the wheel run
+ALL_JOBS = {**JOBS, **EXTRAS}
 
 
 # ------------------------------------------------------------------ recording compiles
@@ -337,10 +368,10 @@ def write_estimates(results: dict, path: Path | None = None) -> Path:
 
 # ------------------------------------------------------------------ the shipped cache
 #: the jobs compiled into a wheel's cache and by ``make test``'s warm-up, in two phases of at most
-#: two processes each (one group of jobs per process): ``tdacm run`` beside identification,
-#: then the engine with the vector env, which loads the blocks' compiled steps the first phase
+#: two processes each (one group of jobs per process): ``tdacm run`` and the contact
+#: scenarios (:data:`EXTRAS`) beside identification, then the engine with the vector env, which loads the blocks' compiled steps the first phase
 #: cached instead of compiling them again (the engine calls the same steps as the block loop)
-PHASES = ((("run",), ("identify",)), (("engine", "vector-env"),))
+PHASES = ((("run", "touch"), ("identify",)), (("engine", "vector-env"),))
 
 
 def _merge(src: Path, dst: Path) -> int:
@@ -434,7 +465,7 @@ def ship(folder: Path, timeout: float | None = None, progress=print) -> dict:
     env.pop("TDACM_KERNEL_CACHE")
     code = (
         "import sys, json\nfrom tdacm._jitcache import write_manifest\n"
-        f"m = write_manifest(sys.argv[1], version={__version__!r}, jobs={sorted(JOBS)!r})\n"
+        f"m = write_manifest(sys.argv[1], version={__version__!r}, jobs={sorted(ALL_JOBS)!r})\n"
         "print(json.dumps(m))\n"
     )
     out = subprocess.run([sys.executable, "-c", code, str(folder)], env=env, capture_output=True,
@@ -452,7 +483,7 @@ def fill(timeout: float | None = None, progress=print) -> int:
     process groups that failed (a failure only leaves kernels to compile at first use)."""
     t0 = time.perf_counter()
     env = dict(os.environ, TDACM_PARALLEL_COMPILE="0")
-    progress("tdacm: compiling the kernels of " + ", ".join(JOBS) + " (once; minutes) ...")
+    progress("tdacm: compiling the kernels of " + ", ".join(ALL_JOBS) + " (once; minutes) ...")
     with tempfile.TemporaryDirectory(prefix="tdacm-fill-") as tmp:
         failures = []
         for k in range(len(PHASES)):
@@ -616,15 +647,15 @@ def _main(argv=None) -> int:
         res = record(a.jobs[0], work)
     elif a.action == "run-jobs":
         for job in a.jobs:
-            JOBS[job][1](work)
+            ALL_JOBS[job][1](work)
         res = {}
     else:
         from .._jitcache import status
 
         res = {"mode": status["mode"], "reason": status["reason"], "jobs": {}}
-        for job in a.jobs or list(JOBS):
+        for job in a.jobs or list(ALL_JOBS):
             t0 = time.perf_counter()
-            JOBS[job][1](work)
+            ALL_JOBS[job][1](work)
             res["jobs"][job] = {"wall_s": time.perf_counter() - t0}
         res["compiled"] = compiled_dispatchers()
         if a.strict and (status["mode"] != "shipped" or res["compiled"]):
