@@ -40,11 +40,13 @@ damping, the drone's and the rod's masses, the tendons' moment arms, C_L's pixel
 dropout and latency. Still a function of ``s + i`` only (tested).
 
 What differs from the single env: the twist action only; the engine's scenario support
-(contact is refused naming the key; the EKF's estimates and several arms run). The state in
-the observation is the controller's (the EKF's estimate on estimates). The observation holds the
+(the two-arm squeeze and the differenced force estimate are refused naming the key; the
+EKF's estimates, contact, servoing into contact and several arms run). The state in the
+observation is the controller's (the EKF's estimate on estimates). The observation holds the
 features the servo works on, as the single env's: with the robust servo (the shipped
 ``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame, else
-the detected points. The recovery with the global camera runs batched as in the single env's loop (its
+the detected points; servoing into contact (``touch-target``), the touch law's view, pinned in
+the tip camera C_L once the probe has touched (docs/contact.md). The recovery with the global camera runs batched as in the single env's loop (its
 failure ends a world as ``recovery failed``). No ``render``.
 """
 
@@ -147,12 +149,6 @@ class TipServoVectorEnv(VectorEnv):
         self.render_mode = None
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / sc.config.dt)))
 
-        if sc.config.touch.enabled:
-            raise ValueError(
-                "scenario: touch.enabled: the vector env observes the servo's view before the "
-                "touch law's (the single env's observation, not yet the same); servoing into "
-                "contact runs in the single env (gym.make) and in batched campaigns"
-            )
         seed0 = int(sc.config.seed)
         self.assembly = a = build_loop(sc, seed0)
         loop = a.loop

@@ -79,6 +79,7 @@ from .data import PHASES, ForceReading, LocalView, StateEstimate
 from .servo import (
     PredictedView,
     RobustServo,
+    ServoOut,
     frame_arguments,
     joint_rates,
     normalized_rmse,
@@ -717,6 +718,8 @@ class TouchServo(RobustServo):
         self._touch_out = TouchOut.empty()
         self._compiled = True  # the period is touch_perceive and touch_command
         self._ps = None
+        self._touch_memo = None  # perceive_touch's (view, estimate) this period
+        self._phase_before = self.phase  # the phase before this period's touch_perceive
         touch_reset(self.touch_state)
 
     @property
@@ -764,6 +767,7 @@ class TouchServo(RobustServo):
     def reset(self, q0, first_view: LocalView | None = None) -> None:
         super().reset(q0, first_view)
         touch_reset(self.touch_state)
+        self._touch_memo = None
 
     def as_arm(self) -> None:
         """This servo is one arm of the squeeze (:class:`~.touch_arms.ArmsTouchServo`), which
@@ -807,15 +811,32 @@ class TouchServo(RobustServo):
         return PredictedView(o.ps_points.copy(), o.ps_depths.copy(), o.ps_features.copy(),
                              o.ps_error.copy(), None)  # fmt: skip
 
-    def step(self, t, dt, view, gview, est, twist=None, force: ForceReading | None = None):
+    def perceive_touch(self, t, dt, view, est, force: ForceReading | None = None) -> ServoOut:
+        """The first part of the period: the robust servo's (:meth:`perceive_period`), then
+        :func:`touch_perceive` (the phases' changes, and the pinned C_L view in place of C_V's
+        prediction once the probe is pinned), once: asked again with the same ``view`` and
+        ``est`` (an env's observation, then the period's step), it returns the same
+        outputs."""
+        memo = self._touch_memo
+        if memo is not None and memo[0] is view and memo[1] is est:
+            return self._out
         p, st, ts, tout = self.params, self.state, self.touch_state, self._touch_out
         q, _, found, _, xy, _, _ = frame_arguments(view, est, dt, True)
         f_hat = force.force if force is not None and force.valid else math.nan
-        prev = self.phase
+        self._phase_before = self.phase
         out = self.perceive_period(t, dt, view, est)  # the servo's first part, once a period
         self._memo = None
         touch_perceive(self.law, self.refs, ts, p, st, self._m, float(t), float(dt), q, found,
                        xy, float(f_hat), out, tout)  # fmt: skip
+        self._touch_memo = (view, est)
+        return out
+
+    def step(self, t, dt, view, gview, est, twist=None, force: ForceReading | None = None):
+        p, st, ts, tout = self.params, self.state, self.touch_state, self._touch_out
+        q = frame_arguments(view, est, dt, True)[0]
+        out = self.perceive_touch(t, dt, view, est, force)
+        self._touch_memo = None
+        prev = self._phase_before
         offered, g_found, corners, seen = self.global_arguments(gview, out)
         tw = twist_argument(twist)
         touch_command(self.law, ts, p, st, self._m, float(t), float(dt), q, offered, tw,
