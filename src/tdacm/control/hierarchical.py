@@ -43,7 +43,7 @@ from ..system.tdacm import TDACM
 from .adaptive import AdaptiveController, AdaptiveGains, law_into
 from .allocation import allocate_tensions_kernel
 from .config import LAW_DEFAULTS, ControlLawConfig
-from .model import EstimatedModel, estimated_terms, model_params
+from .model import EstimatedModel, ModelParams, estimated_terms, model_params
 
 #: the laws of :func:`controller_step`: the adaptive sliding-mode law (paper eqs. S2-S10) and
 #: PD + gravity (:mod:`.pd`)
@@ -125,11 +125,8 @@ class ControllerParams(NamedTuple):
     :class:`~tdacm.system.kernels.ModelArrays`, passed apart so that a batch of worlds shares
     it).
 
-    The estimated model (:class:`~.model.EstimatedModel`): ``loads`` (27,) its packed loads,
-    ``mass_scale`` ``S_M`` (n,), ``damping`` ``D_hat = S_D D S_D`` (n, n),
-    ``stiffness_scale`` ``1 + d_K`` and ``gravity_scale`` ``1 + d_g`` (n,),
-    ``gravity_feedforward``, ``rotor_drag`` (whether it knows the drone's rotor drag) and
-    ``rotor_drag_k`` ``k_r_hat`` (3,). The law (``law``: :data:`LAW_ADAPTIVE` or
+    ``model``: the estimated model's record (:class:`~.model.ModelParams`, its loads, scales,
+    damping ``D_hat``, gravity feed-forward and rotor drag). The law (``law``: :data:`LAW_ADAPTIVE` or
     :data:`LAW_PD`): ``beta`` (n,), ``a_d``, ``a_p``, ``a_a`` (n, n). The drone loop:
     ``max_tilt`` (rad), ``attitude_filter`` (s), ``max_tilt_rate`` (rad/s), ``min_lift_force``
     (N, ``min_lift`` times the weight), ``exact_attitude``, ``max_thrust`` (N) and the LU
@@ -139,14 +136,7 @@ class ControllerParams(NamedTuple):
     block-diagonal over the arms)."""
 
     law: int
-    loads: np.ndarray
-    mass_scale: np.ndarray
-    damping: np.ndarray
-    stiffness_scale: np.ndarray
-    gravity_scale: np.ndarray
-    gravity_feedforward: bool
-    rotor_drag: bool
-    rotor_drag_k: np.ndarray
+    model: ModelParams
     beta: np.ndarray
     a_d: np.ndarray
     a_p: np.ndarray
@@ -255,9 +245,10 @@ def controller_step(p, st, m, q, qd, q_d, qd_d, qdd_d, dt, u, tau, q_ref, work):
     n = q.shape[0]
     floating = m.floating
     off = 6 if floating else 0
-    estimated_terms(q, qd, m, p.loads, p.mass_scale, p.damping, p.stiffness_scale,
-                    p.gravity_scale, p.gravity_feedforward, p.rotor_drag, p.rotor_drag_k, True,
-                    work.m_hat, work.cd_hat, work.d_hat, work.k_hat)  # fmt: skip
+    mp = p.model
+    estimated_terms(q, qd, m, mp.loads, mp.mass_scale, mp.damping, mp.stiffness_scale,
+                    mp.gravity_scale, mp.gravity_feedforward, mp.rotor_drag, mp.rotor_drag_k,
+                    True, work.m_hat, work.cd_hat, work.d_hat, work.k_hat)  # fmt: skip
     qd_ref, qdd_ref = work.qd_ref, work.qdd_ref
     for i in range(n):
         q_ref[i] = q_d[i]
@@ -398,7 +389,7 @@ def controller_params(
     c = np.ascontiguousarray
     return ControllerParams(
         law=int(kind),
-        **model_params(model)._asdict(),
+        model=model_params(model),
         beta=c(gains.beta, float),
         a_d=c(gains.A_d, float),
         a_p=c(gains.A_p, float),

@@ -234,7 +234,7 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
         rod = s.arms[0].rod
         total = mb + (rod.mass * f[ROBOT_FACTORS.index("rod_mass")] + rod.tip_mass)
         ctl = ctl._replace(
-            damping=np.ascontiguousarray(sd[:, None] * d * sd[None, :]),
+            model=ctl.model._replace(damping=np.ascontiguousarray(sd[:, None] * d * sd[None, :])),
             min_lift_force=low.config.min_lift * float(total * np.linalg.norm(s.loads.gravity)),
         )
     world = a.world
@@ -244,8 +244,9 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
            "perception": [], "ekf": _ekf_params(a)}  # fmt: skip
     servo0 = arm_blocks(loop)[3][0]
     if isinstance(loop.force, TipForceBlock) and isinstance(servo0, TouchServo):
-        fp = loop.force.record(a.model)  # the seed's model error; the world's damping
-        out["force"] = fp._replace(model=fp.model._replace(damping=ctl.damping))
+        # the force estimate's model is the controller's (the seed's model error, the world's
+        # damping)
+        out["force"] = loop.force.record(a.model)._replace(model=ctl.model)
         out["touch_refs"] = servo0.refs
     for k, (local, glob, perception, servo) in enumerate(
         zip(locals_, globals_, perceptions, servos, strict=True)
