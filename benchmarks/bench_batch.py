@@ -6,6 +6,7 @@ real-time factor, the first call cold and warm.
     python benchmarks/bench_batch.py --filter-only     # the target filter's cost, N = 256
     python benchmarks/bench_batch.py --vector-only     # gym.make_vec(..., num_envs=256)
     python benchmarks/bench_batch.py --touch-only --sizes 16 [--estimated]   # whole touch-target runs
+    python benchmarks/bench_batch.py --allocations-only   # numba's allocations a world-period
 
 ``--predicted`` adds the table with the robust servo's target filter in the period
 (``--features predicted``: that table alone); the table is printed as markdown at the end.
@@ -19,7 +20,13 @@ import argparse
 import json
 from pathlib import Path
 
-from tdacm.bench.batch import batch_bench, filter_cost, touch_rate, vector_env_rate
+from tdacm.bench.batch import (
+    allocations,
+    batch_bench,
+    filter_cost,
+    touch_rate,
+    vector_env_rate,
+)
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser()
@@ -30,6 +37,7 @@ if __name__ == "__main__":
     p.add_argument("--filter-only", action="store_true")
     p.add_argument("--vector-only", action="store_true")
     p.add_argument("--touch-only", action="store_true")
+    p.add_argument("--allocations-only", action="store_true")
     p.add_argument("--estimated", action="store_true")
     p.add_argument("--duration", type=float, default=2.0)
     p.add_argument("--predicted", action="store_true")
@@ -43,6 +51,9 @@ if __name__ == "__main__":
     if a.filter_only:
         res = filter_cost(threads=max(a.threads), repeats=a.repeats)
         data.setdefault("batch", {})["filter"] = res
+    elif a.allocations_only:
+        res = allocations(4, 1, a.duration)
+        data.setdefault("batch", {})["allocations"] = res
     elif a.touch_only:
         res = touch_rate(min(a.sizes), max(a.threads), a.repeats, estimated=a.estimated)
         data.setdefault("batch", {})["touch" + ("_estimated" if a.estimated else "")] = res

@@ -14,6 +14,7 @@ measured ones, measured in one run.
 
 from __future__ import annotations
 
+import json
 import os
 import statistics
 import subprocess
@@ -140,6 +141,38 @@ def first_call(cold: bool) -> float:
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     return float(out.stdout.strip().splitlines()[-1])
+
+
+#: the child of :func:`allocations`: whole runs of :func:`_batch`, numba's allocation count
+#: (its runtime's statistics) before and after
+_ALLOCATIONS_CODE = """
+import json, sys
+from numba.core.runtime import rtsys
+from tdacm.bench.batch import _batch
+n, threads, duration = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+b = _batch(n, threads, duration)
+b.run()  # warm-up: kernels loaded (or compiled), work arrays in place
+a0 = rtsys.get_allocation_stats().alloc
+res = b.run()
+a1 = rtsys.get_allocation_stats().alloc
+print(json.dumps({"allocations": a1 - a0, "world_periods": int(res.samples.sum())}))
+"""
+
+
+def allocations(n_worlds: int = 4, threads: int = 1, duration: float = 1.0) -> dict:
+    """Numba's allocations (its runtime's ``NRT_Allocate`` calls: every array a compiled step
+    creates) per world-period of whole runs of the engine's ``paper-in-fov``
+    (:data:`ENGINE`), counted in a fresh process with the runtime's statistics on
+    (``NUMBA_NRT_STATS=1``, read before numba is imported). What an allocation-free step
+    removes: each allocation is a ``malloc`` and a ``free`` with their reference counts, and
+    threads share the allocator. Returns ``{"allocations", "world_periods",
+    "per_world_period"}``."""
+    env = dict(os.environ, NUMBA_NRT_STATS="1")
+    cmd = [sys.executable, "-c", _ALLOCATIONS_CODE, str(n_worlds), str(threads), str(duration)]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    res["per_world_period"] = res["allocations"] / max(res["world_periods"], 1)
+    return res
 
 
 def vector_env_rate(num_envs: int = 256, steps: int = 200, threads: int | None = None,
