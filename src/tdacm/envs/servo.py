@@ -76,7 +76,6 @@ from ..loop.policy import (
     state_scales,
 )
 from ..loop.servo import BEHIND
-from ..loop.touch import TouchServo
 from ..vision.virtual import BehindVirtualCamera
 from .options import EnvOptions, clip_action
 
@@ -236,7 +235,7 @@ class TipServoEnv(gym.Env):
         features of the servo's own first part (the detected points, or the robust servo's
         prediction from its target filter; servoing into contact, the touch law's pinned view
         in the tip camera once the probe has touched, as the vector env's:
-        :meth:`~tdacm.loop.touch.TouchServo.perceive_touch`)."""
+        :meth:`~tdacm.loop.servo.VisualServo.period_view`)."""
         sensed = self._sensed = self.loop.sense()
         view, est = sensed.view, sensed.estimate
         loop = self.loop
@@ -247,11 +246,7 @@ class TipServoEnv(gym.Env):
             points = error = None
             behind = seen = False
             if getattr(servo, "_compiled", False):  # the servo's compiled first part, once
-                t = loop.plant.state.t
-                if isinstance(servo, TouchServo):  # the touch law's view once pinned
-                    out = servo.perceive_touch(t, loop.dt, v, est, sensed.force)
-                else:
-                    out = servo.perceive_period(t, loop.dt, v, est)
+                out = servo.period_view(loop.plant.state.t, loop.dt, v, est, sensed.force)
                 behind = bool(out.failure[0] == BEHIND)
                 seen = bool(out.seen[0])
                 if seen:

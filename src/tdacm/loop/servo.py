@@ -213,6 +213,7 @@ class VisualServo:
         self.state = servo_state(self.params, n, self._n_s, window)
         self._out = ServoOut.empty(n, self._n_s)
         self._memo = None
+        self._frame = None  # perceive_period's frame arguments (frame_arguments) this period
         self.reset(np.zeros(n))
 
     def _setup(self) -> None:
@@ -446,12 +447,19 @@ class VisualServo:
         if memo is not None and memo[0] is view and memo[1] is est:
             return self._out
         p, st, out = self.params, self.state, self._out
-        q, p_qq, found, uv, xy, z, capture = frame_arguments(view, est, dt, p.robust)
+        self._frame = frame_arguments(view, est, dt, p.robust)
+        q, p_qq, found, uv, xy, z, capture = self._frame
         k = int(round(t / dt))
         servo_perceive(p, st, self._m, float(t), float(dt), k, q, p_qq, found, uv, xy, z, capture,
                        out)  # fmt: skip
         self._memo = (view, est)
         return out
+
+    def period_view(self, t, dt, view, est, force=None) -> ServoOut:
+        """The view this servo works on this period (what an env observes): its first part,
+        once (:meth:`perceive_period`; the touch servo adds its law's, ``force`` its force
+        reading)."""
+        return self.perceive_period(t, dt, view, est)
 
     def compiled_step(self, t, dt, view, gview, est, twist=None) -> ServoCommand:
         """One period of the compiled step (:meth:`perceive_period`, then

@@ -80,7 +80,6 @@ from .servo import (
     PredictedView,
     RobustServo,
     ServoOut,
-    frame_arguments,
     joint_rates,
     normalized_rmse,
     rmse_to,
@@ -718,8 +717,7 @@ class TouchServo(RobustServo):
         self._touch_out = TouchOut.empty()
         self._compiled = True  # the period is touch_perceive and touch_command
         self._ps = None
-        self._touch_memo = None  # perceive_touch's (view, estimate) this period
-        self._phase_before = self.phase  # the phase before this period's touch_perceive
+        self._touch_memo = None  # period_view's (view, estimate) this period
         touch_reset(self.touch_state)
 
     @property
@@ -811,7 +809,7 @@ class TouchServo(RobustServo):
         return PredictedView(o.ps_points.copy(), o.ps_depths.copy(), o.ps_features.copy(),
                              o.ps_error.copy(), None)  # fmt: skip
 
-    def perceive_touch(self, t, dt, view, est, force: ForceReading | None = None) -> ServoOut:
+    def period_view(self, t, dt, view, est, force: ForceReading | None = None) -> ServoOut:
         """The first part of the period: the robust servo's (:meth:`perceive_period`), then
         :func:`touch_perceive` (the phases' changes, and the pinned C_L view in place of C_V's
         prediction once the probe is pinned), once: asked again with the same ``view`` and
@@ -821,11 +819,10 @@ class TouchServo(RobustServo):
         if memo is not None and memo[0] is view and memo[1] is est:
             return self._out
         p, st, ts, tout = self.params, self.state, self.touch_state, self._touch_out
-        q, _, found, _, xy, _, _ = frame_arguments(view, est, dt, True)
         f_hat = force.force if force is not None and force.valid else math.nan
-        self._phase_before = self.phase
         out = self.perceive_period(t, dt, view, est)  # the servo's first part, once a period
         self._memo = None
+        q, _, found, _, xy, _, _ = self._frame
         touch_perceive(self.law, self.refs, ts, p, st, self._m, float(t), float(dt), q, found,
                        xy, float(f_hat), out, tout)  # fmt: skip
         self._touch_memo = (view, est)
@@ -833,18 +830,15 @@ class TouchServo(RobustServo):
 
     def step(self, t, dt, view, gview, est, twist=None, force: ForceReading | None = None):
         p, st, ts, tout = self.params, self.state, self.touch_state, self._touch_out
-        q = frame_arguments(view, est, dt, True)[0]
-        out = self.perceive_touch(t, dt, view, est, force)
+        out = self.period_view(t, dt, view, est, force)
         self._touch_memo = None
-        prev = self._phase_before
+        q = self._frame[0]
         offered, g_found, corners, seen = self.global_arguments(gview, out)
         tw = twist_argument(twist)
         touch_command(self.law, ts, p, st, self._m, float(t), float(dt), q, offered, tw,
                       g_found, corners, seen, out)  # fmt: skip
         cmd = self._command_of(out)
-        event = cmd.event
-        if prev != self.phase:
-            event = f"touch: {self.phase}"
+        event = f"touch: {self.phase}" if tout.phase_changed[0] else cmd.event
         changed = bool(tout.phase_changed[0] or tout.switched[0])  # the monitor re-arms
         return replace(cmd, event=event, phase=self.phase, tare_force=bool(tout.tare[0]),
                        phase_changed=changed, landing=self.landings)  # fmt: skip
