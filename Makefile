@@ -19,8 +19,9 @@ $(DEV): $(STAMP)
 	$(PY) -m pip install --quiet -e ".[all,dev]"
 	touch $(DEV)
 
-# numba's cache of the checkout for the test suite: the kernels of `tdacm run`, the engine, the
-# vector env and identification, compiled in two processes (tdacm.bench.compile.fill)
+# numba's cache of the checkout for the test suite: the kernels of `tdacm run`, the contact
+# scenarios, the engine, the vector env, identification and the stiff integrators, compiled in
+# two processes (tdacm.bench.compile.fill)
 $(WARM): $(DEV)
 	$(PY) -m tdacm.bench.compile fill
 	touch $(WARM)

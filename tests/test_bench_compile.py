@@ -129,12 +129,14 @@ def test_fill_compiles_the_blocks_before_the_engine_that_loads_them(monkeypatch,
 
         def wait(self, timeout=None):
             waited.append(self.jobs)
-            return 3 if self.jobs == ("identify",) else 0
+            return 3 if self.jobs == ("identify", "stiff") else 0
 
     monkeypatch.setattr(C.subprocess, "Popen", Proc)
     lines = []
     assert C.fill(progress=lines.append) == 1
     # both first-phase processes start before either is waited for; the engine's after both
-    assert started == [(("run", "touch"), 0), (("identify",), 0), (("engine", "vector-env"), 2)]
-    assert any("compiling identify failed" in line for line in lines)
+    assert started == [
+        (("run", "touch"), 0), (("identify", "stiff"), 0), (("engine", "vector-env"), 2)
+    ]  # fmt: skip
+    assert any("compiling identify, stiff failed" in line for line in lines)
     assert sorted(j for phase in C.PHASES for group in phase for j in group) == sorted(C.ALL_JOBS)

@@ -112,6 +112,35 @@ def _job_touch(work: Path) -> None:
     Simulation(sc.with_overrides(over), seed=1).run(None)
 
 
+def _job_stiff(work: Path) -> None:
+    """The stiff integrators (Radau IIA, Rosenbrock-W) on a clamped six-strain rod: fixed and
+    adaptive steps, held and callable inputs (0.02 s each); the tip pose, the energy and a
+    static equilibrium, with which their runs are started and read."""
+    import numpy as np
+
+    from .. import StrainBasis, paper_system, simulate
+
+    system = paper_system(fixed_base_pose=np.eye(4), basis=StrainBasis.full(0))
+    q0 = np.zeros(system.n)
+    q0[1:3] = [0.5, -0.3]
+    held = np.zeros(system.n_u)
+    for method in ("radau", "rosenbrock"):
+        simulate(system, q0, None, 0.02, u=held, method=method, record_dt=0.01)
+        simulate(system, q0, None, 0.02, method=method, rtol=1e-4, atol=1e-6, record_dt=0.01)
+        res = simulate(system, q0, None, 0.02, method=method, record_dt=0.01,
+                       u=lambda t, q, qd: held)  # fmt: skip
+    # the tip along a result of the fixed-step and of the adaptive (DOP853) path, whose rows
+    # are strided: another specialization
+    system.tip_pose(res.q[-1])
+    system.tip_pose(simulate(system, q0, None, 0.01, method="adaptive", record_dt=0.01).q[-1])
+    system.energy(q0, np.zeros(system.n))
+    floating = paper_system()  # a rod's static equilibrium, the start of a release
+    u = np.zeros(floating.n_u)
+    u[4] = 1.0
+    floating.static_equilibrium(u, q0=np.r_[np.zeros(5), 3.0, np.zeros(floating.n - 6)],
+                                load_steps=1)  # fmt: skip
+
+
 #: name -> (what it is, the function running it in this process)
 JOBS = {
     "run": ("tdacm run paper-in-fov --duration 1", _job_run),
@@ -120,10 +149,11 @@ JOBS = {
     "identify": ("identify: one iteration, explicit and stiff shooting", _job_identify),
 }
 #: what the warm-up and the wheel compile besides the jobs (not a first use the bench times:
-#: ``tdacm run touch-target`` is a ``run``): the contact scenarios' kernels, which the test
-#: suite would otherwise compile
+#: ``tdacm run touch-target`` is a ``run``): the contact scenarios' and the stiff integrators'
+#: kernels, which the test suite would otherwise compile
 EXTRAS = {
     "touch": ("touch-target (true, estimated) and dual-squeeze on the block loop", _job_touch),
+    "stiff": ("the stiff integrators: Radau IIA and Rosenbrock-W, fixed and adaptive", _job_stiff),
 }
 #: every job the warm-up and the wheel run
 ALL_JOBS = {**JOBS, **EXTRAS}
@@ -369,9 +399,11 @@ def write_estimates(results: dict, path: Path | None = None) -> Path:
 # ------------------------------------------------------------------ the shipped cache
 #: the jobs compiled into a wheel's cache and by ``make test``'s warm-up, in two phases of at most
 #: two processes each (one group of jobs per process): ``tdacm run`` and the contact
-#: scenarios (:data:`EXTRAS`) beside identification, then the engine with the vector env, which loads the blocks' compiled steps the first phase
-#: cached instead of compiling them again (the engine calls the same steps as the block loop)
-PHASES = ((("run", "touch"), ("identify",)), (("engine", "vector-env"),))
+#: scenarios (:data:`EXTRAS`) beside identification and the stiff integrators (its stiff
+#: shooting path shares their kernels), then the engine with the vector env, which loads the
+#: blocks' compiled steps the first phase cached instead of compiling them again (the engine
+#: calls the same steps as the block loop)
+PHASES = ((("run", "touch"), ("identify", "stiff")), (("engine", "vector-env"),))
 
 
 def _merge(src: Path, dst: Path) -> int:
