@@ -5,7 +5,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tdacm._records import borrow, replicate, stack, take
+from tdacm._records import borrow, replicate, stack, take, take_at
 
 
 class Inner(NamedTuple):
@@ -68,3 +68,30 @@ def test_take_and_replicate_round_trip():
     row = take(many, 2)
     np.testing.assert_array_equal(row.gains, one.gains)
     assert float(row.scale) == 2.0
+
+
+@njit
+def _arm_rows(records, w, a):
+    """A world's arm row both ways, written through the second."""
+    one, two = take(take(records, w), a), take_at(records, w, a)
+    two.inner.flags[1] = True
+    return one.inner.gains.sum(), two.inner.gains.sum(), one.count, two.count, one.inner.scale
+
+
+def test_take_at_is_take_of_take():
+    """Row ``a`` of world ``w`` of records stacked over worlds then arms, in one step: the same
+    views (a write through one shows in the stack) in Python and in compiled code."""
+    worlds = [stack([Outer(Inner(np.arange(3.0) + 10 * w + a, 0.5 * a + w, np.zeros(2, np.bool_)),
+                           np.full(2, float(a)), 3 * w + a) for a in range(2)])
+              for w in range(3)]  # fmt: skip
+    many = stack(worlds)
+    assert many.inner.gains.shape == (3, 2, 3) and many.count.shape == (3, 2)
+    for w in range(3):
+        for a in range(2):
+            row, ref = take_at(many, w, a), take(take(many, w), a)
+            np.testing.assert_array_equal(row.inner.gains, ref.inner.gains)
+            assert row.count == ref.count == 3 * w + a and row.inner.scale == ref.inner.scale
+            g1, g2, c1, c2, sc = _arm_rows(many, w, a)
+            assert g1 == g2 == ref.inner.gains.sum() and c1 == c2 == 3 * w + a
+            assert sc == 0.5 * a + w
+    assert many.inner.flags[:, :, 1].all() and not many.inner.flags[:, :, 0].any()

@@ -21,7 +21,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
-__all__ = ["take", "stack", "put", "replicate", "copy_into", "borrow"]
+__all__ = ["take", "take_at", "stack", "put", "replicate", "copy_into", "borrow"]
 
 
 def take(records, w: int):
@@ -48,6 +48,32 @@ def _take_compiled(records, w):
     )
     src = f"def impl(records, w):\n    return cls({args})\n"
     scope = {"cls": records.instance_class, "take": take}
+    exec(src, scope)  # noqa: S102 - the source is the field list above
+    return scope["impl"]
+
+
+def take_at(records, w: int, a: int):
+    """Row ``a`` of world ``w``'s record of ``records`` stacked over worlds and then over arms
+    (a world axis and an arm axis): ``take(take(records, w), a)`` with one record built instead
+    of two (in compiled code each record built is a call passing every array's fields, which
+    the caller's compile pays for)."""
+    return type(records)(
+        *(take_at(f, w, a) if _is_record(f) else f[w, a] for f in records)  # type: ignore[arg-type]
+    )
+
+
+@overload(take_at)
+def _take_at_compiled(records, w, a):
+    """:func:`take_at` in compiled code (as :func:`take`'s)."""
+    if not isinstance(records, types.BaseNamedTuple):
+        return None
+    args = ", ".join(
+        f"take_at(records[{i}], w, a)" if isinstance(t, types.BaseNamedTuple)
+        else f"records[{i}][w, a]"
+        for i, t in enumerate(records.types)
+    )  # fmt: skip
+    src = f"def impl(records, w, a):\n    return cls({args})\n"
+    scope = {"cls": records.instance_class, "take_at": take_at}
     exec(src, scope)  # noqa: S102 - the source is the field list above
     return scope["impl"]
 

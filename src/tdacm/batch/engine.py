@@ -38,7 +38,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._records import borrow, copy_into, take
+from .._records import borrow, copy_into, take, take_at
 from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
 from ..estimation import ekf_step as EK
@@ -313,12 +313,12 @@ def _estimate(model, data, w, mw, mc, k, dt):
     _poll_pose(take(e.pose, w), d.pose, t, q, rng, d.out, meas)
     _poll_imu(take(e.imu, w), d.imu, t, q, qd, d.qdd, d.has_qdd[0], rng, d.out, meas)
     _poll_encoders(take(e.encoders, w), d.encoders, mw, t, q, rng, d.out, meas)
-    f = take(take(data.frame, w), 0)
+    f = take_at(data.frame, w, 0)
     if e.fuse_view and f.detected[0]:
         t_capture = f.capture[0] * dt
         if EK.view_is_new(d.ekf, t_capture):
             xy = np.empty((4, 2))
-            normalize_into(take(take(model.perception, w), 0).camera, f.uv, xy)
+            normalize_into(take_at(model.perception, w, 0).camera, f.uv, xy)
             EK.measurement_put(meas, EK.VIEW, t_capture, xy.ravel())
     d.status[0] = EK.ekf_step(ep, d.ekf, mc, t, data.u[w], k > 0, meas)
     if d.status[0] == EK.OK:
@@ -341,8 +341,9 @@ def reset_worlds(model, data, which, q0, qd0):
         data.k[w] = 0
         data.active[w] = True
         data.termination[w] = RUNNING
-        mw = model_of_world(model.plant_model, take(model.robot, w))
-        mc = model_of_world(model.control_model, take(model.robot, w))
+        rw = take(model.robot, w)
+        mw = model_of_world(model.plant_model, rw)
+        mc = model_of_world(model.control_model, rw)
         for i in range(data.u.shape[1]):
             data.u[w, i] = 0.0
         q_est = data.q[w]
@@ -351,8 +352,8 @@ def reset_worlds(model, data, which, q0, qd0):
             q_est = data.estimation.q_hat[w]
         recovering = False
         for a in range(model.n_arms):
-            sp = take(take(model.sensor, w), a)
-            ss = take(take(data.sensor, w), a)
+            sp = take_at(model.sensor, w, a)
+            ss = take_at(data.sensor, w, a)
             ss.head[0] = 0
             ss.count[0] = 0
             # the first C_L frame, ideal (no draws): the initial mode
@@ -362,8 +363,8 @@ def reset_worlds(model, data, which, q0, qd0):
             corners = np.empty((sp.corners.shape[0], 4, 2))
             seen = np.empty(sp.corners.shape[0], np.bool_)
             found = analytic_detect(sp, g_c, uv, corners, seen)
-            st = take(take(data.servo, w), a)
-            servo_reset(take(take(model.servo, w), a), st, mw, q_est, found, uv)
+            st = take_at(data.servo, w, a)
+            servo_reset(take_at(model.servo, w, a), st, mw, q_est, found, uv)
             recovering = recovering or st.mode[0] != IBVS
         # a start in recovery asks C_G for its first period (ClosedLoop.reset)
         data.request[w] = recovering
@@ -402,14 +403,15 @@ def sense(model, data, w):
     dt = model.dt
     q = data.q[w]
     n = q.shape[0]
-    mw = model_of_world(model.plant_model, take(model.robot, w))
+    rw = take(model.robot, w)  # this world's robot rows, taken once
+    mw = model_of_world(model.plant_model, rw)
     rng = data.rng_sensors[w]
     p_qq = np.zeros((n, n))  # the true state: an exact camera pose
     g_c = np.empty((4, 4))
     uv = np.empty((4, 2))
     normals = np.empty(8)
     for a in range(model.n_arms):
-        sp = take(take(model.sensor, w), a)
+        sp = take_at(model.sensor, w, a)
         camera_pose_into(sp, mw, q, g_c)
         corners = np.empty((sp.corners.shape[0], 4, 2))
         seen = np.empty(sp.corners.shape[0], np.bool_)
@@ -420,18 +422,17 @@ def sense(model, data, w):
             for i in range(8):
                 normals[i] = normal(rng)
             add_pixel_noise(sp, uv, corners[:0], normals)
-        ss = take(take(data.sensor, w), a)
+        ss = take_at(data.sensor, w, a)
         slot = latency_push(sp, ss, found, uv, corners, k)
-        f = take(take(data.frame, w), a)
+        f = take_at(data.frame, w, a)
         f.uv[:, :] = ss.uv[slot]
         f.capture[0] = ss.capture[slot]
-        pc = take(take(model.perception, w), a)
+        pc = take_at(model.perception, w, a)
         f.detected[0] = ss.found[slot]
         f.found[0] = f.detected[0] and perceive(pc.camera, pc.object_2d, f.uv, f.xy, f.z)
     q_est = q
     if model.estimation.on:  # the estimator's period; a failure ends the world in act
-        _estimate(model, data, w, mw, model_of_world(model.control_model, take(model.robot, w)),
-                  k, dt)  # fmt: skip
+        _estimate(model, data, w, mw, model_of_world(model.control_model, rw), k, dt)
         if data.estimation.status[w, 0] != EK.OK:
             return
         q_est = data.estimation.q_hat[w]
@@ -439,16 +440,16 @@ def sense(model, data, w):
     if model.touch.on:  # the tip force estimate, then the touch servo's view (one arm)
         tm, td = model.touch, data.touch
         qd_est = data.estimation.qd_hat[w] if model.estimation.on else data.qd[w]
-        mc = model_of_world(model.control_model, take(model.robot, w))
+        mc = model_of_world(model.control_model, rw)
         fo = take(td.force_out, w)
         force_step(take(tm.force, w), take(td.force, w), mc, q_est, qd_est, data.u[w], k > 0,
                    np.zeros((0, 0)), dt, fo)  # fmt: skip
         f_hat = fo.force[0] if fo.valid[0] else np.nan
-        f = take(take(data.frame, w), 0)
+        f = take_at(data.frame, w, 0)
         sp, ss, out = (
-            take(take(model.servo, w), 0),
-            take(take(data.servo, w), 0),
-            take(take(data.servo_out, w), 0),
+            take_at(model.servo, w, 0),
+            take_at(data.servo, w, 0),
+            take_at(data.servo_out, w, 0),
         )
         servo_perceive(sp, ss, mw, k * dt, dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z,
                        f.capture[0], out)  # fmt: skip
@@ -456,10 +457,10 @@ def sense(model, data, w):
                        dt, q_est, f.found[0], f.xy, f_hat, out, take(td.out, w))  # fmt: skip
         return
     for a in range(model.n_arms):
-        f = take(take(data.frame, w), a)
-        servo_perceive(take(take(model.servo, w), a), take(take(data.servo, w), a), mw, k * dt,
+        f = take_at(data.frame, w, a)
+        servo_perceive(take_at(model.servo, w, a), take_at(data.servo, w, a), mw, k * dt,
                        dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
-                       take(take(data.servo_out, w), a))  # fmt: skip
+                       take_at(data.servo_out, w, a))  # fmt: skip
 
 
 @njit(cache=True)
@@ -474,7 +475,8 @@ def act(model, data, w, twist_in):
     q = data.q[w]
     qd = data.qd[w]
     n = q.shape[0]
-    mw = model_of_world(model.plant_model, take(model.robot, w))
+    rw = take(model.robot, w)  # this world's robot rows, taken once
+    mw = model_of_world(model.plant_model, rw)
     q_est, qd_est = q, qd
     if model.estimation.on:  # the blocks read the estimate (the estimator's failure ends)
         if data.estimation.status[w, 0] != EK.OK:
@@ -486,7 +488,7 @@ def act(model, data, w, twist_in):
     outs = take(data.servo_out, w)
     robot = take(data.robot_out, w)
     karms = model.n_arms
-    m_count = take(take(model.global_sensor, w), 0).corners.shape[0]
+    m_count = model.global_sensor.corners.shape[2]  # (worlds, arms, markers, 4, 2)
     corners = np.zeros((karms, m_count, 4, 2))
     seen = np.zeros((karms, m_count), np.bool_)
     g_found = np.zeros(karms, np.bool_)
@@ -497,7 +499,7 @@ def act(model, data, w, twist_in):
         else:
             need = offered and out.mode[0] == RECOVERY and st.traj_on[0] == 0.0
         if need:
-            gp = take(take(model.global_sensor, w), a)
+            gp = take_at(model.global_sensor, w, a)
             g_c = np.empty((4, 4))
             camera_pose_into(gp, mw, q, g_c)
             uv = np.empty((4, 2))
@@ -530,7 +532,7 @@ def act(model, data, w, twist_in):
         _end(data, w, BEHIND_CAMERA if robot.failure[0] == BEHIND else RECOVERY_FAILED)
         return
     # the low-level controller on its model of this world's robot
-    mc = model_of_world(model.control_model, take(model.robot, w))
+    mc = model_of_world(model.control_model, rw)
     u = data.u[w]
     _, thrust_sat, tension_sat, _, _ = controller_step(
         take(model.controller, w), take(data.controller, w), mc, q_est, qd_est, lead.q_d, lead.qd_d,
