@@ -437,7 +437,13 @@ def sense(model, data, w):
             return
         q_est = data.estimation.q_hat[w]
         p_qq = data.estimation.p_qq[w]
-    if model.touch.on:  # the tip force estimate, then the touch servo's view (one arm)
+    for a in range(model.n_arms):  # each arm's servo view
+        f = take_at(data.frame, w, a)
+        servo_perceive(take_at(model.servo, w, a), take_at(data.servo, w, a), mw, k * dt,
+                       dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
+                       take_at(data.servo_out, w, a))  # fmt: skip
+    if model.touch.on:  # the tip force estimate, then the touch law's view (one arm); the
+        # force step shares no state with the servo's view above: the block loop's numbers
         tm, td = model.touch, data.touch
         qd_est = data.estimation.qd_hat[w] if model.estimation.on else data.qd[w]
         mc = model_of_world(model.control_model, rw)
@@ -446,21 +452,10 @@ def sense(model, data, w):
                    np.zeros((0, 0)), dt, fo)  # fmt: skip
         f_hat = fo.force[0] if fo.valid[0] else np.nan
         f = take_at(data.frame, w, 0)
-        sp, ss, out = (
-            take_at(model.servo, w, 0),
-            take_at(data.servo, w, 0),
-            take_at(data.servo_out, w, 0),
-        )
-        servo_perceive(sp, ss, mw, k * dt, dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z,
-                       f.capture[0], out)  # fmt: skip
-        touch_perceive(take(tm.law, w), take(tm.refs, w), take(td.state, w), sp, ss, mw, k * dt,
-                       dt, q_est, f.found[0], f.xy, f_hat, out, take(td.out, w))  # fmt: skip
-        return
-    for a in range(model.n_arms):
-        f = take_at(data.frame, w, a)
-        servo_perceive(take_at(model.servo, w, a), take_at(data.servo, w, a), mw, k * dt,
-                       dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
-                       take_at(data.servo_out, w, a))  # fmt: skip
+        touch_perceive(take(tm.law, w), take(tm.refs, w), take(td.state, w),
+                       take_at(model.servo, w, 0), take_at(data.servo, w, 0), mw, k * dt, dt,
+                       q_est, f.found[0], f.xy, f_hat, take_at(data.servo_out, w, 0),
+                       take(td.out, w))  # fmt: skip
 
 
 @njit(cache=True)
