@@ -27,29 +27,7 @@ __all__ = ["take", "take_at", "stack", "put", "replicate", "copy_into", "borrow"
 def take(records, w: int):
     """World ``w``'s record of the stacked ``records`` (module docstring): the NamedTuple of
     ``field[w]`` (views of the stacked arrays; a nested record is taken in turn)."""
-    return type(records)(
-        *(take(f, w) if _is_record(f) else f[w] for f in records)  # type: ignore[arg-type]
-    )
-
-
-def _is_record(value) -> bool:
-    return isinstance(value, tuple) and hasattr(value, "_fields")
-
-
-@overload(take)
-def _take_compiled(records, w):
-    """:func:`take` in compiled code: a constructor call over the record's fields, generated
-    once per record type (the calling function is what numba caches)."""
-    if not isinstance(records, types.BaseNamedTuple):
-        return None
-    args = ", ".join(
-        f"take(records[{i}], w)" if isinstance(t, types.BaseNamedTuple) else f"records[{i}][w]"
-        for i, t in enumerate(records.types)
-    )
-    src = f"def impl(records, w):\n    return cls({args})\n"
-    scope = {"cls": records.instance_class, "take": take}
-    exec(src, scope)  # noqa: S102 - the source is the field list above
-    return scope["impl"]
+    return _row(records, w)
 
 
 def take_at(records, w: int, a: int):
@@ -57,25 +35,47 @@ def take_at(records, w: int, a: int):
     (a world axis and an arm axis): ``take(take(records, w), a)`` with one record built instead
     of two (in compiled code each record built is a call passing every array's fields, which
     the caller's compile pays for)."""
+    return _row(records, (w, a))
+
+
+def _row(records, index):
+    """The NamedTuple of ``field[index]`` of ``records``, nested records in turn."""
     return type(records)(
-        *(take_at(f, w, a) if _is_record(f) else f[w, a] for f in records)  # type: ignore[arg-type]
+        *(_row(f, index) if _is_record(f) else f[index] for f in records)  # type: ignore[arg-type]
     )
+
+
+def _is_record(value) -> bool:
+    return isinstance(value, tuple) and hasattr(value, "_fields")
+
+
+def _row_impl(records, fn, params: str):
+    """The compiled form of :func:`take` (``fn``, ``params`` ``"w"``) or :func:`take_at`
+    (``"w, a"``): a constructor call over the record's fields, generated once per record type
+    (the calling function is what numba caches); None for a value that is not a record."""
+    if not isinstance(records, types.BaseNamedTuple):
+        return None
+    args = ", ".join(
+        f"fn(records[{i}], {params})" if isinstance(t, types.BaseNamedTuple)
+        else f"records[{i}][{params}]"
+        for i, t in enumerate(records.types)
+    )  # fmt: skip
+    src = f"def impl(records, {params}):\n    return cls({args})\n"
+    scope = {"cls": records.instance_class, "fn": fn}
+    exec(src, scope)  # noqa: S102 - the source is the field list above
+    return scope["impl"]
+
+
+@overload(take)
+def _take_compiled(records, w):
+    """:func:`take` in compiled code (:func:`_row_impl`)."""
+    return _row_impl(records, take, "w")
 
 
 @overload(take_at)
 def _take_at_compiled(records, w, a):
-    """:func:`take_at` in compiled code (as :func:`take`'s)."""
-    if not isinstance(records, types.BaseNamedTuple):
-        return None
-    args = ", ".join(
-        f"take_at(records[{i}], w, a)" if isinstance(t, types.BaseNamedTuple)
-        else f"records[{i}][w, a]"
-        for i, t in enumerate(records.types)
-    )  # fmt: skip
-    src = f"def impl(records, w, a):\n    return cls({args})\n"
-    scope = {"cls": records.instance_class, "take_at": take_at}
-    exec(src, scope)  # noqa: S102 - the source is the field list above
-    return scope["impl"]
+    """:func:`take_at` in compiled code (:func:`_row_impl`)."""
+    return _row_impl(records, take_at, "w, a")
 
 
 def borrow(records):
