@@ -54,12 +54,15 @@ def _arrays(run_dir) -> dict:
 # ------------------------------------------------------------------ the acceptance run
 @pytest.fixture(scope="module")
 def live_run(tmp_path_factory):
-    """``tdacm run paper-in-fov --live PORT --duration 2`` with a client subscribed to the
-    transforms, the tip camera's image, its features and the progress; the client leaves
-    before the end (a client that disconnects costs the run nothing)."""
+    """``tdacm run paper-in-fov --live PORT --duration 2 --realtime`` with a client subscribed
+    to the transforms, the tip camera's image, its features and the progress; the client leaves
+    before the end (a client that disconnects costs the run nothing). Paced to the wall clock so
+    that the run lasts at least its 2 s after the client subscribes, however fast the machine
+    (unpaced, a quick run could end before the client's third transform)."""
     out = tmp_path_factory.mktemp("live") / "run"
     port = free_port()
-    proc = _cli("run", "paper-in-fov", "--live", str(port), "--duration", "2", "--out", str(out))
+    proc = _cli("run", "paper-in-fov", "--live", str(port), "--duration", "2", "--realtime",
+                "--out", str(out))  # fmt: skip
     try:
         client = FoxgloveClient(port)
         wanted = ["/tf", "/tf_static", "/tdacm/C_L/image_raw", "/tdacm/C_L/features",
