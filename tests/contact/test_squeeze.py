@@ -153,6 +153,35 @@ def test_balance_direction_moves_one_probe_in_and_the_other_out():
     assert ax[0] < 0 < ax[1]
 
 
+def test_the_force_loops_engage_at_the_first_touch():
+    """From the first arm's touch (the other probe still off the ball, its force zero) the mean
+    loop pushes along a on the mean force error, bumplessly (its first period moves the
+    reference by the integral's increment only, force_integral times the error times dt),
+    and the balance
+    loop moves the arm still off in (its camera forward, the touched one back); before any
+    touch neither runs."""
+    servo, q = _servo_at_contact()
+    lead, tc = servo.arms[0], servo.touch
+    servo.phases = ["contact", "contact"]
+    lead.q_d, lead.qd_d = q.copy(), np.zeros_like(q)
+    servo._qd = np.zeros_like(q)
+    forces = [0.15, 0.0]
+    servo._admittance(q, forces, 0.02, tc.force)
+    assert not servo._engaged and np.abs(lead.q_d - q).max() == 0.0  # nobody down yet
+    servo._touch_t = [10.0, None]  # arm 0 down, arm 1 not yet
+    servo._admittance(q, forces, 0.02, tc.force)
+    assert servo._engaged
+    a = servo.squeeze_direction(q)
+    (b,) = servo.balance_directions(q)
+    bo = b - a * (a @ b) / (a @ a)
+    err = tc.force - np.mean(forces)
+    expected = a * (tc.force_integral * err * 0.02)
+    expected += bo * (tc.balance_gain * (np.mean(forces) - forces[0]))
+    np.testing.assert_allclose(lead.q_d - q, expected, rtol=1e-9, atol=1e-15)
+    ax = _axial(servo, q, lead.q_d - q)
+    assert ax[1] > ax[0] > 0  # both move in, the arm still off the more
+
+
 def test_squeeze_refusals():
     """One probe for every arm (the kernels carry one), and something to touch."""
     sc = _squeeze()

@@ -28,10 +28,13 @@ looking off vertical; while pressing, the arms' distance rows are replaced by on
 the sum of their cameras' axial velocities (:data:`AXIAL_WEIGHT`), so the drone may move
 one camera forward and the other back for the views (docs/contact.md, "The squeeze").
 
-The force loop: once every arm has touched, ``touch-target``'s PI law of
-:mod:`tdacm.loop.touch` on the arms' mean force error ``F_d - mean_k f_k``, along ``a``, the
-joint displacement of that mapping moving every camera one metre along its axis
-(:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the offset it finds.
+The force loop: from the first arm's touch, ``touch-target``'s PI law of
+:mod:`tdacm.loop.touch` on the arms' mean force error ``F_d - mean_k f_k`` (an arm not yet
+down counts zero), along ``a``, the joint displacement of that mapping moving every camera one
+metre along its axis (:meth:`ArmsTouchServo.squeeze_direction`), started bumplessly from the
+offset it finds; the balance loop (below) moves the arms still off in. Waiting for every
+arm's own touch left each probe tapping the object for seconds on the EKF's estimates
+(docs/contact.md, "The squeeze on estimates").
 
 The balance loop, on the arms' difference (for two arms the drone's x and the same in-plane
 bend of both rods, a weakly damped mode of the views' loop): along each balance direction
@@ -367,14 +370,17 @@ class ArmsTouchServo(ArmsServo):
         return out
 
     def _admittance(self, q, forces, dt: float, force: float) -> None:
-        """The squeeze's force loops (module docstring), once every arm has touched: the
+        """The squeeze's force loops (module docstring), from the first arm's touch: the
         mean loop along ``a`` to the desired ``force``, then the balance loop
         (:meth:`_balance_step`)."""
         tc = self.touch
         lead = self.arms[0]
         if not all(p in (CONTACT, HOLD) for p in self.phases):
             return
-        if not all(tt is not None for tt in self._touch_t):
+        # from the first touch: the mean loop pushes on while the other probes are still off
+        # (its error counts their zero force) and the balance loop moves them in, instead of
+        # each probe tapping the object until its own estimate reaches detect_force
+        if not any(tt is not None for tt in self._touch_t):
             return
         a = self.squeeze_direction(q)
         aa = float(a @ a)
