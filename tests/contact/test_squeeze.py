@@ -245,9 +245,10 @@ def _landed(servo, t, errors):
 def test_a_squeeze_landing_off_the_marker_is_unloaded_and_landed_again():
     """The squeeze's landing check (docs/contact.md, "The squeeze on estimates"): ``settle`` s
     after the last touch, one arm's task image error above ``land_rmse`` starts the unloading
-    (the mean loop's desired force ramped to zero over ``unload_time``, both arms), then every
-    arm goes back to its approach (the standoff view) and the squeeze lands again; a landing
-    on both markers starts the hold, and the ``max_landings``-th is held wherever it is."""
+    (the mean loop's desired force ramped toward zero at ``force / unload_time``, both arms);
+    once it is down to ``detect_force`` every arm goes back to its approach (the standoff
+    view) and the squeeze lands again; a landing on both markers starts the hold, and the
+    ``max_landings``-th is held wherever it is."""
     servo, _ = _servo_at_contact()
     tc = servo.touch
     servo._reset_squeeze()
@@ -258,8 +259,11 @@ def test_a_squeeze_landing_off_the_marker_is_unloaded_and_landed_again():
     assert servo.phases == ["contact", "contact"] and servo._unload_t == t
     assert servo.desired_force(t + 0.5 * tc.unload_time) == pytest.approx(0.5 * tc.force)
     assert servo.desired_force(t + 2.0 * tc.unload_time) == 0.0
-    t += tc.unload_time
-    servo._transitions(t, None, [0.04, 0.04])
+    leave = t + tc.unload_time * (1.0 - tc.detect_force / tc.force)  # down to detect_force
+    servo._transitions(leave - 0.02, None, [0.12, 0.12])
+    assert servo.phases == ["contact", "contact"] and servo._unload_t == t  # still unloading
+    t = leave
+    servo._transitions(t, None, [0.12, 0.12])
     assert servo.phases == ["approach", "approach"] and servo._touch_t == [None, None]
     assert servo.desired_force(t) == tc.force and not servo._engaged
     _landed(servo, t + 10.0, [0.004, 0.006])  # both on their markers

@@ -310,8 +310,9 @@ class TouchConfig(ConfigModel):
     unload_time: float = Field(
         3.0,
         gt=0,
-        description="s, several arms: a landing off a marker has its force ramped to zero "
-        "over this (the balance loop on) before every arm goes back to its standoff view",
+        description="s, several arms: a landing off a marker has its desired force ramped "
+        "toward zero at force / unload_time (the balance loop on) until it is down to "
+        "detect_force, then every arm goes back to its standoff view",
     )
     force_gain: float = Field(
         0.03, ge=0, description="m per N, admittance: axial reference offset per force error"

@@ -16,7 +16,8 @@ from its own arm's tendons (``[touch] enabled`` with ``[[robot.arms]]``, docs/co
   after the last arm's first touch every landing is checked on its arm's task view
   (:func:`~.touch.landing_kept`): if all are kept the hold starts for all and ends after
   ``hold_time`` s, then all release; otherwise the force is unloaded on every arm (the mean
-  loop's desired force ramped to zero over ``unload_time``) and every arm goes back to its
+  loop's desired force ramped toward zero at ``force / unload_time`` until it is down to
+  ``detect_force``) and every arm goes back to its
   approach to land again. The run's phase (``touch_phase``) is the least advanced arm's.
 * :class:`ArmsTouchLog`: the log of several arms with the per-arm touch series
   :data:`TOUCH_ARM_SERIES`.
@@ -187,7 +188,10 @@ class ArmsTouchServo(ArmsServo):
                 return True
             return False
         if self._unload_t is not None:  # the force ramped down on every arm, then back off
-            if t - self._unload_t >= tc.unload_time - 1e-9:
+            # the probes leave once the ramp is down to detect_force (a touch by the law's own
+            # measure): ramped further, they slid off the object one after the other, each
+            # slide a jump of the views (docs/contact.md, "The squeeze on estimates")
+            if self.desired_force(t) <= tc.detect_force + 1e-12:
                 self._land_again()
             return False
         for i in range(k):
@@ -226,9 +230,11 @@ class ArmsTouchServo(ArmsServo):
         self._rate = None
 
     def desired_force(self, t: float) -> float:
-        """The mean loop's desired force at ``t``: ``touch.force``, ramped linearly to zero
-        over ``unload_time`` once a landing off the marker is unloaded (both arms together,
-        the balance loop still on: a probe leaving first would push the drone sideways)."""
+        """The mean loop's desired force at ``t``: ``touch.force``, ramped linearly toward
+        zero at ``force / unload_time`` once a landing off the marker is unloaded (both arms
+        together, the balance loop still on: a probe leaving first would push the drone
+        sideways), until it is down to ``detect_force`` and the arms go back to their
+        approach."""
         tc = self.touch
         if self._unload_t is None:
             return tc.force
