@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from tdacm.estimation.contact_force import TipForceEstimator, normal_forces_of
-from tdacm.loop.touch_arms import arm_contact_forces
+from tdacm.loop.touch import CONTACT_CODE
+from tdacm.loop.touch_arms import (
+    arm_contact_forces,
+    balance_step,
+    squeeze_force_loops,
+    squeeze_reset,
+    squeeze_transitions,
+)
 from tdacm.sim import Simulation, load_scenario
 from tdacm.sim.assemble import build_loop, build_world
 from tdacm.sim.scenario import ScenarioError
@@ -112,9 +119,10 @@ def _servo_at_contact():
     a = build_loop(_squeeze())
     servo, q = a.loop.servo, a.world.q_star.copy()
     servo.reset(q)
-    servo._weights = [arm.ibvs.interaction(arm.desired_points, arm.desired_depths)
-                      for arm in servo.arms]  # fmt: skip
-    servo._pressing = {0, 1}
+    so = servo.squeeze_out
+    for k, arm in enumerate(servo.arms):
+        so.weights[k] = arm.ibvs.interaction(arm.desired_points, arm.desired_depths)
+    so.pressing[:] = True
     return servo, q
 
 
@@ -122,6 +130,24 @@ def _axial(servo, q, dq):
     """Each arm's camera displacement along its optical axis for the joint displacement
     ``dq``."""
     return np.array([(arm._ad_mount_inv @ arm.task_jacobian(q) @ dq)[5] for arm in servo.arms])
+
+
+def _balance_step(servo, q, a, forces, dt, qd=None):
+    """The compiled balance step on the servo's records with the forces used ``forces``."""
+    st = servo.squeeze_state
+    st.f_used[:] = forces
+    qd = np.zeros_like(q) if qd is None else qd
+    balance_step(servo.squeeze, st, servo.params, servo.arms[0].params, servo.arms[0].state,
+                 servo.arms[0]._m, dt, q, qd, a, servo.squeeze_out.weights)  # fmt: skip
+
+
+def _force_loops(servo, q, forces, dt, t=0.0):
+    """The compiled force loops on the servo's records with the forces used ``forces``."""
+    st = servo.squeeze_state
+    st.f_used[:] = forces
+    squeeze_force_loops(servo.law, servo.squeeze, st, servo.params, servo.arms[0].state,
+                        servo.arms[0]._m, t, dt, q, np.zeros_like(q),
+                        servo.squeeze_out.weights)  # fmt: skip
 
 
 def test_balance_direction_moves_one_probe_in_and_the_other_out():
@@ -140,10 +166,9 @@ def test_balance_direction_moves_one_probe_in_and_the_other_out():
     assert np.abs(np.delete(b, [3, 6, 8])).max() < 1e-9
     a = servo.squeeze_direction(q)
     np.testing.assert_allclose(_axial(servo, q, a), [1.0, 1.0], rtol=0.02)
-    lead, tc = servo.arms[0], servo.touch
-    lead.q_d = q.copy()
-    servo._qd = np.zeros_like(q)
-    servo._balance_step(q, a, [0.35, 0.25], 0.02)
+    lead, tc = servo.arms[0].state, servo.touch
+    lead.q_d[:] = q
+    _balance_step(servo, q, a, [0.35, 0.25], 0.02)
     dq = lead.q_d - q
     assert abs(a @ dq) < 1e-12 * np.linalg.norm(a) * np.linalg.norm(dq)
     bo = b - a * (a @ b) / (a @ a)  # the direction the step uses: b made orthogonal to a
@@ -161,16 +186,15 @@ def test_the_force_loops_engage_at_the_first_touch():
     loop moves the arm still off in (its camera forward, the touched one back); before any
     touch neither runs."""
     servo, q = _servo_at_contact()
-    lead, tc = servo.arms[0], servo.touch
-    servo.phases = ["contact", "contact"]
-    lead.q_d, lead.qd_d = q.copy(), np.zeros_like(q)
-    servo._qd = np.zeros_like(q)
+    lead, tc, st = servo.arms[0].state, servo.touch, servo.squeeze_state
+    st.phase[:] = CONTACT_CODE
+    lead.q_d[:], lead.qd_d[:] = q, 0.0
     forces = [0.15, 0.0]
-    servo._admittance(q, forces, 0.02, tc.force)
-    assert not servo._engaged and np.abs(lead.q_d - q).max() == 0.0  # nobody down yet
-    servo._touch_t = [10.0, None]  # arm 0 down, arm 1 not yet
-    servo._admittance(q, forces, 0.02, tc.force)
-    assert servo._engaged
+    _force_loops(servo, q, forces, 0.02)
+    assert not st.engaged[0] and np.abs(lead.q_d - q).max() == 0.0  # nobody down yet
+    st.touch_t[:] = [10.0, np.nan]  # arm 0 down, arm 1 not yet
+    _force_loops(servo, q, forces, 0.02)
+    assert st.engaged[0]
     a = servo.squeeze_direction(q)
     (b,) = servo.balance_directions(q)
     bo = b - a * (a @ b) / (a @ a)
@@ -214,32 +238,36 @@ def test_balance_damping_reads_the_drone_velocity():
     move nothing, and a drone velocity along x gives ``-c (dt / tau) v_x / b_x`` along the
     balance direction at the first period (the filtered rate starts from rest)."""
     servo, q = _servo_at_contact()
-    lead, tc = servo.arms[0], servo.touch
+    lead, tc, st = servo.arms[0].state, servo.touch, servo.squeeze_state
     a = servo.squeeze_direction(q)
     (b,) = servo.balance_directions(q)
     bo = b - a * (a @ b) / (a @ a)
-    lead.q_d = q.copy()
+    lead.q_d[:] = q
     qd = np.zeros_like(q)
     qd[6:] = [0.02, -0.02, 0.02, -0.02]  # 0.02 /m/s on every strain rate, as the EKF's noise
-    servo._qd = qd
-    servo._balance_step(q, a, [0.3, 0.3], 0.02)
+    _balance_step(servo, q, a, [0.3, 0.3], 0.02, qd)
     assert np.abs(lead.q_d - q).max() == 0.0
-    servo._rate, servo._balance = None, None
+    st.rate_on[0] = st.balance_on[0] = False
     qd = np.zeros_like(q)
     qd[3] = 0.01  # the drone moving along x at 1 cm/s
-    servo._qd = qd
-    servo._balance_step(q, a, [0.3, 0.3], 0.02)
+    _balance_step(servo, q, a, [0.3, 0.3], 0.02, qd)
     rate = bo[3] * 0.01 / bo[3] ** 2
     expected = -tc.balance_damping * (0.02 / tc.balance_filter) * rate
     np.testing.assert_allclose(lead.q_d - q, bo * expected, rtol=1e-9, atol=1e-15)
 
 
+def _transitions(servo, t, forces):
+    """The squeeze's phase changes at ``t`` with the filtered forces ``forces``."""
+    return squeeze_transitions(servo.law, servo.squeeze, servo.refs, servo.squeeze_state,
+                               servo._outs, t, np.asarray(forces, float))  # fmt: skip
+
+
 def _landed(servo, t, errors):
     """Both probes down at ``t`` (the filtered estimates at 0.12 N), their landings' task
     image errors ``errors``."""
-    servo.phases = ["contact", "contact"]
-    servo._transitions(t, None, [0.12, 0.12])
-    servo._task_err = list(errors)
+    servo.squeeze_state.phase[:] = CONTACT_CODE
+    _transitions(servo, t, [0.12, 0.12])
+    servo.squeeze_state.task_err[:] = errors
 
 
 def test_a_squeeze_landing_off_the_marker_is_unloaded_and_landed_again():
@@ -250,30 +278,30 @@ def test_a_squeeze_landing_off_the_marker_is_unloaded_and_landed_again():
     view) and the squeeze lands again; a landing on both markers starts the hold, and the
     ``max_landings``-th is held wherever it is."""
     servo, _ = _servo_at_contact()
-    tc = servo.touch
-    servo._reset_squeeze()
+    tc, st = servo.touch, servo.squeeze_state
+    squeeze_reset(st)
     _landed(servo, 10.0, [0.009, 0.003])  # arm 0 off the marker
-    assert servo._landings == 1
+    assert servo.landings == 1
     t = 10.0 + tc.settle
-    servo._transitions(t, None, [0.3, 0.3])
-    assert servo.phases == ["contact", "contact"] and servo._unload_t == t
+    _transitions(servo, t, [0.3, 0.3])
+    assert servo.phases == ["contact", "contact"] and st.unload_t[0] == t
     assert servo.desired_force(t + 0.5 * tc.unload_time) == pytest.approx(0.5 * tc.force)
     assert servo.desired_force(t + 2.0 * tc.unload_time) == 0.0
     leave = t + tc.unload_time * (1.0 - tc.detect_force / tc.force)  # down to detect_force
-    servo._transitions(leave - 0.02, None, [0.12, 0.12])
-    assert servo.phases == ["contact", "contact"] and servo._unload_t == t  # still unloading
+    _transitions(servo, leave - 0.02, [0.12, 0.12])
+    assert servo.phases == ["contact", "contact"] and st.unload_t[0] == t  # still unloading
     t = leave
-    servo._transitions(t, None, [0.12, 0.12])
-    assert servo.phases == ["approach", "approach"] and servo._touch_t == [None, None]
-    assert servo.desired_force(t) == tc.force and not servo._engaged
+    _transitions(servo, t, [0.12, 0.12])
+    assert servo.phases == ["approach", "approach"] and np.isnan(st.touch_t).all()
+    assert servo.desired_force(t) == tc.force and not st.engaged[0]
     _landed(servo, t + 10.0, [0.004, 0.006])  # both on their markers
-    assert servo._landings == 2
-    servo._transitions(t + 10.0 + tc.settle, None, [0.3, 0.3])
+    assert servo.landings == 2
+    _transitions(servo, t + 10.0 + tc.settle, [0.3, 0.3])
     assert servo.phases == ["hold", "hold"]
-    assert servo._hold_end == pytest.approx(t + 10.0 + tc.settle + tc.hold_time)
+    assert st.hold_end[0] == pytest.approx(t + 10.0 + tc.settle + tc.hold_time)
     # the last landing is held wherever it is
-    servo._reset_squeeze()
-    servo._landings = tc.max_landings - 1
+    squeeze_reset(st)
+    st.landings[0] = tc.max_landings - 1
     _landed(servo, 0.0, [0.02, 0.02])
-    servo._transitions(tc.settle, None, [0.3, 0.3])
-    assert servo.phases == ["hold", "hold"] and servo._landings == tc.max_landings
+    _transitions(servo, tc.settle, [0.3, 0.3])
+    assert servo.phases == ["hold", "hold"] and servo.landings == tc.max_landings

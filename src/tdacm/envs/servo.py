@@ -63,6 +63,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from .._records import take
 from ..loop.data import Termination
 from ..loop.policy import (
     ANGLE_SCALE,
@@ -241,12 +242,20 @@ class TipServoEnv(gym.Env):
         loop = self.loop
         views = getattr(view, "arms", ()) or (view,)
         blocks, rmses, seen_all, behind_any, points0 = [], [], True, False, None
+        # the squeeze's first part is the robot's (every arm's, then the squeeze's law), once
+        robot_views = getattr(loop.servo, "period_views", None)
+        outs = None
+        if robot_views is not None:
+            outs = robot_views(loop.plant.state.t, loop.dt, view, est, sensed.force)
         for k, (servo, v) in enumerate(zip(self._arm_servos, views, strict=True)):
             rmse = math.nan
             points = error = None
             behind = seen = False
-            if getattr(servo, "_compiled", False):  # the servo's compiled first part, once
-                out = servo.period_view(loop.plant.state.t, loop.dt, v, est, sensed.force)
+            if outs is not None or getattr(servo, "_compiled", False):  # compiled, once
+                if outs is not None:
+                    out = take(outs, k)
+                else:
+                    out = servo.period_view(loop.plant.state.t, loop.dt, v, est, sensed.force)
                 behind = bool(out.failure[0] == BEHIND)
                 seen = bool(out.seen[0])
                 if seen:

@@ -66,6 +66,19 @@ from .servo import (
     normalized_rmse,
 )
 
+#: :func:`arms_command`'s arguments for the stacked mapping of the arms' twists (no feature
+#: rows: :func:`feature_joint_rates` is the squeeze's)
+NO_WEIGHTS = np.zeros((0, 6, 6))
+NO_PRESSING = np.zeros(0, np.bool_)
+
+
+def twist_arguments(twist, k: int) -> np.ndarray:
+    """The external twists argument of :func:`arms_command` (6 ``k``; NaN: the IBVS twists)."""
+    if twist is None:
+        return np.full(6 * k, np.nan)
+    return np.ascontiguousarray(twist, dtype=float).reshape(6 * k)
+
+
 #: Per-arm series of :class:`ArmsLog` (one column per arm).
 ARM_SERIES = (
     "rmse_arms", "rmse_true_arms", "detected_arms", "points_arms", "points_local_arms",
@@ -283,14 +296,27 @@ class ArmsServo:
     def compiled_step(self, t, dt, view, gview, est, twist=None) -> ServoCommand:
         """One period of the compiled step: each arm's :func:`~.servo.servo_perceive`, then
         :func:`arms_command` with each arm's C_G snapshot read when its recovery needs one."""
-        c = np.ascontiguousarray
-        q = c(est.q, dtype=float)
-        k = len(self.arms)
-        m = self.arms[0]._m
-        outs = self._outs
+        q = self.perceive_arms(t, dt, view, est)
+        offered, g_found, corners, seen = self.global_arguments(gview)
+        tw = twist_arguments(twist, len(self.arms))
+        arms_command(self.params, self.state, self.arms[0]._m, float(t), float(dt), q, offered,
+                     tw, g_found, corners, seen, self._outs, self.memo, self._robot, NO_WEIGHTS,
+                     NO_PRESSING, 0.0)  # fmt: skip
+        return self.command_of_outputs()
+
+    def perceive_arms(self, t, dt, view, est) -> np.ndarray:
+        """The first part of the period of every arm (:meth:`~.servo.VisualServo.perceive_period`
+        into its row of the stacked outputs); returns the estimate's ``q``."""
         for arm, v in zip(self.arms, view.arms, strict=True):
             arm.perceive_period(t, dt, v, est)  # into its row of outs
             arm._memo = None
+        return np.ascontiguousarray(est.q, dtype=float)
+
+    def global_arguments(self, gview) -> tuple:
+        """``(offered, found (k,), corners (k, M, 4, 2), seen (k, M))`` of
+        :func:`arms_command`: each arm's C_G snapshot, read when its recovery needs one."""
+        k = len(self.arms)
+        outs = self._outs
         offered = gview is not None
         views = gview if isinstance(gview, tuple) else (gview,) * k
         m_count = self.params.marker_centres.shape[1]
@@ -301,10 +327,21 @@ class ArmsServo:
             for a, arm in enumerate(self.arms):
                 if outs.mode[a, 0] == RECOVERY and arm.state.traj_on[0] == 0.0:
                     g_found[a], corners[a], seen[a] = arm._global_corners(views[a])
-        tw = np.full(6 * k, np.nan) if twist is None else c(twist, dtype=float).reshape(6 * k)
-        robot, memo = self._robot, self.memo
-        arms_command(self.params, self.state, m, float(t), float(dt), q, offered, tw, g_found,
-                     corners, seen, outs, memo, robot)  # fmt: skip
+        return offered, g_found, corners, seen
+
+    def arm_state(self, a: int, out: ServoOut) -> ArmServoState:
+        """Arm ``a``'s :class:`ArmServoState` of its outputs ``out`` this period."""
+        seen = bool(out.seen[0])
+        meas = float(out.rmse_measured[0]) if self.arms[a].params.robust else math.nan
+        return ArmServoState(out.points.copy() if seen else None,
+                             float(out.rmse[0]) if seen else math.nan, meas, out.twist.copy(),
+                             seen)  # fmt: skip
+
+    def command_of_outputs(self, **extra) -> ServoCommand:
+        """The period's :class:`ServoCommand` of the compiled step's outputs (``extra``:
+        further fields); raises :class:`~tdacm.vision.virtual.BehindVirtualCamera` when a
+        point lies behind an arm's virtual camera (the loop ends the run)."""
+        outs, robot, memo = self._outs, self._robot, self.memo
         self._lost = bool(memo.lost[0])
         failure = None
         if robot.failure[0] != NO_FAILURE:
@@ -322,25 +359,18 @@ class ArmsServo:
                 "success": bool(o.plan_success[0]), "duration": float(o.plan_duration[0]),
                 "arm": a,
             }  # fmt: skip
-        states = []
-        for a, arm in enumerate(self.arms):
-            o = take(outs, a)
-            seen_a = bool(o.seen[0])
-            meas = float(o.rmse_measured[0]) if arm.params.robust else math.nan
-            states.append(ArmServoState(o.points.copy() if seen_a else None,
-                                        float(o.rmse[0]) if seen_a else math.nan, meas,
-                                        o.twist.copy(), seen_a))  # fmt: skip
+        states = tuple(self.arm_state(a, take(outs, a)) for a in range(len(self.arms)))
         o0, lead = take(outs, 0), self.arms[0]
         seen0 = bool(o0.seen[0])
-        extra = {}
         if lead.params.robust:
             extra["target_pose"] = lead.state.target_pose.copy() if lead.state.tp_set[0] else None
+        event = extra.pop("event", None) or EVENT_NAMES.get(int(robot.event[0]))
         return ServoCommand(
             self.mode, lead.state.q_d.copy(), lead.state.qd_d.copy(), robot.qdd_d.copy(),
             robot.twist.copy(), o0.features.copy() if seen0 else None,
             o0.error.copy() if seen0 else None, o0.points.copy() if seen0 else None,
-            float(robot.rmse[0]), event=EVENT_NAMES.get(int(robot.event[0])), failure=failure,
-            rmse_measured=float(robot.rmse_measured[0]), arms=tuple(states),
+            float(robot.rmse[0]), event=event, failure=failure,
+            rmse_measured=float(robot.rmse_measured[0]), arms=states,
             request_global=bool(robot.request[0]), plan=plan, **extra,
         )  # fmt: skip
 
@@ -475,16 +505,24 @@ class ArmsLog(RunLog):
 
 
 @njit(cache=True)
+def _level(q, m):
+    """``q_v``: ``q`` with the drone's roll and pitch zero on a floating base (the virtual
+    camera's chain, docs/control.md), a copy."""
+    qv = q.copy()
+    if m.floating:
+        qv[0] = 0.0
+        qv[1] = 0.0
+    return qv
+
+
+@njit(cache=True)
 def stacked_joint_rates(ps, m, q, twists, out):
     """``qdot_d[c] = [J_k(q_v)[:, c]]_k^+ [Ad(g_{C_Lk}^{Lk}) v_k]_k`` over the commanded
     coordinates ``c`` of the arms' records ``ps`` (stacked) for their twists ``twists`` (k, 6),
     ``q_v`` ``q`` with roll and pitch zero (docs/control.md, "Two arms")."""
     k = twists.shape[0]
     n = q.shape[0]
-    qv = q.copy()
-    if m.floating:
-        qv[0] = 0.0
-        qv[1] = 0.0
+    qv = _level(q, m)
     lead = take(ps, 0)
     cmd = lead.commanded
     jc = np.empty((6 * k, cmd.shape[0]))
@@ -507,6 +545,75 @@ def stacked_joint_rates(ps, m, q, twists, out):
         out[cmd[c]] = x[c]
 
 
+@njit(cache=True)
+def feature_joint_rates(ps, m, q, twists, weights, pressing, axial_weight, separate, out):
+    """The stacked mapping in feature space (the squeeze's, :mod:`tdacm.loop.touch_arms`) into
+    ``out`` (n,): arm ``a``'s rows ``W_a Ad(g_{C_La}^{La})^-1 J_a(q_v)[:, c]`` against
+    ``W_a v_a`` (``weights`` (k, 6, 6): each arm's interaction matrix this period, ``twists``
+    (k, 6)), least squares over the commanded coordinates ``c`` (pseudo-inverse); for an arm
+    in ``pressing`` (k,) its distance row (the sixth) is replaced by its camera's axial
+    velocity weighted by ``axial_weight``: one row for the sum of the pressing arms' axial
+    velocities, or with ``separate`` one row per pressing arm."""
+    k = twists.shape[0]
+    n = q.shape[0]
+    qv = _level(q, m)
+    cmd = take(ps, 0).commanded
+    nc = cmd.shape[0]
+    n_pressing = 0
+    for a in range(k):
+        if pressing[a]:
+            n_pressing += 1
+    rows = 6 * k - n_pressing
+    if separate:
+        rows += n_pressing
+    elif n_pressing > 0:
+        rows += 1
+    lhs = np.zeros((rows, nc))
+    rhs = np.zeros(rows)
+    axial = np.zeros(nc)
+    speed = 0.0
+    jac = np.empty((6, n))
+    jc = np.empty((6, nc))
+    r = 0
+    for a in range(k):
+        p = take(ps, a)
+        tip_jacobian_into(qv, m, p.rod, jac)
+        for i in range(6):
+            for c in range(nc):
+                acc = 0.0
+                for j in range(6):
+                    acc += p.ad_mount_inv[i, j] * jac[j, cmd[c]]
+                jc[i, c] = acc
+        w = weights[a]
+        last = 5 if pressing[a] else 6
+        for i in range(last):
+            acc = 0.0
+            for j in range(6):
+                acc += w[i, j] * twists[a, j]
+                for c in range(nc):
+                    lhs[r, c] += w[i, j] * jc[j, c]
+            rhs[r] = acc
+            r += 1
+        if pressing[a]:
+            if separate:
+                for c in range(nc):
+                    lhs[r, c] = axial_weight * jc[5, c]
+                rhs[r] = axial_weight * twists[a, 5]
+                r += 1
+            for c in range(nc):
+                axial[c] += jc[5, c]
+            speed += twists[a, 5]
+    if n_pressing > 0 and not separate:
+        for c in range(nc):
+            lhs[r, c] = axial_weight * axial[c]
+        rhs[r] = axial_weight * speed
+    x = svd_solve(lhs, rhs, SVD_PINV, 1e-8)
+    for i in range(n):
+        out[i] = 0.0
+    for c in range(nc):
+        out[cmd[c]] = x[c]
+
+
 class ArmsMemo(NamedTuple):
     """The servo of several arms' own state and outputs besides its arms': whether an arm
     was in recovery last period (``lost`` (1,) bool), the arm whose failure ends the run
@@ -524,7 +631,7 @@ class ArmsMemo(NamedTuple):
 
 @njit(cache=True)
 def arms_command(ps, ss, m, t, dt, q, offered, twist_in, g_found, corners, marker_seen, outs,
-                 memo, robot):  # fmt: skip
+                 memo, robot, weights, pressing, axial_weight):  # fmt: skip
     """The end of a period of the servo of several arms (after each arm's
     :func:`~.servo.servo_perceive` into its outputs ``outs``; module docstring) on the arms'
     records ``ps``, ``ss`` (stacked): the robot's event (an arm losing its target; IBVS
@@ -533,7 +640,9 @@ def arms_command(ps, ss, m, t, dt, q, offered, twist_in, g_found, corners, marke
     ``corners`` (k, M, 4, 2), ``marker_seen`` (k, M); the drone and the other rods hold),
     else, when every arm sees its target, the stacked joint rates (:func:`stacked_joint_rates`)
     of the arms' twists (IBVS, or ``twist_in`` (6 k) when finite) followed by arm 0's servo
-    (its ``q_d``, ``qd_d`` are the robot's reference), else a hold. ``robot`` (a
+    (its ``q_d``, ``qd_d`` are the robot's reference), else a hold; with ``weights`` (k, 6, 6; none: (0, 6, 6)) the rates are the stacked mapping
+    in feature space (:func:`feature_joint_rates` with ``pressing`` and ``axial_weight``: the
+    squeeze's). ``robot`` (a
     :class:`~.servo.ServoOut`) receives the robot's mode (recovery if an arm recovers),
     event, failure, request, the worst arm's RMSEs (NaN if an arm has none), arm 0's twist
     and ``qdd_d``; ``memo`` (:class:`ArmsMemo`) the arms that failed or planned."""
@@ -611,7 +720,10 @@ def arms_command(ps, ss, m, t, dt, q, offered, twist_in, g_found, corners, marke
             robot.event[0] = RECOVERY_PLANNED
     elif all_seen:
         rates = np.empty(n)
-        stacked_joint_rates(ps, m, q, twists, rates)
+        if weights.shape[0] > 0:
+            feature_joint_rates(ps, m, q, twists, weights, pressing, axial_weight, False, rates)
+        else:
+            stacked_joint_rates(ps, m, q, twists, rates)
         follow(take(ps, 0), lead, m, q, rates, t, dt, robot.qdd_d)
     else:  # an arm's target not seen this period (nothing fused yet): hold
         for i in range(n):

@@ -426,27 +426,35 @@ class TouchOut(NamedTuple):
 
 class TouchRecords(NamedTuple):
     """The touch servo's and force estimate's records of a batch's worlds (the engine's,
-    stacked over the worlds): whether the worlds servo into contact (``on``, one arm; else
-    the records below are unused), the law (:class:`TouchLaw`), the views
-    (:class:`TouchRefs`) and the tip force estimate's record
-    (:class:`~tdacm.estimation.contact_force.ForceParams`)."""
+    stacked over the worlds): whether the worlds servo into contact with one arm (``on``) or
+    squeeze with several (``squeeze_on``; neither: the records below are unused), the law
+    (:class:`TouchLaw`), the views of one arm (:class:`TouchRefs`), the tip force estimate's
+    record (:class:`~tdacm.estimation.contact_force.ForceParams`, every arm's), and the
+    squeeze's law (:class:`~tdacm.loop.touch_arms.SqueezeLaw`) and every arm's views
+    (``arm_refs``: :class:`TouchRefs` with an arm axis)."""
 
     on: bool
     law: object
     refs: object
     force: object
+    squeeze_on: bool
+    squeeze: object
+    arm_refs: object
 
 
 class TouchData(NamedTuple):
     """The touch servo's state in a batch's worlds (stacked): the law's
     (:class:`TouchState`) and what it did in the period (:class:`TouchOut`), the force
     estimate's state and reading (:class:`~tdacm.estimation.contact_force.ForceState`,
-    ``ForceOut``)."""
+    ``ForceOut``), and the squeeze's (:class:`~tdacm.loop.touch_arms.SqueezeState`,
+    ``SqueezeOut``)."""
 
     state: object
     out: object
     force: object
     force_out: object
+    squeeze_state: object
+    squeeze_out: object
 
 
 @njit(cache=True)
@@ -696,8 +704,8 @@ class TouchServo(RobustServo):
 
     Its period is the compiled :func:`touch_perceive` and :func:`touch_command` over the
     servo's records and the law's (:attr:`law`, :attr:`refs`, :attr:`touch_state`). The
-    squeeze's arms (:class:`~tdacm.loop.touch_arms.ArmsTouchServo`) read the views through
-    :meth:`local_view`, :meth:`pinned_twist` and the robust servo's methods."""
+    squeeze (:class:`~tdacm.loop.touch_arms.ArmsTouchServo`) runs one per arm for its records
+    and its first part (:meth:`perceive_period`), its own law over them."""
 
     def __init__(self, *args, touch: TouchConfig | None = None, local_reference=None, **kwargs):
         self.touch = touch or TouchConfig(enabled=True)  # before the base's reset
@@ -716,7 +724,6 @@ class TouchServo(RobustServo):
         self.law = TouchLaw.from_config(tc)
         self._touch_out = TouchOut.empty()
         self._compiled = True  # the period is touch_perceive and touch_command
-        self._ps = None
         self._touch_memo = None  # period_view's (view, estimate) this period
         touch_reset(self.touch_state)
 
@@ -744,7 +751,7 @@ class TouchServo(RobustServo):
         return self._target_pose
 
     @target_pose.setter
-    def target_pose(self, value) -> None:  # the robust servo's methods (the squeeze's arms)
+    def target_pose(self, value) -> None:  # the robust servo's set-up
         self._target_pose = value
 
     @property
@@ -767,17 +774,6 @@ class TouchServo(RobustServo):
         touch_reset(self.touch_state)
         self._touch_memo = None
 
-    def as_arm(self) -> None:
-        """This servo is one arm of the squeeze (:class:`~.touch_arms.ArmsTouchServo`), which
-        runs its Python methods (:meth:`perceive`, :meth:`local_view`, :meth:`pinned_twist`),
-        not its compiled period."""
-        self._compiled = False
-
-    def predicted_view(self, servo_pose, camera_pose=None):
-        ps = super().predicted_view(servo_pose, camera_pose)
-        self._ps = ps
-        return ps
-
     def local_view(self, q) -> PredictedView:
         """The target's points predicted in the tip camera C_L at the estimated pose ``q``
         (from the same smoothed target estimate as the C_V prediction), with their features,
@@ -790,16 +786,6 @@ class TouchServo(RobustServo):
             return PredictedView()
         f, e, v = self.local_ibvs.features_error_twist(xy, z)
         return PredictedView(xy, z, f, e, v)
-
-    def pinned_twist(self, lv: PredictedView, ps: PredictedView | None) -> np.ndarray:
-        """The pinned law's C_L twist: :func:`pinned_error` of C_L's prediction ``lv`` and
-        C_V's ``ps`` through C_L's interaction matrix, without the axial translation (the
-        admittance sets it)."""
-        virtual = ps.error if ps is not None and ps.valid else None
-        e = pinned_error(lv.error, virtual)
-        v = self.local_ibvs.twist(lv.points, lv.depths, error=e)
-        v[5] = 0.0
-        return v
 
     def predicted(self) -> PredictedView:
         """The C_V view predicted in the last period (before the pinned view replaced it)."""

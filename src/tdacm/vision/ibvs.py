@@ -122,17 +122,23 @@ def ibvs_law(p, z, desired, interaction_desired, mode, gain, floor, damped):
 
 
 @njit(cache=True)
+def law_interaction(p, z, interaction_desired, mode):
+    """``J_img`` (6, 6) the law uses at the checked points ``p`` (4, 2) and depths ``z`` (4,)
+    (:meth:`IBVSController.interaction`; :func:`ibvs_law`'s ``mode``): the desired view's
+    ``interaction_desired``, the current one, or their mean (a new array)."""
+    if mode == 1:
+        return interaction_desired.copy()
+    if mode == 0:
+        return _interaction_kernel(p, z)
+    return 0.5 * (_interaction_kernel(p, z) + interaction_desired)
+
+
+@njit(cache=True)
 def ibvs_twist_of(p, z, e, interaction_desired, mode, gain, floor, damped):
     """The law's twist ``v = -gain J_img^+ e`` (paper eq. (39)) for a given feature error
     ``e`` (6,) at the checked points ``p`` (4, 2) and depths ``z`` (4,) (:func:`ibvs_law`'s
     ``mode``, ``floor`` and ``damped``): the servo's twist on an error it composed itself."""
-    if mode == 1:
-        jac = interaction_desired.copy()
-    elif mode == 0:
-        jac = _interaction_kernel(p, z)
-    else:
-        jac = 0.5 * (_interaction_kernel(p, z) + interaction_desired)
-    x = ibvs_solve(jac, e, floor, damped)
+    x = ibvs_solve(law_interaction(p, z, interaction_desired, mode), e, floor, damped)
     v = np.empty(6)
     for k in range(6):
         v[k] = -gain * x[k]
