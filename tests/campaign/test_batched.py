@@ -106,6 +106,27 @@ success_hold_force_rms = 0.2
 """
 
 
+#: the two-arm squeeze from 1 cm above its contact pose with a 1 cm standoff, no model error
+#: (both touches, the 3 s hold from about 7.5 s), the board tilted per run: each arm's marker
+#: with the run's tilt, the per-arm force and task image error columns
+SQUEEZE = """
+scenario = "dual-squeeze"
+runs = 2
+seed = 6
+duration = 11.0
+success_rmse = 0.01
+success_hold_force_rms = 0.2
+[distributions]
+"initial.q" = { kind = "fixed", value = [0.0, 0.0, 0.0, 0.0, 0.0, 2.0199, 0.4, 0.0, -0.4, 0.0] }
+"model.perturbation" = { kind = "fixed", value = 0.0 }
+"scene.target_tilt_deg" = { kind = "normal", std = [0.5, 0.5] }
+"touch.standoff" = { kind = "fixed", value = 0.01 }
+"touch.dwell" = { kind = "fixed", value = 0.1 }
+"cameras.local_renderer" = { kind = "fixed", value = "analytic" }
+"cameras.global_renderer" = { kind = "fixed", value = "planar" }
+"""
+
+
 @pytest.mark.parametrize(
     "text, scenario",
     [
@@ -114,8 +135,16 @@ success_hold_force_rms = 0.2
         (PER_WORLD, "paper-in-fov"),
         (ON_ESTIMATES, "paper-in-fov"),
         (TOUCH, "touch-target"),
+        (SQUEEZE, "dual-squeeze"),
     ],
-    ids=["in-fov", "recovery-then-safety-stop", "per-world-parameters", "on-estimates", "touch"],
+    ids=[
+        "in-fov",
+        "recovery-then-safety-stop",
+        "per-world-parameters",
+        "on-estimates",
+        "touch",
+        "squeeze",
+    ],  # fmt: skip
 )
 def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
     """Runs with sampled initial states and seeded model errors (in-FoV: 8 runs to their
@@ -136,7 +165,8 @@ def test_noise_free_batched_rows_equal_the_block_loop_rows(text, scenario):
                 assert _same(b.get(k), r.get(k)), (b["run"], k, b.get(k), r.get(k))
     if "estimated" in text:
         assert all(np.isfinite(r["strain_estimation_rms"]) for r in rows)
-    if scenario == "touch-target":  # held, judged on the true force and the task's view
+    if scenario in ("touch-target", "dual-squeeze"):  # held, judged on the true force and
+        # the task's view (the squeeze: every arm's)
         assert all(r["success"] and r["hold_force_rms_rel"] < 0.2 for r in rows)
     finals = [r["final_rmse"] for r in rows]
     assert len(set(np.round(finals, 9))) == spec.runs  # the runs differ (q0, model error)

@@ -16,9 +16,11 @@ The engine's one compiled entry is :func:`worlds` (:func:`step_worlds`, :func:`r
             the servo's view, target filter and   loop.servo.servo_perceive
             mode switch
             (into contact: the tip force          estimation.contact_force.force_step,
-            estimate, the touch law's view)       loop.touch.touch_perceive
+            estimate, the touch law's view)       loop.touch.touch_perceive (a squeeze:
+                                                  loop.touch_arms.squeeze_perceive)
     act     C_G's snapshot when the recovery      loop.servo.needs_global, servo_command
-            needs one; IBVS or recovery           (into contact: loop.touch.touch_command)
+            needs one; IBVS or recovery           (into contact: loop.touch.touch_command,
+                                                  loop.touch_arms.squeeze_command)
             the low-level controller              control.hierarchical.controller_step
             the safety monitor                    loop.safety.safety_arm, safety_check
             the plant over the period             loop.plant.plant_step
@@ -69,6 +71,7 @@ from ..loop.servo import (
     servo_reset,
 )
 from ..loop.touch import touch_command, touch_perceive, touch_reset
+from ..loop.touch_arms import squeeze_command, squeeze_perceive, squeeze_reset
 from ..system.worlds import model_of_world
 from ..vision.camera import normalize_into
 from .random import normal, uniform
@@ -388,8 +391,9 @@ def reset_worlds(model, data, which, q0, qd0):
         data.robot_out.rmse[w, 0] = np.nan
         for a in range(model.n_arms):
             data.servo_out.rmse[w, a, 0] = np.nan
-        if model.touch.on:
+        if model.touch.on or model.touch.squeeze_on:  # one arm's law or the squeeze
             touch_reset(take(data.touch.state, w))
+            squeeze_reset(take(data.touch.squeeze_state, w))
             force_reset(take(data.touch.force, w))
 
 
@@ -442,20 +446,28 @@ def sense(model, data, w):
         servo_perceive(take_at(model.servo, w, a), take_at(data.servo, w, a), mw, k * dt,
                        dt, k, q_est, p_qq, f.found[0], f.uv, f.xy, f.z, f.capture[0],
                        take_at(data.servo_out, w, a))  # fmt: skip
-    if model.touch.on:  # the tip force estimate, then the touch law's view (one arm); the
+    tm, td = model.touch, data.touch
+    fo = take(td.force_out, w)
+    if tm.on or tm.squeeze_on:  # the tip force estimate, then the touch law's view; the
         # force step shares no state with the servo's view above: the block loop's numbers
-        tm, td = model.touch, data.touch
         qd_est = data.estimation.qd_hat[w] if model.estimation.on else data.qd[w]
         mc = model_of_world(model.control_model, rw)
-        fo = take(td.force_out, w)
         force_step(take(tm.force, w), take(td.force, w), mc, q_est, qd_est, data.u[w], k > 0,
                    np.zeros((0, 0)), dt, fo)  # fmt: skip
+    if tm.on:  # one arm
         f_hat = fo.force[0] if fo.valid[0] else np.nan
         f = take_at(data.frame, w, 0)
         touch_perceive(take(tm.law, w), take(tm.refs, w), take(td.state, w),
                        take_at(model.servo, w, 0), take_at(data.servo, w, 0), mw, k * dt, dt,
                        q_est, f.found[0], f.xy, f_hat, take_at(data.servo_out, w, 0),
                        take(td.out, w))  # fmt: skip
+    elif tm.squeeze_on:  # the squeeze of several arms, on every arm's frame
+        f_hats = fo.force.copy() if fo.valid[0] else np.full(model.n_arms, np.nan)
+        squeeze_perceive(take(tm.law, w), take(tm.squeeze, w), take(tm.arm_refs, w),
+                         take(td.squeeze_state, w), take(model.servo, w), take(data.servo, w),
+                         mw, k * dt, dt, q_est, np.ascontiguousarray(data.frame.found[w, :, 0]),
+                         data.frame.xy[w], f_hats, take(data.servo_out, w),
+                         take(td.squeeze_out, w))  # fmt: skip
 
 
 @njit(cache=True)
@@ -501,24 +513,34 @@ def act(model, data, w, twist_in):
             g_found[a] = analytic_detect(gp, g_c, uv, corners[a], seen[a])
             for i in range(m_count):
                 g_found[a] = g_found[a] or seen[a, i]
-    if model.touch.on:  # the touch servo (one arm); a new phase or view re-arms the monitor
+    changed = tare = False  # the touch law's phase or view; its force estimate's tare
+    if model.touch.on:  # the touch servo (one arm)
         out = take(outs, 0)
         ts, tout = take(data.touch.state, w), take(data.touch.out, w)
         touch_command(take(model.touch.law, w), ts, take(servos, 0), take(states, 0), mw, t,
                       dt, q_est, offered, twist_in, g_found[0], corners[0], seen[0], out)  # fmt: skip
         copy_into(out, robot)
-        if tout.phase_changed[0] or tout.switched[0]:
-            safety_arm(take(data.safety, w), t)
-        if tout.tare[0]:
-            force_tare(take(data.touch.force, w))
+        changed, tare = tout.phase_changed[0] or tout.switched[0], tout.tare[0]
     elif karms == 1:
         out = take(outs, 0)
         servo_command(take(servos, 0), take(states, 0), mw, t, dt, q_est, offered, twist_in,
                       g_found[0], corners[0], seen[0], out)  # fmt: skip
         copy_into(out, robot)
+    elif model.touch.squeeze_on:  # the squeeze of several arms
+        so = take(data.touch.squeeze_out, w)
+        squeeze_command(take(model.touch.law, w), take(model.touch.squeeze, w),
+                        take(data.touch.squeeze_state, w), so, servos, states, mw, t, dt, q_est,
+                        qd_est, offered, twist_in, g_found, corners, seen, outs,
+                        take(data.memo, w), robot)  # fmt: skip
+        changed, tare = so.phase_changed[0], so.tare[0]
     else:
         arms_command(servos, states, mw, t, dt, q_est, offered, twist_in, g_found, corners, seen,
-                     outs, take(data.memo, w), robot)  # fmt: skip
+                     outs, take(data.memo, w), robot, np.zeros((0, 6, 6)), np.zeros(0, np.bool_),
+                     0.0)  # fmt: skip
+    if changed:  # a new phase or view of the touch law re-arms the safety monitor
+        safety_arm(take(data.safety, w), t)
+    if tare:
+        force_tare(take(data.touch.force, w))
     lead = take(states, 0)
     data.request[w] = robot.request[0]
     if robot.event[0] == IBVS_ENGAGED:  # the safety monitor re-arms (its grace period)

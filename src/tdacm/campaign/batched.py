@@ -185,7 +185,11 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
     # non-finite command
     unrecorded = np.array([E.BEHIND_CAMERA, E.RECOVERY_FAILED, E.NON_FINITE])
     nan_twist = np.full((nw, 6 * k), np.nan)
-    touch = _TouchLog(periods, d) if model.touch.on else None
+    touch = None
+    if model.touch.on:
+        touch = _TouchLog(periods, d)
+    elif model.touch.squeeze_on:
+        touch = _SqueezeLog(periods, d)
     for p in range(periods):
         active = d.active.copy()
         if not active.any():
@@ -225,7 +229,7 @@ def _run_worlds(spec, scenario, rows, q0s, qd0s, threads, cfgs) -> list[dict]:
             arrays["rmse_true_arms"] = np.full((int(sel.sum()), k), np.nan)
         if touch is not None:
             arrays.update(touch.arrays(a, params, w, sel, arrays["q"], model))
-        summary = _summary(a, arrays, d, w, wall, spec, row)
+        summary = _summary(a, arrays, d, w, wall, spec, row, params)
         _fill(spec, row, summary, arrays["t"], arrays["rmse"])
     return rows
 
@@ -290,6 +294,73 @@ class _TouchLog:
         }  # fmt: skip
 
 
+class _SqueezeLog(_TouchLog):
+    """The squeeze's series of a batch's worlds, as the block loop's log of several arms
+    records them (:class:`~tdacm.loop.touch_arms.ArmsTouchLog`): per period the run's and
+    each arm's phase, the landings, each arm's force estimate with its normal and its task
+    image error of the detected C_L points; per sample afterwards each arm's contact force
+    and true force along its normal, and the true C_L points' task errors."""
+
+    def __init__(self, periods: int, d):
+        super().__init__(periods, d)
+        nw, k = d.touch.squeeze_state.phase.shape
+        self.phase_arms = np.full((periods, nw, k), -1, np.int64)
+        self.force_arms = np.full((periods, nw, k), np.nan)
+        self.normal_arms = np.full((periods, nw, k, 3), np.nan)
+        self.local_arms = np.full((periods, nw, k), np.nan)
+
+    def record(self, p: int, d, model) -> None:
+        td = d.touch
+        st = td.squeeze_state
+        self.phase_arms[p] = st.phase
+        self.phase[p] = st.phase.min(axis=1)  # the run's: the least advanced arm's
+        self.landing[p] = st.landings[:, 0]
+        ok = td.force_out.valid[:, 0]
+        self.valid[p] = ok
+        self.force_arms[p] = np.where(ok[:, None], td.force_out.force, np.nan)
+        self.normal_arms[p] = td.force_out.normals
+        diff = d.frame.xy - model.touch.arm_refs.local_points  # (worlds, arms, 4, 2)
+        err = np.sqrt(np.sum(diff * diff, axis=3).sum(axis=2) / 4.0)
+        self.local_arms[p] = np.where(d.frame.found[:, :, 0], err, np.nan)
+
+    def arrays(self, a, params, w, sel, q, model) -> dict:
+        """World ``w``'s series at its recorded samples ``sel``, at the states ``q``."""
+        from ..loop.touch import task_image_error
+
+        log = a.loop.log
+        refs = model.touch.arm_refs.local_points[w]
+        qd = self.qd[sel, w]
+        m, k = q.shape[0], self.phase_arms.shape[2]
+        per = np.zeros((m, k, 3))
+        for i in range(m):
+            per[i] = log.arm_forces(q[i], qd[i])
+        valid = self.valid[sel, w]
+        true = np.where(valid[:, None], np.einsum("ikj,ikj->ik", per, self.normal_arms[sel, w]),
+                        np.linalg.norm(per, axis=2))  # fmt: skip
+        hat = self.force_arms[sel, w]
+        local_true = np.full((m, k), np.nan)
+        for j in range(k):
+            truth = _arm_truth(a, params, w, j, virtual=False)
+            for i in range(m):
+                local_true[i, j] = task_image_error(truth(q[i])[0], refs[j])
+        local = self.local_arms[sel, w]
+        return {
+            "force_true_arms": true, "force_hat_arms": hat, "force_true": true.mean(axis=1),
+            "force_hat": hat.mean(axis=1), "touch_phase": self.phase[sel, w],
+            "touch_phase_arms": self.phase_arms[sel, w], "touch_landing": self.landing[sel, w],
+            "contact_force_arms": np.linalg.norm(per, axis=2), "rmse_local_arms": local,
+            "rmse_local_true_arms": local_true, "rmse_local": _worst_rows(local),
+            "rmse_local_true": _worst_rows(local_true),
+        }  # fmt: skip
+
+
+def _worst_rows(x) -> np.ndarray:
+    """Each row's largest finite value (NaN where a row has none)."""
+    finite = np.isfinite(x)
+    out = np.where(finite, x, -np.inf).max(axis=1)
+    return np.where(finite.any(axis=1), out, np.nan)
+
+
 def _fill(spec, row, summary, t, rmse) -> None:
     from .spec import succeeded
     from .store import ROW_FIELDS
@@ -328,11 +399,31 @@ def _true_rmse(a, params, w, model, q) -> np.ndarray:
     from ..loop.servo import normalized_rmse
 
     out = np.full(q.shape[0], np.nan)
+    if not q.shape[0]:
+        return out
+    if model.n_arms > 1:  # the largest of the arms' (the block loop's ArmsLog)
+        out[-1] = max(
+            normalized_rmse(_arm_truth(a, params, w, k)(q[-1])[0], model.servo.desired_points[w, k])
+            for k in range(model.n_arms)
+        )
+        return out
     truth = _truth(a, params, w)
-    if truth is not None and q.shape[0]:
+    if truth is not None:
         pts, _ = truth(q[-1])
         out[-1] = normalized_rmse(pts, model.servo.desired_points[w, 0])
     return out
+
+
+def _arm_truth(a, params, w, k, virtual: bool = True):
+    """:func:`_truth` of arm ``k`` of a robot with several arms (its marker, with the world's
+    board tilt)."""
+    from dataclasses import replace
+
+    from ..sim.batch import arm_scene
+    from ..sim.blocks import truth_of
+
+    world = replace(a.world, scene=arm_scene(a.world, params, w, k))
+    return truth_of(world, a.loop.sensors.locals_[k], virtual=virtual)
 
 
 def _truth(a, params, w, virtual: bool = True):
@@ -353,13 +444,24 @@ def _truth(a, params, w, virtual: bool = True):
     return truth_of(world, loop.sensors.local, virtual=virtual)
 
 
-def _summary(a, arrays, d, w, wall, spec, row) -> dict:
+def _summary(a, arrays, d, w, wall, spec, row, params) -> dict:
     """World ``w``'s summary: :func:`tdacm.sim.runner.run_summary`, the block loop's, from its
-    logged ``arrays`` and how it ended."""
+    logged ``arrays`` and how it ended, judged in its own scene (its target pose of
+    ``params``: the target estimate's error)."""
+    from dataclasses import replace
+
     from .._records import take
     from ..batch.engine import TERMINATIONS
     from ..loop.servo import filter_estimate
+    from ..sim.batch import arm_scene, world_scene
     from ..sim.runner import RunOutcome, run_summary
+
+    if d.servo_out.rmse.shape[1] > 1:  # several arms: arm 0's marker (the summary's)
+        scene = arm_scene(a.world, params, w, 0)
+    else:
+        scene = world_scene(a.world, params, w)
+    if scene is not a.world.scene:
+        a = replace(a, world=replace(a.world, scene=scene))
 
     code = int(d.termination[w])
     t, mode = arrays["t"], arrays["mode"]

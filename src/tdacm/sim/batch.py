@@ -47,6 +47,13 @@ from ..loop.touch import (
     TouchState,
     touch_views,
 )
+from ..loop.touch_arms import (
+    ArmsForceBlock,
+    ArmsTouchServo,
+    SqueezeLaw,
+    SqueezeOut,
+    SqueezeState,
+)
 from ..system.kernels import coupled_terms
 from ..system.worlds import robot_rows
 from ..vision.features import advanced_features, feature_interaction_matrix
@@ -117,6 +124,19 @@ def world_params(scenario: Scenario, configs, keys) -> WorldParams | None:
     return WorldParams(**out) if out else None
 
 
+def arm_scene(world, params: WorldParams | None, w: int, k: int):
+    """World ``w``'s scene of arm ``k`` of a robot with several arms: the arm's marker
+    (its own place and yaw) with the world's board tilt from ``params`` plus the arm's
+    ``marker.extra_tilt_deg``, as :func:`~tdacm.sim.assemble.build_world` builds it for that
+    world's scenario (the scenario's ``box_xy`` and ``target_yaw_deg`` place no arm's
+    marker)."""
+    base = world.scenes[k]
+    if params is None or params.target_tilt_deg is None:
+        return base
+    tilt = np.add(params.target_tilt_deg[w], world.robot.arms[k].marker_tilt_deg)
+    return replace(base, target_tilt_deg=tuple(float(x) for x in tilt))
+
+
 def world_scene(world, params: WorldParams | None, w: int):
     """World ``w``'s scene (of a :class:`~tdacm.sim.assemble.World`): the scenario's with
     its target pose from ``params``."""
@@ -164,11 +184,8 @@ def refuse(loop) -> None:
         raise Unsupported(
             "the engine's tip camera is analytic: set cameras.local_renderer = 'analytic'"
         )
-    several = isinstance(loop.servo, ArmsServo)
-    if several and type(loop.servo) is not ArmsServo:
-        raise Unsupported(
-            "touch.enabled with robot.arms: the squeeze is not batched (it runs in the block loop)"
-        )
+    if isinstance(loop.servo, ArmsServo) and type(loop.servo) not in (ArmsServo, ArmsTouchServo):
+        raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched")
     if any(type(s) not in (VisualServo, RobustServo, TouchServo) for s in servos):
         raise Unsupported(f"the servo {type(loop.servo).__name__} is not batched")
     if not isinstance(loop.estimator, TrueState | FilterBlock):
@@ -176,7 +193,7 @@ def refuse(loop) -> None:
             f"estimation: the engine runs the true state or the shipped EKF, got "
             f"{type(loop.estimator).__name__}"
         )
-    if loop.force is not None and type(loop.force) is not TipForceBlock:
+    if loop.force is not None and type(loop.force) not in (TipForceBlock, ArmsForceBlock):
         raise Unsupported(f"the force block {type(loop.force).__name__} is not batched")
     if loop.force is not None and loop.force.kind != "momentum":
         raise Unsupported(
@@ -247,13 +264,13 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
         # the force estimate's model is the controller's (the seed's model error, the world's
         # damping)
         out["force"] = loop.force.record(a.model)._replace(model=ctl.model)
-        out["touch_refs"] = servo0.refs
+        out["touch_refs"] = [servo.refs for servo in servos]  # every arm's
     for k, (local, glob, perception, servo) in enumerate(
         zip(locals_, globals_, perceptions, servos, strict=True)
     ):
         sensor, g_rec = local.params, glob.params
         base_scene = world.scenes[k] if several else world.scene
-        scene = base_scene if several else world_scene(world, params, w)
+        scene = arm_scene(world, params, w, k) if several else world_scene(world, params, w)
         if scene is not base_scene:  # the world's own target pose
             fe = AnalyticFrontEnd(local.front_end.camera, world.target, scene.target_pose)
             sensor = sensor._replace(corners=fe.corners_world, features=fe.features_world)
@@ -275,8 +292,8 @@ def world_records(a, seed: int, params: WorldParams | None, w: int) -> dict:
             views = reference_views(snap, world.robot, world.target, scene, world.q_star, cam)
             pts, z, feats, inter = _reference(*views[1])
             if isinstance(servo, TouchServo):  # the touch law's views from the same snapshot
-                out["touch_refs"] = touch_views(servo.ibvs, views[1], views[0],
-                                                servo.touch.standoff)[2]  # fmt: skip
+                out["touch_refs"][k] = touch_views(servo.ibvs, views[1], views[0],
+                                                   servo.touch.standoff)[2]  # fmt: skip
             cp = cam.params()
             s_rec = s_rec._replace(
                 camera=cp, desired_points=pts, desired_depths=z, desired_features=feats,
@@ -298,24 +315,33 @@ def touch_records(a, rows) -> tuple[TouchRecords, TouchData]:
     loop = a.loop
     s = loop.plant.system
     n = len(rows)
-    servo = arm_blocks(loop)[3][0]
-    on = isinstance(servo, TouchServo) and isinstance(loop.force, TipForceBlock)
-    if on:
-        law = servo.law
-        refs = stack([r["touch_refs"] for r in rows])
+    servos = arm_blocks(loop)[3]
+    servo = servos[0]
+    arms = len(servos)
+    touching = isinstance(servo, TouchServo) and isinstance(loop.force, TipForceBlock)
+    squeeze_on = touching and isinstance(loop.servo, ArmsTouchServo)
+    on = touching and not squeeze_on
+    tc = loop.servo.touch if touching else TouchConfig()
+    if touching:
+        law = loop.servo.law
         force = stack([r["force"] for r in rows])
+        refs = stack([r["touch_refs"][0] for r in rows])
+        arm_refs = stack([stack(r["touch_refs"]) for r in rows])
     else:
-        tc = TouchConfig()
         law = TouchLaw.from_config(tc)
         reference = (servo.desired_points, servo.desired_depths)
         refs = replicate(touch_views(servo.ibvs, reference, reference, tc.standoff)[2], n)
+        arm_refs = replicate(stack([take(refs, 0)] * arms), n)
         unused = TipForceBlock(a.model, servo.tip_mount, None, tc.input_sigma, "momentum",
                                tc.observer_gain)  # fmt: skip
         force = replicate(unused.params, n)
-    touch = TouchRecords(on=on, law=replicate(law, n), refs=refs, force=force)
+    touch = TouchRecords(on=on, law=replicate(law, n), refs=refs, force=force,
+                         squeeze_on=squeeze_on, squeeze=replicate(SqueezeLaw.from_config(tc), n),
+                         arm_refs=arm_refs)  # fmt: skip
     k = take(force, 0).rods.shape[0]
     data = TouchData(TouchState.initial(), TouchOut.empty(), ForceState.initial(s.n, s.n_u),
-                     ForceOut.empty(k))  # fmt: skip
+                     ForceOut.empty(k), SqueezeState.initial(arms),
+                     SqueezeOut.empty(arms))  # fmt: skip
     return touch, data
 
 
@@ -530,8 +556,9 @@ def reseed_world(batch: Batch, assembly, w: int, seed: int, params=None) -> None
         put(getattr(model, key), w, stack(r[key]))
     put(model.controller, w, r["controller"])
     put(model.estimation.ekf, w, r["ekf"])
-    if model.touch.on:
-        put(model.touch.refs, w, r["touch_refs"])
+    if model.touch.on or model.touch.squeeze_on:
+        put(model.touch.refs, w, r["touch_refs"][0])
+        put(model.touch.arm_refs, w, stack(r["touch_refs"]))
         put(model.touch.force, w, r["force"])
     put(model.robot, w, take(robot_rows(model.plant_model, r["factors"][None, :]), 0))
     batch.seeds[w] = seed
