@@ -98,13 +98,17 @@ QUIET_SENSORS = {
     "gyro_noise": 0.0, "encoder_noise": 0.0, "encoder_resolution": 0.0,
     "pose_attitude_noise": 0.0, "pose_position_noise": 0.0,
 }  # fmt: skip
+#: the EKF's estimates with noiseless, unbiased sensors
+QUIET_ESTIMATES = {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS}
+#: the tip force estimate from the balance with differenced velocities
+DIFFERENCED = {"touch": {"force_estimator": "differenced"}}
 
 
 @pytest.mark.parametrize(
     "name, extra, duration",
     [
         # on the EKF's estimates: each world's filter, its sensors and start-up reading
-        ("paper-in-fov", {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS}, 1.0),
+        ("paper-in-fov", QUIET_ESTIMATES, 1.0),
         ("dual-in-fov", None, 0.6),  # two arms on one drone, the arms' stacked step
     ],
 )
@@ -143,11 +147,14 @@ def _near_standoff(extra=None, duration=14.0):
     "extra",
     [
         None,  # the true state
-        {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS},  # the EKF's
+        QUIET_ESTIMATES,  # the EKF's
+        DIFFERENCED,  # the force from differenced velocities
+        {**QUIET_ESTIMATES, **DIFFERENCED},  # from the EKF's, with its covariance
     ],
 )
 def test_touch_target_worlds_equal_the_block_loop(extra):
-    """Servoing into contact: each world's force estimate (the momentum observer), the touch
+    """Servoing into contact: each world's force estimate (the momentum observer, or the
+    balance with differenced velocities), the touch
     law's phases, the pinned view and the admittance are the block loop's compiled steps, so
     the plant states, the servo's RMSE (the monitor's: the standoff view, then the task's)
     are the same numbers at every sample, through the touch and into the hold."""
@@ -156,10 +163,6 @@ def test_touch_target_worlds_equal_the_block_loop(extra):
         assert arrays["touch_phase"].max() >= 2
 
     _worlds_equal_the_block_loop(_near_standoff(extra), held)
-
-
-#: the EKF's estimates with noiseless, unbiased sensors
-QUIET_ESTIMATES = {"estimation": {"source": "estimated"}, "sensors": QUIET_SENSORS}
 
 
 def _squeeze_near_contact(extra=None, duration=9.0):
@@ -204,9 +207,6 @@ def test_squeeze_worlds_equal_the_block_loop(extra, held):
 def test_unsupported_scenarios_are_refused_naming_the_key():
     with pytest.raises(ScenarioError, match="cameras.local_renderer"):
         build_batch(load_scenario("paper-in-fov"), [0])
-    differenced = _near_standoff({"touch": {"force_estimator": "differenced"}})
-    with pytest.raises(ScenarioError, match="touch.force_estimator"):
-        build_batch(differenced, [0])
     user = load_scenario("paper-in-fov").with_overrides(
         {"cameras": ENGINE["cameras"], "controller": {"class": f"{__name__}:UserController"}},
         "t",

@@ -45,7 +45,7 @@ from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
 from ..estimation import ekf_step as EK
 from ..estimation import sensor_steps as SS
-from ..estimation.contact_force import force_reset, force_step, force_tare
+from ..estimation.contact_force import DIFFERENCED, force_reset, force_step, force_tare
 from ..loop.arms import arms_command
 from ..loop.data import Termination
 from ..loop.perception import perceive
@@ -452,8 +452,12 @@ def sense(model, data, w):
         # force step shares no state with the servo's view above: the block loop's numbers
         qd_est = data.estimation.qd_hat[w] if model.estimation.on else data.qd[w]
         mc = model_of_world(model.control_model, rw)
+        cov = np.zeros((0, 0))  # with differenced velocities: the EKF's covariance of (q, qd)
+        if model.estimation.on and take(tm.force, w).kind == DIFFERENCED:
+            p = data.estimation.ekf.p[w, EK.ekf_latest(take(data.estimation.ekf, w))]
+            cov = np.ascontiguousarray(p[: 2 * n, : 2 * n])
         force_step(take(tm.force, w), take(td.force, w), mc, q_est, qd_est, data.u[w], k > 0,
-                   np.zeros((0, 0)), dt, fo)  # fmt: skip
+                   cov, dt, fo)  # fmt: skip
     if tm.on:  # one arm
         f_hat = fo.force[0] if fo.valid[0] else np.nan
         f = take_at(data.frame, w, 0)

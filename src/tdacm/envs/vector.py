@@ -40,8 +40,8 @@ damping, the drone's and the rod's masses, the tendons' moment arms, C_L's pixel
 dropout and latency. Still a function of ``s + i`` only (tested).
 
 What differs from the single env: the twist action only; the engine's scenario support
-(the differenced force estimate is refused naming the key; the EKF's estimates, contact,
-servoing into contact, several arms and the two-arm squeeze run). The state in the
+(the EKF's estimates, contact, servoing into contact with either force estimate, several
+arms and the two-arm squeeze run). The state in the
 observation is the controller's (the EKF's estimate on estimates). The observation holds the
 features the servo works on, as the single env's: with the robust servo (the shipped
 ``ibvs.features = "predicted"``) the target filter's prediction after fusing the frame, else

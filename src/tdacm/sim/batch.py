@@ -195,10 +195,6 @@ def refuse(loop) -> None:
         )
     if loop.force is not None and type(loop.force) not in (TipForceBlock, ArmsForceBlock):
         raise Unsupported(f"the force block {type(loop.force).__name__} is not batched")
-    if loop.force is not None and loop.force.kind != "momentum":
-        raise Unsupported(
-            f"touch.force_estimator: the engine runs the momentum observer, got {loop.force.kind!r}"
-        )
     if any(g is None for g in globals_):
         raise Unsupported("the engine needs the global camera C_G")
     if not all(isinstance(g.front_end, AnalyticFrontEnd) for g in globals_):
