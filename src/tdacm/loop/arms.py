@@ -288,7 +288,7 @@ class ArmsServo:
             twists.append(v)
             states.append(ArmServoState(points, rmse, extra.get("rmse_measured", math.nan), v,
                                         bool(seen)))  # fmt: skip
-        qdd_d, request, failure, plan, event, _ = self._joint_command(
+        qdd_d, request, failure, plan, event = self._joint_command(
             t, dt, q, gview, modes, seen_all, twists, event
         )
         return self._command(per, states, twists, qdd_d, event, failure, request, plan)
@@ -374,10 +374,10 @@ class ArmsServo:
             request_global=bool(robot.request[0]), plan=plan, **extra,
         )  # fmt: skip
 
-    def _command(self, per, states, twists, qdd_d, event, failure, request, plan, **extra):
+    def _command(self, per, states, twists, qdd_d, event, failure, request, plan):
         """The period's :class:`ServoCommand` from the arms' perceptions ``per`` and states:
         arm 0's twist and points, the largest of the arms' RMSEs (NaN if one is), the lead's
-        joint reference; ``extra``: further fields of the command."""
+        joint reference."""
         lead = self.arms[0]
         rmses = [s.rmse for s in states]
         rmse = max(rmses) if all(map(math.isfinite, rmses)) else math.nan
@@ -388,7 +388,7 @@ class ArmsServo:
             rmse, event=event, failure=failure,
             rmse_measured=max(meas) if all(map(math.isfinite, meas)) else math.nan,
             target_pose=e0.get("target_pose"), arms=tuple(states), request_global=request,
-            plan=plan, **extra,
+            plan=plan,
         )  # fmt: skip
 
     def _robot_event(self, per):
@@ -408,8 +408,7 @@ class ArmsServo:
     def _joint_command(self, t, dt, q, gview, modes, seen_all, twists, event):
         """The period's joint command: the recovery of the arms that lost their target
         (:meth:`recover`), else the joint rates of the arms' ``twists`` when every arm sees
-        its target, else a hold. Returns ``(qdd_d, request_global, failure, plan, event,
-        following)``, ``following`` when the rates were followed."""
+        its target, else a hold. Returns ``(qdd_d, request_global, failure, plan, event)``."""
         lead, n = self.arms[0], self.n
         qdd_d = np.zeros(n)
         failure = plan = None
@@ -423,7 +422,7 @@ class ArmsServo:
             qdd_d = lead.follow_rates(q, self.joint_rates(q, twists), t, dt)
         else:  # an arm's target not seen this period (nothing fused yet): hold
             lead.qd_d = np.zeros(n)
-        return qdd_d, request, failure, plan, event, bool(not lost and seen_all)
+        return qdd_d, request, failure, plan, event
 
     def recover(self, t: float, q, gview, lost: list[int]):
         """The recovery of the arms ``lost`` (module docstring): the drone holds its
