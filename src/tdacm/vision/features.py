@@ -318,6 +318,17 @@ def features_jacobian(points) -> np.ndarray:
     return _jacobian_kernel(p)
 
 
+def checked_view(points, depths) -> tuple[np.ndarray, np.ndarray]:
+    """``(points (4, 2), depths (4,))`` as float arrays, or ``ValueError``: the corners must be
+    distinct and the depths (one value or four) positive (what :func:`_interaction_kernel`
+    needs)."""
+    p = _check_points(points)
+    z = _check_depths(depths, 4)
+    if min_edge2_of(p) < 1e-24:
+        raise ValueError("points must be four distinct corners (an edge has zero length)")
+    return p, z
+
+
 def feature_interaction_matrix(points, depths, order: str = "angular_first") -> np.ndarray:
     """Analytic 6 x 6 interaction matrix ``J_img`` of :func:`advanced_features`:
     ``d p*/dt = J_img v`` for the camera twist ``v`` in the camera frame, ``[w; v]`` by
@@ -326,11 +337,8 @@ def feature_interaction_matrix(points, depths, order: str = "angular_first") -> 
     ``depths``: depth ``Z`` of each of the four points (``(4,)``) or one common value, e.g.
     from :func:`estimate_depths` or the known target size (:func:`depth_from_size`).
     """
-    p = _check_points(points)
     _check_order(order)
-    z = _check_depths(depths, 4)
-    if min_edge2_of(p) < 1e-24:
-        raise ValueError("points must be four distinct corners (an edge has zero length)")
+    p, z = checked_view(points, depths)
     m = _interaction_kernel(p, z)
     return m if order == "angular_first" else m[:, [3, 4, 5, 0, 1, 2]]
 

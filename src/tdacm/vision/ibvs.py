@@ -45,6 +45,7 @@ from .features import (
     _interaction_kernel,
     _wrap,
     advanced_features,
+    checked_view,
     feature_interaction_matrix,
     min_edge2_of,
     wrap_angle,
@@ -54,6 +55,8 @@ MODES = ("current", "desired", "mean")
 SOLVERS = ("floor", "damped")
 #: the default interaction matrix and solve (also the scenario's ``[ibvs]`` mode and solver)
 DEFAULT_MODE, DEFAULT_SOLVER = "current", "floor"
+#: the view passed to :func:`law_interaction` in ``"desired"`` mode, where it is not read
+_UNREAD_VIEW = (np.zeros((4, 2)), np.ones(4))
 
 
 def robust_solve(interaction, error, floor: float, solver: str = DEFAULT_SOLVER) -> np.ndarray:
@@ -234,13 +237,11 @@ class IBVSController:
         return e
 
     def interaction(self, points, depths) -> np.ndarray:
-        """``J_img`` used by the law for the current points/depths (angular-first)."""
-        if self.mode == "desired":
-            return self.interaction_desired
-        cur = feature_interaction_matrix(points, depths)
-        if self.mode == "current":
-            return cur
-        return 0.5 * (cur + self.interaction_desired)
+        """``J_img`` used by the law for the current points/depths (angular-first, a new
+        array): the compiled :func:`law_interaction` of the law's steps on the checked view
+        (not read in ``"desired"`` mode)."""
+        p, z = _UNREAD_VIEW if self.mode == "desired" else checked_view(points, depths)
+        return law_interaction(p, z, self.interaction_desired, self._mode_code)
 
     def twist(self, points, depths=None, error=None) -> np.ndarray:
         """Camera twist (paper eq. (39)) for the current normalized points ``(4, 2)``.
