@@ -54,7 +54,7 @@ def test_filter_kernel_uses_the_same_damping(system):
     model = EstimatedModel(system, 0.1, 2, rotor_drag=K_R)
     s = model.system
     args = (s.model_arrays, s.loads.packed(), model.mass_scale, model.damping_scale)
-    scales = (1.0 + model.d_k, 1.0 + model.d_g)
+    scales = (model.stiffness_scale, model.gravity_scale)
     u = np.array([1.9, 1.9, 1.9, 1.9, 0.4, 0.2, 0.1, 0.3])[: system.n_u]
     ad = np.zeros(system.n)
     a_drag, ok1 = EK.model_qdd(Q, QD, u, ad, *args, *scales, model.rotor_drag)
@@ -65,7 +65,7 @@ def test_filter_kernel_uses_the_same_damping(system):
     np.testing.assert_allclose(a_drag - a_none, expected, rtol=1e-9, atol=1e-12)
     plain = EstimatedModel(system, 0.1, 2)
     a_plain, _ = EK.model_qdd(
-        Q, QD, u, ad, *args, 1.0 + plain.d_k, 1.0 + plain.d_g, plain.rotor_drag
+        Q, QD, u, ad, *args, plain.stiffness_scale, plain.gravity_scale, plain.rotor_drag
     )
     np.testing.assert_array_equal(a_plain, a_none)
 

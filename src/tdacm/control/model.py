@@ -120,6 +120,10 @@ class EstimatedModel:
         # positive definite like the true matrices
         self.mass_scale = np.sqrt(1.0 + self.d_m)
         self.damping_scale = np.sqrt(1.0 + self.d_d)
+        # K_hat = (1 + d_K) (K q) - (1 + d_g) tau_grav: the factors every holder of the model
+        # (the controller's and the filter's records, :meth:`terms`) takes from here
+        self.stiffness_scale = 1.0 + self.d_k
+        self.gravity_scale = 1.0 + self.d_g
         # drawn after the others so that knowing the drag leaves their draws unchanged
         self.d_r = rng.uniform(-level, level, 3)
         self.rotor_drag = (
@@ -155,7 +159,7 @@ class EstimatedModel:
         k_hat = np.empty(n)
         estimated_terms(
             q, qd, self.system.model_arrays, self.system.loads.packed(), self.mass_scale,
-            self.damping_hat, 1.0 + self.d_k, 1.0 + self.d_g, self.gravity_feedforward,
+            self.damping_hat, self.stiffness_scale, self.gravity_scale, self.gravity_feedforward,
             self.knows_rotor_drag, self.rotor_drag, False, m_hat, c_hat, d_hat, k_hat,
         )  # fmt: skip
         return EstimatedTerms(m_hat, c_hat, d_hat, k_hat)
@@ -190,8 +194,8 @@ def model_params(model: EstimatedModel) -> ModelParams:
         loads=model.system.loads.packed().copy(),
         mass_scale=c(model.mass_scale, float),
         damping=model.damping_hat,
-        stiffness_scale=c(1.0 + model.d_k),
-        gravity_scale=c(1.0 + model.d_g),
+        stiffness_scale=c(model.stiffness_scale),
+        gravity_scale=c(model.gravity_scale),
         gravity_feedforward=bool(model.gravity_feedforward),
         rotor_drag=model.knows_rotor_drag,
         rotor_drag_k=c(model.rotor_drag, float),
