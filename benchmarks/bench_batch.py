@@ -7,6 +7,9 @@ real-time factor, the first call cold and warm.
     python benchmarks/bench_batch.py --vector-only     # gym.make_vec(..., num_envs=256)
     python benchmarks/bench_batch.py --touch-only --sizes 16 [--estimated]   # whole touch-target runs
     python benchmarks/bench_batch.py --allocations-only   # numba's allocations a world-period
+    python benchmarks/bench_batch.py --rate-only --scenario dual-in-fov [--estimated]
+        [--sizes 256] [--threads 2]   # world-periods/s of one scenario (the largest size and
+                                      # thread count given), and CPU a world-period
 
 ``--predicted`` adds the table with the robust servo's target filter in the period
 (``--features predicted``: that table alone); the table is printed as markdown at the end.
@@ -24,6 +27,7 @@ from tdacm.bench.batch import (
     allocations,
     batch_bench,
     filter_cost,
+    periods_per_second,
     touch_rate,
     vector_env_rate,
 )
@@ -38,6 +42,8 @@ if __name__ == "__main__":
     p.add_argument("--vector-only", action="store_true")
     p.add_argument("--touch-only", action="store_true")
     p.add_argument("--allocations-only", action="store_true")
+    p.add_argument("--rate-only", action="store_true")
+    p.add_argument("--scenario", default="paper-in-fov")
     p.add_argument("--estimated", action="store_true")
     p.add_argument("--duration", type=float, default=2.0)
     p.add_argument("--predicted", action="store_true")
@@ -54,6 +60,13 @@ if __name__ == "__main__":
     elif a.allocations_only:
         res = allocations(4, 1, a.duration)
         data.setdefault("batch", {})["allocations"] = res
+    elif a.rate_only:
+        rate, cpu_ms = periods_per_second(max(a.sizes), max(a.threads), a.duration, a.repeats,
+                                          cpu=True, scenario=a.scenario,
+                                          estimated=a.estimated)  # fmt: skip
+        res = {"scenario": a.scenario, "estimated": a.estimated, "n_worlds": max(a.sizes),
+               "threads": max(a.threads), "rate": rate, "cpu_us": 1e3 * cpu_ms}  # fmt: skip
+        data.setdefault("batch", {})["rate_" + a.scenario + ("_estimated" * a.estimated)] = res
     elif a.touch_only:
         res = touch_rate(min(a.sizes), max(a.threads), a.repeats, estimated=a.estimated)
         data.setdefault("batch", {})["touch" + ("_estimated" if a.estimated else "")] = res

@@ -2,6 +2,7 @@
 loop on estimates against the true state. The numbers of ``docs/estimation.md``.
 
     python benchmarks/bench_estimation.py [--seeds 6] [--out out/bench]
+    python benchmarks/bench_estimation.py --parts   # microseconds of the prediction's parts
 
 Writes ``OUT/estimation.json``. Part 1 drives the filter with the plant alone (the paper
 system under the project's controller on the true state, hover + strain steps, default sensors,
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from tdacm.bench.estimation import nees, run
+from tdacm.bench.estimation import filter_parts, nees, run
 from tdacm.control import EstimatedModel
 from tdacm.estimation import ExtendedKalmanFilter, SensorSuite
 from tdacm.sim import build_loop
@@ -136,7 +137,11 @@ if __name__ == "__main__":
     p = argparse.ArgumentParser()
     p.add_argument("--seeds", type=int, default=6)
     p.add_argument("--out", default="out/bench")
+    p.add_argument("--parts", action="store_true", help="only the prediction's parts (us)")
     args = p.parse_args()
+    if args.parts:
+        print(json.dumps(filter_parts(), indent=2))
+        raise SystemExit(0)
     res = {"load_average": os.getloadavg(), "filter_cost": filter_cost()}
     res["standalone"] = standalone(args.seeds)
     res["closed_loop"] = {

@@ -32,23 +32,30 @@ ENGINE = {
 }
 
 
-def _batch(n_worlds: int, threads: int, duration: float, features: str | None = None):
+def _batch(n_worlds: int, threads: int, duration: float, features: str | None = None,
+           scenario: str = "paper-in-fov", estimated: bool = False):  # fmt: skip
     from ..sim.batch import build_batch
     from ..sim.scenario import load_scenario
 
     ov = ENGINE if features is None else {**ENGINE, "ibvs": {"features": features}}
-    sc = load_scenario("paper-in-fov").with_overrides(ov, "batch benchmark")
+    if estimated:
+        ov = {**ov, "estimation": {"source": "estimated"}}
+    sc = load_scenario(scenario).with_overrides(ov, "batch benchmark")
     return build_batch(sc, np.arange(n_worlds), duration=duration, threads=threads)
 
 
 def periods_per_second(n_worlds: int, threads: int, duration: float = 2.0, repeats: int = 3,
-                       features: str | None = None, cpu: bool = False):  # fmt: skip
-    """Median world-periods per second of whole runs of ``n_worlds`` worlds (the runs that
-    end early count the periods they ran); ``features``: the servo's (``ibvs.features``;
-    default :data:`ENGINE`'s). ``cpu``: also the median CPU time of this process per
-    world-period (ms; the threads' included), a figure the machine's load changes less."""
-    _batch(min(n_worlds, 2), 1, 0.1, features).run()  # warm-up (compiles on a cold cache)
-    rate, cpu_ms = _timed_runs(_batch(n_worlds, threads, duration, features), repeats)
+                       features: str | None = None, cpu: bool = False,
+                       scenario: str = "paper-in-fov", estimated: bool = False):  # fmt: skip
+    """Median world-periods per second of whole runs of ``n_worlds`` worlds of ``scenario`` in
+    the engine's configuration (:data:`ENGINE`; ``estimated``: on the EKF's estimates) (the
+    runs that end early count the periods they ran); ``features``: the servo's
+    (``ibvs.features``; default :data:`ENGINE`'s). ``cpu``: also the median CPU time of this
+    process per world-period (ms; the threads' included), a figure the machine's load
+    changes less."""
+    kw = dict(features=features, scenario=scenario, estimated=estimated)
+    _batch(min(n_worlds, 2), 1, 0.1, **kw).run()  # warm-up (compiles on a cold cache)
+    rate, cpu_ms = _timed_runs(_batch(n_worlds, threads, duration, **kw), repeats)
     return (rate, cpu_ms) if cpu else rate
 
 

@@ -7,12 +7,16 @@ test is the estimator alone), tracking a drone hover with strain steps.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..control import EstimatedModel, TDACMController, default_gains
 from ..estimation import EstimatorConfig, ExtendedKalmanFilter, SensorSuite, SensorSuiteConfig
+from ..estimation import ekf_step as ES
+from ..estimation import kernels as EK
 from ..estimation.camera import TargetViewMeasurement
 from ..system import kernels as K
 from ..system.paper import paper_system
@@ -142,3 +146,84 @@ def nees(r: Run):
     """Normalized estimation error squared of [q, qd] at every step."""
     err = np.concatenate([r.q_hat - r.q, r.qd_hat - r.qd], axis=1)
     return np.array([e @ np.linalg.solve(p, e) for e, p in zip(err, r.P, strict=True)])
+
+
+@njit
+def _time_model(p, m, x, u, reps):
+    acc = 0.0
+    for _ in range(reps):
+        acc += ES.model_acceleration(p, m, x, u)[0][0]
+    return acc
+
+
+@njit
+def _time_linearize(p, m, x, u, reps):
+    n, acc = p.n, 0.0
+    for _ in range(reps):
+        acc += EK.linearize(x[:n], x[n : 2 * n], u, x[2 * n : 3 * n], m, p.loads, p.mass_scale,
+                            p.damping_scale, p.stiffness_scale, p.gravity_scale, p.rotor_drag,
+                            p.skip)[1][0, 0]  # fmt: skip
+    return acc
+
+
+@njit
+def _time_propagate(p, m, x, u, dt, reps):
+    n, acc = p.n, 0.0
+    for _ in range(reps):
+        acc += EK.propagate_mean(x[:n], x[n : 2 * n], u, x[2 * n : 3 * n], dt, p.rk4_steps, m,
+                                 p.loads, p.mass_scale, p.damping_scale, p.stiffness_scale,
+                                 p.gravity_scale, p.rotor_drag)[0][0]  # fmt: skip
+    return acc
+
+
+@njit
+def _time_covariance(a, qc, cov, dt, reps):
+    acc = 0.0
+    for _ in range(reps):
+        phi = EK.transition(a, dt)
+        acc += (phi @ cov @ phi.T + EK.discrete_noise(a, qc, dt))[0, 0]
+    return acc
+
+
+def filter_parts(repeats: int = 3, seed: int = 0) -> dict:
+    """Microseconds per call of the EKF's prediction parts (:mod:`tdacm.estimation.ekf_step`)
+    on `paper-in-fov`'s filter (n = 8, default sensors, 10 % model error) at hover thrust,
+    each called in a compiled loop (best of ``repeats``): the process model's acceleration
+    (``model_acceleration``: the perturbed ``M``, ``C``, ``D``, ``K``, ``B(q) u`` and a
+    Cholesky solve), its forward-difference Jacobian (``linearize``: one evaluation per
+    column that the dynamics depend on, plus one), the RK4 mean (``propagate_mean``) and the
+    covariance's ``Phi``, ``Q`` and ``Phi P Phi^T``. ``evaluations``: the model evaluations
+    a period makes (the Jacobian's and RK4's)."""
+    from ..sim import build_loop, load_scenario
+
+    sc = load_scenario("paper-in-fov").with_overrides(
+        {"estimation": {"source": "estimated"}}, "filter parts"
+    )
+    f = build_loop(sc, seed=seed).loop.estimator.filter
+    p, m = f.params, f.model_arrays
+    n, dt = p.n, 0.02
+    x = np.zeros(p.nx)
+    x[:n] = Q0
+    u = np.zeros(p.n_u)
+    u[:4] = f.system.total_mass * 9.81 / 4.0
+    a = np.zeros((p.nx, p.nx))
+    a[:n, n : 2 * n] = np.eye(n)
+    a[n : 2 * n, : 2 * n] = np.random.default_rng(seed).normal(size=(n, 2 * n))
+    cov = np.eye(p.nx)
+    parts = {
+        "model_acceleration": (_time_model, (p, m, x, u), 2000),
+        "linearize": (_time_linearize, (p, m, x, u), 200),
+        "propagate_mean": (_time_propagate, (p, m, x, u, dt), 500),
+        "covariance": (_time_covariance, (a, p.qc, cov, dt), 500),
+    }
+    out = {}
+    for name, (fn, args, reps) in parts.items():
+        fn(*args, 1)  # compiles
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn(*args, reps)
+            times.append(1e6 * (time.perf_counter() - t0) / reps)
+        out[name + "_us"] = min(times)
+    out["evaluations"] = int(1 + 2 * n - int(np.sum(p.skip)) + 4 * p.rk4_steps)
+    return out
