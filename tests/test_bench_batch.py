@@ -1,7 +1,7 @@
 """The engine's allocation count (``tdacm.bench.batch.allocations``): numba's runtime counts
 every array a compiled step creates, in a fresh process with its statistics on."""
 
-from tdacm.bench.batch import allocations
+from tdacm.bench.batch import _batch, allocations
 
 
 def test_allocations_are_counted_over_every_world_period():
@@ -11,3 +11,13 @@ def test_allocations_are_counted_over_every_world_period():
     res = allocations(2, 1, 0.2)
     assert res["world_periods"] == 2 * 11
     assert res["per_world_period"] == res["allocations"] / res["world_periods"]
+
+
+def test_the_rate_benchmark_builds_the_scenario_it_names():
+    """``bench_batch.py --rate-only --scenario ... --estimated`` measures the named scenario in
+    the engine's configuration: two arms for `dual-in-fov`, the EKF per world with
+    ``estimated``, and `paper-in-fov` on the true state by default (built, not timed)."""
+    dual = _batch(2, 1, 0.1, scenario="dual-in-fov", estimated=True)
+    assert dual.model.n_arms == 2 and dual.model.estimation.on
+    paper = _batch(2, 1, 0.1)
+    assert paper.model.n_arms == 1 and not paper.model.estimation.on
