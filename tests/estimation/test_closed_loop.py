@@ -195,3 +195,29 @@ def test_flight_attitude_estimate_is_consistent_and_sets_the_horizontal_velocity
     limit = hover_estimate_limits()
     assert np.all((att > 0.5 * limit.attitude) & (att < 0.85 * limit.attitude)), att
     assert np.all((vel > 0.4 * limit.velocity) & (vel < 0.7 * limit.velocity)), vel
+
+
+@pytest.mark.parametrize(
+    "start", [{}, {"initial_strain_error": 0.2, "initial_position_error": 0.01}]
+)
+def test_the_blocks_start_is_the_filters_reset_at_the_reading_then_its_update(start):
+    # FilterBlock.reset (the compiled filter_start, which the engine calls for each world) is
+    # the filter's own API in order: the guess from the start-up reading (initial_estimate),
+    # reset there, the reading fused at once; bit for bit
+    from tdacm.estimation.ekf_step import initial_estimate
+
+    block = build_loop(scenario(**start), seed=3).loop.estimator
+    f = block.filter
+    reading = block.initial_measurements(0.0)
+    block.initial_measurements = lambda t: reading
+    block.reset(0.0)
+    x_block, p_block, prior = f.x, f.state.p[f.state.head[0]].copy(), block.prior
+    q = np.empty(f.n)
+    initial_estimate(f.params, f.model_arrays, f.pack(reading), block.nominal_q, f.q_ref,
+                     block.strain_error, block.position_error, q)  # fmt: skip
+    reset = f.reset(q, t0=0.0)
+    f.step(0.0, None, reading)
+    assert np.array_equal(prior.q, reset.q) and np.array_equal(prior.P, reset.P)
+    assert np.array_equal(x_block, f.x)
+    assert np.array_equal(p_block, f.state.p[f.state.head[0]])
+    assert not np.array_equal(f.x[: f.n], q)  # the reading moved the state: a real update

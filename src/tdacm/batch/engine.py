@@ -45,6 +45,7 @@ from ..aero.wind import N_WIND_NORMALS, wind_samples_due, wind_start
 from ..control.hierarchical import controller_step
 from ..estimation import ekf_step as EK
 from ..estimation import sensor_steps as SS
+from ..estimation.block import filter_start
 from ..estimation.contact_force import DIFFERENCED, force_reset, force_step, force_tare
 from ..loop.arms import arms_command
 from ..loop.data import Termination
@@ -250,10 +251,10 @@ def _estimate_of(e, d, n):
 
 @njit(cache=True, inline="always")  # a function of ``model`` and ``data``: see _end
 def _start_estimation(model, data, w, mw, mc):
-    """The estimator's start at time 0 (:meth:`~tdacm.estimation.block.FilterBlock.reset`):
-    the sensors' schedules and turn-on biases (the world's estimation stream), the start-up
-    reading, the initial configuration (:func:`~tdacm.estimation.ekf_step.initial_estimate`),
-    the filter's reset and, with a start-up reading, its first update."""
+    """The estimator's start at time 0: the sensors' schedules and turn-on biases (the world's
+    estimation stream) and the start-up reading, then the filter's start
+    (:func:`~tdacm.estimation.block.filter_start`, which
+    :meth:`~tdacm.estimation.block.FilterBlock.reset` calls)."""
     e = model.estimation
     ep, ip, cp = take(e.ekf, w), take(e.imu, w), take(e.encoders, w)
     d = take(data.estimation, w)
@@ -282,17 +283,8 @@ def _start_estimation(model, data, w, mw, mc):
         if take(e.start_pose, w).base.enabled:
             _poll_pose(take(e.start_pose, w), d.start_pose, 0.0, q, rng, d.out, meas)
         _poll_encoders(take(e.start_encoders, w), d.start_encoders, mw, 0.0, q, rng, d.out, meas)
-    q0 = np.empty(n)
-    EK.initial_estimate(ep, mc, meas, e.nominal[w], e.q_ref[w], e.strain_error, e.position_error,
-                        q0)  # fmt: skip
-    x0 = np.zeros(ep.nx)
-    for i in range(n):
-        x0[i] = q0[i]
-    EK.ekf_reset(ep, d.ekf, 0.0, x0, ep.p0)
-    d.status[0] = EK.OK
-    if e.measured:
-        applied = data.k[w] > 0  # False (time 0), not a constant: the period's signature
-        d.status[0] = EK.ekf_step(ep, d.ekf, mc, 0.0, data.u[w], applied, meas)
+    d.status[0] = filter_start(ep, d.ekf, mc, meas, e.nominal[w], e.q_ref[w], e.strain_error,
+                               e.position_error, 0.0, data.u[w], e.measured, np.empty(ep.nx))  # fmt: skip
     _estimate_of(e, d, n)
     d.has_qdd[0] = False
 

@@ -15,15 +15,38 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from .camera import TargetViewMeasurement
 from .ekf import EstimatorDiverged, ExtendedKalmanFilter
-from .ekf_step import initial_estimate, view_is_new
+from .ekf_step import DIVERGENCE, OK, ekf_reset, ekf_step, initial_estimate, view_is_new
 from .estimate import StateEstimate
 from .proprioception import EncoderMeasurement, ImuMeasurement, PoseMeasurement
 
 #: what the filter fuses (other sensors in ``readings.other`` are left to their consumers)
 _KNOWN = (PoseMeasurement, ImuMeasurement, EncoderMeasurement)
+
+
+@njit(cache=True)
+def filter_start(p, st, m, meas, nominal, q_ref, strain_error, position_error, t0, u, measured,
+                 x0):  # fmt: skip
+    """The estimator's start at ``t0`` (:meth:`FilterBlock.reset`, and the batched engine's
+    for each world): the configuration from the start-up reading ``meas``
+    (:func:`~.ekf_step.initial_estimate`: the nominal one plus the configured errors for what
+    no reading measures), the filter reset there (zero velocities, disturbances and biases;
+    the covariance ``p.p0``) and, with a start-up reading (``measured``), fused at once
+    (:func:`~.ekf_step.ekf_step` at ``t0``, no input applied: ``u`` unused). ``x0`` (nx,)
+    receives the filter's state before the update; returns the step's status
+    (:data:`~.ekf_step.OK` without a reading)."""
+    q0 = np.empty(p.n)
+    initial_estimate(p, m, meas, nominal, q_ref, strain_error, position_error, q0)
+    x0[:] = 0.0
+    x0[: p.n] = q0
+    ekf_reset(p, st, t0, x0, p.p0)
+    if not measured:
+        return OK
+    applied = not measured  # False, a variable: one signature of ekf_step for every caller
+    return ekf_step(p, st, m, t0, u, applied, meas)
 
 
 class FilterBlock:
@@ -69,30 +92,27 @@ class FilterBlock:
         self.prior = None  # the filter's state before the start-up update (tests, logs)
         self.normalize = normalize if estimator.camera is not None else None
 
-    def initial_guess(self, t: float) -> np.ndarray:
-        """The nominal configuration plus the configured errors (no start-up reading)."""
-        f = self.filter
-        q = self.nominal_q.copy()
-        q[f.n - f.n_s :] += self.strain_error
-        if f.floating:
-            q[3:6] += self.position_error
-        return q
-
     def reset(self, t: float = 0.0):
         """Start the filter at the guess (plus the configured errors); with a start-up reading,
         fuse it at once, so that the blocks initialized from this estimate (the servo's first
         reference, the controller) start from a measured state, as on a robot that reads its
-        sensors before engaging the controller."""
+        sensors before engaging the controller (:func:`filter_start`)."""
         f = self.filter
-        if self.initial_measurements is None:
-            return f.reset(self.initial_guess(t), t0=t)
-        meas = self.initial_measurements(t)
+        measured = self.initial_measurements is not None
+        meas = list(self.initial_measurements(t)) if measured else []
         f.renew()
-        q = np.empty(f.n)
-        initial_estimate(f.params, f.model_arrays, f.pack(meas), self.nominal_q, f.q_ref,
-                         self.strain_error, self.position_error, q)  # fmt: skip
-        self.prior = f.reset(q, t0=t)
-        return f.step(t, None, meas)
+        f.fit_slots(len(meas))
+        x0 = np.empty(f.nx)
+        status = filter_start(f.params, f.state, f.model_arrays, f.pack(meas), self.nominal_q,
+                              f.q_ref, self.strain_error, self.position_error, float(t),
+                              np.zeros(f.system.n_u), measured, x0)  # fmt: skip
+        f.timings = []
+        n = f.n
+        self.prior = StateEstimate(float(t), x0[:n].copy(), x0[n : 2 * n].copy(),
+                                   f.params.p0[: 2 * n, : 2 * n].copy())  # fmt: skip
+        if status != OK:
+            raise EstimatorDiverged(DIVERGENCE.get(status, f"estimator: start-up status {status}"))
+        return f.estimate
 
     def step(self, readings, u_applied, dt: float):
         meas = [m for m in readings.other.values() if isinstance(m, _KNOWN)]

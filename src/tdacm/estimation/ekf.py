@@ -484,6 +484,15 @@ class ExtendedKalmanFilter:
         meas.rows[0] = len(measurements)
         return meas
 
+    def fit_slots(self, rows: int) -> None:
+        """Room for ``rows`` measurements in one tick (a compiled caller that cannot grow the
+        state, :func:`~tdacm.estimation.block.filter_start`)."""
+        slots = self.state.slots
+        while slots < rows:
+            slots *= 2
+        if slots != self.state.slots:
+            self._grow(self.state.window, slots)
+
     def _grow(self, window: int, slots: int) -> None:
         """A larger window (or more slots a tick) holding the same history."""
         old = self.state
