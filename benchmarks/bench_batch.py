@@ -7,6 +7,7 @@ real-time factor, the first call cold and warm.
     python benchmarks/bench_batch.py --vector-only     # gym.make_vec(..., num_envs=256)
     python benchmarks/bench_batch.py --touch-only --sizes 16 [--estimated]   # whole touch-target runs
     python benchmarks/bench_batch.py --allocations-only   # numba's allocations a world-period
+    python benchmarks/bench_batch.py --split-only [--sizes 64]   # a period's two halves in a run
     python benchmarks/bench_batch.py --rate-only --scenario dual-in-fov [--estimated]
         [--sizes 256] [--threads 2]   # world-periods/s of one scenario (the largest size and
                                       # thread count given), and CPU a world-period
@@ -27,6 +28,7 @@ from tdacm.bench.batch import (
     allocations,
     batch_bench,
     filter_cost,
+    period_split,
     periods_per_second,
     touch_rate,
     vector_env_rate,
@@ -42,6 +44,7 @@ if __name__ == "__main__":
     p.add_argument("--vector-only", action="store_true")
     p.add_argument("--touch-only", action="store_true")
     p.add_argument("--allocations-only", action="store_true")
+    p.add_argument("--split-only", action="store_true")
     p.add_argument("--rate-only", action="store_true")
     p.add_argument("--scenario", default="paper-in-fov")
     p.add_argument("--estimated", action="store_true")
@@ -60,6 +63,9 @@ if __name__ == "__main__":
     elif a.allocations_only:
         res = allocations(4, 1, a.duration)
         data.setdefault("batch", {})["allocations"] = res
+    elif a.split_only:
+        res = period_split(min(a.sizes), scenario=a.scenario)
+        data.setdefault("batch", {})["split_" + a.scenario] = res
     elif a.rate_only:
         rate, cpu_ms = periods_per_second(max(a.sizes), max(a.threads), a.duration, a.repeats,
                                           cpu=True, scenario=a.scenario,

@@ -1,7 +1,9 @@
 """The engine's allocation count (``tdacm.bench.batch.allocations``): numba's runtime counts
 every array a compiled step creates, in a fresh process with its statistics on."""
 
-from tdacm.bench.batch import _batch, allocations
+import math
+
+from tdacm.bench.batch import _batch, allocations, period_split
 
 
 def test_allocations_are_counted_over_every_world_period():
@@ -21,3 +23,12 @@ def test_the_rate_benchmark_builds_the_scenario_it_names():
     assert dual.model.n_arms == 2 and dual.model.estimation.on
     paper = _batch(2, 1, 0.1)
     assert paper.model.n_arms == 1 and not paper.model.estimation.on
+
+
+def test_the_period_split_times_both_halves_of_running_worlds():
+    """``bench_batch.py --split-only``: the engine's act and sense halves of two worlds, timed
+    apart over a few periods; both cost something and add up to the period (the figures are
+    the benchmark page's, not bounded here)."""
+    res = period_split(2, periods=4, skip=1)
+    assert res["act_us"] > 0.0 and res["sense_us"] > 0.0
+    assert math.isclose(res["period_us"], res["act_us"] + res["sense_us"])

@@ -130,6 +130,41 @@ def step_rate(n_worlds: int, threads: int, steps: int = 100, repeats: int = 3):
     return statistics.median(rates)
 
 
+def period_split(n_worlds: int = 64, periods: int = 60, skip: int = 10,
+                 scenario: str = "paper-in-fov") -> dict:  # fmt: skip
+    """Where a world-period goes in a run: the engine's two halves timed apart on ``n_worlds``
+    worlds of ``scenario`` (the engine's configuration, one thread), ``periods`` periods of
+    :func:`~tdacm.batch.engine.act_worlds` then :func:`~tdacm.batch.engine.sense_worlds`,
+    each half timed over all the worlds; medians after the first ``skip`` periods, in us a
+    world (the halves of whole runs, with every world's code and data as a run leaves them,
+    unlike a step called again and again on one world's state)."""
+    from ..batch import engine as E
+
+    b = _batch(min(n_worlds, 2), 1, 0.1, scenario=scenario)
+    b.run()  # warm-up (compiles on a cold cache)
+    b = _batch(n_worlds, 1, 1000.0, scenario=scenario)
+    b.reset()
+    m, d = b.model, b.data
+    twist = np.full((n_worlds, 6 * d.servo_out.rmse.shape[1]), np.nan)
+    E.sense_worlds(m, d, 0, n_worlds)
+    halves = {"act": [], "sense": []}
+    for _ in range(periods):
+        t0 = time.perf_counter()
+        E.act_worlds(m, d, twist, 0, n_worlds)
+        t1 = time.perf_counter()
+        E.sense_worlds(m, d, 0, n_worlds)
+        t2 = time.perf_counter()
+        live = max(int(d.active.sum()), 1)
+        halves["act"].append(1e6 * (t1 - t0) / live)
+        halves["sense"].append(1e6 * (t2 - t1) / live)
+    out = {"scenario": scenario, "n_worlds": n_worlds, "periods": periods,
+           "load": os.getloadavg()}  # fmt: skip
+    for half, us in halves.items():
+        out[half + "_us"] = statistics.median(us[skip:])
+    out["period_us"] = out["act_us"] + out["sense_us"]
+    return out
+
+
 def first_call(cold: bool) -> float:
     """Wall time (s) of a fresh process building a batch of 4 worlds and running 0.1 s, on
     an empty numba cache (``cold``, a temporary ``NUMBA_CACHE_DIR``) or the current one."""
