@@ -87,6 +87,19 @@ def command_calls(model, data, calls):
 
 
 @njit(cache=True)
+def act_steps_in_turn(model, data, calls):
+    """`servo_command`, `controller_step` and `plant_step` of world 0 one after the other,
+    ``calls`` times (each of the loops above for one call): the act half's three steps with
+    their code in turn, as in a run, on one world's state that stays put."""
+    acc = 0.0
+    for _ in range(calls):
+        acc += command_calls(model, data, 1)
+        acc += controller_calls(model, data, 1)
+        acc += plant_calls(model, data, 1)
+    return acc
+
+
+@njit(cache=True)
 def sense_calls(model, data, calls):
     """The engine's whole `sense` of world 0 (the frame, perception, `servo_perceive`)."""
     for _ in range(calls):
@@ -106,6 +119,7 @@ if __name__ == "__main__":
         ("controller_step", controller_calls),
         ("servo_perceive", perceive_calls),
         ("servo_command", command_calls),
+        ("the three act steps in turn (servo_command, controller, plant)", act_steps_in_turn),
         ("sense (the engine's, servo_perceive included)", sense_calls),
     )
     for name, fn in steps:
@@ -116,7 +130,7 @@ if __name__ == "__main__":
             fn(b.model, b.data, a.calls)
             times.append(1e6 * (time.perf_counter() - t0) / a.calls)
         times.sort()
-        print(f"{name:48s} {times[0]:7.1f} us a call (median {times[1]:.1f}), "
+        print(f"{name:64s} {times[0]:7.1f} us a call (median {times[1]:.1f}), "
               f"load {os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
     res = period_split(a.worlds)
     print(f"in a run ({a.worlds} worlds, one thread): act {res['act_us']:.1f} us, sense "
