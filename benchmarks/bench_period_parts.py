@@ -89,8 +89,9 @@ def command_calls(model, data, calls):
 @njit(cache=True)
 def act_steps_in_turn(model, data, calls):
     """`servo_command`, `controller_step` and `plant_step` of world 0 one after the other,
-    ``calls`` times (each of the loops above for one call): the act half's three steps with
-    their code in turn, as in a run, on one world's state that stays put."""
+    ``calls`` times (each of the loops above for one call, so each call also pays its loop's
+    set-up: a few record views and the state's copy): the act half's three steps with their
+    code in turn, as in a run, on one world's state that stays put."""
     acc = 0.0
     for _ in range(calls):
         acc += command_calls(model, data, 1)

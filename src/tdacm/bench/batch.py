@@ -149,14 +149,15 @@ def period_split(n_worlds: int = 64, periods: int = 60, skip: int = 10,
     E.sense_worlds(m, d, 0, n_worlds)
     halves = {"act": [], "sense": []}
     for _ in range(periods):
+        acting = max(int(d.active.sum()), 1)  # the worlds the act half steps
         t0 = time.perf_counter()
         E.act_worlds(m, d, twist, 0, n_worlds)
         t1 = time.perf_counter()
+        sensing = max(int(d.active.sum()), 1)  # those still running, which the sense half views
         E.sense_worlds(m, d, 0, n_worlds)
         t2 = time.perf_counter()
-        live = max(int(d.active.sum()), 1)
-        halves["act"].append(1e6 * (t1 - t0) / live)
-        halves["sense"].append(1e6 * (t2 - t1) / live)
+        halves["act"].append(1e6 * (t1 - t0) / acting)
+        halves["sense"].append(1e6 * (t2 - t1) / sensing)
     out = {"scenario": scenario, "n_worlds": n_worlds, "periods": periods,
            "load": os.getloadavg()}  # fmt: skip
     for half, us in halves.items():
