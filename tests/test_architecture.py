@@ -174,6 +174,9 @@ NOT_TDACM = {
     ("_compiling.py", "disp._cache._cache_file._load_index"): "numba",
     ("_compiling.py", "disp._cache._cache_file"): "numba",
     ("_compiling.py", "disp._cache"): "numba",
+    # ... nor to tell whether an entry's data is written (tdacm._compiling.saved)
+    ("_compiling.py", "cache_file._load_index"): "numba",
+    ("_compiling.py", "cache_file._data_path"): "numba",
     # numba's cache locators are a class list with no registration API (tdacm._jitcache)
     ("_jitcache.py", "CacheImpl._locator_classes"): "numba",
     # numba's index-and-data cache file has no public reading API (merging two caches)

@@ -165,3 +165,28 @@ def test_the_entry_points_of_the_jobs_open_their_scope():
         job: [job] * len(fns) for job, fns in jobs.items()
     }
     assert set(jobs) == set(_compiling.JOBS)
+
+
+def test_an_entry_is_saved_once_its_data_is_written(tmp_path):
+    """numba writes a new entry's index before its data: another process polling the cache
+    must not take the index alone for the compiled kernel."""
+    from types import SimpleNamespace
+
+    from tdacm._compiling import saved
+
+    sig, magic = ("float64",), ("cpu", "features")
+    index = {(sig, magic, "stamp"): "kernel-1.nbc", (("int64",), magic, "stamp"): "kernel-2.nbc"}
+    cache_file = SimpleNamespace(
+        _load_index=lambda: index, _data_path=lambda name: str(tmp_path / name)
+    )
+    disp = SimpleNamespace(
+        overloads={},
+        _cache=SimpleNamespace(_cache_file=cache_file),
+        targetctx=SimpleNamespace(codegen=lambda: SimpleNamespace(magic_tuple=lambda: magic)),
+    )
+    assert not saved(disp, sig)  # in the index, its data not written yet
+    (tmp_path / "kernel-1.nbc").write_bytes(b"data")
+    assert saved(disp, sig)
+    assert not saved(disp, ("bool",))  # not in the index
+    disp.overloads[("bool",)] = object()
+    assert saved(disp, ("bool",))  # compiled in this process

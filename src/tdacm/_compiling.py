@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -74,6 +75,24 @@ def cached_signatures(disp) -> list:
     index = disp._cache._cache_file._load_index()
     magic = disp.targetctx.codegen().magic_tuple()
     return [k[0] for k in index if k[1] == magic]
+
+
+def saved(disp, sig) -> bool:
+    """Whether the numba dispatcher ``disp`` holds ``sig`` (a tuple of argument types) compiled
+    in this process, or in numba's on-disk cache for this target with its data written: numba
+    writes a new entry's index before its data, so an entry in the index alone may still be
+    being written by another process (``False`` on another numba version's internals)."""
+    if tuple(sig) in disp.overloads:
+        return True
+    try:
+        cache_file = disp._cache._cache_file
+        magic = disp.targetctx.codegen().magic_tuple()
+        for key, name in cache_file._load_index().items():
+            if key[1] == magic and tuple(key[0]) == tuple(sig):
+                return os.path.exists(cache_file._data_path(name))
+    except Exception:  # a function without a cache, another numba's internals
+        return False
+    return False
 
 
 def is_cached(module: str, qualname: str, types: str, _indexes: dict | None = None) -> bool:

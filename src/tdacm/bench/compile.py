@@ -402,7 +402,8 @@ def write_estimates(results: dict, path: Path | None = None) -> Path:
 #: scenarios (:data:`EXTRAS`) beside identification and the stiff integrators (its stiff
 #: shooting path shares their kernels), then the engine with the vector env, which loads the
 #: blocks' compiled steps the first phase cached instead of compiling them again (the engine
-#: calls the same steps as the block loop)
+#: calls the same steps as the block loop); the engine's own functions then compile in two
+#: processes (:mod:`tdacm.sim.compile_engine`, on in a phase of one group: :func:`_phase_env`)
 PHASES = ((("run", "touch"), ("identify", "stiff")), (("engine", "vector-env"),))
 
 
@@ -429,6 +430,14 @@ def _merge(src: Path, dst: Path) -> int:
                 b.save(key, a._load_data(name))
                 added += 1
     return added
+
+
+def _phase_env(env: dict, k: int) -> dict:
+    """``env`` for a process of phase ``k``: the second compiling processes of the jobs
+    (:mod:`tdacm.loop.precompile`, :mod:`tdacm.sim.compile_engine`) off while the phase's
+    process groups share the cores, on in a phase of one group (the engine's: its ``act``
+    compiles beside its ``sense``)."""
+    return dict(env, TDACM_PARALLEL_COMPILE="0" if len(PHASES[k]) > 1 else "1")
 
 
 def _run_phase(k: int, env_of, tmp: Path, t0: float, timeout: float | None, progress) -> list:
@@ -483,7 +492,7 @@ def ship(folder: Path, timeout: float | None = None, progress=print) -> dict:
             env = _child_env(str(tmp / "unused"),
                              {ENV_BUILD: str(part if len(PHASES[k]) > 1 else folder)})  # fmt: skip
             env.pop("TDACM_KERNEL_CACHE")
-            return env
+            return _phase_env(env, k)
 
         for k, phase in enumerate(PHASES):
             failures = _run_phase(k, env_of, tmp, t0, timeout, progress)
@@ -514,12 +523,12 @@ def fill(timeout: float | None = None, progress=print) -> int:
     ``make test``'s warm-up, so that the suite loads the kernels). Returns the number of
     process groups that failed (a failure only leaves kernels to compile at first use)."""
     t0 = time.perf_counter()
-    env = dict(os.environ, TDACM_PARALLEL_COMPILE="0")
     progress("tdacm: compiling the kernels of " + ", ".join(ALL_JOBS) + " (once; minutes) ...")
     with tempfile.TemporaryDirectory(prefix="tdacm-fill-") as tmp:
         failures = []
         for k in range(len(PHASES)):
-            failures += _run_phase(k, lambda k, i: env, Path(tmp), t0, timeout, progress)
+            env_of = lambda k, i: _phase_env(dict(os.environ), k)  # noqa: E731
+            failures += _run_phase(k, env_of, Path(tmp), t0, timeout, progress)
     for text in failures:
         progress(f"tdacm: {text}")
     progress(f"tdacm: kernels cached in {time.perf_counter() - t0:.0f} s")

@@ -21,7 +21,7 @@ import numpy as np
 
 from .._compiling import compiling
 from .._records import put, replicate, stack, take
-from ..batch import Batch, BatchResult
+from ..batch import Batch, BatchResult, empty_data
 from ..batch.engine import BatchModel
 from ..batch.params import MAX_LATENCY, ROBOT_FACTORS, SENSOR_FIELDS, TARGET_FIELDS, WorldParams
 from ..control.hierarchical import TDACMController, controller_params, default_gains
@@ -57,6 +57,7 @@ from ..loop.touch_arms import (
 from ..system.kernels import coupled_terms
 from ..system.worlds import robot_rows
 from ..vision.features import advanced_features, feature_interaction_matrix
+from . import compile_engine
 from .assemble import build_loop, reference_views
 from .blocks import startup_sensors
 from .scenario import Scenario, ScenarioError, load_scenario
@@ -515,8 +516,16 @@ def build_batch(
         touch=touch,
     )
     q0 = a.world.q0 if q0 is None else q0
-    batch = Batch(model, seeds, q0, a.world.qd0, loop.plant.system.n_u, threads, estimation_data,
-                  touch_data)  # fmt: skip
+    n_u = loop.plant.system.n_u
+    # on a cold cache the engine compiles in two processes (tdacm.sim.compile_engine): its
+    # types are those of one world's data
+    like = empty_data(model, 1, loop.plant.system.n, n_u, estimation_data, touch_data)
+    ahead = compile_engine.start(model, like)
+    if ahead:
+        compile_engine.first(model, like)
+    batch = Batch(model, seeds, q0, a.world.qd0, n_u, threads, estimation_data, touch_data)
+    if ahead:
+        compile_engine.finish(model, like)
     batch.params = params
     return batch
 
