@@ -8,6 +8,8 @@ real-time factor, the first call cold and warm.
     python benchmarks/bench_batch.py --touch-only --sizes 16 [--estimated]   # whole touch-target runs
     python benchmarks/bench_batch.py --allocations-only   # numba's allocations a world-period
     python benchmarks/bench_batch.py --split-only [--sizes 64]   # a period's two halves in a run
+    python benchmarks/bench_batch.py --engine-compile   # the engine's own compile (its cache entries
+                                                        # removed), in one process, then in two
     python benchmarks/bench_batch.py --rate-only --scenario dual-in-fov [--estimated]
         [--sizes 256] [--threads 2]   # world-periods/s of one scenario (the largest size and
                                       # thread count given), and CPU a world-period
@@ -27,6 +29,7 @@ from pathlib import Path
 from tdacm.bench.batch import (
     allocations,
     batch_bench,
+    engine_first_call,
     filter_cost,
     period_split,
     periods_per_second,
@@ -45,6 +48,7 @@ if __name__ == "__main__":
     p.add_argument("--touch-only", action="store_true")
     p.add_argument("--allocations-only", action="store_true")
     p.add_argument("--split-only", action="store_true")
+    p.add_argument("--engine-compile", action="store_true")
     p.add_argument("--rate-only", action="store_true")
     p.add_argument("--scenario", default="paper-in-fov")
     p.add_argument("--estimated", action="store_true")
@@ -66,6 +70,10 @@ if __name__ == "__main__":
     elif a.split_only:
         res = period_split(min(a.sizes), scenario=a.scenario)
         data.setdefault("batch", {})["split_" + a.scenario] = res
+    elif a.engine_compile:
+        res = {"one_process_s": engine_first_call(parallel=False),
+               "two_processes_s": engine_first_call(parallel=True)}  # fmt: skip
+        data.setdefault("batch", {})["engine_compile"] = res
     elif a.rate_only:
         rate, cpu_ms = periods_per_second(max(a.sizes), max(a.threads), a.duration, a.repeats,
                                           cpu=True, scenario=a.scenario,

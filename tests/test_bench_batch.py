@@ -32,3 +32,21 @@ def test_the_period_split_times_both_halves_of_running_worlds():
     res = period_split(2, periods=4, skip=1)
     assert res["act_us"] > 0.0 and res["sense_us"] > 0.0
     assert math.isclose(res["period_us"], res["act_us"] + res["sense_us"])
+
+
+def test_the_engines_cache_entries_are_its_own_modules(tmp_path, monkeypatch):
+    """What the engine's compile benchmark removes: the entries of tdacm.batch.engine only,
+    in numba's mirrored cache folder, an entry being written included."""
+    from tdacm.bench.batch import engine_cache_entries
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    folder = tmp_path / "work" / "src" / "tdacm" / "batch"
+    folder.mkdir(parents=True)
+    names = ["engine.worlds-605.py311.nbi", "engine.worlds-605.py311.1.nbc",
+             "engine.act-469.py311.1.nbc.tmp.0a1b", "random.draws-3.py311.nbi",
+             "engine.py"]  # fmt: skip
+    for name in names:
+        (folder / name).write_text("")
+    (tmp_path / "work" / "src" / "tdacm" / "loop").mkdir()
+    (tmp_path / "work" / "src" / "tdacm" / "loop" / "engine.step-1.py311.nbi").write_text("")
+    assert sorted(f.name for f in engine_cache_entries()) == sorted(names[:3])

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -166,10 +167,12 @@ def period_split(n_worlds: int = 64, periods: int = 60, skip: int = 10,
     return out
 
 
-def first_call(cold: bool) -> float:
+def first_call(cold: bool, parallel: bool = True) -> float:
     """Wall time (s) of a fresh process building a batch of 4 worlds and running 0.1 s, on
-    an empty numba cache (``cold``, a temporary ``NUMBA_CACHE_DIR``) or the current one."""
-    env = dict(os.environ)
+    an empty numba cache (``cold``, a temporary ``NUMBA_CACHE_DIR``) or the current one;
+    ``parallel`` False: in one process (``TDACM_PARALLEL_COMPILE=0``; by default the engine
+    compiles in two on a cold cache, :mod:`tdacm.sim.compile_engine`)."""
+    env = dict(os.environ, TDACM_PARALLEL_COMPILE="1" if parallel else "0")
     tmp = None
     if cold:
         tmp = tempfile.mkdtemp(prefix="tdacm-batch-cold-")
@@ -184,6 +187,34 @@ def first_call(cold: bool) -> float:
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     return float(out.stdout.strip().splitlines()[-1])
+
+
+def engine_cache_entries() -> list:
+    """The files of numba's cache entries of the engine's own module
+    (:mod:`tdacm.batch.engine`) in the cache this process uses (``NUMBA_CACHE_DIR``, or the
+    ``__pycache__`` folder beside the module)."""
+    from ..batch import engine as E
+
+    src = Path(E.__file__).resolve()
+    stem = src.stem + "."
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    if root:
+        folders = [d for d in Path(root).rglob("*") if d.is_dir() and d.parts[-2:] ==
+                   src.parent.parts[-2:]]  # fmt: skip
+    else:
+        folders = [src.parent / "__pycache__"]
+    return [f for d in folders for f in sorted(d.glob(stem + "*"))
+            if f.suffix in (".nbi", ".nbc") or ".tmp." in f.name]  # fmt: skip
+
+
+def engine_first_call(parallel: bool = True) -> float:
+    """Wall time (s) of the engine's first call (:func:`first_call` on the current cache)
+    after removing the engine's own cache entries (:func:`engine_cache_entries`): the blocks'
+    steps load, the engine's four functions compile, as after ``tdacm run`` or ``make test``'s
+    first phase. ``parallel``: in two processes (the default), else in one."""
+    for f in engine_cache_entries():
+        f.unlink()
+    return first_call(False, parallel=parallel)
 
 
 #: the child of :func:`allocations`: whole runs of :func:`_batch`, numba's allocation count

@@ -75,10 +75,13 @@ def numba_cache_is_cold() -> bool:
 
 def _uncached(kernels) -> bool:
     """Whether any of the dispatchers ``kernels`` lacks an entry for this CPU in numba's cache
-    index (raises on another numba version's internals)."""
-    from .._compiling import cached_signatures
+    with its data written (numba writes the index first: :func:`tdacm._compiling.saved`;
+    raises on another numba version's internals)."""
+    from .._compiling import cached_signatures, saved
 
-    return any(not cached_signatures(kernel) for kernel in kernels)
+    return any(
+        not any(saved(kernel, sig) for sig in cached_signatures(kernel)) for kernel in kernels
+    )
 
 
 def _index_files_missing() -> bool:
