@@ -521,11 +521,14 @@ def build_batch(
     # types are those of one world's data
     like = empty_data(model, 1, loop.plant.system.n, n_u, estimation_data, touch_data)
     ahead = compile_engine.start(model, like)
-    if ahead:
-        compile_engine.first(model, like)
-    batch = Batch(model, seeds, q0, a.world.qd0, n_u, threads, estimation_data, touch_data)
-    if ahead:
-        compile_engine.finish(model, like)
+    try:
+        if ahead:
+            compile_engine.first(model, like)
+        batch = Batch(model, seeds, q0, a.world.qd0, n_u, threads, estimation_data, touch_data)
+        if ahead:
+            compile_engine.finish(model, like)
+    finally:
+        compile_engine.stop()  # nothing left for it to do (or the batch failed)
     batch.params = params
     return batch
 
