@@ -84,7 +84,7 @@ def signatures(model, data) -> dict:
             arr(f64, 3),
             i64,
             i64,
-        ),  # fmt: skip
+        ),
     }
 
 
