@@ -77,22 +77,26 @@ def cached_signatures(disp) -> list:
     return [k[0] for k in index if k[1] == magic]
 
 
+def saved_signatures(disp) -> list:
+    """:func:`cached_signatures` whose data is written: numba writes a new entry's index before
+    its data, so an entry in the index alone may still be being written by another process
+    (raises like :func:`cached_signatures`)."""
+    cache_file = disp._cache._cache_file
+    magic = disp.targetctx.codegen().magic_tuple()
+    return [key[0] for key, name in cache_file._load_index().items()
+            if key[1] == magic and os.path.exists(cache_file._data_path(name))]  # fmt: skip
+
+
 def saved(disp, sig) -> bool:
     """Whether the numba dispatcher ``disp`` holds ``sig`` (a tuple of argument types) compiled
-    in this process, or in numba's on-disk cache for this target with its data written: numba
-    writes a new entry's index before its data, so an entry in the index alone may still be
-    being written by another process (``False`` on another numba version's internals)."""
+    in this process or in numba's on-disk cache for this target with its data written
+    (:func:`saved_signatures`; ``False`` on another numba version's internals)."""
     if tuple(sig) in disp.overloads:
         return True
     try:
-        cache_file = disp._cache._cache_file
-        magic = disp.targetctx.codegen().magic_tuple()
-        for key, name in cache_file._load_index().items():
-            if key[1] == magic and tuple(key[0]) == tuple(sig):
-                return os.path.exists(cache_file._data_path(name))
+        return tuple(sig) in [tuple(s) for s in saved_signatures(disp)]
     except Exception:  # a function without a cache, another numba's internals
         return False
-    return False
 
 
 def is_cached(module: str, qualname: str, types: str, _indexes: dict | None = None) -> bool:

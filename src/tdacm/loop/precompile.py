@@ -77,11 +77,9 @@ def _uncached(kernels) -> bool:
     """Whether any of the dispatchers ``kernels`` lacks an entry for this CPU in numba's cache
     with its data written (numba writes the index first: :func:`tdacm._compiling.saved`;
     raises on another numba version's internals)."""
-    from .._compiling import cached_signatures, saved
+    from .._compiling import saved_signatures
 
-    return any(
-        not any(saved(kernel, sig) for sig in cached_signatures(kernel)) for kernel in kernels
-    )
+    return any(not saved_signatures(kernel) for kernel in kernels)
 
 
 def _index_files_missing() -> bool:
@@ -110,6 +108,17 @@ AHEAD_MODULE = "tdacm.sim.compile_ahead"
 POLL = 0.2
 
 
+def second_process_allowed() -> bool:
+    """Whether a second compiling process may start: two or more cores (on one, both halves
+    would share it), the JIT on, and ``TDACM_PARALLEL_COMPILE`` not ``0`` (the user's
+    opt-out). Also the engine's (:mod:`tdacm.sim.compile_engine`)."""
+    if (os.cpu_count() or 1) < 2:
+        return False
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return False
+    return os.environ.get("TDACM_PARALLEL_COMPILE", "1") != "0"
+
+
 def start(scenario=None) -> bool:
     """Start the second compiling process if the cache is cold and there are >= 2 cores;
     True if it was started (at most one per process). With ``scenario`` (the run's
@@ -117,11 +126,7 @@ def start(scenario=None) -> bool:
     the plant's integrator with the loop's plant and controller steps, which the main process
     needs last in a period (:data:`AHEAD_MODULE`)."""
     global _child, _started_at
-    if _child is not None or (os.cpu_count() or 1) < 2 or not numba_cache_is_cold():
-        return False
-    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
-        return False
-    if os.environ.get("TDACM_PARALLEL_COMPILE", "1") == "0":  # the user's opt-out
+    if _child is not None or not second_process_allowed() or not numba_cache_is_cold():
         return False
     args = [sys.executable, "-m", "tdacm.loop.precompile"]
     if scenario is not None:

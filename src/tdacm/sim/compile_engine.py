@@ -25,9 +25,9 @@ The engine's functions take the same argument types for every scenario (records 
 fields; only the arrays' sizes differ), so one compile serves every batch. The second process
 is started only when ``worlds`` is not cached for those types, the machine has at least two
 cores, ``TDACM_PARALLEL_COMPILE`` is not ``0`` and the JIT is on. Anything that goes wrong in it
-(it fails, it is killed) costs only time: when it has ended, or after :data:`WAIT_LIMIT` s, this
-process compiles what is missing itself. ``tests/sim/test_compile_engine.py`` checks that the types compiled here are
-those of the engine's calls.
+(it fails, it is killed) costs only time: when it has ended, or after :data:`WAIT_LIMIT` s,
+this process compiles what is missing itself. ``tests/sim/test_compile_engine.py`` checks that
+the types compiled here are those of the engine's calls.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from numba import types
 
 from .._compiling import add_note, saved
 from ..batch import engine as E
+from ..loop.precompile import second_process_allowed
 
 #: Longest wait (s) of either process for the other's kernel before compiling it itself.
 WAIT_LIMIT = 1800.0
@@ -88,20 +89,12 @@ def signatures(model, data) -> dict:
     }
 
 
-def _allowed() -> bool:
-    if (os.cpu_count() or 1) < 2:  # both halves would share one core
-        return False
-    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
-        return False
-    return os.environ.get("TDACM_PARALLEL_COMPILE", "1") != "0"  # the user's opt-out
-
-
 def start(model, data) -> bool:
     """Start the second process (module docstring) if the engine's entry is not compiled for
     this batch's types, there are >= 2 cores and it is allowed; True if it was started (one
     at a time)."""
     global _child
-    if _child is not None or not _allowed():
+    if _child is not None or not second_process_allowed():
         return False
     sig = signatures(model, data)
     if saved(E.worlds, sig["worlds"]):
